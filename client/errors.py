@@ -1,0 +1,17 @@
+"""The one error type for bad input, shared by the client and the server.
+
+Every rejection of user input (a scene key, a particle array, a file) raises `InputError` with the
+dotted name of the offending field, so a CLI, an HTTP handler or a test can say exactly what was
+wrong without parsing a message.
+"""
+
+from __future__ import annotations
+
+
+class InputError(ValueError):
+    """Bad input: `field` names what was wrong (e.g. ``camera.fov_y`` or ``positions[12]``)."""
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(f"{field}: {message}")
+        self.field = field
+        self.message = message

@@ -1,0 +1,102 @@
+"""One frame of particles, as every reader returns it and the engine consumes it.
+
+Validation lives here so the CLI, the readers and (later) the service reject bad arrays with the
+same `InputError` naming the array and the offending index.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from sphrender.client.errors import InputError
+
+FloatArray = npt.NDArray[np.floating]
+
+#: Hard upper bound on particles per frame accepted anywhere; the service may configure less.
+MAX_PARTICLES = 50_000_000
+
+
+@dataclass(frozen=True)
+class ParticleFrame:
+    """Particle arrays of one frame, validated, native-endian.
+
+    positions: (N, 3) float64 (kept in float64 so scenes far from the origin lose nothing before
+        the engine subtracts the camera position).
+    densities: (N,) float32 kg/m^3, or None (the SPH pass computes them when a feature needs them).
+    radii: (N,) float32 per-particle radii in scene units, or None (the scene's radius is used).
+    temperatures: (N,) float32 kelvin, or None.
+    """
+
+    positions: npt.NDArray[np.float64]
+    densities: npt.NDArray[np.float32] | None = None
+    radii: npt.NDArray[np.float32] | None = None
+    temperatures: npt.NDArray[np.float32] | None = None
+
+    @property
+    def count(self) -> int:
+        return int(self.positions.shape[0])
+
+
+def _first_bad_index(mask: npt.NDArray[np.bool_]) -> int:
+    return int(np.flatnonzero(mask)[0])
+
+
+def _as_float_array(name: str, value: object, shape_tail: tuple[int, ...]) -> np.ndarray:
+    array = np.asarray(value)
+    if array.dtype.kind not in "fiu":
+        raise InputError(name, f"must be a numeric array, got dtype {array.dtype}")
+    expected = "(N, 3)" if shape_tail else "(N,)"
+    if array.ndim != 1 + len(shape_tail) or tuple(array.shape[1:]) != shape_tail:
+        raise InputError(name, f"must have shape {expected}, got {tuple(array.shape)}")
+    return array
+
+
+def make_frame(
+    positions: object,
+    densities: object | None = None,
+    radii: object | None = None,
+    temperatures: object | None = None,
+    *,
+    max_particles: int = MAX_PARTICLES,
+) -> ParticleFrame:
+    """Validate raw arrays and build a `ParticleFrame`.
+
+    Raises `InputError` naming the array (and the first offending index) for: non-numeric dtypes,
+    wrong shapes, mismatched lengths, more than `max_particles`, NaN/Inf anywhere, radii <= 0,
+    densities <= 0, temperatures < 0. Zero particles is valid.
+    """
+    pos = _as_float_array("positions", positions, (3,))
+    n = pos.shape[0]
+    if n > max_particles:
+        raise InputError("positions", f"{n} particles exceed the limit of {max_particles}")
+    pos64 = pos.astype(np.float64, copy=False)
+    finite = np.isfinite(pos64).all(axis=1)
+    if not finite.all():
+        raise InputError(
+            f"positions[{_first_bad_index(~finite)}]", "must be finite (found NaN or Inf)"
+        )
+
+    def optional(name: str, value: object | None, low: float, inclusive: bool) -> np.ndarray | None:
+        if value is None:
+            return None
+        arr = _as_float_array(name, value, ())
+        if arr.shape[0] != n:
+            raise InputError(name, f"has {arr.shape[0]} entries but positions has {n}")
+        arr32 = arr.astype(np.float32)
+        bad = ~np.isfinite(arr32)
+        bad |= (arr32 < low) if inclusive else (arr32 <= low)
+        if bad.any():
+            i = _first_bad_index(bad)
+            bound = f">= {low}" if inclusive else f"> {low}"
+            raise InputError(f"{name}[{i}]", f"must be finite and {bound}, got {arr[i]!r}")
+        return np.ascontiguousarray(arr32)
+
+    return ParticleFrame(
+        positions=np.ascontiguousarray(pos64),
+        densities=optional("densities", densities, 0.0, inclusive=False),
+        radii=optional("radii", radii, 0.0, inclusive=False),
+        temperatures=optional("temperatures", temperatures, 0.0, inclusive=True),
+    )

@@ -1,0 +1,93 @@
+"""The headless EGL OpenGL context and its single owner thread.
+
+One thread creates the context and is the only one allowed to touch it (or any GPU object made
+from it): that is the render thread in the service and the main thread in the CLI. `GLContext`
+records its owner and `check_owner()` raises if another thread tries to use it, which turns a
+subtle driver crash into a clear programming error. GPU objects are released by their owner
+(`SurfaceRenderer.release`) on that same thread, then the context itself.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+from typing import Any
+
+import moderngl
+
+#: What to install on Debian/Ubuntu when EGL or Mesa's software renderer is missing.
+MESA_PACKAGES = "libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1"
+
+
+class GLUnavailableError(RuntimeError):
+    """No headless OpenGL 4.3+ context could be created (missing EGL/Mesa, or too old a GL)."""
+
+
+@dataclass(frozen=True)
+class GLLimits:
+    max_texture_size: int
+    max_viewport: tuple[int, int]
+    max_renderbuffer_size: int
+
+    @property
+    def max_image_side(self) -> int:
+        return min(self.max_texture_size, *self.max_viewport, self.max_renderbuffer_size)
+
+
+class GLContext:
+    """Owns a standalone moderngl context created through EGL (no display needed)."""
+
+    REQUIRED_VERSION = 330
+
+    def __init__(self, device_index: int = 0) -> None:
+        try:
+            ctx = moderngl.create_context(
+                standalone=True, backend="egl", require=self.REQUIRED_VERSION, device_index=device_index
+            )
+        except Exception as exc:  # moderngl raises plain Exceptions for every EGL failure
+            raise GLUnavailableError(
+                f"cannot create a headless OpenGL context through EGL ({exc}). "
+                f"On Debian/Ubuntu install Mesa's EGL and software renderer: "
+                f"apt-get install {MESA_PACKAGES}"
+            ) from None
+        self._ctx: moderngl.Context | None = ctx
+        self._owner = threading.get_ident()
+        info: dict[str, Any] = ctx.info
+        self.renderer: str = str(info.get("GL_RENDERER", "unknown"))
+        self.version: str = str(info.get("GL_VERSION", "unknown"))
+        self.limits = GLLimits(
+            max_texture_size=int(info["GL_MAX_TEXTURE_SIZE"]),
+            max_viewport=tuple(int(v) for v in info["GL_MAX_VIEWPORT_DIMS"]),  # type: ignore[arg-type]
+            max_renderbuffer_size=int(info["GL_MAX_RENDERBUFFER_SIZE"]),
+        )
+
+    @property
+    def ctx(self) -> moderngl.Context:
+        """The moderngl context; only the owner thread may call this."""
+        self.check_owner()
+        if self._ctx is None:
+            raise RuntimeError("the GL context has been released")
+        return self._ctx
+
+    @property
+    def is_software(self) -> bool:
+        return "llvmpipe" in self.renderer or "softpipe" in self.renderer
+
+    def check_owner(self) -> None:
+        if threading.get_ident() != self._owner:
+            raise RuntimeError(
+                "the GL context was used from a thread that does not own it; "
+                "all GL work must run on the render thread"
+            )
+
+    def release(self) -> None:
+        if self._ctx is not None:
+            self.check_owner()
+            self._ctx.release()
+            self._ctx = None
+
+    def __enter__(self) -> GLContext:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()

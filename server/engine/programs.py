@@ -1,0 +1,59 @@
+"""Compiled GL programs, built once per (shader files, defines) and owned by one GL context.
+
+Compile and link errors are re-raised as `ShaderCompileError` with line numbers translated back to
+the original GLSL files (``smooth_depth.frag.glsl:42: error: ...``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import moderngl
+
+from sphrender.server.engine.gl_context import GLContext
+from sphrender.server.engine.shader_loader import DefineValue, ShaderLoader
+
+
+class ShaderCompileError(RuntimeError):
+    """A GLSL program failed to compile or link; the message names file and line."""
+
+
+class ProgramCache:
+    def __init__(self, gl: GLContext, loader: ShaderLoader | None = None) -> None:
+        self._gl = gl
+        self._loader = loader or ShaderLoader()
+        self._programs: dict[tuple[str, str, tuple[tuple[str, str], ...]], moderngl.Program] = {}
+
+    def get(
+        self,
+        vertex: str,
+        fragment: str,
+        defines: Mapping[str, DefineValue] | None = None,
+    ) -> moderngl.Program:
+        key = (vertex, fragment, tuple(sorted((k, repr(v)) for k, v in (defines or {}).items())))
+        program = self._programs.get(key)
+        if program is None:
+            program = self._build(vertex, fragment, defines)
+            self._programs[key] = program
+        return program
+
+    def _build(
+        self, vertex: str, fragment: str, defines: Mapping[str, DefineValue] | None
+    ) -> moderngl.Program:
+        vs = self._loader.compose(vertex)
+        fs = self._loader.compose(fragment, defines)
+        try:
+            return self._gl.ctx.program(vertex_shader=vs.source, fragment_shader=fs.source)
+        except moderngl.Error as exc:
+            log = str(exc)
+            # moderngl's message holds the stage name and the driver log; translate both
+            # stages' line numbers (only the failing stage's log is present).
+            translated = self._loader.translate_compile_error(
+                fs if "fragment_shader" in log else vs, log
+            )
+            raise ShaderCompileError(f"{vertex} + {fragment}: {translated}") from None
+
+    def release(self) -> None:
+        for program in self._programs.values():
+            program.release()
+        self._programs.clear()

@@ -1,0 +1,330 @@
+"""The screen-space surface renderer: particles in, colour + depth + normals out.
+
+One `SurfaceRenderer` belongs to one `GLContext` and is used only on that context's owner thread.
+Per-scene and per-size resources (programs, render targets, the quad buffer) are built once and
+reused; per frame it only uploads the visible particles and runs the passes the scene asks for:
+
+    prepare (CPU, float64)  positions relative to the eye, rotated to view space, culled,
+                            then converted to float32
+    splat                   instanced sphere impostors -> eye depth (R32F, 0 = background)
+    smooth                  gaussian | bilateral | narrow_range, 1-D x2 or 2-D, iterated
+    normals                 one-sided differences of the smoothed depth -> world normals
+    shade                   PLACEHOLDER grey Lambert (physically based shading is its own issue)
+    readback                colour always; depth and normals only when asked for
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import moderngl
+import numpy as np
+import numpy.typing as npt
+
+from sphrender.client.errors import InputError
+from sphrender.client.frame import ParticleFrame
+from sphrender.server.engine.camera import Camera
+from sphrender.server.engine.frame_output import RenderedFrame
+from sphrender.server.engine.gl_context import GLContext
+from sphrender.server.engine.programs import ProgramCache
+from sphrender.server.scene import QualityConfig, Scene
+
+_FILTER_DEFINES = {"gaussian": 0, "bilateral": 1, "narrow_range": 2}
+
+
+@dataclass
+class RenderStats:
+    """What one frame cost and did: milliseconds per stage (only stages that ran), counts."""
+
+    stage_ms: dict[str, float] = field(default_factory=dict)
+    particles_in: int = 0
+    particles_drawn: int = 0
+    far: float = 0.0
+
+    @property
+    def total_ms(self) -> float:
+        return sum(self.stage_ms.values())
+
+
+@dataclass(frozen=True)
+class PreparedParticles:
+    """Visible particles in view space, float32, ready to upload: (N, 4) centre xyz + radius."""
+
+    center_radius: npt.NDArray[np.float32]
+    far: float
+    reference_radius: float
+
+
+def prepare_particles(frame: ParticleFrame, camera: Camera, scene: Scene) -> PreparedParticles:
+    """Float64 eye-relative view-space positions, culled, then float32 (see module docstring)."""
+    radius = scene.particles.radius
+    radii: npt.NDArray[np.floating] = (
+        frame.radii if frame.radii is not None else np.full(frame.count, radius, np.float32)
+    )
+    view = camera.to_view(frame.positions)
+    far_config = scene.camera.far
+    keep = camera.visible_mask(view, radii, far_config)
+    view = view[keep]
+    kept_radii = np.asarray(radii, dtype=np.float64)[keep]
+    if far_config is not None:
+        far = far_config
+    elif view.shape[0]:
+        far = float(np.max(-view[:, 2] + kept_radii)) * 1.001
+    else:
+        far = camera.near * 2.0
+    far = max(far, camera.near * 1.001)
+    center_radius = np.empty((view.shape[0], 4), dtype=np.float32)
+    center_radius[:, :3] = view
+    center_radius[:, 3] = kept_radii
+    reference = float(np.median(frame.radii)) if frame.radii is not None and frame.count else radius
+    return PreparedParticles(center_radius, far, reference)
+
+
+class _Targets:
+    """Render targets for one image size; rebuilt only when the size changes."""
+
+    def __init__(self, ctx: moderngl.Context, width: int, height: int) -> None:
+        size = (width, height)
+        self.size = size
+
+        def float_texture(components: int) -> moderngl.Texture:
+            texture = ctx.texture(size, components, dtype="f4")
+            texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            texture.repeat_x = texture.repeat_y = False
+            return texture
+
+        self.splat_depth = float_texture(1)
+        self.depth_buffer = ctx.depth_renderbuffer(size)
+        self.splat = ctx.framebuffer([self.splat_depth], self.depth_buffer)
+        self.ping = [float_texture(1), float_texture(1)]
+        self.ping_fbos = [ctx.framebuffer([t]) for t in self.ping]
+        self.normal_depth = float_texture(4)
+        self.normal_fbo = ctx.framebuffer([self.normal_depth])
+        self.color = float_texture(4)
+        self.color_fbo = ctx.framebuffer([self.color])
+
+    def release(self) -> None:
+        for fbo in (self.splat, *self.ping_fbos, self.normal_fbo, self.color_fbo):
+            fbo.release()
+        for texture in (self.splat_depth, *self.ping, self.normal_depth, self.color):
+            texture.release()
+        self.depth_buffer.release()
+
+
+class SurfaceRenderer:
+    """Renders particle frames with one GL context; see the module docstring for the passes."""
+
+    def __init__(self, gl: GLContext, *, stage_timings: bool = True) -> None:
+        self._gl = gl
+        ctx = gl.ctx
+        self._programs = ProgramCache(gl)
+        self._stage_timings = stage_timings
+        corners = np.array([-1, -1, 1, -1, -1, 1, 1, 1], dtype=np.float32)
+        self._corner_buffer = ctx.buffer(corners.tobytes())
+        self._instance_buffer = ctx.buffer(reserve=16 * 1024)
+        self._splat_vao: moderngl.VertexArray | None = None
+        self._fullscreen_vaos: dict[int, moderngl.VertexArray] = {}
+        self._targets: _Targets | None = None
+
+    @property
+    def gl(self) -> GLContext:
+        return self._gl
+
+    def max_image_side(self) -> int:
+        return self._gl.limits.max_image_side
+
+    # -- resources -------------------------------------------------------------------------
+
+    def _targets_for(self, width: int, height: int) -> _Targets:
+        if self._targets is None or self._targets.size != (width, height):
+            if self._targets is not None:
+                self._targets.release()
+            self._targets = _Targets(self._gl.ctx, width, height)
+        return self._targets
+
+    def _fullscreen(self, program: moderngl.Program) -> moderngl.VertexArray:
+        vao = self._fullscreen_vaos.get(program.glo)
+        if vao is None:
+            vao = self._gl.ctx.vertex_array(program, [])
+            self._fullscreen_vaos[program.glo] = vao
+        return vao
+
+    def _splat_vertex_array(self) -> tuple[moderngl.Program, moderngl.VertexArray]:
+        program = self._programs.get("splat_sphere.vert.glsl", "splat_sphere.frag.glsl")
+        if self._splat_vao is None:
+            self._splat_vao = self._gl.ctx.vertex_array(
+                program,
+                [
+                    (self._corner_buffer, "2f", "in_corner"),
+                    (self._instance_buffer, "4f/i", "in_center_radius"),
+                ],
+            )
+        return program, self._splat_vao
+
+    def _upload_instances(self, data: npt.NDArray[np.float32]) -> None:
+        nbytes = data.nbytes
+        if nbytes > self._instance_buffer.size:
+            # Grow geometrically; the VAO refers to the buffer object, so rebuild it.
+            self._instance_buffer.orphan(max(nbytes, self._instance_buffer.size * 2))
+        self._instance_buffer.write(data.tobytes())
+
+    # -- frame -----------------------------------------------------------------------------
+
+    @contextmanager
+    def _stage(self, stats: RenderStats, name: str) -> Iterator[None]:
+        start = time.perf_counter()
+        yield
+        if self._stage_timings:
+            self._gl.ctx.finish()
+        stats.stage_ms[name] = (time.perf_counter() - start) * 1e3
+
+    def check_image_size(self, scene: Scene) -> None:
+        limit = self.max_image_side()
+        for key in ("width", "height"):
+            value = getattr(scene.image, key)
+            if value > limit:
+                raise InputError(f"image.{key}", f"must be at most {limit} (GL limit), got {value}")
+
+    def render(
+        self,
+        frame: ParticleFrame,
+        scene: Scene,
+        *,
+        depth: bool = False,
+        normals: bool = False,
+    ) -> tuple[RenderedFrame, RenderStats]:
+        """Render one frame; `depth` / `normals` ask for those AOVs to be read back."""
+        self._gl.check_owner()
+        self.check_image_size(scene)
+        width, height = scene.image.width, scene.image.height
+        camera = Camera.from_config(scene.camera, width, height)
+        stats = RenderStats(particles_in=frame.count)
+        ctx = self._gl.ctx
+        targets = self._targets_for(width, height)
+
+        with self._stage(stats, "prepare"):
+            prepared = prepare_particles(frame, camera, scene)
+            stats.particles_drawn = int(prepared.center_radius.shape[0])
+            stats.far = prepared.far
+
+        with self._stage(stats, "splat"):
+            self._splat(ctx, targets, camera, prepared)
+
+        surface = targets.splat_depth
+        if scene.quality.filter != "none" and prepared.center_radius.shape[0]:
+            with self._stage(stats, "smooth"):
+                surface = self._smooth(targets, camera, prepared, scene.quality)
+
+        with self._stage(stats, "normals"):
+            program = self._programs.get("fullscreen.vert.glsl", "surface_normals.frag.glsl")
+            surface.use(0)
+            program["u_depth"] = 0
+            program["u_tan_half_fov"] = (camera.tan_half_fov_y * camera.aspect, camera.tan_half_fov_y)
+            program["u_view_to_world"].write(camera.rotation.astype(np.float32).tobytes())
+            targets.normal_fbo.use()
+            self._fullscreen(program).render(moderngl.TRIANGLES, vertices=3)
+
+        with self._stage(stats, "shade"):
+            program = self._programs.get("fullscreen.vert.glsl", "shade_placeholder.frag.glsl")
+            targets.normal_depth.use(0)
+            program["u_normal_depth"] = 0
+            light_view = np.array([-0.4, 0.6, 0.7])
+            light_world = camera.rotation.T @ (light_view / np.linalg.norm(light_view))
+            program["u_light_direction_world"] = tuple(float(v) for v in light_world)
+            program["u_base_color"] = (0.56, 0.57, 0.58)
+            targets.color_fbo.use()
+            self._fullscreen(program).render(moderngl.TRIANGLES, vertices=3)
+
+        with self._stage(stats, "readback"):
+            rendered = self._read_back(targets, want_depth=depth, want_normals=normals)
+        return rendered, stats
+
+    def _splat(
+        self, ctx: moderngl.Context, targets: _Targets, camera: Camera, prepared: PreparedParticles
+    ) -> None:
+        targets.splat.use()
+        targets.splat.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        count = int(prepared.center_radius.shape[0])
+        if count == 0:
+            return
+        program, vao = self._splat_vertex_array()
+        self._upload_instances(prepared.center_radius)
+        program["u_projection"].write(camera.projection_matrix(prepared.far).T.copy().tobytes())
+        program["u_near"] = camera.near
+        program["u_far"] = prepared.far
+        ctx.enable(moderngl.DEPTH_TEST)
+        try:
+            vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
+        finally:
+            ctx.disable(moderngl.DEPTH_TEST)
+
+    def _smooth(
+        self, targets: _Targets, camera: Camera, prepared: PreparedParticles, quality: QualityConfig
+    ) -> moderngl.Texture:
+        program = self._programs.get(
+            "fullscreen.vert.glsl",
+            "smooth_depth.frag.glsl",
+            {"FILTER": _FILTER_DEFINES[quality.filter], "SEPARABLE": quality.separable},
+        )
+        r = prepared.reference_radius
+        program["u_particle_radius"] = r
+        program["u_px_per_unit"] = camera.pixels_per_unit_at_unit_depth
+        program["u_kernel_scale"] = quality.kernel_scale
+        program["u_kernel_min_px"] = quality.kernel_min_px
+        program["u_kernel_max_px"] = quality.kernel_max_px
+        for name, value in (
+            ("u_range_sigma", quality.bilateral_depth_sigma * r),
+            ("u_nr_threshold", quality.narrow_range_threshold * r),
+            ("u_nr_clamp", quality.narrow_range_clamp * r),
+        ):
+            if name in program:  # the GLSL compiler drops uniforms the chosen filter never reads
+                program[name] = value
+        program["u_depth"] = 0
+        vao = self._fullscreen(program)
+        directions = [(1, 0), (0, 1)] if quality.separable else [(0, 0)]
+        source = targets.splat_depth
+        write_index = 0
+        for _ in range(quality.iterations):
+            for direction in directions:
+                if "u_direction" in program:
+                    program["u_direction"] = direction
+                source.use(0)
+                targets.ping_fbos[write_index].use()
+                vao.render(moderngl.TRIANGLES, vertices=3)
+                source = targets.ping[write_index]
+                write_index = 1 - write_index
+        return source
+
+    def _read_back(self, targets: _Targets, *, want_depth: bool, want_normals: bool) -> RenderedFrame:
+        width, height = targets.size
+        rgba = np.frombuffer(targets.color.read(), dtype=np.float32).reshape(height, width, 4)
+        rgba = np.ascontiguousarray(rgba[::-1])
+        depth_out = normals_out = None
+        if want_depth or want_normals:
+            nd = np.frombuffer(targets.normal_depth.read(), dtype=np.float32)
+            nd = nd.reshape(height, width, 4)[::-1]
+            if want_depth:
+                z = nd[:, :, 3]
+                depth_out = np.where(z > 0.0, z, np.float32(np.inf)).astype(np.float32)
+            if want_normals:
+                normals_out = np.ascontiguousarray(nd[:, :, :3])
+        return RenderedFrame(rgba=rgba, depth=depth_out, normals=normals_out)
+
+    def release(self) -> None:
+        """Release every GPU object this renderer owns (on the owner thread)."""
+        self._gl.check_owner()
+        if self._targets is not None:
+            self._targets.release()
+            self._targets = None
+        for vao in self._fullscreen_vaos.values():
+            vao.release()
+        self._fullscreen_vaos.clear()
+        if self._splat_vao is not None:
+            self._splat_vao.release()
+            self._splat_vao = None
+        self._programs.release()
+        self._corner_buffer.release()
+        self._instance_buffer.release()

@@ -1,0 +1,295 @@
+"""Scene configuration: every field typed and documented in one place.
+
+A scene is loaded from TOML (``configs/*.toml``) or from a JSON-like dict (the wire format uses the
+same schema). Validation is strict: unknown keys, wrong types and out-of-range values raise
+`InputError` naming the dotted key and the allowed range, e.g. ``camera.fov_y: must be in
+(0, 180), got 190``.
+
+Each section is a frozen dataclass; each field carries its documentation and range in
+``metadata`` (see `spec`), which is what the validator reads and what ``sphrender render --help``
+could list. Adding a field means adding one line here.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+import types
+import typing
+from collections.abc import Mapping
+from dataclasses import MISSING, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any, Literal, TypeVar, get_args, get_origin
+
+from sphrender.client.errors import InputError
+
+#: Largest image side accepted by the configuration; the GL context may lower it further.
+MAX_IMAGE_SIDE = 16384
+#: Largest image area accepted (pixels).
+MAX_IMAGE_PIXELS = 8192 * 8192
+
+Vec3 = tuple[float, float, float]
+
+
+def spec(
+    default: Any = MISSING,
+    doc: str = "",
+    *,
+    low: float | None = None,
+    high: float | None = None,
+    low_open: bool = False,
+    high_open: bool = False,
+) -> Any:
+    """A dataclass field with its documentation and numeric range (closed unless *_open)."""
+    meta = {"doc": doc, "low": low, "high": high, "low_open": low_open, "high_open": high_open}
+    if isinstance(default, list | tuple) or default is MISSING:
+        if default is MISSING:
+            return field(metadata=meta)
+        return field(default=tuple(default), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True)
+class ImageConfig:
+    width: int = spec(640, "image width in pixels", low=1, high=MAX_IMAGE_SIDE)
+    height: int = spec(360, "image height in pixels", low=1, high=MAX_IMAGE_SIDE)
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    eye: Vec3 = spec((0.0, 1.0, 3.0), "camera position, scene units (float64 precision)")
+    target: Vec3 = spec((0.0, 0.0, 0.0), "point the camera looks at")
+    up: Vec3 = spec((0.0, 1.0, 0.0), "up direction; must not be parallel to target - eye")
+    fov_y: float = spec(
+        45.0, "vertical field of view in degrees", low=0.0, high=180.0, low_open=True,
+        high_open=True,
+    )
+    near: float = spec(0.01, "near clipping distance along the view axis", low=0.0, low_open=True)
+    far: float | None = spec(
+        None,
+        "far clipping distance; absent = just beyond the farthest particle",
+        low=0.0,
+        low_open=True,
+    )
+
+
+@dataclass(frozen=True)
+class ParticlesConfig:
+    radius: float = spec(
+        0.015, "particle radius in scene units, used when a frame has no radii", low=0.0,
+        low_open=True,
+    )
+
+
+FilterName = Literal["narrow_range", "bilateral", "gaussian", "none"]
+
+
+@dataclass(frozen=True)
+class QualityConfig:
+    filter: FilterName = spec(
+        "narrow_range",
+        "depth smoothing filter: narrow_range (Truong & Yuksel 2018), bilateral (eq 22-24), "
+        "gaussian (eq 17-21) or none",
+    )
+    separable: bool = spec(
+        True, "filter rows then columns (1-D kernels) instead of one 2-D kernel"
+    )
+    iterations: int = spec(2, "how many times the whole filter is applied", low=1, high=16)
+    kernel_scale: float = spec(
+        2.0,
+        "Gaussian sigma in projected particle radii (sigma_px = kernel_scale * r_px(z)); the "
+        "kernel reaches 3 sigma",
+        low=0.0,
+        high=16.0,
+        low_open=True,
+    )
+    kernel_max_px: int = spec(
+        32, "cap on the kernel radius in pixels (sigma shrinks to keep 3 sigma inside)", low=1,
+        high=128,
+    )
+    kernel_min_px: int = spec(1, "smallest kernel radius in pixels (eq 25's ks_min)", low=0, high=64)
+    bilateral_depth_sigma: float = spec(
+        6.0,
+        "bilateral range sigma in particle radii (eq 24); smaller keeps the per-particle bumps",
+        low=0.0,
+        low_open=True,
+    )
+    narrow_range_threshold: float = spec(
+        10.0, "narrow-range lambda: samples farther than lambda*r from the centre are dropped",
+        low=0.0, low_open=True,
+    )
+    narrow_range_clamp: float = spec(
+        1.0, "narrow-range mu: nearer samples are clamped to z - mu*r", low=0.0, low_open=True
+    )
+
+
+AovName = Literal["Z", "N"]
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    format: Literal["png", "exr"] = spec("png", "image format")
+    aovs: tuple[AovName, ...] = spec(
+        ("Z", "N"), "extra EXR layers: Z (eye depth) and N (world normal); ignored for PNG"
+    )
+    exr_pixel_type: Literal["half", "float"] = spec(
+        "half", "EXR colour/normal precision (Z is always float32); molten metal needs float"
+    )
+    png_bits: Literal[8, 16] = spec(8, "PNG bit depth")
+    exposure: float = spec(0.0, "PNG exposure in stops (EXR stays scene-linear)", low=-32, high=32)
+
+
+@dataclass(frozen=True)
+class Scene:
+    image: ImageConfig = field(default_factory=ImageConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    particles: ParticlesConfig = field(default_factory=ParticlesConfig)
+    quality: QualityConfig = field(default_factory=QualityConfig)
+    output: OutputConfig = field(default_factory=OutputConfig)
+
+    def with_overrides(self, **sections: Any) -> Scene:
+        return replace(self, **sections)
+
+
+T = TypeVar("T")
+
+
+def _describe_range(meta: Mapping[str, Any]) -> str:
+    low, high = meta["low"], meta["high"]
+    lo = "(" if meta["low_open"] else "["
+    hi = ")" if meta["high_open"] else "]"
+    return f"{lo}{'-inf' if low is None else _fmt(low)}, {'inf' if high is None else _fmt(high)}{hi}"
+
+
+def _fmt(x: float) -> str:
+    return str(int(x)) if float(x).is_integer() else str(x)
+
+
+def _check_range(key: str, value: float, meta: Mapping[str, Any]) -> None:
+    low, high = meta["low"], meta["high"]
+    bad = (low is not None and (value <= low if meta["low_open"] else value < low)) or (
+        high is not None and (value >= high if meta["high_open"] else value > high)
+    )
+    if bad:
+        raise InputError(key, f"must be in {_describe_range(meta)}, got {value!r}")
+
+
+def _convert(key: str, value: Any, annotation: Any, meta: Mapping[str, Any]) -> Any:
+    origin = get_origin(annotation)
+    if origin is types.UnionType or origin is typing.Union:
+        options = [a for a in get_args(annotation) if a is not type(None)]
+        if value is None:
+            return None
+        return _convert(key, value, options[0], meta)
+    if origin is Literal:
+        allowed = get_args(annotation)
+        if value not in allowed or isinstance(value, bool) != isinstance(allowed[0], bool):
+            raise InputError(key, f"must be one of {', '.join(map(repr, allowed))}, got {value!r}")
+        return value
+    if annotation is bool:
+        if not isinstance(value, bool):
+            raise InputError(key, f"must be true or false, got {value!r}")
+        return value
+    if annotation is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise InputError(key, f"must be an integer, got {value!r}")
+        _check_range(key, value, meta)
+        return value
+    if annotation is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise InputError(key, f"must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise InputError(key, f"must be finite, got {value!r}")
+        _check_range(key, float(value), meta)
+        return float(value)
+    if annotation == Vec3:
+        if not isinstance(value, list | tuple) or len(value) != 3:
+            raise InputError(key, f"must be a list of 3 numbers, got {value!r}")
+        return tuple(_convert(f"{key}[{i}]", v, float, meta) for i, v in enumerate(value))
+    if origin is tuple:
+        (item_type, _ellipsis) = get_args(annotation)
+        if not isinstance(value, list | tuple):
+            raise InputError(key, f"must be a list, got {value!r}")
+        items = tuple(_convert(f"{key}[{i}]", v, item_type, meta) for i, v in enumerate(value))
+        if len(set(items)) != len(items):
+            raise InputError(key, f"must not repeat entries, got {list(value)!r}")
+        return items
+    raise TypeError(f"unsupported annotation {annotation!r} for {key}")  # programming error
+
+
+def _section_from_dict(cls: type[T], data: Any, prefix: str) -> T:
+    if not isinstance(data, Mapping):
+        raise InputError(prefix, f"must be a table, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls)
+    known = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]
+    for key in data:
+        if key not in known:
+            raise InputError(
+                f"{prefix}.{key}", f"unknown key; allowed: {', '.join(sorted(known))}"
+            )
+    kwargs = {
+        name: _convert(f"{prefix}.{name}", data[name], hints[name], f.metadata)
+        for name, f in known.items()
+        if name in data
+    }
+    return cls(**kwargs)
+
+
+def scene_from_dict(data: Mapping[str, Any]) -> Scene:
+    """Build and validate a `Scene` from a TOML/JSON-like mapping (missing keys keep defaults)."""
+    if not isinstance(data, Mapping):
+        raise InputError("scene", f"must be a table, got {type(data).__name__}")
+    sections: dict[str, Any] = {}
+    known = {f.name: f for f in fields(Scene)}
+    hints = typing.get_type_hints(Scene)
+    for key, value in data.items():
+        if key not in known:
+            raise InputError(key, f"unknown section; allowed: {', '.join(sorted(known))}")
+        sections[key] = _section_from_dict(hints[key], value, key)
+    scene = Scene(**sections)
+    _check_cross_field(scene)
+    return scene
+
+
+def _check_cross_field(scene: Scene) -> None:
+    cam = scene.camera
+    if cam.far is not None and cam.far <= cam.near:
+        raise InputError("camera.far", f"must be greater than camera.near ({cam.near}), got {cam.far}")
+    view = [t - e for t, e in zip(cam.target, cam.eye, strict=True)]
+    length = math.sqrt(sum(v * v for v in view))
+    if length == 0.0 or length < 1e-12 * max(1.0, *(abs(e) for e in cam.eye)):
+        raise InputError("camera.target", "must differ from camera.eye (no view direction)")
+    up_len = math.sqrt(sum(u * u for u in cam.up))
+    if up_len == 0.0:
+        raise InputError("camera.up", "must not be the zero vector")
+    cos = abs(sum(v * u for v, u in zip(view, cam.up, strict=True))) / (length * up_len)
+    if cos > 1.0 - 1e-9:
+        raise InputError("camera.up", "must not be parallel to the view direction (target - eye)")
+    w, h = scene.image.width, scene.image.height
+    if w * h > MAX_IMAGE_PIXELS:
+        raise InputError("image", f"{w}x{h} exceeds the limit of {MAX_IMAGE_PIXELS} pixels")
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Load a scene TOML file; unreadable or malformed files raise `InputError('scene', ...)`."""
+    try:
+        with open(path, "rb") as handle:
+            data = tomllib.load(handle)
+    except OSError as exc:
+        raise InputError("scene", f"cannot read {path}: {exc.strerror or exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError("scene", f"{path} is not valid TOML: {exc}") from None
+    return scene_from_dict(data)
+
+
+def scene_to_dict(scene: Scene) -> dict[str, Any]:
+    """The scene as a plain mapping (for JSON over the wire and for `scene_from_dict`)."""
+    out: dict[str, Any] = {}
+    for section in fields(Scene):
+        value = getattr(scene, section.name)
+        out[section.name] = {
+            f.name: list(v) if isinstance(v := getattr(value, f.name), tuple) else v
+            for f in fields(value)
+            if getattr(value, f.name) is not None
+        }
+    return out
