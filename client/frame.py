@@ -76,7 +76,8 @@ def make_frame(
     finite = np.isfinite(pos64).all(axis=1)
     if not finite.all():
         raise InputError(
-            f"positions[{_first_bad_index(~finite)}]", "must be finite (found NaN or Inf)"
+            f"positions[{_first_bad_index(np.logical_not(finite))}]",
+            "must be finite (found NaN or Inf)",
         )
 
     def optional(name: str, value: object | None, low: float, inclusive: bool) -> np.ndarray | None:

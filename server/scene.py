@@ -13,13 +13,14 @@ could list. Adding a field means adding one line here.
 from __future__ import annotations
 
 import math
-import tomllib
 import types
 import typing
 from collections.abc import Mapping
 from dataclasses import MISSING, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Literal, TypeVar, get_args, get_origin
+
+import tomllib
 
 from sphrender.client.errors import InputError
 
@@ -61,7 +62,11 @@ class CameraConfig:
     target: Vec3 = spec((0.0, 0.0, 0.0), "point the camera looks at")
     up: Vec3 = spec((0.0, 1.0, 0.0), "up direction; must not be parallel to target - eye")
     fov_y: float = spec(
-        45.0, "vertical field of view in degrees", low=0.0, high=180.0, low_open=True,
+        45.0,
+        "vertical field of view in degrees",
+        low=0.0,
+        high=180.0,
+        low_open=True,
         high_open=True,
     )
     near: float = spec(0.01, "near clipping distance along the view axis", low=0.0, low_open=True)
@@ -76,7 +81,9 @@ class CameraConfig:
 @dataclass(frozen=True)
 class ParticlesConfig:
     radius: float = spec(
-        0.015, "particle radius in scene units, used when a frame has no radii", low=0.0,
+        0.015,
+        "particle radius in scene units, used when a frame has no radii",
+        low=0.0,
         low_open=True,
     )
 
@@ -91,9 +98,7 @@ class QualityConfig:
         "depth smoothing filter: narrow_range (Truong & Yuksel 2018), bilateral (eq 22-24), "
         "gaussian (eq 17-21) or none",
     )
-    separable: bool = spec(
-        True, "filter rows then columns (1-D kernels) instead of one 2-D kernel"
-    )
+    separable: bool = spec(True, "filter rows then columns (1-D kernels) instead of one 2-D kernel")
     iterations: int = spec(2, "how many times the whole filter is applied", low=1, high=16)
     kernel_scale: float = spec(
         2.0,
@@ -104,10 +109,14 @@ class QualityConfig:
         low_open=True,
     )
     kernel_max_px: int = spec(
-        32, "cap on the kernel radius in pixels (sigma shrinks to keep 3 sigma inside)", low=1,
+        32,
+        "cap on the kernel radius in pixels (sigma shrinks to keep 3 sigma inside)",
+        low=1,
         high=128,
     )
-    kernel_min_px: int = spec(1, "smallest kernel radius in pixels (eq 25's ks_min)", low=0, high=64)
+    kernel_min_px: int = spec(
+        1, "smallest kernel radius in pixels (eq 25's ks_min)", low=0, high=64
+    )
     bilateral_depth_sigma: float = spec(
         6.0,
         "bilateral range sigma in particle radii (eq 24); smaller keeps the per-particle bumps",
@@ -115,8 +124,10 @@ class QualityConfig:
         low_open=True,
     )
     narrow_range_threshold: float = spec(
-        10.0, "narrow-range lambda: samples farther than lambda*r from the centre are dropped",
-        low=0.0, low_open=True,
+        10.0,
+        "narrow-range lambda: samples farther than lambda*r from the centre are dropped",
+        low=0.0,
+        low_open=True,
     )
     narrow_range_clamp: float = spec(
         1.0, "narrow-range mu: nearer samples are clamped to z - mu*r", low=0.0, low_open=True
@@ -158,7 +169,9 @@ def _describe_range(meta: Mapping[str, Any]) -> str:
     low, high = meta["low"], meta["high"]
     lo = "(" if meta["low_open"] else "["
     hi = ")" if meta["high_open"] else "]"
-    return f"{lo}{'-inf' if low is None else _fmt(low)}, {'inf' if high is None else _fmt(high)}{hi}"
+    return (
+        f"{lo}{'-inf' if low is None else _fmt(low)}, {'inf' if high is None else _fmt(high)}{hi}"
+    )
 
 
 def _fmt(x: float) -> str:
@@ -224,9 +237,7 @@ def _section_from_dict(cls: type[T], data: Any, prefix: str) -> T:
     known = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]
     for key in data:
         if key not in known:
-            raise InputError(
-                f"{prefix}.{key}", f"unknown key; allowed: {', '.join(sorted(known))}"
-            )
+            raise InputError(f"{prefix}.{key}", f"unknown key; allowed: {', '.join(sorted(known))}")
     kwargs = {
         name: _convert(f"{prefix}.{name}", data[name], hints[name], f.metadata)
         for name, f in known.items()
@@ -254,7 +265,9 @@ def scene_from_dict(data: Mapping[str, Any]) -> Scene:
 def _check_cross_field(scene: Scene) -> None:
     cam = scene.camera
     if cam.far is not None and cam.far <= cam.near:
-        raise InputError("camera.far", f"must be greater than camera.near ({cam.near}), got {cam.far}")
+        raise InputError(
+            "camera.far", f"must be greater than camera.near ({cam.near}), got {cam.far}"
+        )
     view = [t - e for t, e in zip(cam.target, cam.eye, strict=True)]
     length = math.sqrt(sum(v * v for v in view))
     if length == 0.0 or length < 1e-12 * max(1.0, *(abs(e) for e in cam.eye)):

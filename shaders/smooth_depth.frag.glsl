@@ -13,6 +13,9 @@
 #define FILTER 2
 // 1: 1-D kernel along u_direction (run once per axis). 0: one 2-D kernel.
 #define SEPARABLE 1
+// Narrow range: 1 drops the mirror of a dropped sample, as in the paper (no one-sided bias, but
+// no smoothing across the axis at silhouettes); 0 keeps the valid one (renormalised).
+#define NR_DROP_MIRROR 1
 
 #include "common/depth_image.glsl"
 
@@ -80,23 +83,33 @@ void main() {
             float w = exp(-d2 * inv_two_sigma2);
             float za = fetch_depth(u_depth, center + offset);
             float zb = fetch_depth(u_depth, center - offset);
-            if (za <= 0.0 || zb <= 0.0 || za > upper || zb > upper) {
+            bool valid_a = za > 0.0 && za <= upper;
+            bool valid_b = zb > 0.0 && zb <= upper;
+#if NR_DROP_MIRROR
+            if (!(valid_a && valid_b)) {
                 continue;
             }
-            if (za < lower) {
-                za = lower_clamp;
-            } else {
-                upper = max(upper, za + u_nr_threshold);
-                lower = min(lower, za - u_nr_threshold);
+#endif
+            if (valid_a) {
+                if (za < lower) {
+                    za = lower_clamp;
+                } else {
+                    upper = max(upper, za + u_nr_threshold);
+                    lower = min(lower, za - u_nr_threshold);
+                }
+                sum += w * za;
+                weight_sum += w;
             }
-            if (zb < lower) {
-                zb = lower_clamp;
-            } else {
-                upper = max(upper, zb + u_nr_threshold);
-                lower = min(lower, zb - u_nr_threshold);
+            if (valid_b) {
+                if (zb < lower) {
+                    zb = lower_clamp;
+                } else {
+                    upper = max(upper, zb + u_nr_threshold);
+                    lower = min(lower, zb - u_nr_threshold);
+                }
+                sum += w * zb;
+                weight_sum += w;
             }
-            sum += w * (za + zb);
-            weight_sum += 2.0 * w;
         }
     }
 #else

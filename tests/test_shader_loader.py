@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+
 from sphrender.server.engine.shader_loader import (
     ComposedShader,
     ShaderDefineError,

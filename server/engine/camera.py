@@ -45,7 +45,7 @@ class Camera:
 
     @property
     def pixels_per_unit_at_unit_depth(self) -> float:
-        """Projected size in pixels of one scene unit at eye depth 1: ``(H / 2) / tan(fov_y / 2)``."""
+        """Pixels spanned by one scene unit at eye depth 1: ``(H / 2) / tan(fov_y / 2)``."""
         return (self.height / 2.0) / self.tan_half_fov_y
 
     def projected_radius_px(self, radius: float, eye_depth: float) -> float:

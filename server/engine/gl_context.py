@@ -10,6 +10,7 @@ subtle driver crash into a clear programming error. GPU objects are released by 
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -41,8 +42,13 @@ class GLContext:
 
     def __init__(self, device_index: int = 0) -> None:
         try:
-            ctx = moderngl.create_context(
-                standalone=True, backend="egl", require=self.REQUIRED_VERSION, device_index=device_index
+            # moderngl's stub types every **setting as a dict; the call takes plain values.
+            create: Callable[..., moderngl.Context] = moderngl.create_context
+            ctx = create(
+                standalone=True,
+                backend="egl",
+                require=self.REQUIRED_VERSION,
+                device_index=device_index,
             )
         except Exception as exc:  # moderngl raises plain Exceptions for every EGL failure
             raise GLUnavailableError(

@@ -83,6 +83,13 @@ def prepare_particles(frame: ParticleFrame, camera: Camera, scene: Scene) -> Pre
     return PreparedParticles(center_radius, far, reference)
 
 
+def _write_matrix(program: moderngl.Program, name: str, matrix: npt.NDArray[np.floating]) -> None:
+    """Upload a row-major numpy matrix to a GLSL matN uniform (GLSL is column-major)."""
+    uniform = program[name]
+    assert isinstance(uniform, moderngl.Uniform), name
+    uniform.write(np.ascontiguousarray(matrix.T, dtype=np.float32).tobytes())
+
+
 class _Targets:
     """Render targets for one image size; rebuilt only when the size changes."""
 
@@ -222,8 +229,11 @@ class SurfaceRenderer:
             program = self._programs.get("fullscreen.vert.glsl", "surface_normals.frag.glsl")
             surface.use(0)
             program["u_depth"] = 0
-            program["u_tan_half_fov"] = (camera.tan_half_fov_y * camera.aspect, camera.tan_half_fov_y)
-            program["u_view_to_world"].write(camera.rotation.astype(np.float32).tobytes())
+            program["u_tan_half_fov"] = (
+                camera.tan_half_fov_y * camera.aspect,
+                camera.tan_half_fov_y,
+            )
+            _write_matrix(program, "u_view_to_world", camera.rotation.T)
             targets.normal_fbo.use()
             self._fullscreen(program).render(moderngl.TRIANGLES, vertices=3)
 
@@ -252,7 +262,7 @@ class SurfaceRenderer:
             return
         program, vao = self._splat_vertex_array()
         self._upload_instances(prepared.center_radius)
-        program["u_projection"].write(camera.projection_matrix(prepared.far).T.copy().tobytes())
+        _write_matrix(program, "u_projection", camera.projection_matrix(prepared.far))
         program["u_near"] = camera.near
         program["u_far"] = prepared.far
         ctx.enable(moderngl.DEPTH_TEST)
@@ -298,7 +308,9 @@ class SurfaceRenderer:
                 write_index = 1 - write_index
         return source
 
-    def _read_back(self, targets: _Targets, *, want_depth: bool, want_normals: bool) -> RenderedFrame:
+    def _read_back(
+        self, targets: _Targets, *, want_depth: bool, want_normals: bool
+    ) -> RenderedFrame:
         width, height = targets.size
         rgba = np.frombuffer(targets.color.read(), dtype=np.float32).reshape(height, width, 4)
         rgba = np.ascontiguousarray(rgba[::-1])

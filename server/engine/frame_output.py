@@ -1,0 +1,73 @@
+"""What the render engine hands back for one frame, before any encoding.
+
+Rendering and encoding are separate steps: the engine fills a `RenderedFrame` with float arrays and
+`sphrender.server.encoders` turns it into PNG or EXR bytes (or files) afterwards, so the service
+can render once and encode on demand.
+
+Conventions every producer must follow (the encoders rely on them):
+
+* ``rgba`` is (H, W, 4) float32. RGB is scene-linear and *straight* (not premultiplied by alpha);
+  alpha is coverage in [0, 1].
+* Row 0 is the TOP of the image. OpenGL read-backs are bottom-first and must be flipped
+  (``array[::-1]``) before they are stored here.
+* ``depth`` is (H, W) float32 eye-space depth along the view axis, positive, ``+inf`` where no
+  surface was hit.
+* ``normals`` is (H, W, 3) float32 world-space unit normals, 0 where no surface was hit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+Float32Array = npt.NDArray[np.float32]
+
+
+def _as_float32(name: str, value: object, ndim: int, channels: int | None) -> Float32Array:
+    array = np.asarray(value, dtype=np.float32)  # no copy when it already is float32
+    if array.ndim != ndim or (channels is not None and array.shape[-1] != channels):
+        expected = "(H, W)" if channels is None else f"(H, W, {channels})"
+        raise ValueError(f"{name} must have shape {expected}, got {array.shape}")
+    return array
+
+
+@dataclass(frozen=True)
+class RenderedFrame:
+    """One rendered frame: colour plus optional depth and normal AOVs (see module docstring).
+
+    Arrays are converted to float32 on construction (no copy when they already are float32);
+    shapes are checked so a mismatch fails here rather than deep inside an encoder.
+    """
+
+    rgba: Float32Array
+    depth: Float32Array | None = None
+    normals: Float32Array | None = None
+
+    def __post_init__(self) -> None:
+        rgba = _as_float32("rgba", self.rgba, 3, 4)
+        height, width = int(rgba.shape[0]), int(rgba.shape[1])
+        if height < 1 or width < 1:
+            raise ValueError(f"rgba must be at least 1x1, got {width}x{height}")
+        object.__setattr__(self, "rgba", rgba)
+        if self.depth is not None:
+            depth = _as_float32("depth", self.depth, 2, None)
+            if depth.shape != (height, width):
+                raise ValueError(f"depth shape {depth.shape} does not match rgba {(height, width)}")
+            object.__setattr__(self, "depth", depth)
+        if self.normals is not None:
+            normals = _as_float32("normals", self.normals, 3, 3)
+            if normals.shape[:2] != (height, width):
+                raise ValueError(
+                    f"normals shape {normals.shape} does not match rgba {(height, width)}"
+                )
+            object.__setattr__(self, "normals", normals)
+
+    @property
+    def width(self) -> int:
+        return int(self.rgba.shape[1])
+
+    @property
+    def height(self) -> int:
+        return int(self.rgba.shape[0])
