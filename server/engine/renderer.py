@@ -221,9 +221,14 @@ class SurfaceRenderer:
             self._splat(ctx, targets, camera, prepared)
 
         surface = targets.splat_depth
-        if scene.quality.filter != "none" and prepared.center_radius.shape[0]:
+        if scene.quality.filter != "none" and stats.particles_drawn:
             with self._stage(stats, "smooth"):
-                surface = self._smooth(targets, camera, prepared, scene.quality)
+                surface = self._smooth(
+                    targets,
+                    px_per_unit=camera.pixels_per_unit_at_unit_depth,
+                    particle_radius=prepared.reference_radius,
+                    quality=scene.quality,
+                )
 
         with self._stage(stats, "normals"):
             program = self._programs.get("fullscreen.vert.glsl", "surface_normals.frag.glsl")
@@ -271,17 +276,47 @@ class SurfaceRenderer:
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
 
+    def filter_depth_image(
+        self,
+        depth: npt.NDArray[np.float32],
+        *,
+        particle_radius: float,
+        px_per_unit: float,
+        quality: QualityConfig,
+    ) -> npt.NDArray[np.float32]:
+        """Run only the smoothing pass on an eye-depth image (rows top first, 0 = background).
+
+        The same code path as `render` uses; exposed so the filters can be compared with a numpy
+        reference on synthetic images."""
+        self._gl.check_owner()
+        height, width = depth.shape
+        targets = self._targets_for(width, height)
+        targets.splat_depth.write(np.ascontiguousarray(depth[::-1], dtype=np.float32).tobytes())
+        result = self._smooth(
+            targets, px_per_unit=px_per_unit, particle_radius=particle_radius, quality=quality
+        )
+        out = np.frombuffer(result.read(), dtype=np.float32).reshape(height, width)
+        return np.ascontiguousarray(out[::-1])
+
     def _smooth(
-        self, targets: _Targets, camera: Camera, prepared: PreparedParticles, quality: QualityConfig
+        self,
+        targets: _Targets,
+        *,
+        px_per_unit: float,
+        particle_radius: float,
+        quality: QualityConfig,
     ) -> moderngl.Texture:
+        """Smooth `targets.splat_depth`; returns the texture holding the result."""
+        if quality.filter == "none":
+            return targets.splat_depth
         program = self._programs.get(
             "fullscreen.vert.glsl",
             "smooth_depth.frag.glsl",
             {"FILTER": _FILTER_DEFINES[quality.filter], "SEPARABLE": quality.separable},
         )
-        r = prepared.reference_radius
+        r = particle_radius
         program["u_particle_radius"] = r
-        program["u_px_per_unit"] = camera.pixels_per_unit_at_unit_depth
+        program["u_px_per_unit"] = px_per_unit
         program["u_kernel_scale"] = quality.kernel_scale
         program["u_kernel_min_px"] = quality.kernel_min_px
         program["u_kernel_max_px"] = quality.kernel_max_px

@@ -1,0 +1,39 @@
+"""Shared fixtures: one real EGL context and renderer for the whole test session.
+
+pytest runs tests on its main thread, which creates the context and therefore owns it, exactly as
+the render thread will in the service.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from sphrender.server.engine.gl_context import GLContext
+from sphrender.server.engine.renderer import SurfaceRenderer
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = REPO.parent / "shared"
+DAMBREAK = SHARED / "data" / "dambreak-splishsplash"
+
+
+@pytest.fixture(scope="session")
+def gl_context() -> Iterator[GLContext]:
+    with GLContext() as gl:
+        yield gl
+
+
+@pytest.fixture(scope="session")
+def renderer(gl_context: GLContext) -> Iterator[SurfaceRenderer]:
+    renderer = SurfaceRenderer(gl_context)
+    yield renderer
+    renderer.release()
+
+
+@pytest.fixture(scope="session")
+def dambreak() -> Path:
+    if not DAMBREAK.is_dir():
+        pytest.skip(f"shared data not found at {DAMBREAK}")
+    return DAMBREAK

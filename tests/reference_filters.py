@@ -1,0 +1,139 @@
+"""Plain numpy/python implementations of the depth filters in `smooth_depth.frag.glsl`.
+
+Written from the equations, pixel by pixel, for small images only. They mirror the shader's
+documented rules (kernel size from the projected radius, background never read, narrow-range
+drop/clamp/extend with mirrored drops) so the GPU result can be compared value by value.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+from sphrender.server.scene import QualityConfig
+
+F32 = npt.NDArray[np.float32]
+
+
+def kernel(zc: float, radius: float, px_per_unit: float, q: QualityConfig) -> tuple[int, float]:
+    """(reach in pixels, sigma in pixels) exactly as the shader derives them (float32 maths)."""
+    r_px = np.float32(radius) * np.float32(px_per_unit) / np.float32(zc)
+    sigma = np.float32(q.kernel_scale) * r_px
+    reach = float(np.clip(np.ceil(np.float32(3.0) * sigma), q.kernel_min_px, q.kernel_max_px))
+    sigma = max(min(float(sigma), reach / 3.0), 1e-3)
+    return int(reach), sigma
+
+
+def ambiguous_reach(zc: float, radius: float, px_per_unit: float, q: QualityConfig) -> bool:
+    """True where 3 sigma is so close to an integer that float rounding may change the reach."""
+    three_sigma = 3.0 * q.kernel_scale * radius * px_per_unit / zc
+    return abs(three_sigma - round(three_sigma)) < 1e-4
+
+
+def _fetch(depth: F32, y: int, x: int) -> float:
+    h, w = depth.shape
+    if 0 <= y < h and 0 <= x < w:
+        return float(depth[y, x])
+    return 0.0
+
+
+def _ring_offsets(k: int) -> list[tuple[int, int]]:
+    """Half of the square ring at Chebyshev distance k, in the shader's order (x, y)."""
+    top = [(i - k, k) for i in range(2 * k + 1)]
+    right = [(k, j) for j in range(k)]
+    left = [(-k, j) for j in range(1, k)]
+    return top + right + left
+
+
+def _pass(
+    depth: F32,
+    directions: list[tuple[int, int]] | None,
+    radius: float,
+    px_per_unit: float,
+    q: QualityConfig,
+    box: bool = False,
+) -> F32:
+    """One filter pass. `directions` = [(dx, dy)] for a 1-D pass, None for the 2-D kernel.
+    Offsets are (x, y) in image coordinates with y pointing *up* (GL), rows stored top first."""
+    h, w = depth.shape
+    out = np.zeros_like(depth)
+    for row in range(h):
+        for col in range(w):
+            zc = float(depth[row, col])
+            if zc <= 0.0:
+                continue
+            reach, sigma = kernel(zc, radius, px_per_unit, q)
+            inv2s2 = 1.0 / (2.0 * sigma * sigma)
+
+            def at(off: tuple[int, int], row: int = row, col: int = col) -> float:
+                return _fetch(depth, row - off[1], col + off[0])
+
+            def spatial(off: tuple[int, int]) -> float:
+                return 1.0 if box else math.exp(-(off[0] ** 2 + off[1] ** 2) * inv2s2)
+
+            total, weights = zc, 1.0
+            if q.filter == "narrow_range":
+                thr = q.narrow_range_threshold * radius
+                upper, lower = zc + thr, zc - thr
+                lower_clamp = zc - q.narrow_range_clamp * radius
+                for k in range(1, reach + 1):
+                    if directions is not None:
+                        offsets = [(k * directions[0][0], k * directions[0][1])]
+                    else:
+                        offsets = [
+                            o for o in _ring_offsets(k) if o[0] ** 2 + o[1] ** 2 <= reach * reach
+                        ]
+                    for off in offsets:
+                        wgt = spatial(off)
+                        za, zb = at(off), at((-off[0], -off[1]))
+                        if not (0.0 < za <= upper and 0.0 < zb <= upper):
+                            continue  # mirrored drop
+                        for z in (za, zb):
+                            if z < lower:
+                                z = lower_clamp
+                            else:
+                                upper = max(upper, z + thr)
+                                lower = min(lower, z - thr)
+                            total += wgt * z
+                            weights += wgt
+            else:
+                if directions is not None:
+                    dx, dy = directions[0]
+                    offsets = [(k * dx, k * dy) for k in range(-reach, reach + 1)]
+                else:
+                    offsets = [
+                        (x, y)
+                        for y in range(-reach, reach + 1)
+                        for x in range(-reach, reach + 1)
+                        if x * x + y * y <= reach * reach
+                    ]
+                range_inv = 1.0 / (2.0 * (q.bilateral_depth_sigma * radius) ** 2)
+                for off in offsets:
+                    if off == (0, 0):
+                        continue
+                    z = at(off)
+                    if z <= 0.0:
+                        continue
+                    wgt = spatial(off)
+                    if q.filter == "bilateral":
+                        wgt *= math.exp(-((z - zc) ** 2) * range_inv)
+                    total += wgt * z
+                    weights += wgt
+            out[row, col] = total / weights
+    return out
+
+
+def filter_depth(
+    depth: F32, radius: float, px_per_unit: float, q: QualityConfig, *, box: bool = False
+) -> F32:
+    """The whole smoothing step: iterations x (x pass, y pass) or iterations x 2-D pass."""
+    image = depth.astype(np.float32)
+    for _ in range(q.iterations):
+        if q.separable:
+            for direction in ((1, 0), (0, 1)):
+                image = _pass(image, [direction], radius, px_per_unit, q, box)
+        else:
+            image = _pass(image, None, radius, px_per_unit, q, box)
+    return image

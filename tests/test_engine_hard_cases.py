@@ -1,0 +1,202 @@
+"""Numerical hard cases and bad input for the engine (real EGL context).
+
+Every render here must produce only finite colour and normals, and depth that is finite or +inf;
+the geometric expectation of each case is stated next to it.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import numpy as np
+import pytest
+
+from sphrender.client.errors import InputError
+from sphrender.client.frame import make_frame
+from sphrender.server.analytic_scenes import sphere_hits
+from sphrender.server.engine.camera import Camera
+from sphrender.server.engine.frame_output import RenderedFrame
+from sphrender.server.engine.renderer import SurfaceRenderer
+from sphrender.server.scene import MAX_IMAGE_SIDE, Scene, scene_from_dict
+
+FILTERS = ["narrow_range", "bilateral", "gaussian", "none"]
+
+
+def scene(**sections: Any) -> Scene:
+    base: dict[str, Any] = {
+        "image": {"width": 96, "height": 64},
+        "camera": {"eye": [0.0, 0.0, 1.0], "target": [0.0, 0.0, 0.0], "fov_y": 45.0, "near": 0.01},
+        "particles": {"radius": 0.05},
+    }
+    for key, value in sections.items():
+        base[key] = {**base.get(key, {}), **value}
+    return scene_from_dict(base)
+
+
+def assert_clean(frame: RenderedFrame) -> None:
+    assert np.isfinite(frame.rgba).all()
+    if frame.normals is not None:
+        assert np.isfinite(frame.normals).all()
+        lengths = np.linalg.norm(frame.normals, axis=2)
+        covered = frame.rgba[:, :, 3] > 0
+        assert np.allclose(lengths[covered], 1.0, atol=1e-5)
+        assert np.all(lengths[~covered] == 0.0)
+    if frame.depth is not None:
+        assert not np.isnan(frame.depth).any()
+        assert np.all((frame.depth > 0) | np.isinf(frame.depth))
+        assert np.array_equal(np.isfinite(frame.depth), frame.rgba[:, :, 3] > 0)
+
+
+def render(renderer: SurfaceRenderer, positions: Any, sc: Scene, **arrays: Any) -> RenderedFrame:
+    frame, _ = renderer.render(make_frame(positions, **arrays), sc, depth=True, normals=True)
+    assert_clean(frame)
+    return frame
+
+
+@pytest.mark.parametrize("filter_name", FILTERS)
+def test_zero_particles_is_an_empty_image(renderer: SurfaceRenderer, filter_name: str) -> None:
+    frame = render(renderer, np.zeros((0, 3)), scene(quality={"filter": filter_name}))
+    assert np.all(frame.rgba == 0.0)
+    assert frame.depth is not None and np.all(np.isinf(frame.depth))
+
+
+@pytest.mark.parametrize("filter_name", FILTERS)
+def test_coincident_particles_render_like_one(renderer: SurfaceRenderer, filter_name: str) -> None:
+    sc = scene(quality={"filter": filter_name})
+    one = render(renderer, np.zeros((1, 3)), sc)
+    many = render(renderer, np.zeros((500, 3)), sc)
+    assert one.depth is not None and many.depth is not None
+    assert np.array_equal(one.depth, many.depth)
+
+
+def test_particles_behind_the_camera_are_invisible(renderer: SurfaceRenderer) -> None:
+    behind = np.array([[0.0, 0.0, 1.5], [0.1, 0.0, 3.0], [0.0, 0.0, 1.0 + 0.011]])
+    frame = render(renderer, behind, scene())
+    assert np.all(frame.rgba[:, :, 3] == 0.0)
+
+
+def test_particle_around_the_eye_is_culled(renderer: SurfaceRenderer) -> None:
+    """A sphere containing the eye would cover the image with its inside: it is culled, and the
+    particle behind it still renders."""
+    frame = render(renderer, np.array([[0.0, 0.0, 0.99], [0.0, 0.0, 0.0]]), scene())
+    camera = Camera.from_config(scene().camera, 96, 64)
+    covered = frame.rgba[:, :, 3] > 0
+    assert 0 < covered.sum() < 0.5 * covered.size
+    assert frame.depth is not None
+    assert np.nanmin(np.where(covered, frame.depth, np.nan)) > 0.9  # the one at the origin
+    assert camera.near < 0.9
+
+
+@pytest.mark.parametrize("offset", [0.0, 0.02, 0.049, 0.06])
+def test_particles_at_and_across_the_near_plane(renderer: SurfaceRenderer, offset: float) -> None:
+    """Sphere centres at depth near + offset with r = 0.05: their front is cut by the near plane.
+    Fragments nearer than `near` are discarded; nothing is NaN and no sprite is giant: coverage
+    stays within the projection of the sphere's silhouette cone."""
+    sc = scene(camera={"near": 0.1})
+    z = 1.0 - (0.1 + offset)
+    frame = render(renderer, np.array([[0.0, 0.0, z]]), sc)
+    assert frame.depth is not None
+    covered = np.isfinite(frame.depth)
+    assert np.all(frame.depth[covered] >= 0.1 * (1 - 1e-6))
+    assert np.all(frame.depth[covered] <= 0.1 + offset + 0.05 + 1e-6)
+
+
+def test_far_plane_clips(renderer: SurfaceRenderer) -> None:
+    sc = scene(camera={"far": 0.5})
+    frame = render(renderer, np.array([[0.0, 0.0, 0.0]]), sc)  # at depth 1.0 > far
+    assert np.all(frame.rgba[:, :, 3] == 0.0)
+
+
+@pytest.mark.parametrize("radius", [1e-6, 1e-3, 10.0, 1e3])
+def test_tiny_and_huge_radii(renderer: SurfaceRenderer, radius: float) -> None:
+    """The camera sits 1 unit from the origin. Tiny spheres cover at most a pixel or so; huge
+    ones (eye inside) are culled, so the image is empty; nothing is ever NaN."""
+    sc = scene(particles={"radius": radius})
+    positions = np.array([[0.0, 0.0, 0.0], [0.1, 0.05, -0.2]])
+    frame = render(renderer, positions, sc)
+    covered = int((frame.rgba[:, :, 3] > 0).sum())
+    if radius < 1e-3:
+        assert covered <= 4
+    elif radius >= 10.0:
+        assert covered == 0
+
+
+def test_huge_radius_seen_from_outside(renderer: SurfaceRenderer) -> None:
+    """Unfiltered, depth equals the analytic ray-sphere hit (front at 5000 - 1000 on the axis) to
+    float32 precision of the eye-relative values."""
+    sc = scene(
+        camera={"eye": [0.0, 0.0, 5000.0], "near": 1.0},
+        particles={"radius": 1e3},
+        quality={"filter": "none"},
+    )
+    frame = render(renderer, np.zeros((1, 3)), sc)
+    assert frame.depth is not None
+    hit, true_depth = sphere_hits(Camera.from_config(sc.camera, 96, 64), np.zeros(3), 1e3)
+    assert np.array_equal(np.isfinite(frame.depth), hit)
+    assert np.allclose(frame.depth[hit], true_depth[hit], rtol=1e-5)
+    assert 4000.0 <= frame.depth.min() < 4001.0
+
+
+def test_grazing_view_of_a_huge_scene_far_from_origin(renderer: SurfaceRenderer) -> None:
+    rng = np.random.default_rng(5)
+    positions = rng.normal(size=(2000, 3)) * [1.0, 0.01, 1.0] + 1e5
+    sc = scene(
+        camera={"eye": [1e5 - 3.0, 1e5 + 0.05, 1e5], "target": [1e5, 1e5, 1e5]},
+        particles={"radius": 0.02},
+    )
+    render(renderer, positions, sc)
+
+
+def test_image_larger_than_any_limit_is_rejected(renderer: SurfaceRenderer) -> None:
+    """Whichever is lower rejects: the configuration's side limit or the driver's GL limit."""
+    limit = renderer.max_image_side()
+    too_wide = min(limit, MAX_IMAGE_SIDE) + 1
+    with pytest.raises(InputError) as info:
+        renderer.render(make_frame(np.zeros((1, 3))), scene(image={"width": too_wide}))
+    assert info.value.field == "image.width"
+    assert str(min(limit, MAX_IMAGE_SIDE)) in info.value.message
+
+
+def test_gl_context_refuses_other_threads(renderer: SurfaceRenderer) -> None:
+    errors: list[BaseException] = []
+
+    def use_from_other_thread() -> None:
+        try:
+            renderer.render(make_frame(np.zeros((1, 3))), scene())
+        except BaseException as exc:
+            errors.append(exc)
+
+    thread = threading.Thread(target=use_from_other_thread)
+    thread.start()
+    thread.join()
+    assert len(errors) == 1 and isinstance(errors[0], RuntimeError)
+    assert "thread" in str(errors[0])
+
+
+def test_aovs_are_read_back_only_when_asked(renderer: SurfaceRenderer) -> None:
+    frame, stats = renderer.render(make_frame(np.zeros((1, 3))), scene())
+    assert frame.depth is None and frame.normals is None
+    assert set(stats.stage_ms) == {"prepare", "splat", "smooth", "normals", "shade", "readback"}
+    _, stats = renderer.render(make_frame(np.zeros((0, 3))), scene())
+    assert "smooth" not in stats.stage_ms  # nothing to smooth
+
+
+@pytest.mark.parametrize(
+    ("arrays", "field"),
+    [
+        ({"positions": [[0.0, np.nan, 0.0]]}, "positions[0]"),
+        ({"positions": [[0.0, 0.0, 0.0], [np.inf, 0.0, 0.0]]}, "positions[1]"),
+        ({"positions": [[0.0, 0.0]]}, "positions"),
+        ({"positions": np.array([["a", "b", "c"]])}, "positions"),
+        ({"positions": [[0.0, 0.0, 0.0]], "radii": [0.0]}, "radii[0]"),
+        ({"positions": [[0.0, 0.0, 0.0]], "radii": [-1.0]}, "radii[0]"),
+        ({"positions": [[0.0, 0.0, 0.0]], "radii": [1.0, 2.0]}, "radii"),
+        ({"positions": [[0.0, 0.0, 0.0]], "densities": [np.nan]}, "densities[0]"),
+        ({"positions": [[0.0, 0.0, 0.0]], "temperatures": [-5.0]}, "temperatures[0]"),
+    ],
+)
+def test_bad_particle_arrays_name_the_field(arrays: dict[str, Any], field: str) -> None:
+    with pytest.raises(InputError) as info:
+        make_frame(**arrays)
+    assert info.value.field == field

@@ -1,0 +1,95 @@
+"""The GPU depth filters against the numpy reference in `reference_filters.py`.
+
+Tolerance: depths are ~2 scene units and a pixel sums at most a few hundred float32 terms, so
+accumulation error is ~1e-6 relative; GLSL's exp() on llvmpipe is within a few ulp. We allow
+2e-5 absolute (1e-5 relative; measured: at most 7e-6), far below what any wrong rule produces: a box filter posing as
+a Gaussian differs by > 1e-3 on the same image (asserted, so this test can fail).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from reference_filters import ambiguous_reach, filter_depth
+
+from sphrender.server.engine.renderer import SurfaceRenderer
+from sphrender.server.scene import QualityConfig
+
+RADIUS = 0.01
+PX_PER_UNIT = 260.0  # r_px = 1.3 px at z = 2
+TOLERANCE = 2e-5
+
+
+def synthetic_depth(height: int = 36, width: int = 44) -> np.ndarray:
+    """Smooth surface + particle-scale noise, a background hole, a near block (step of 30 r)
+    and a far block (step of 15 r): every branch of every filter is exercised."""
+    rng = np.random.default_rng(3)
+    y, x = np.mgrid[0:height, 0:width].astype(np.float64)
+    depth = 2.0 + 0.05 * np.sin(x / 5.0) * np.cos(y / 7.0) + rng.uniform(-1, 1, x.shape) * RADIUS
+    depth[(x - 30) ** 2 + (y - 10) ** 2 < 25] = 0.0  # hole: background
+    depth[22:30, 6:16] -= 30 * RADIUS  # a nearer block
+    depth[4:10, 4:12] += 15 * RADIUS  # a farther block
+    return depth.astype(np.float32)
+
+
+QUALITIES = {
+    "gaussian-separable": QualityConfig(filter="gaussian", separable=True, iterations=1),
+    "gaussian-2d": QualityConfig(filter="gaussian", separable=False, iterations=1),
+    "bilateral-separable": QualityConfig(filter="bilateral", separable=True, iterations=2),
+    "bilateral-2d": QualityConfig(filter="bilateral", separable=False, iterations=1),
+    "narrow-range-separable": QualityConfig(filter="narrow_range", separable=True, iterations=2),
+    "narrow-range-2d": QualityConfig(filter="narrow_range", separable=False, iterations=1),
+}
+
+
+@pytest.mark.parametrize("name", list(QUALITIES))
+def test_filter_matches_numpy_reference(renderer: SurfaceRenderer, name: str) -> None:
+    quality = QUALITIES[name]
+    depth = synthetic_depth()
+    gpu = renderer.filter_depth_image(
+        depth, particle_radius=RADIUS, px_per_unit=PX_PER_UNIT, quality=quality
+    )
+    reference = filter_depth(depth, RADIUS, PX_PER_UNIT, quality)
+    ambiguous = np.vectorize(lambda z: z > 0 and ambiguous_reach(z, RADIUS, PX_PER_UNIT, quality))(
+        depth
+    )
+    assert not ambiguous.any(), "pick a synthetic image whose kernel reaches are unambiguous"
+    assert np.array_equal(gpu > 0, depth > 0), "background must stay background, surface surface"
+    error = np.abs(gpu - reference)
+    assert error.max() <= TOLERANCE, f"max |gpu - numpy| = {error.max():.3g}"
+
+    # The comparison is sharp enough to catch the classic porting bug: spatial weights that
+    # degenerate to a box filter.
+    box = filter_depth(depth, RADIUS, PX_PER_UNIT, quality, box=True)
+    assert np.abs(gpu - box).max() > 30 * TOLERANCE
+
+
+def test_filter_smooths_noise_and_keeps_steps(renderer: SurfaceRenderer) -> None:
+    """Behavioural check of the narrow-range filter: particle-scale noise shrinks, the 30 r step
+    to the nearer block stays a step (not blurred into a ramp)."""
+    depth = synthetic_depth()
+    quality = QualityConfig()
+    out = renderer.filter_depth_image(
+        depth, particle_radius=RADIUS, px_per_unit=PX_PER_UNIT, quality=quality
+    )
+    flat = np.s_[14:20, 20:28]
+    assert np.std(np.diff(out[flat], axis=1)) < 0.3 * np.std(np.diff(depth[flat], axis=1))
+    step_before = depth[26, 17] - depth[26, 14]
+    step_after = out[26, 17] - out[26, 14]
+    assert step_after > 0.8 * step_before
+
+
+def test_kernel_scale_changes_result(renderer: SurfaceRenderer) -> None:
+    depth = synthetic_depth()
+    narrow = renderer.filter_depth_image(
+        depth, particle_radius=RADIUS, px_per_unit=PX_PER_UNIT, quality=QualityConfig()
+    )
+    wide = renderer.filter_depth_image(
+        depth,
+        particle_radius=RADIUS,
+        px_per_unit=PX_PER_UNIT,
+        quality=replace(QualityConfig(), kernel_scale=4.0),
+    )
+    assert np.abs(narrow - wide).max() > 1e-3
