@@ -70,7 +70,7 @@ def _pass(
             def at(off: tuple[int, int], row: int = row, col: int = col) -> float:
                 return _fetch(depth, row - off[1], col + off[0])
 
-            def spatial(off: tuple[int, int]) -> float:
+            def spatial(off: tuple[int, int], inv2s2: float = inv2s2) -> float:
                 return 1.0 if box else math.exp(-(off[0] ** 2 + off[1] ** 2) * inv2s2)
 
             total, weights = zc, 1.0
