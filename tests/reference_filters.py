@@ -20,9 +20,9 @@ F32 = npt.NDArray[np.float32]
 def kernel(zc: float, radius: float, px_per_unit: float, q: QualityConfig) -> tuple[int, float]:
     """(reach in pixels, sigma in pixels) exactly as the shader derives them (float32 maths)."""
     r_px = np.float32(radius) * np.float32(px_per_unit) / np.float32(zc)
-    sigma = np.float32(q.kernel_scale) * r_px
-    reach = float(np.clip(np.ceil(np.float32(3.0) * sigma), q.kernel_min_px, q.kernel_max_px))
-    sigma = max(min(float(sigma), reach / 3.0), 1e-3)
+    sigma32 = np.float32(q.kernel_scale) * r_px
+    reach = float(np.clip(np.ceil(np.float32(3.0) * sigma32), q.kernel_min_px, q.kernel_max_px))
+    sigma = max(min(float(sigma32), reach / 3.0), 1e-3)
     return int(reach), sigma
 
 

@@ -474,4 +474,4 @@ def test_rendered_frame_validates_shapes() -> None:
     with pytest.raises(ValueError, match="depth"):
         RenderedFrame(rgba=np.zeros((3, 5, 4), np.float32), depth=np.zeros((5, 3), np.float32))
     with pytest.raises(ValueError, match="normals"):
-        RenderedFrame(rgba=np.zeros((3, 5, 4), np.float32), normals=np.zeros((3, 5, 4)))
+        RenderedFrame(rgba=np.zeros((3, 5, 4), np.float32), normals=np.zeros((3, 5, 4), np.float32))

@@ -111,7 +111,7 @@ def test_ball_renders_identically_after_translation(
 
 
 # filter -> (mean, p95) bounds; measured on llvmpipe in the comment
-PER_FILTER_BALL_BOUNDS = {
+PER_FILTER_BALL_BOUNDS: dict[str, tuple[dict[str, Any], float, float]] = {
     "narrow_range": ({}, 2.2, 5.4),  # 1.64 / 4.14
     "narrow_range-2d": ({"separable": False}, 2.1, 5.2),  # 1.57 / 3.93
     "bilateral": ({}, 3.4, 9.2),  # 2.58 / 7.07

@@ -1,0 +1,197 @@
+"""The `sphrender` command as a user runs it: a real process, real EGL, real encoders."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+
+from sphrender.client.frame import make_frame
+from sphrender.server.encoders import read_exr
+from sphrender.server.engine.renderer import SurfaceRenderer
+from sphrender.server.scene import load_scene
+
+SPHRENDER = str(Path(sys.executable).with_name("sphrender"))
+
+SMALL_SCENE = """
+[image]
+width = 120
+height = 80
+
+[camera]
+eye = [0.6, 0.5, 0.9]
+target = [0.0, 0.0, 0.0]
+fov_y = 40.0
+
+[particles]
+radius = 0.02
+
+[output]
+format = "exr"
+exr_pixel_type = "float"
+"""
+
+
+def run(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [SPHRENDER, *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, **(env or {})},
+        check=False,
+    )
+
+
+@pytest.fixture
+def ball_npz(tmp_path: Path) -> Path:
+    rng = np.random.default_rng(0)
+    positions = rng.normal(size=(3000, 3)) * 0.15
+    path = tmp_path / "ball.npz"
+    np.savez(path, positions=positions)
+    return path
+
+
+@pytest.fixture
+def scene_file(tmp_path: Path) -> Path:
+    path = tmp_path / "scene.toml"
+    path.write_text(SMALL_SCENE)
+    return path
+
+
+def read_png(path: Path) -> np.ndarray:
+    image = oiio.ImageInput.open(str(path))
+    assert image is not None, oiio.geterror()
+    pixels = image.read_image(format="uint8")
+    image.close()
+    return np.asarray(pixels)
+
+
+@pytest.mark.parametrize("command", [[], ["render"], ["demo"], ["info"]])
+def test_help(command: list[str]) -> None:
+    result = run(*command, "--help")
+    assert result.returncode == 0
+    assert "usage: sphrender" in result.stdout
+
+
+def test_demo_renders_a_png(tmp_path: Path) -> None:
+    out = tmp_path / "demo.png"
+    result = run("demo", "-o", str(out))
+    assert result.returncode == 0, result.stderr
+    pixels = read_png(out)
+    assert pixels.shape == (540, 960, 4)
+    coverage = (pixels[:, :, 3] > 0).mean()
+    assert 0.2 < coverage < 0.95
+
+
+def test_render_exr_matches_in_process_render(
+    tmp_path: Path, ball_npz: Path, scene_file: Path, renderer: SurfaceRenderer
+) -> None:
+    """Two renders must match: the CLI's float EXR equals the engine's arrays for the same input
+    and scene (same driver, same code path), except that EXR colour is premultiplied."""
+    out = tmp_path / "ball.exr"
+    result = run("render", str(ball_npz), "--scene", str(scene_file), "-o", str(out))
+    assert result.returncode == 0, result.stderr
+    channels = read_exr(out)
+    assert set(channels) == {"R", "G", "B", "A", "Z", "N.X", "N.Y", "N.Z"}
+    scene = load_scene(scene_file)
+    with np.load(ball_npz) as data:
+        frame, _ = renderer.render(make_frame(data["positions"]), scene, depth=True, normals=True)
+    assert frame.depth is not None and frame.normals is not None
+    assert np.array_equal(channels["Z"], frame.depth)
+    assert np.array_equal(channels["N.Y"], frame.normals[:, :, 1])
+    assert np.array_equal(channels["A"], frame.rgba[:, :, 3])
+    assert np.allclose(channels["R"], frame.rgba[:, :, 0] * frame.rgba[:, :, 3])
+    covered = channels["A"] > 0
+    assert np.all(np.isfinite(channels["Z"][covered])) and np.all(np.isinf(channels["Z"][~covered]))
+
+
+def test_render_several_inputs_into_a_directory(
+    tmp_path: Path, dambreak: Path, scene_file: Path
+) -> None:
+    inputs = [
+        dambreak / "vtk" / "ParticleData_Fluid_1.vtk",
+        dambreak / "bgeo" / "ParticleData_Fluid_5.bgeo",
+    ]
+    out_dir = tmp_path / "frames"
+    out_dir.mkdir()
+    result = run(
+        "render",
+        *map(str, inputs),
+        "--scene",
+        str(scene_file),
+        "-o",
+        str(out_dir),
+        "--format",
+        "png",
+        "-v",
+    )
+    assert result.returncode == 0, result.stderr
+    assert sorted(p.name for p in out_dir.iterdir()) == [
+        "ParticleData_Fluid_1.png",
+        "ParticleData_Fluid_5.png",
+    ]
+    assert "GL renderer" in result.stderr and "splat=" in result.stderr
+    for path in out_dir.iterdir():
+        assert read_png(path).shape == (80, 120, 4)
+
+
+def test_info_reports_the_renderer() -> None:
+    result = run("info")
+    assert result.returncode == 0, result.stderr
+    info = json.loads(result.stdout)
+    assert info["gl_renderer"] and info["max_image_side"] >= 1024
+
+
+def assert_one_line_error(result: subprocess.CompletedProcess[str], code: int, *words: str) -> None:
+    assert result.returncode == code, (result.stdout, result.stderr)
+    assert "Traceback" not in result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    for word in words:
+        assert word in lines[0]
+
+
+def test_nan_positions_give_a_one_line_error(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, positions=np.array([[0.0, 0.0, 0.0], [np.nan, 0.0, 0.0]]))
+    result = run("render", str(bad), "-o", str(tmp_path / "out.png"))
+    assert_one_line_error(result, 2, "positions[1]", "finite", "bad.npz")
+    assert not (tmp_path / "out.png").exists()
+
+
+def test_bad_scene_gives_a_one_line_error(tmp_path: Path, ball_npz: Path) -> None:
+    scene = tmp_path / "scene.toml"
+    scene.write_text("[camera]\nfov_y = 190\n")
+    result = run("render", str(ball_npz), "--scene", str(scene), "-o", str(tmp_path / "o.png"))
+    assert_one_line_error(result, 2, "camera.fov_y", "(0, 180)")
+
+
+def test_degenerate_camera_gives_a_one_line_error(tmp_path: Path, ball_npz: Path) -> None:
+    scene = tmp_path / "scene.toml"
+    scene.write_text("[camera]\neye = [0, 1, 0]\ntarget = [0, 0, 0]\nup = [0, 1, 0]\n")
+    result = run("render", str(ball_npz), "--scene", str(scene), "-o", str(tmp_path / "o.png"))
+    assert_one_line_error(result, 2, "camera.up", "parallel")
+
+
+def test_unreadable_input_gives_a_one_line_error(tmp_path: Path) -> None:
+    garbage = tmp_path / "frame.vtk"
+    garbage.write_bytes(b"\x00\x01not a vtk file")
+    result = run("render", str(garbage), "-o", str(tmp_path / "o.png"))
+    assert_one_line_error(result, 2, "file", "frame.vtk")
+    result = run("render", str(tmp_path / "missing.npz"), "-o", str(tmp_path / "o.png"))
+    assert_one_line_error(result, 2, "file", "missing.npz")
+
+
+def test_missing_egl_names_the_packages(tmp_path: Path, ball_npz: Path) -> None:
+    """glcontext honours GLCONTEXT_LINUX_LIBEGL: point it at a library that does not exist, as
+    on a machine without Mesa's EGL."""
+    env = {"GLCONTEXT_LINUX_LIBEGL": str(tmp_path / "libEGL.so.1")}
+    result = run("render", str(ball_npz), "-o", str(tmp_path / "o.png"), env=env)
+    assert_one_line_error(result, 3, "apt-get install", "libegl-mesa0", "libgl1-mesa-dri")
