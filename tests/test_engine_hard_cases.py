@@ -200,3 +200,19 @@ def test_bad_particle_arrays_name_the_field(arrays: dict[str, Any], field: str) 
     with pytest.raises(InputError) as info:
         make_frame(**arrays)
     assert info.value.field == field
+
+
+def test_sprites_larger_than_point_size_limit_are_whole(renderer: SurfaceRenderer) -> None:
+    """llvmpipe caps point sprites at 255 px; instanced quads have no cap. A sphere ~560 px
+    across must cover exactly its analytic disc."""
+    sc = scene(
+        image={"width": 800, "height": 640},
+        camera={"eye": [0.0, 0.0, 0.3]},
+        particles={"radius": 0.1},
+        quality={"filter": "none"},
+    )
+    frame = render(renderer, np.array([[0.02, -0.01, 0.0]]), sc)
+    hit, _ = sphere_hits(Camera.from_config(sc.camera, 800, 640), np.array([0.02, -0.01, 0.0]), 0.1)
+    covered = frame.rgba[:, :, 3] > 0
+    assert hit.any(axis=0).sum() > 500  # wider than any point sprite could be
+    assert np.array_equal(covered, hit)

@@ -1,0 +1,45 @@
+"""GLSL compile errors name the original file and line (real GL compiler)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from sphrender.server.engine.gl_context import GLContext
+from sphrender.server.engine.programs import ProgramCache, ShaderCompileError
+from sphrender.server.engine.shader_loader import ShaderLoader
+
+
+def test_compile_error_names_included_file_and_line(tmp_path: Path, gl_context: GLContext) -> None:
+    (tmp_path / "lib").mkdir()
+    (tmp_path / "lib" / "broken.glsl").write_text(
+        "// helper\nfloat helper(float x) {\n    return x * undefined_thing;\n}\n"
+    )
+    (tmp_path / "main.frag.glsl").write_text(
+        '#version 330 core\n#include "lib/broken.glsl"\nout vec4 color;\n'
+        "void main() { color = vec4(helper(1.0)); }\n"
+    )
+    (tmp_path / "quad.vert.glsl").write_text(
+        "#version 330 core\nvoid main() { gl_Position = vec4(0.0); }\n"
+    )
+    cache = ProgramCache(gl_context, ShaderLoader(tmp_path))
+    with pytest.raises(ShaderCompileError) as info:
+        cache.get("quad.vert.glsl", "main.frag.glsl")
+    assert "lib/broken.glsl:3" in str(info.value)
+    cache.release()
+
+
+def test_every_shipped_program_compiles(gl_context: GLContext) -> None:
+    cache = ProgramCache(gl_context)
+    cache.get("splat_sphere.vert.glsl", "splat_sphere.frag.glsl")
+    cache.get("fullscreen.vert.glsl", "surface_normals.frag.glsl")
+    cache.get("fullscreen.vert.glsl", "shade_placeholder.frag.glsl")
+    for filter_id in (0, 1, 2):
+        for separable in (True, False):
+            cache.get(
+                "fullscreen.vert.glsl",
+                "smooth_depth.frag.glsl",
+                {"FILTER": filter_id, "SEPARABLE": separable},
+            )
+    cache.release()
