@@ -6,10 +6,10 @@ Generated procedurally (no downloads). Units are millimetres, particle radius 0.
 from __future__ import annotations
 
 import importlib.resources
+import tomllib
 
 import numpy as np
 import numpy.typing as npt
-import tomllib
 
 from sphrender.client.frame import ParticleFrame, make_frame
 from sphrender.server.analytic_scenes import lattice_slab

@@ -13,14 +13,13 @@ could list. Adding a field means adding one line here.
 from __future__ import annotations
 
 import math
+import tomllib
 import types
 import typing
 from collections.abc import Mapping
 from dataclasses import MISSING, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Literal, TypeVar, get_args, get_origin
-
-import tomllib
 
 from sphrender.client.errors import InputError
 

@@ -13,9 +13,6 @@
 #define FILTER 2
 // 1: 1-D kernel along u_direction (run once per axis). 0: one 2-D kernel.
 #define SEPARABLE 1
-// Narrow range: 1 drops the mirror of a dropped sample, as in the paper (no one-sided bias, but
-// no smoothing across the axis at silhouettes); 0 keeps the valid one (renormalised).
-#define NR_DROP_MIRROR 1
 
 #include "common/depth_image.glsl"
 
@@ -85,31 +82,23 @@ void main() {
             float zb = fetch_depth(u_depth, center - offset);
             bool valid_a = za > 0.0 && za <= upper;
             bool valid_b = zb > 0.0 && zb <= upper;
-#if NR_DROP_MIRROR
             if (!(valid_a && valid_b)) {
-                continue;
+                continue;  // as in the paper: a dropped sample drops its mirror (no one-sided bias)
             }
-#endif
-            if (valid_a) {
-                if (za < lower) {
-                    za = lower_clamp;
-                } else {
-                    upper = max(upper, za + u_nr_threshold);
-                    lower = min(lower, za - u_nr_threshold);
-                }
-                sum += w * za;
-                weight_sum += w;
+            if (za < lower) {
+                za = lower_clamp;
+            } else {
+                upper = max(upper, za + u_nr_threshold);
+                lower = min(lower, za - u_nr_threshold);
             }
-            if (valid_b) {
-                if (zb < lower) {
-                    zb = lower_clamp;
-                } else {
-                    upper = max(upper, zb + u_nr_threshold);
-                    lower = min(lower, zb - u_nr_threshold);
-                }
-                sum += w * zb;
-                weight_sum += w;
+            if (zb < lower) {
+                zb = lower_clamp;
+            } else {
+                upper = max(upper, zb + u_nr_threshold);
+                lower = min(lower, zb - u_nr_threshold);
             }
+            sum += w * (za + zb);
+            weight_sum += 2.0 * w;
         }
     }
 #else

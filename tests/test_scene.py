@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import importlib.resources
+import tomllib
 from pathlib import Path
 from typing import Any
 
 import pytest
-import tomllib
 
 from sphrender.client.errors import InputError
 from sphrender.server.scene import Scene, load_scene, scene_from_dict, scene_to_dict
