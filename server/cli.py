@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 import time
 from collections.abc import Sequence
@@ -119,6 +120,7 @@ def _run_render(args: argparse.Namespace) -> int:
     fmt = _choose_format(args.format, args.output, scene.output.format)
     paths = _output_paths(args.inputs, args.output, encoders.file_suffix(fmt))
     frames = [(name, path) for name, path in zip(args.inputs, paths, strict=True)]
+    failures: list[str] = []
     with GLContext() as gl:
         renderer = SurfaceRenderer(gl)
         renderer.check_image_size(scene)
@@ -126,12 +128,18 @@ def _run_render(args: argparse.Namespace) -> int:
         try:
             for name, path in frames:
                 try:
-                    particles = read_particles(name)
+                    _render_one(renderer, read_particles(name), scene, fmt, path)
                 except InputError as exc:
-                    raise InputError(exc.field, f"{name}: {exc.message}") from None
-                _render_one(renderer, particles, scene, fmt, path)
+                    # One bad frame of a sequence does not stop the others; all are reported.
+                    failures.append(f"{name}: {exc}")
         finally:
             renderer.release()
+    if failures:
+        for failure in failures:
+            print(f"sphrender: error: {failure}", file=sys.stderr)
+        if len(frames) > 1:
+            print(f"sphrender: {len(failures)} of {len(frames)} inputs failed", file=sys.stderr)
+        return EXIT_BAD_INPUT
     return 0
 
 
@@ -148,18 +156,25 @@ def _render_one(
         depth=want_aovs and "Z" in scene.output.aovs,
         normals=want_aovs and "N" in scene.output.aovs,
     )
-    if fmt == "png":
-        encoders.write_png(
-            frame,
-            path,
-            encoders.PngOptions(bits=scene.output.png_bits, exposure=scene.output.exposure),
-        )
-    else:
-        encoders.write_exr(
-            frame,
-            path,
-            encoders.ExrOptions(pixel_type=scene.output.exr_pixel_type, aovs=scene.output.aovs),
-        )
+    # Written next to the target and renamed into place: a failed or killed run never leaves a
+    # partial image under the final name.
+    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
+    try:
+        if fmt == "png":
+            options = encoders.PngOptions(
+                bits=scene.output.png_bits, exposure=scene.output.exposure
+            )
+            encoders.write_png(frame, partial, options)
+        else:
+            exr = encoders.ExrOptions(
+                pixel_type=scene.output.exr_pixel_type, aovs=scene.output.aovs
+            )
+            encoders.write_exr(frame, partial, exr)
+        os.replace(partial, path)
+    except OSError as exc:
+        raise InputError("output", f"cannot write {path}: {exc.strerror or exc}") from None
+    finally:
+        partial.unlink(missing_ok=True)
     stages = " ".join(f"{k}={v:.1f}ms" for k, v in stats.stage_ms.items())
     log.info(
         "%s: %d particles (%d drawn), %s, total %.1f ms",

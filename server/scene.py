@@ -99,6 +99,12 @@ class QualityConfig:
     )
     separable: bool = spec(True, "filter rows then columns (1-D kernels) instead of one 2-D kernel")
     iterations: int = spec(2, "how many times the whole filter is applied", low=1, high=16)
+    kernel_size: Literal["projected_radius", "eq25"] = spec(
+        "projected_radius",
+        "how the kernel follows depth: projected_radius (sigma = kernel_scale * r_px(z)) or "
+        "eq25 (the thesis's linear decline: eq25_sigma_px up to eq25_threshold, then minus "
+        "eq25_decline px per unit)",
+    )
     kernel_scale: float = spec(
         2.0,
         "Gaussian sigma in projected particle radii (sigma_px = kernel_scale * r_px(z)); the "
@@ -115,6 +121,15 @@ class QualityConfig:
     )
     kernel_min_px: int = spec(
         1, "smallest kernel radius in pixels (eq 25's ks_min)", low=0, high=64
+    )
+    eq25_sigma_px: float = spec(
+        6.0, "eq 25: sigma in pixels up to the threshold distance", low=0.0, low_open=True
+    )
+    eq25_threshold: float = spec(
+        1.0, "eq 25: eye depth (scene units) beyond which the kernel shrinks", low=0.0
+    )
+    eq25_decline: float = spec(
+        2.0, "eq 25: k, kernel radius lost per scene unit beyond the threshold (px)", low=0.0
     )
     bilateral_depth_sigma: float = spec(
         6.0,

@@ -1,6 +1,7 @@
 #version 330 core
 // Depth smoothing (thesis §3.3) of an eye-depth image. Background (0) is never read into the
-// surface and stays background. The kernel follows the projected particle radius:
+// surface and stays background. By default (KERNEL_SIZE_PROJECTED_RADIUS) the kernel follows the
+// projected particle radius:
 //   r_px(z) = r * px_per_unit / z,  sigma = kernel_scale * r_px,  reach = clamp(ceil(3 sigma),
 //   min, max)  and sigma is reduced to reach / 3 when the cap bites, so the truncated kernel
 //   stays a Gaussian (a kernel cut at less than 3 sigma degenerates towards a box).
@@ -13,6 +14,9 @@
 #define FILTER 2
 // 1: 1-D kernel along u_direction (run once per axis). 0: one 2-D kernel.
 #define SEPARABLE 1
+#define KERNEL_SIZE_PROJECTED_RADIUS 0
+#define KERNEL_SIZE_EQ25 1
+#define KERNEL_SIZE 0
 
 #include "common/depth_image.glsl"
 
@@ -26,6 +30,9 @@ uniform int u_kernel_max_px;
 uniform float u_range_sigma;       // bilateral: sigma of the depth difference, scene units
 uniform float u_nr_threshold;      // narrow range: lambda * r, scene units
 uniform float u_nr_clamp;          // narrow range: mu * r, scene units
+uniform float u_eq25_sigma_px;     // eq 25: sigma (pixels) up to the threshold distance
+uniform float u_eq25_threshold;    // eq 25: threshold eye depth, scene units
+uniform float u_eq25_decline;      // eq 25: k, kernel pixels lost per scene unit beyond it
 
 layout(location = 0) out float out_eye_depth;
 
@@ -36,8 +43,14 @@ void main() {
         out_eye_depth = 0.0;
         return;
     }
+#if KERNEL_SIZE == KERNEL_SIZE_PROJECTED_RADIUS
     float r_px = u_particle_radius * u_px_per_unit / zc;
     float sigma = u_kernel_scale * r_px;
+#else
+    // Thesis eq 25, read as a continuous decline: ks = 3 sigma up to the threshold distance, then
+    // 3 sigma - (d - threshold) k (as printed, "- d k" would jump by threshold * k).
+    float sigma = u_eq25_sigma_px - max(zc - u_eq25_threshold, 0.0) * u_eq25_decline / 3.0;
+#endif
     float reach = clamp(ceil(3.0 * sigma), float(u_kernel_min_px), float(u_kernel_max_px));
     sigma = max(min(sigma, reach / 3.0), 1e-3);
     float inv_two_sigma2 = 1.0 / (2.0 * sigma * sigma);

@@ -19,8 +19,12 @@ F32 = npt.NDArray[np.float32]
 
 def kernel(zc: float, radius: float, px_per_unit: float, q: QualityConfig) -> tuple[int, float]:
     """(reach in pixels, sigma in pixels) exactly as the shader derives them (float32 maths)."""
-    r_px = np.float32(radius) * np.float32(px_per_unit) / np.float32(zc)
-    sigma32 = np.float32(q.kernel_scale) * r_px
+    if q.kernel_size == "eq25":
+        beyond = max(np.float32(zc) - np.float32(q.eq25_threshold), np.float32(0.0))
+        sigma32 = np.float32(q.eq25_sigma_px) - beyond * np.float32(q.eq25_decline) / np.float32(3)
+    else:
+        r_px = np.float32(radius) * np.float32(px_per_unit) / np.float32(zc)
+        sigma32 = np.float32(q.kernel_scale) * r_px
     reach = float(np.clip(np.ceil(np.float32(3.0) * sigma32), q.kernel_min_px, q.kernel_max_px))
     sigma = max(min(float(sigma32), reach / 3.0), 1e-3)
     return int(reach), sigma
@@ -28,7 +32,10 @@ def kernel(zc: float, radius: float, px_per_unit: float, q: QualityConfig) -> tu
 
 def ambiguous_reach(zc: float, radius: float, px_per_unit: float, q: QualityConfig) -> bool:
     """True where 3 sigma is so close to an integer that float rounding may change the reach."""
-    three_sigma = 3.0 * q.kernel_scale * radius * px_per_unit / zc
+    if q.kernel_size == "eq25":
+        three_sigma = 3.0 * q.eq25_sigma_px - max(zc - q.eq25_threshold, 0.0) * q.eq25_decline
+    else:
+        three_sigma = 3.0 * q.kernel_scale * radius * px_per_unit / zc
     return abs(three_sigma - round(three_sigma)) < 1e-4
 
 

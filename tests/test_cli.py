@@ -195,3 +195,21 @@ def test_missing_egl_names_the_packages(tmp_path: Path, ball_npz: Path) -> None:
     env = {"GLCONTEXT_LINUX_LIBEGL": str(tmp_path / "libEGL.so.1")}
     result = run("render", str(ball_npz), "-o", str(tmp_path / "o.png"), env=env)
     assert_one_line_error(result, 3, "apt-get install", "libegl-mesa0", "libgl1-mesa-dri")
+
+
+def test_a_corrupt_frame_does_not_stop_the_others(tmp_path: Path, ball_npz: Path) -> None:
+    corrupt = tmp_path / "frame_2.npz"
+    corrupt.write_bytes(b"PK\x03\x04 truncated zip")
+    second = tmp_path / "frame_3.npz"
+    second.write_bytes(ball_npz.read_bytes())
+    out_dir = tmp_path / "out"
+    result = run("render", str(ball_npz), str(corrupt), str(second), "-o", str(out_dir))
+    assert result.returncode == 2
+    assert "Traceback" not in result.stderr
+    assert "frame_2.npz" in result.stderr and "1 of 3 inputs failed" in result.stderr
+    assert sorted(p.name for p in out_dir.iterdir()) == ["ball.png", "frame_3.png"]
+
+
+def test_unwritable_output_is_a_clear_error(tmp_path: Path, ball_npz: Path) -> None:
+    result = run("render", str(ball_npz), "-o", str(tmp_path / "no" / "such" / "dir" / "x.png"))
+    assert_one_line_error(result, 2, "output", "cannot write")

@@ -42,6 +42,15 @@ QUALITIES = {
     "bilateral-2d": QualityConfig(filter="bilateral", separable=False, iterations=1),
     "narrow-range-separable": QualityConfig(filter="narrow_range", separable=True, iterations=2),
     "narrow-range-2d": QualityConfig(filter="narrow_range", separable=False, iterations=1),
+    # eq 25's linear decline: depths 1.65..2.2 straddle the 2.0 threshold; 3 sigma = 7.5 px up
+    # to it, losing 9 px per unit beyond it (down to 5.7 px)
+    "gaussian-eq25": QualityConfig(
+        filter="gaussian",
+        kernel_size="eq25",
+        eq25_sigma_px=2.5,
+        eq25_threshold=2.0,
+        eq25_decline=9.0,
+    ),
 }
 
 

@@ -33,6 +33,7 @@ from sphrender.server.engine.programs import ProgramCache
 from sphrender.server.scene import QualityConfig, Scene
 
 _FILTER_DEFINES = {"gaussian": 0, "bilateral": 1, "narrow_range": 2}
+_KERNEL_SIZE_DEFINES = {"projected_radius": 0, "eq25": 1}
 
 
 @dataclass
@@ -312,15 +313,22 @@ class SurfaceRenderer:
         program = self._programs.get(
             "fullscreen.vert.glsl",
             "smooth_depth.frag.glsl",
-            {"FILTER": _FILTER_DEFINES[quality.filter], "SEPARABLE": quality.separable},
+            {
+                "FILTER": _FILTER_DEFINES[quality.filter],
+                "SEPARABLE": quality.separable,
+                "KERNEL_SIZE": _KERNEL_SIZE_DEFINES[quality.kernel_size],
+            },
         )
         r = particle_radius
-        program["u_particle_radius"] = r
-        program["u_px_per_unit"] = px_per_unit
-        program["u_kernel_scale"] = quality.kernel_scale
         program["u_kernel_min_px"] = quality.kernel_min_px
         program["u_kernel_max_px"] = quality.kernel_max_px
         for name, value in (
+            ("u_particle_radius", r),
+            ("u_px_per_unit", px_per_unit),
+            ("u_kernel_scale", quality.kernel_scale),
+            ("u_eq25_sigma_px", quality.eq25_sigma_px),
+            ("u_eq25_threshold", quality.eq25_threshold),
+            ("u_eq25_decline", quality.eq25_decline),
             ("u_range_sigma", quality.bilateral_depth_sigma * r),
             ("u_nr_threshold", quality.narrow_range_threshold * r),
             ("u_nr_clamp", quality.narrow_range_clamp * r),
