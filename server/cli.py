@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import os
 import sys
 import time
 from collections.abc import Sequence
@@ -28,6 +27,7 @@ ImageFormat = Literal["png", "exr"]
 
 EXIT_BAD_INPUT = 2
 EXIT_NO_GPU_STACK = 3
+EXIT_FRAMES_FAILED = 4
 
 log = logging.getLogger("sphrender")
 
@@ -82,6 +82,42 @@ def _build_parser() -> argparse.ArgumentParser:
     )
     demo.add_argument("-o", "--output", type=Path, default=Path("demo.png"), help="output image")
     _add_output_format(demo)
+
+    submit = commands.add_parser(
+        "submit",
+        parents=[common],
+        help="render a whole sequence, one output per input frame (resumable)",
+        description="Render a sequence of particle files into DIR, one image per input, named "
+        "after it. Inputs may be files, globs or directories; frames are ordered by the numbers "
+        "in their names. Outputs are written atomically; --resume skips frames whose output is "
+        "already a complete image. A bad frame is reported and the others still render; the exit "
+        "status is non-zero when any frame failed.",
+    )
+    submit.add_argument("inputs", nargs="+", metavar="INPUT", help="files, globs or directories")
+    submit.add_argument("-o", "--output", type=Path, required=True, help="output directory")
+    submit.add_argument("--scene", type=Path, help="scene TOML (default: built-in defaults)")
+    submit.add_argument(
+        "--format", choices=["png", "exr"], help="output format (default: the scene's)"
+    )
+    submit.add_argument(
+        "--local",
+        action="store_true",
+        required=True,
+        help="render with the embedded engine in this process (no server)",
+    )
+    submit.add_argument(
+        "--resume", action="store_true", help="skip frames whose output is a complete image"
+    )
+    submit.add_argument(
+        "--jobs", type=int, default=2, metavar="N", help="input files read ahead in parallel"
+    )
+    submit.add_argument(
+        "--attribute",
+        action="append",
+        default=[],
+        metavar="NAME=FILE_NAME",
+        help="map an attribute to the file's name for it, e.g. density=rho (repeatable)",
+    )
 
     commands.add_parser(
         "info",
@@ -146,35 +182,15 @@ def _run_render(args: argparse.Namespace) -> int:
 def _render_one(
     renderer: SurfaceRenderer, particles: ParticleFrame, scene: Scene, fmt: ImageFormat, path: Path
 ) -> None:
-    from sphrender.server import encoders
+    from sphrender.client.submit import write_atomically
+    from sphrender.server.local_backend import encode_for_scene, render_for_output
 
     start = time.perf_counter()
-    want_aovs = fmt == "exr"
-    frame, stats = renderer.render(
-        particles,
-        scene,
-        depth=want_aovs and "Z" in scene.output.aovs,
-        normals=want_aovs and "N" in scene.output.aovs,
-    )
-    # Written next to the target and renamed into place: a failed or killed run never leaves a
-    # partial image under the final name.
-    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
+    frame, stats = render_for_output(renderer, particles, scene, fmt)
     try:
-        if fmt == "png":
-            options = encoders.PngOptions(
-                bits=scene.output.png_bits, exposure=scene.output.exposure
-            )
-            encoders.write_png(frame, partial, options)
-        else:
-            exr = encoders.ExrOptions(
-                pixel_type=scene.output.exr_pixel_type, aovs=scene.output.aovs
-            )
-            encoders.write_exr(frame, partial, exr)
-        os.replace(partial, path)
+        write_atomically(path, encode_for_scene(frame, scene, fmt))
     except OSError as exc:
         raise InputError("output", f"cannot write {path}: {exc.strerror or exc}") from None
-    finally:
-        partial.unlink(missing_ok=True)
     stages = " ".join(f"{k}={v:.1f}ms" for k, v in stats.stage_ms.items())
     log.info(
         "%s: %d particles (%d drawn), %s, total %.1f ms",
@@ -203,6 +219,45 @@ def _run_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _parse_attribute_map(pairs: Sequence[str]) -> dict[str, str]:
+    mapping: dict[str, str] = {}
+    for pair in pairs:
+        name, sep, file_name = pair.partition("=")
+        if not sep or not name or not file_name:
+            raise InputError("--attribute", f"expected NAME=FILE_NAME, got {pair!r}")
+        mapping[name] = file_name
+    return mapping
+
+
+def _run_submit(args: argparse.Namespace) -> int:
+    from sphrender.client.sequences import expand_inputs, plan_jobs
+    from sphrender.client.submit import run_submission
+    from sphrender.server import encoders
+    from sphrender.server.local_backend import LocalFrameRenderer
+    from sphrender.server.scene import Scene, load_scene
+
+    if args.jobs < 1:
+        raise InputError("--jobs", f"must be at least 1, got {args.jobs}")
+    scene = load_scene(args.scene) if args.scene else Scene()
+    fmt: ImageFormat = args.format or scene.output.format
+    attribute_map = _parse_attribute_map(args.attribute)
+    jobs = plan_jobs(expand_inputs(args.inputs), args.output, encoders.file_suffix(fmt))
+    try:
+        args.output.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError("output", f"cannot create {args.output}: {exc.strerror}") from None
+    backend = LocalFrameRenderer(scene, fmt)
+    log.info("GL renderer: %s", backend.gl_renderer)
+    try:
+        summary = run_submission(
+            jobs, backend, resume=args.resume, attribute_map=attribute_map, read_ahead=args.jobs
+        )
+    finally:
+        backend.close()
+    print(summary.report(), file=sys.stderr)
+    return 0 if summary.ok else EXIT_FRAMES_FAILED
+
+
 def _run_info(_args: argparse.Namespace) -> int:
     from sphrender.server.engine.gl_context import GLContext
 
@@ -226,7 +281,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     from sphrender.server.engine.gl_context import GLUnavailableError
 
-    runners = {"render": _run_render, "demo": _run_demo, "info": _run_info}
+    runners = {
+        "render": _run_render,
+        "demo": _run_demo,
+        "submit": _run_submit,
+        "info": _run_info,
+    }
     try:
         return runners[args.command](args)
     except InputError as exc:
