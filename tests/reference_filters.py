@@ -135,11 +135,13 @@ def _pass(
 def filter_depth(
     depth: F32, radius: float, px_per_unit: float, q: QualityConfig, *, box: bool = False
 ) -> F32:
-    """The whole smoothing step: iterations x (x pass, y pass) or iterations x 2-D pass."""
+    """The whole smoothing step: iterations x (x then y, alternating with y then x) or
+    iterations x 2-D pass."""
     image = depth.astype(np.float32)
-    for _ in range(q.iterations):
+    for iteration in range(q.iterations):
         if q.separable:
-            for direction in ((1, 0), (0, 1)):
+            order = ((1, 0), (0, 1)) if iteration % 2 == 0 else ((0, 1), (1, 0))
+            for direction in order:
                 image = _pass(image, [direction], radius, px_per_unit, q, box)
         else:
             image = _pass(image, None, radius, px_per_unit, q, box)

@@ -337,10 +337,15 @@ class SurfaceRenderer:
                 program[name] = value
         program["u_depth"] = 0
         vao = self._fullscreen(program)
-        directions = [(1, 0), (0, 1)] if quality.separable else [(0, 0)]
         source = targets.splat_depth
         write_index = 0
-        for _ in range(quality.iterations):
+        for iteration in range(quality.iterations):
+            # Separable passes alternate their order (x y, y x, ...): the nonlinear filters leave
+            # streaks along the axis filtered last, and alternating keeps them from piling up.
+            if quality.separable:
+                directions = [(1, 0), (0, 1)] if iteration % 2 == 0 else [(0, 1), (1, 0)]
+            else:
+                directions = [(0, 0)]
             for direction in directions:
                 if "u_direction" in program:
                     program["u_direction"] = direction
