@@ -137,37 +137,36 @@ def _select_explicit(
     )
 
 
-def _probe(cl_module: Any, device: Any) -> str | None:
-    """Build and run a one-line kernel; None when it works, else why not."""
+def _probe(cl_module: Any, device: Any) -> tuple[Any, str | None]:
+    """Build and run a one-line kernel: (the context, None) when it works, else (None, why)."""
+    import numpy as np
+
     try:
         context = cl_module.Context([device])
-        try:
-            program = cl_module.Program(context, _PROBE_SOURCE).build()
-            queue = cl_module.CommandQueue(context)
-            import numpy as np
-
-            data = np.arange(4, dtype=np.float32)
-            buffer = cl_module.Buffer(
-                context,
-                cl_module.mem_flags.READ_WRITE | cl_module.mem_flags.COPY_HOST_PTR,
-                hostbuf=data,
-            )
-            program.probe(queue, (4,), None, buffer)
-            cl_module.enqueue_copy(queue, data, buffer)
-            queue.finish()
-            buffer.release()
-            if not np.array_equal(data, np.arange(4, dtype=np.float32) * 2):
-                return "the probe kernel computed a wrong result"
-        finally:
-            del context
+        program = cl_module.Program(context, _PROBE_SOURCE).build()
+        queue = cl_module.CommandQueue(context)
+        data = np.arange(4, dtype=np.float32)
+        buffer = cl_module.Buffer(
+            context,
+            cl_module.mem_flags.READ_WRITE | cl_module.mem_flags.COPY_HOST_PTR,
+            hostbuf=data,
+        )
+        program.probe(queue, (4,), None, buffer)
+        cl_module.enqueue_copy(queue, data, buffer)
+        queue.finish()
+        buffer.release()
     except cl_module.Error as exc:
         lines = [line for line in str(exc).splitlines() if "error" in line.lower()]
-        return lines[-1].strip() if lines else str(exc).splitlines()[0]
-    return None
+        return None, lines[-1].strip() if lines else str(exc).splitlines()[0]
+    if not np.array_equal(data, np.arange(4, dtype=np.float32) * 2):
+        return None, "the probe kernel computed a wrong result"
+    return context, None
 
 
 def choose_device(device: str | None = None) -> tuple[CLDeviceInfo, Any]:
-    """Pick the OpenCL device as the module docstring describes; raises `CLUnavailableError`."""
+    """Pick the OpenCL device as the module docstring describes; raises `CLUnavailableError`.
+
+    Returns the device's description and a context on it (the probe's, so it is built once)."""
     cl_module = _import_pyopencl()
     devices = list_devices()
     if not devices:
@@ -178,19 +177,19 @@ def choose_device(device: str | None = None) -> tuple[CLDeviceInfo, Any]:
         info, chosen = _select_explicit(
             device if device is not None else env_choice, devices, source
         )
-        problem = _probe(cl_module, chosen)
+        context, problem = _probe(cl_module, chosen)
         if problem is not None:
             raise CLUnavailableError(
                 f"OpenCL device {info.label} ({source}) cannot build kernels: {problem}; "
                 f"choose another device or {POCL_INSTALL_HINT}"
             )
-        return info, chosen
+        return info, context
     order = {"gpu": 0, "accelerator": 1, "cpu": 2, "other": 3}
     problems: list[str] = []
     for info, candidate in sorted(devices, key=lambda pair: order[pair[0].device_type]):
-        problem = _probe(cl_module, candidate)
+        context, problem = _probe(cl_module, candidate)
         if problem is None:
-            return info, candidate
+            return info, context
         problems.append(f"{info.label}: {problem}")
     raise CLUnavailableError(
         f"no OpenCL device can build kernels ({'; '.join(problems)}); {POCL_INSTALL_HINT}"
@@ -212,8 +211,8 @@ class CLContext:
     def __init__(self, device: str | None = None) -> None:
         cl_module = _import_pyopencl()
         self._cl = cl_module
-        self.device_info, self._device = choose_device(device)
-        self._context: cl.Context | None = cl_module.Context([self._device])
+        self.device_info, context = choose_device(device)
+        self._context: cl.Context | None = context
         self._queue: cl.CommandQueue | None = cl_module.CommandQueue(self._context)
         self._owner = threading.get_ident()
         self._programs: dict[tuple[str, tuple[tuple[str, str], ...]], cl.Program] = {}
