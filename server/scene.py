@@ -201,9 +201,10 @@ class SphConfig:
         "particles are skipped",
     )
     safety_layer: float = spec(
-        0.5,
+        0.9,
         "surface_only: also splat particles within safety_layer * support_radius of a "
-        "surface or sparse particle",
+        "surface or sparse particle (0.9 reaches all 26 lattice neighbours at spacing 2 r = "
+        "h / 2, at sqrt(3) h / 2; less opens holes between the outer particles)",
         low=0.0,
         high=1.0,
     )

@@ -96,4 +96,4 @@ def reference_sph(
         [np.bincount(pairs.i, weights=term[:, k], minlength=n) for k in range(3)], 1
     )
     abs_sum = np.bincount(pairs.i, weights=np.linalg.norm(term, axis=1), minlength=n)
-    return ReferenceSph(rho, color, gradient, abs_sum)
+    return ReferenceSph(*(np.asarray(a, dtype=np.float64) for a in (rho, color, gradient, abs_sum)))

@@ -5,28 +5,31 @@ Tolerances, derived:
   rounded by at most h 2^-24, so a pair's distance is off by at most ~4 sqrt(3) h 2^-24 < 5e-7 h
   (two roundings per axis plus the float32 subtraction and dot product). Pairs whose float64
   distance lies within TIE_BAND = 1e-5 h of h may therefore go either way; every other pair must
-  match brute force exactly. On random data the band is empty, so the sets must be identical.
+  match brute force exactly. On a lattice with h off the lattice distances the band is empty,
+  so there the sets must be identical.
 * Quantities: float32 sums of K ~ 30-60 terms carry a rounding error of at most ~K 2^-24 of the
   sum of the terms' magnitudes (< 4e-6), plus the position rounding above, which moves a term
   by ~5e-7 h / |x_i - x_j| of itself (largest for close pairs; measured up to 1.4e-5 of the
-  magnitude sum for the gradient on the dam-break frame, 5e-7 for density and colour). Density and colour
-  field are sums of positive terms, so that is a relative error; the gradient cancels to ~0
-  inside the fluid, so its error is measured relative to sum_j |V_j grad W_ij| (the scale the
-  rounding is relative to), and additionally as a plain relative error on surface particles,
-  where |n| is a sizeable part of that sum. The issue's bounds (median 1e-4, max 1e-3) are 25x
-  above the derived worst case, so a failure means a wrong formula, not rounding.
+  magnitude sum for the gradient on the dam-break frame, 5e-7 for density and colour).
+  Density and colour field are sums of positive terms, so that is a relative error; the
+  gradient cancels to ~0 inside the fluid, so its error is measured relative to
+  sum_j |V_j grad W_ij| (the scale the rounding is relative to), and additionally as a plain
+  relative error on surface particles, where |n| is a sizeable part of that sum. The issue's
+  bounds (median 1e-4, max 1e-3) are 25x above the derived sum rounding and 70x above the
+  measured worst case, so a failure means a wrong formula, not rounding.
 """
 
 from __future__ import annotations
 
 import math
 import threading
+from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 import pytest
+from sph_reference import ReferenceSph, cubic_spline, reference_pairs, reference_sph
 
-from sph_reference import cubic_spline, reference_pairs, reference_sph
 from sphrender.client.errors import InputError
 from sphrender.client.frame import make_frame
 from sphrender.client.readers import read_particles
@@ -85,7 +88,9 @@ def assert_neighbours_match_brute_force(engine: SphEngine, positions: np.ndarray
     return len(ties)
 
 
-def relative_errors(engine_result: SphResult, positions: np.ndarray, densities=None):  # type: ignore[no-untyped-def]
+def relative_errors(
+    engine_result: SphResult, positions: np.ndarray, densities: np.ndarray | None = None
+) -> tuple[ReferenceSph, np.ndarray, np.ndarray, np.ndarray]:
     ref = reference_sph(positions, H, MASS, densities)
     expected_density = ref.density if densities is None else np.asarray(densities, np.float64)
     density = np.abs(engine_result.density / expected_density - 1)
@@ -118,7 +123,7 @@ def test_neighbours_lattice(sph_engine: SphEngine) -> None:
     assert assert_neighbours_match_brute_force(sph_engine, positions, 5 * R) == 0
 
 
-def test_neighbours_real_frame(sph_engine: SphEngine, dambreak) -> None:  # type: ignore[no-untyped-def]
+def test_neighbours_real_frame(sph_engine: SphEngine, dambreak: Path) -> None:
     frame = read_particles(dambreak / "vtk" / "ParticleData_Fluid_11.vtk")
     assert_neighbours_match_brute_force(sph_engine, frame.positions, H)
 
@@ -146,7 +151,7 @@ def test_neighbours_huge_coordinates_match_origin(sph_engine: SphEngine) -> None
 def test_all_particles_in_one_cell(sph_engine: SphEngine) -> None:
     rng = np.random.default_rng(6)
     positions = rng.uniform(0.0, 0.4 * H, (600, 3))  # one cell, everyone neighbours everyone
-    offsets, indices = sph_engine.neighbour_lists(positions, H)
+    offsets, _ = sph_engine.neighbour_lists(positions, H)
     assert np.all(np.diff(offsets) == 599)
     result = sph_engine.compute(positions, params())
     _, density, color, gradient = relative_errors(result, positions)
@@ -157,7 +162,9 @@ def test_all_particles_in_one_cell(sph_engine: SphEngine) -> None:
 # -- quantities against the reference -------------------------------------------------------
 
 
-def check_against_reference(result: SphResult, positions: np.ndarray, densities=None) -> None:  # type: ignore[no-untyped-def]
+def check_against_reference(
+    result: SphResult, positions: np.ndarray, densities: np.ndarray | None = None
+) -> None:
     ref, density, color, gradient = relative_errors(result, positions, densities)
     for name, err in (("density", density), ("color_field", color), ("gradient", gradient)):
         assert np.median(err) <= MEDIAN_BOUND, (name, np.median(err))
@@ -185,7 +192,7 @@ def test_quantities_lattice_ball(sph_engine: SphEngine) -> None:
     check_against_reference(sph_engine.compute(positions, params()), positions)
 
 
-def test_quantities_real_frame_with_client_densities(sph_engine: SphEngine, dambreak) -> None:  # type: ignore[no-untyped-def]
+def test_quantities_real_frame_with_client_densities(sph_engine: SphEngine, dambreak: Path) -> None:
     frame = read_particles(dambreak / "vtk" / "ParticleData_Fluid_11.vtk")
     assert frame.densities is not None
     result = sph_engine.compute(frame.positions, params(), frame.densities)
@@ -194,7 +201,7 @@ def test_quantities_real_frame_with_client_densities(sph_engine: SphEngine, damb
     check_against_reference(result, frame.positions, frame.densities)
 
 
-def test_quantities_real_frame_computed(sph_engine: SphEngine, dambreak) -> None:  # type: ignore[no-untyped-def]
+def test_quantities_real_frame_computed(sph_engine: SphEngine, dambreak: Path) -> None:
     frame = read_particles(dambreak / "vtk" / "ParticleData_Fluid_11.vtk")
     result = sph_engine.compute(frame.positions, params())
     assert result.density_computed
@@ -296,7 +303,7 @@ def test_surface_flags_on_lattice_ball_are_the_outer_layer(sph_engine: SphEngine
     positions = jittered_lattice_ball(0.2, 0.01, jitter=0.0)
     h = 0.04
     result = sph_engine.compute(positions, params(h=h, mass=1000.0 * 0.02**3))
-    offsets, indices = sph_engine.neighbour_lists(positions, 0.02 * 1.01)  # axis neighbours
+    offsets, _ = sph_engine.neighbour_lists(positions, 0.02 * 1.01)  # axis neighbours
     outer = np.diff(offsets) < 6
     assert outer.sum() > 0.1 * len(positions)
     assert np.array_equal(result.surface, outer)
