@@ -211,9 +211,10 @@ __kernel void list_neighbours(GRID_ARGS, __global const uint *sorted_to_original
 
 /* --- SPH quantities ---------------------------------------------------------------------- */
 
-/* Eq 2 with A = rho: rho_i = sum_j m W(x_i - x_j, h), self included. */
+/* Eq 2 with A = rho: rho_i = sum_j m W(x_i - x_j, h), self included. Also writes the volume
+ * m / rho in sorted order for the colour field (a multiply per neighbour instead of a divide). */
 __kernel void density(GRID_ARGS, __global const uint *sorted_to_original, const uint n,
-                      const float mass, __global float *sorted_density, __global float *density_out)
+                      const float mass, __global float *sorted_volume, __global float *density_out)
 {
     const uint k = get_global_id(0);
     if (k >= n)
@@ -223,18 +224,18 @@ __kernel void density(GRID_ARGS, __global const uint *sorted_to_original, const 
     float sum = 0.0f;
     FOR_EACH_NEIGHBOUR(ci, li, sum += spline_w(sqrt(r2) / h);)
     const float rho = mass * SIGMA_3D / (h * h * h) * sum;
-    sorted_density[k] = rho;
+    sorted_volume[k] = mass / rho;
     density_out[sorted_to_original[k]] = rho;
 }
 
-/* Client densities, original order -> sorted order. */
-__kernel void gather_sorted(__global const float *values, __global const uint *sorted_to_original,
-                            const uint n, __global float *sorted_values)
+/* Client densities (original order) -> volumes m / rho in sorted order. */
+__kernel void gather_volumes(__global const float *density, __global const uint *sorted_to_original,
+                             const uint n, const float mass, __global float *sorted_volume)
 {
     const uint k = get_global_id(0);
     if (k >= n)
         return;
-    sorted_values[k] = values[sorted_to_original[k]];
+    sorted_volume[k] = mass / density[sorted_to_original[k]];
 }
 
 /* Eq 26 c_i = sum_j (m / rho_j) W, eq 27 n_i = sum_j (m / rho_j) grad_i W(x_i - x_j), eq 28
@@ -244,7 +245,7 @@ __kernel void gather_sorted(__global const float *values, __global const uint *s
  * neighbourhood is symmetric) but are visible, so surface-only splatting must keep them; the
  * colour field cannot tell them apart, it is ~1 for an isolated particle too. */
 __kernel void color_field(GRID_ARGS, __global const uint *sorted_to_original, const uint n,
-                          const float mass, __global const float *sorted_density,
+                          const float mass, __global const float *sorted_volume,
                           const float threshold, const float sparse_density,
                           __global float *color_out, __global float4 *gradient_out,
                           __global uchar *surface_out, __global uchar *sorted_flag)
@@ -259,14 +260,14 @@ __kernel void color_field(GRID_ARGS, __global const uint *sorted_to_original, co
     float3 gradient = (float3)(0.0f);
     FOR_EACH_NEIGHBOUR(ci, li, {
         const float q = sqrt(r2) / h;
-        const float volume = 1.0f / sorted_density[j];
+        const float volume = sorted_volume[j];
         const float w = spline_w(q);
         kernel_sum += w;
         color += volume * w;
         /* x_i - x_j = -d */
         gradient -= (volume * spline_dw_over_q(q)) * d;
     })
-    const float sigma = mass * SIGMA_3D / (h * h * h);
+    const float sigma = SIGMA_3D / (h * h * h);
     color *= sigma;
     gradient *= sigma / (h * h);
     const uint i = sorted_to_original[k];
@@ -274,7 +275,7 @@ __kernel void color_field(GRID_ARGS, __global const uint *sorted_to_original, co
     gradient_out[i] = (float4)(gradient, 0.0f);
     const uchar surface = length(gradient) > threshold ? 1 : 0;
     surface_out[i] = surface;
-    sorted_flag[k] = (surface || sigma * kernel_sum < sparse_density) ? 1 : 0;
+    sorted_flag[k] = (surface || mass * sigma * kernel_sum < sparse_density) ? 1 : 0;
 }
 
 /* keep_i = flag_i or some flagged particle within `reach` (< h): the surface shell plus a

@@ -194,7 +194,7 @@ class SphEngine:
                 "count_neighbours",
                 "list_neighbours",
                 "density",
-                "gather_sorted",
+                "gather_volumes",
                 "color_field",
                 "dilate_flags",
             )
@@ -378,19 +378,20 @@ class SphEngine:
         grid = self._build_grid(points, params.support_radius)
         args = self._grid_args(grid)
         f32 = np.float32
-        sorted_density = self._buffer("sorted_density", 4 * n)
+        sorted_volume = self._buffer("sorted_volume", 4 * n)
         density_out = self._buffer("density", 4 * n)
         if client_densities is None:
-            self._run("density", n, *args, f32(params.mass), sorted_density, density_out)
+            self._run("density", n, *args, f32(params.mass), sorted_volume, density_out)
         else:
             self._upload("density", client_densities)
             self._run(
-                "gather_sorted",
+                "gather_volumes",
                 n,
                 density_out,
                 self._buffers["sorted_to_original"],
                 np.uint32(n),
-                sorted_density,
+                f32(params.mass),
+                sorted_volume,
             )
         color_out = self._buffer("color", 4 * n)
         gradient_out = self._buffer("gradient", 16 * n)
@@ -401,7 +402,7 @@ class SphEngine:
             n,
             *args,
             f32(params.mass),
-            sorted_density,
+            sorted_volume,
             f32(params.surface_threshold),
             f32(params.sparse_density),
             color_out,
