@@ -34,7 +34,13 @@ from sphrender.client.errors import InputError
 from sphrender.client.frame import make_frame
 from sphrender.client.readers import read_particles
 from sphrender.server.analytic_scenes import jittered_lattice_ball
-from sphrender.server.engine.cl_context import CLContext, CLUnavailableError, kernel_source
+from sphrender.server.engine.cl_context import (
+    CLContext,
+    CLUnavailableError,
+    kernel_source,
+    list_devices,
+    probe_device,
+)
 from sphrender.server.engine.sph import (
     SphEngine,
     SphParameters,
@@ -421,3 +427,17 @@ def test_kernel_values_match_the_pinned_spline() -> None:
     q = np.array([0.0, 0.5, 1.0, 1.5])
     expected = 8 / (math.pi * H**3) * np.array([1.0, 0.25, 0.0, 0.0])
     np.testing.assert_allclose(cubic_spline(q, H), expected, rtol=1e-12, atol=1e-12)
+
+
+def test_auto_choice_is_the_first_device_that_builds(monkeypatch: pytest.MonkeyPatch) -> None:
+    """GPUs, then accelerators, then CPUs, in platform order; devices that cannot build a kernel
+    are skipped (on AMD Zen 5 the PyPI PoCL is listed but fails, Debian's PoCL works)."""
+    import pyopencl
+
+    monkeypatch.delenv("PYOPENCL_CTX", raising=False)
+    order = {"gpu": 0, "accelerator": 1, "cpu": 2, "other": 3}
+    candidates = sorted(list_devices(), key=lambda pair: order[pair[0].device_type])
+    working = [info for info, device in candidates if probe_device(pyopencl, device)[1] is None]
+    assert working, "no OpenCL device can build kernels here"
+    with CLContext() as chosen:
+        assert chosen.device_info == working[0]

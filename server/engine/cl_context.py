@@ -137,7 +137,7 @@ def _select_explicit(
     )
 
 
-def _probe(cl_module: Any, device: Any) -> tuple[Any, str | None]:
+def probe_device(cl_module: Any, device: Any) -> tuple[Any, str | None]:
     """Build and run a one-line kernel: (the context, None) when it works, else (None, why)."""
     import numpy as np
 
@@ -177,7 +177,7 @@ def choose_device(device: str | None = None) -> tuple[CLDeviceInfo, Any]:
         info, chosen = _select_explicit(
             device if device is not None else env_choice, devices, source
         )
-        context, problem = _probe(cl_module, chosen)
+        context, problem = probe_device(cl_module, chosen)
         if problem is not None:
             raise CLUnavailableError(
                 f"OpenCL device {info.label} ({source}) cannot build kernels: {problem}; "
@@ -187,7 +187,7 @@ def choose_device(device: str | None = None) -> tuple[CLDeviceInfo, Any]:
     order = {"gpu": 0, "accelerator": 1, "cpu": 2, "other": 3}
     problems: list[str] = []
     for info, candidate in sorted(devices, key=lambda pair: order[pair[0].device_type]):
-        context, problem = _probe(cl_module, candidate)
+        context, problem = probe_device(cl_module, candidate)
         if problem is None:
             return info, context
         problems.append(f"{info.label}: {problem}")
