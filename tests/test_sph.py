@@ -141,6 +141,7 @@ def test_neighbours_sparse_domain_uses_hashing(sph_engine: SphEngine) -> None:
     b = rng.uniform(0.0, 0.3, (1500, 3)) + np.array([1e4 * H, -3e3 * H, 5e3 * H])
     positions = np.concatenate([a, b])
     assert_neighbours_match_brute_force(sph_engine, positions, H)
+    check_against_reference(sph_engine.compute(positions, params()), positions)
 
 
 def test_neighbours_huge_coordinates_match_origin(sph_engine: SphEngine) -> None:

@@ -29,7 +29,7 @@ from __future__ import annotations
 import importlib.resources
 import os
 import threading
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -259,10 +259,6 @@ class CLContext:
                 raise CLBuildError(f"{name}: {exc}") from None
             self._programs[key] = program
         return program
-
-    def programs_built(self) -> Iterator[str]:
-        """Names of the cached programs (for diagnostics and tests of the cache)."""
-        return (name for name, _ in self._programs)
 
     def release(self) -> None:
         """Drop programs, queue and context (on the owner thread); idempotent."""
