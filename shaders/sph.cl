@@ -68,20 +68,35 @@ inline uint bucket_of(int4 c, int nx, int ny, uint mask)
         __global const uint *starts, const int nx, const int ny, const int nz, const uint mask, \
         const float h
 
+/* Distance along one axis from a particle at offset o (in [0, h)) inside its cell to the cell
+ * `delta` steps away: 0 for its own cell, o for the one below, h - o for the one above. */
+inline float gap_to_cell(int delta, float o, float h)
+{
+    return delta == 0 ? 0.0f : (delta < 0 ? o : h - o);
+}
+
 /* Runs BODY for every particle j (sorted index) with |x_j - x_i| < h, including i itself.
- * In BODY: j, d (float3, x_j - x_i) and r2 (|d|^2) are defined. */
+ * In BODY: j, d (float3, x_j - x_i) and r2 (|d|^2) are defined.
+ * Cells whose nearest point is h or farther away are skipped (whole rows of three cells, and
+ * the x-1 / x+1 cells of a row): on average 20.6 of the 27 cells remain (-24% candidates). */
 #define FOR_EACH_NEIGHBOUR(ci, li, BODY)                                                     \
     for (int dz = -1; dz <= 1; ++dz) {                                                       \
+        const float gz_ = gap_to_cell(dz, (li).z, h);                                        \
         for (int dy = -1; dy <= 1; ++dy) {                                                   \
+            const float gy_ = gap_to_cell(dy, (li).y, h);                                    \
+            const float row2_ = gy_ * gy_ + gz_ * gz_;                                       \
             const int y_ = (ci).y + dy, z_ = (ci).z + dz;                                    \
-            if (nx > 0 && (y_ < 0 || y_ >= ny || z_ < 0 || z_ >= nz))                        \
+            if (row2_ >= h * h || (nx > 0 && (y_ < 0 || y_ >= ny || z_ < 0 || z_ >= nz)))    \
                 continue;                                                                    \
-            const int segments_ = nx > 0 ? 1 : 3;                                            \
-            for (int s_ = 0; s_ < segments_; ++s_) {                                         \
+            const float above_ = h - (li).x;                                                 \
+            const int lo_ = (li).x * (li).x + row2_ < h * h ? -1 : 0;                        \
+            const int hi_ = above_ * above_ + row2_ < h * h ? 1 : 0;                         \
+            const int first_ = nx > 0 ? 0 : lo_, last_ = nx > 0 ? 0 : hi_;                   \
+            for (int s_ = first_; s_ <= last_; ++s_) {                                       \
                 uint begin_, end_;                                                           \
-                const int x_ = (ci).x + s_ - 1;                                              \
+                const int x_ = (ci).x + s_;                                                  \
                 if (nx > 0) {                                                                \
-                    const int x0_ = max((ci).x - 1, 0), x1_ = min((ci).x + 1, nx - 1);       \
+                    const int x0_ = max((ci).x + lo_, 0), x1_ = min((ci).x + hi_, nx - 1);   \
                     begin_ = starts[dense_bucket(x0_, y_, z_, nx, ny)];                      \
                     end_ = starts[dense_bucket(x1_, y_, z_, nx, ny) + 1];                    \
                 } else {                                                                     \
