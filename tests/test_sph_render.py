@@ -177,3 +177,12 @@ def test_no_nan_reaches_pixels_with_hard_sph_inputs(
     assert np.isfinite(image.rgba).all()
     assert image.normals is not None and np.isfinite(image.normals).all()
     assert (image.rgba[:, :, 3] > 0).any()
+
+
+@pytest.mark.parametrize("count", [0, 1])
+def test_empty_and_single_particle_frames_with_sph(renderer: SurfaceRenderer, count: int) -> None:
+    scene = droplet_scene(adaptive_radius=True, surface_only=True)
+    image, stats = renderer.render(make_frame(np.zeros((count, 3))), scene)
+    assert "sph" in stats.stage_ms and stats.particles_drawn == count
+    assert np.isfinite(image.rgba).all()
+    assert (image.rgba[:, :, 3] > 0).any() == (count > 0)
