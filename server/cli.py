@@ -1,8 +1,9 @@
-"""The `sphrender` command line: render, demo, info.
+"""The `sphrender` command line: render, sph, demo, info.
 
 Bad input (a scene key, a particle array, an unreadable file) prints one line naming the field and
-the limit and exits with status 2; a machine without EGL/Mesa prints which Debian packages to
-install and exits with status 3. No tracebacks for either.
+the limit and exits with status 2; a machine without EGL/Mesa, or without a usable OpenCL device
+(only commands that need one), prints what to install and exits with status 3. No tracebacks for
+either.
 """
 
 from __future__ import annotations
@@ -40,6 +41,15 @@ def _add_output_format(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_cl_device(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--cl-device",
+        metavar="SPEC",
+        help="OpenCL device for the SPH pass: 'P' or 'P:D' indices or a name substring "
+        "(default: PYOPENCL_CTX, else the first device that builds kernels; see `info`)",
+    )
+
+
 def _build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="sphrender",
@@ -73,6 +83,29 @@ def _build_parser() -> argparse.ArgumentParser:
         help="output file for one input, or a directory for several (named after the inputs)",
     )
     _add_output_format(render)
+    _add_cl_device(render)
+
+    sph = commands.add_parser(
+        "sph",
+        parents=[common],
+        help="compute the SPH quantities the renderer uses and write them to .npz",
+        description="Compute per-particle density, colour field (eq 26), its gradient (eq 27), "
+        "surface flags (eq 28, |n| > t) and radius (eq 29 when [sph] adaptive_radius is on) on "
+        "OpenCL, as the renderer sees them, and write them to an .npz: density, color_field, "
+        "color_gradient (N x 3), surface (bool), radius, splat (bool: drawn by surface-only "
+        "splatting), support_radius, mass and surface_density (absent without surface).",
+    )
+    sph.add_argument("input", metavar="INPUT", help="particle file (as for render)")
+    sph.add_argument("--scene", type=Path, help="scene TOML (default: built-in defaults)")
+    sph.add_argument("-o", "--output", type=Path, required=True, help="output .npz file")
+    sph.add_argument(
+        "--densities",
+        choices=["input", "compute"],
+        default="input",
+        help="input: use the file's densities when it has them, as the renderer does "
+        "(default); compute: always compute them (eq 2)",
+    )
+    _add_cl_device(sph)
 
     demo = commands.add_parser(
         "demo",
@@ -158,7 +191,7 @@ def _run_render(args: argparse.Namespace) -> int:
     frames = [(name, path) for name, path in zip(args.inputs, paths, strict=True)]
     failures: list[str] = []
     with GLContext() as gl:
-        renderer = SurfaceRenderer(gl)
+        renderer = SurfaceRenderer(gl, cl_device=args.cl_device)
         renderer.check_image_size(scene)
         log.info("GL renderer: %s (%s)", gl.renderer, gl.version)
         try:
@@ -200,6 +233,76 @@ def _render_one(
         stages,
         (time.perf_counter() - start) * 1e3,
     )
+
+
+def _run_sph(args: argparse.Namespace) -> int:
+    import io
+
+    import numpy as np
+
+    from sphrender.client.readers import read_particles
+    from sphrender.client.submit import write_atomically
+    from sphrender.server.engine.cl_context import CLContext
+    from sphrender.server.engine.sph import (
+        SphEngine,
+        SphParameters,
+        eq29_radii,
+        frame_particle_radius,
+        surface_density,
+    )
+    from sphrender.server.scene import Scene, load_scene
+
+    scene = load_scene(args.scene) if args.scene else Scene()
+    frame = read_particles(args.input)
+    start = time.perf_counter()
+    radius = frame_particle_radius(frame, scene)
+    params = SphParameters.from_scene(scene, radius)
+    with CLContext(args.cl_device) as cl:
+        log.info("OpenCL device: %s", cl.device_info.label)
+        engine = SphEngine(cl)
+        try:
+            result = engine.compute(
+                frame.positions,
+                params,
+                frame.densities if args.densities == "input" else None,
+                gradient=True,
+                splat_mask=True,
+            )
+        finally:
+            engine.release()
+    d_surface = surface_density(result.density, result.surface)
+    if scene.sph.adaptive_radius:
+        radii = eq29_radii(result, frame, scene)
+    elif frame.radii is not None:
+        radii = frame.radii
+    else:
+        radii = np.full(frame.count, scene.particles.radius, dtype=np.float32)
+    assert result.splat_keep is not None and result.color_gradient is not None
+    arrays = {
+        "density": result.density,
+        "color_field": result.color_field,
+        "color_gradient": result.color_gradient,
+        "surface": result.surface,
+        "radius": radii,
+        "splat": result.splat_keep if scene.sph.surface_only else np.ones(frame.count, bool),
+        "support_radius": np.float64(params.support_radius),
+        "mass": np.float64(params.mass),
+    }
+    if d_surface is not None:
+        arrays["surface_density"] = np.float64(d_surface)
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)  # type: ignore[arg-type]
+    try:
+        write_atomically(args.output, buffer.getvalue())
+    except OSError as exc:
+        raise InputError("output", f"cannot write {args.output}: {exc.strerror or exc}") from None
+    surface_share = float(result.surface.mean()) if frame.count else 0.0
+    print(
+        f"wrote {args.output}: {frame.count} particles, densities "
+        f"{'computed' if result.density_computed else 'from input'}, "
+        f"{surface_share:.1%} on the surface, {(time.perf_counter() - start) * 1e3:.0f} ms"
+    )
+    return 0
 
 
 def _run_demo(args: argparse.Namespace) -> int:
@@ -259,15 +362,21 @@ def _run_submit(args: argparse.Namespace) -> int:
 
 
 def _run_info(_args: argparse.Namespace) -> int:
+    from sphrender.server.engine.cl_context import CLUnavailableError, list_devices
     from sphrender.server.engine.gl_context import GLContext
 
     with GLContext() as gl:
-        info = {
+        info: dict[str, object] = {
             "gl_renderer": gl.renderer,
             "gl_version": gl.version,
             "software": gl.is_software,
             "max_image_side": gl.limits.max_image_side,
         }
+    try:
+        info["opencl_devices"] = [device.label for device, _ in list_devices()]
+    except CLUnavailableError as exc:
+        info["opencl_devices"] = []
+        info["opencl_error"] = str(exc)
     print(json.dumps(info, indent=2))
     return 0
 
@@ -279,10 +388,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         format="%(name)s: %(message)s",
         stream=sys.stderr,
     )
+    from sphrender.server.engine.cl_context import CLUnavailableError
     from sphrender.server.engine.gl_context import GLUnavailableError
 
     runners = {
         "render": _run_render,
+        "sph": _run_sph,
         "demo": _run_demo,
         "submit": _run_submit,
         "info": _run_info,
@@ -292,7 +403,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except InputError as exc:
         print(f"sphrender: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except GLUnavailableError as exc:
+    except (GLUnavailableError, CLUnavailableError) as exc:
         print(f"sphrender: error: {exc}", file=sys.stderr)
         return EXIT_NO_GPU_STACK
 

@@ -148,6 +148,75 @@ class QualityConfig:
     )
 
 
+@dataclass(frozen=True)
+class SphConfig:
+    """SPH quantities computed on OpenCL (thesis section 3.3.4). The pass runs only when a
+    feature below asks for it; kernel, support and mass are pinned so results compare with
+    other SPH tools (cubic spline, support 4 r, m = rest_density (2 r)^3, as splashsurf)."""
+
+    rest_density: float = spec(
+        1000.0, "rest density rho_0 (kg/m^3 in SI scenes)", low=0.0, low_open=True
+    )
+    support_radius: float | None = spec(
+        None,
+        "kernel support h (W = 0 beyond); absent = 4 * particles.radius",
+        low=0.0,
+        low_open=True,
+    )
+    mass: float | None = spec(
+        None,
+        "particle mass m; absent = rest_density * (2 * particles.radius)^3",
+        low=0.0,
+        low_open=True,
+    )
+    surface_threshold: float = spec(
+        0.5,
+        "eq 28 (corrected): a particle is on the surface where |n| > t, with t = "
+        "surface_threshold / support_radius (|n| h is about 1 on a flat surface, 0 inside)",
+        low=0.0,
+        low_open=True,
+    )
+    adaptive_radius: bool = spec(
+        False,
+        "eq 29: particles less dense than the surface average shrink toward min_radius "
+        "(thins splashes and droplets)",
+    )
+    min_radius: float = spec(
+        0.5,
+        "eq 29 r_min as a fraction of the particle's radius",
+        low=0.0,
+        high=1.0,
+        low_open=True,
+    )
+    radius_decline: float = spec(
+        0.25,
+        "eq 29 k, dimensionless: r = r_body (1 - ((d_surface - d) / d_surface)^2 / "
+        "radius_decline), i.e. the thesis's k = radius_decline * d_surface^2 / r_body",
+        low=0.0,
+        low_open=True,
+    )
+    surface_only: bool = spec(
+        False,
+        "splat only surface particles, sparse ones and a safety layer; hidden interior "
+        "particles are skipped",
+    )
+    safety_layer: float = spec(
+        0.9,
+        "surface_only: also splat particles within safety_layer * support_radius of a "
+        "surface or sparse particle (0.9 reaches all 26 lattice neighbours at spacing 2 r = "
+        "h / 2, at sqrt(3) h / 2; less opens holes between the outer particles)",
+        low=0.0,
+        high=1.0,
+    )
+    sparse_density: float = spec(
+        0.75,
+        "surface_only: a particle whose kernel density (eq 2 from positions) is below "
+        "sparse_density * rest_density is sparse (droplet, thin sheet) and always splatted",
+        low=0.0,
+        high=1.0,
+    )
+
+
 AovName = Literal["Z", "N"]
 
 
@@ -170,6 +239,7 @@ class Scene:
     camera: CameraConfig = field(default_factory=CameraConfig)
     particles: ParticlesConfig = field(default_factory=ParticlesConfig)
     quality: QualityConfig = field(default_factory=QualityConfig)
+    sph: SphConfig = field(default_factory=SphConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
 
     def with_overrides(self, **sections: Any) -> Scene:

@@ -1,7 +1,8 @@
-"""Shared fixtures: one real EGL context and renderer for the whole test session.
+"""Shared fixtures: one real EGL context and renderer, one real OpenCL (PoCL) context and SPH
+engine for the whole test session.
 
-pytest runs tests on its main thread, which creates the context and therefore owns it, exactly as
-the render thread will in the service.
+pytest runs tests on its main thread, which creates the contexts and therefore owns them, exactly
+as the render thread will in the service.
 """
 
 from __future__ import annotations
@@ -11,8 +12,10 @@ from pathlib import Path
 
 import pytest
 
+from sphrender.server.engine.cl_context import CLContext
 from sphrender.server.engine.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
+from sphrender.server.engine.sph import SphEngine
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared"
@@ -30,6 +33,19 @@ def renderer(gl_context: GLContext) -> Iterator[SurfaceRenderer]:
     renderer = SurfaceRenderer(gl_context)
     yield renderer
     renderer.release()
+
+
+@pytest.fixture(scope="session")
+def cl_context() -> Iterator[CLContext]:
+    with CLContext() as cl:
+        yield cl
+
+
+@pytest.fixture(scope="session")
+def sph_engine(cl_context: CLContext) -> Iterator[SphEngine]:
+    engine = SphEngine(cl_context)
+    yield engine
+    engine.release()
 
 
 @pytest.fixture(scope="session")

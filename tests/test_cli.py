@@ -73,7 +73,7 @@ def read_png(path: Path) -> np.ndarray:
     return np.asarray(pixels)
 
 
-@pytest.mark.parametrize("command", [[], ["render"], ["demo"], ["info"]])
+@pytest.mark.parametrize("command", [[], ["render"], ["sph"], ["demo"], ["info"]])
 def test_help(command: list[str]) -> None:
     result = run(*command, "--help")
     assert result.returncode == 0

@@ -4,6 +4,9 @@ One `SurfaceRenderer` belongs to one `GLContext` and is used only on that contex
 Per-scene and per-size resources (programs, render targets, the quad buffer) are built once and
 reused; per frame it only uploads the visible particles and runs the passes the scene asks for:
 
+    sph (OpenCL, optional)  only when the scene asks for adaptive radii (eq 29) or
+                            surface-only splatting: per-particle radii and/or fewer particles
+                            (see `sph.py`); the CL context is created on first need
     prepare (CPU, float64)  positions relative to the eye, rotated to view space, culled,
                             then converted to float32
     splat                   instanced sphere impostors -> eye depth (R32F, 0 = background)
@@ -27,9 +30,16 @@ import numpy.typing as npt
 from sphrender.client.errors import InputError
 from sphrender.client.frame import ParticleFrame
 from sphrender.server.engine.camera import Camera
+from sphrender.server.engine.cl_context import CLContext
 from sphrender.server.engine.frame_output import RenderedFrame
 from sphrender.server.engine.gl_context import GLContext
 from sphrender.server.engine.programs import ProgramCache
+from sphrender.server.engine.sph import (
+    SphEngine,
+    apply_to_frame,
+    frame_particle_radius,
+    needs_sph,
+)
 from sphrender.server.scene import QualityConfig, Scene
 
 _FILTER_DEFINES = {"gaussian": 0, "bilateral": 1, "narrow_range": 2}
@@ -59,8 +69,14 @@ class PreparedParticles:
     reference_radius: float
 
 
-def prepare_particles(frame: ParticleFrame, camera: Camera, scene: Scene) -> PreparedParticles:
-    """Float64 eye-relative view-space positions, culled, then float32 (see module docstring)."""
+def prepare_particles(
+    frame: ParticleFrame, camera: Camera, scene: Scene, *, reference_radius: float | None = None
+) -> PreparedParticles:
+    """Float64 eye-relative view-space positions, culled, then float32 (see module docstring).
+
+    `reference_radius` (the radius the smoothing kernel follows) defaults to the frame's median
+    radius; the SPH stage passes the radius from before eq 29 so adaptive radii do not resize
+    the filter."""
     radius = scene.particles.radius
     radii: npt.NDArray[np.floating] = (
         frame.radii if frame.radii is not None else np.full(frame.count, radius, np.float32)
@@ -80,8 +96,11 @@ def prepare_particles(frame: ParticleFrame, camera: Camera, scene: Scene) -> Pre
     center_radius = np.empty((view.shape[0], 4), dtype=np.float32)
     center_radius[:, :3] = view
     center_radius[:, 3] = kept_radii
-    reference = float(np.median(frame.radii)) if frame.radii is not None and frame.count else radius
-    return PreparedParticles(center_radius, far, reference)
+    if reference_radius is None:
+        reference_radius = (
+            float(np.median(frame.radii)) if frame.radii is not None and frame.count else radius
+        )
+    return PreparedParticles(center_radius, far, reference_radius)
 
 
 def _write_matrix(program: moderngl.Program, name: str, matrix: npt.NDArray[np.floating]) -> None:
@@ -125,8 +144,14 @@ class _Targets:
 class SurfaceRenderer:
     """Renders particle frames with one GL context; see the module docstring for the passes."""
 
-    def __init__(self, gl: GLContext, *, stage_timings: bool = True) -> None:
+    def __init__(
+        self, gl: GLContext, *, stage_timings: bool = True, cl_device: str | None = None
+    ) -> None:
         self._gl = gl
+        # OpenCL is created on the first frame that needs SPH, on this (the owner) thread.
+        self._cl_device = cl_device
+        self._cl: CLContext | None = None
+        self._sph: SphEngine | None = None
         ctx = gl.ctx
         self._programs = ProgramCache(gl)
         self._stage_timings = stage_timings
@@ -145,6 +170,15 @@ class SurfaceRenderer:
         return self._gl.limits.max_image_side
 
     # -- resources -------------------------------------------------------------------------
+
+    def sph_engine(self) -> SphEngine:
+        """The SPH engine and its CL context, created on first use (owner thread)."""
+        self._gl.check_owner()
+        if self._sph is None:
+            if self._cl is None:
+                self._cl = CLContext(self._cl_device)
+            self._sph = SphEngine(self._cl)
+        return self._sph
 
     def _targets_for(self, width: int, height: int) -> _Targets:
         if self._targets is None or self._targets.size != (width, height):
@@ -213,8 +247,15 @@ class SurfaceRenderer:
         ctx = self._gl.ctx
         targets = self._targets_for(width, height)
 
+        reference_radius = None
+        if needs_sph(scene):
+            reference_radius = frame_particle_radius(frame, scene)
+            engine = self.sph_engine()  # outside the stage: first use builds the CL program
+            with self._stage(stats, "sph"):
+                frame, _ = apply_to_frame(engine, frame, scene)
+
         with self._stage(stats, "prepare"):
-            prepared = prepare_particles(frame, camera, scene)
+            prepared = prepare_particles(frame, camera, scene, reference_radius=reference_radius)
             stats.particles_drawn = int(prepared.center_radius.shape[0])
             stats.far = prepared.far
 
@@ -386,5 +427,11 @@ class SurfaceRenderer:
             self._splat_vao.release()
             self._splat_vao = None
         self._programs.release()
+        if self._sph is not None:
+            self._sph.release()
+            self._sph = None
+        if self._cl is not None:
+            self._cl.release()
+            self._cl = None
         self._corner_buffer.release()
         self._instance_buffer.release()

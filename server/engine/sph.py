@@ -1,0 +1,483 @@
+"""SPH quantities on OpenCL: neighbour grid, density, colour field, surface flags, eq 29 radii.
+
+Why the renderer needs SPH at all (thesis section 3.3.4): the adaptive particle radius shrinks
+splash particles, which needs each particle's density and the average density of the surface
+particles, which needs the colour field gradient (eq 26-28). Clients that send no densities get
+them computed (eq 2). Surface-only splatting reuses the surface flags to skip the hidden interior.
+
+Per frame (`SphEngine.compute`), everything below runs on the device except the first and last
+steps, which are O(N) numpy:
+
+1. host, float64: positions relative to the frame's minimum, split into an integer grid cell
+   (cell size = support radius h) and a float32 offset inside the cell. Distances on the device
+   are ``(cell_j - cell_i) h + (local_j - local_i)``, exact in the cell part, so coordinates of
+   1e5 or a domain of 1e5 h lose nothing.
+2. counting sort by cell (Green 2010): bucket per particle and its rank in the bucket by
+   ``atomic_inc``, exclusive prefix sum of the bucket counts, scatter into cell order. Dense
+   buckets (one per cell) when the domain's cell count is at most ~8 N, else a hash table of
+   2 N..4 N buckets (sparse or unbounded domains: a lone droplet far away costs one bucket).
+3. density (only when the client sent none), then colour field + gradient + surface flag, then
+   (surface-only splatting) the dilated splat mask. The three read the same sorted arrays.
+4. host: surface density (mean density of surface particles) and the eq 29 radii, vectorised.
+
+The kernel file is ``shaders/sph.cl``; its header documents the kernel function and grid modes.
+`SphEngine` owns its device buffers (grown geometrically, reused across frames) and releases
+them in `release`; the program itself is cached by the `CLContext`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import numpy.typing as npt
+
+from sphrender.client.errors import InputError
+from sphrender.client.frame import ParticleFrame
+from sphrender.server.engine.cl_context import CLContext
+
+if TYPE_CHECKING:
+    from sphrender.server.scene import Scene
+
+F32 = npt.NDArray[np.float32]
+F64 = npt.NDArray[np.float64]
+Bools = npt.NDArray[np.bool_]
+
+#: Kernel file (package data in `sphrender.shaders`).
+SPH_KERNELS = "sph.cl"
+#: Work-group size for every 1-D launch (global sizes are padded to a multiple of it).
+WORK_GROUP = 64
+#: Largest cell coordinate accepted (cells are int32 on the device, with room for +-1).
+MAX_CELL_SPAN = 2**30
+#: Dense buckets while the domain has at most this many cells per particle (+ a small floor).
+DENSE_CELLS_PER_PARTICLE = 8
+#: Target number of chunks in the three-pass prefix sum (the middle pass is serial).
+SCAN_CHUNKS = 4096
+
+
+@dataclass(frozen=True)
+class SphParameters:
+    """Absolute SPH settings for one frame, resolved from a scene and a particle radius."""
+
+    support_radius: float
+    mass: float
+    rest_density: float
+    #: eq 28's t in 1/length: surface where |n| > surface_threshold.
+    surface_threshold: float
+    #: Splat mask: kernel density below this (absolute) marks a sparse particle.
+    sparse_density: float
+    #: Splat mask: reach of the safety layer around flagged particles (length, <= h).
+    safety_reach: float
+
+    @classmethod
+    def from_scene(cls, scene: Scene, particle_radius: float) -> SphParameters:
+        sph = scene.sph
+        h = sph.support_radius if sph.support_radius is not None else 4.0 * particle_radius
+        mass = sph.mass if sph.mass is not None else sph.rest_density * (2.0 * particle_radius) ** 3
+        return cls(
+            support_radius=h,
+            mass=mass,
+            rest_density=sph.rest_density,
+            surface_threshold=sph.surface_threshold / h,
+            sparse_density=sph.sparse_density * sph.rest_density,
+            safety_reach=sph.safety_layer * h,
+        )
+
+
+@dataclass(frozen=True)
+class SphResult:
+    """Per-particle SPH quantities, in the frame's particle order."""
+
+    density: F32
+    #: False when `density` are the client's densities, passed through.
+    density_computed: bool
+    color_field: F32
+    #: (N, 3), eq 27; None when not asked for.
+    color_gradient: F32 | None
+    #: eq 28 (corrected): |n| > t.
+    surface: Bools
+    #: Surface-only splatting: which particles to splat; None when not asked for.
+    splat_keep: Bools | None
+
+
+def frame_particle_radius(frame: ParticleFrame, scene: Scene) -> float:
+    """The radius that defines h and m: the median client radius, else the scene's."""
+    if frame.radii is not None and frame.count:
+        return float(np.median(frame.radii))
+    return scene.particles.radius
+
+
+def check_densities(densities: object, count: int, name: str = "densities") -> F32:
+    """Client densities as float32; `InputError` naming `name[i]` for <= 0, NaN or Inf."""
+    array = np.asarray(densities)
+    if array.dtype.kind not in "fiu":
+        raise InputError(name, f"must be a numeric array, got dtype {array.dtype}")
+    if array.shape != (count,):
+        raise InputError(name, f"must have shape ({count},), got {tuple(array.shape)}")
+    values = array.astype(np.float32)
+    bad = ~np.isfinite(values) | (values <= 0.0)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(f"{name}[{i}]", f"must be finite and > 0, got {array[i]!r}")
+    return np.ascontiguousarray(values)
+
+
+def surface_density(density: npt.NDArray[np.floating], surface: Bools) -> float | None:
+    """Eq 29's d_surface: mean density of the surface particles; None when there are none."""
+    if not surface.any():
+        return None
+    return float(np.mean(density[surface], dtype=np.float64))
+
+
+def adaptive_radii(
+    density: npt.NDArray[np.floating],
+    body_radius: float | npt.NDArray[np.floating],
+    d_surface: float | None,
+    *,
+    min_fraction: float,
+    decline: float,
+) -> F32:
+    """Eq 29 with a dimensionless decline k (see `SphConfig.radius_decline`)::
+
+        r = r_body                                        d >= d_surface
+        r = r_body (1 - ((d_surface - d) / d_surface)^2 / k)   d < d_surface
+        r = max(r, min_fraction r_body)
+
+    The thesis writes ``r_body - (d_surface - d)^2 / k_thesis``; with k_thesis = k d_surface^2 /
+    r_body both agree, and k no longer depends on the scene's units. Without surface particles
+    there is no d_surface and every particle keeps r_body.
+    """
+    density64 = np.asarray(density, dtype=np.float64)
+    body = np.broadcast_to(np.asarray(body_radius, dtype=np.float64), density64.shape)
+    if d_surface is None or d_surface <= 0.0:
+        return np.ascontiguousarray(body, dtype=np.float32)
+    deficit = np.clip((d_surface - density64) / d_surface, 0.0, None)
+    radius = body * (1.0 - deficit**2 / decline)
+    return np.maximum(radius, min_fraction * body).astype(np.float32)
+
+
+@dataclass
+class _Grid:
+    """The sorted particle grid of one frame, living in the engine's buffers."""
+
+    count: int
+    nx: int  # > 0: dense buckets; 0: hashed
+    ny: int
+    nz: int
+    mask: int
+    h: float
+
+
+def _round_up(n: int, multiple: int) -> int:
+    return max(multiple, -(-n // multiple) * multiple)
+
+
+class SphEngine:
+    """Runs the SPH kernels on one `CLContext`; owns its device buffers (see module docstring)."""
+
+    def __init__(self, cl: CLContext) -> None:
+        import pyopencl
+
+        self._cl = cl
+        self._pyopencl: Any = pyopencl
+        program = cl.program(SPH_KERNELS)
+        self._kernels: dict[str, Any] = {
+            name: pyopencl.Kernel(program, name)
+            for name in (
+                "count_buckets",
+                "scatter_sorted",
+                "chunk_sums",
+                "scan_chunk_sums",
+                "chunk_scan",
+                "count_neighbours",
+                "list_neighbours",
+                "density",
+                "gather_volumes",
+                "color_field",
+                "dilate_flags",
+            )
+        }
+        self._buffers: dict[str, Any] = {}
+
+    # -- buffers ---------------------------------------------------------------------------
+
+    def _buffer(self, name: str, nbytes: int) -> Any:
+        """A device buffer of at least `nbytes`, reused across frames, grown geometrically."""
+        nbytes = max(nbytes, 16)
+        buffer = self._buffers.get(name)
+        if buffer is None or buffer.size < nbytes:
+            if buffer is not None:
+                nbytes = max(nbytes, buffer.size * 2)  # size first: a released buffer has none
+                buffer.release()
+            buffer = self._pyopencl.Buffer(
+                self._cl.context, self._pyopencl.mem_flags.READ_WRITE, nbytes
+            )
+            self._buffers[name] = buffer
+        return buffer
+
+    def _upload(self, name: str, array: np.ndarray) -> Any:
+        buffer = self._buffer(name, array.nbytes)
+        if array.nbytes:
+            self._pyopencl.enqueue_copy(self._cl.queue, buffer, np.ascontiguousarray(array))
+        return buffer
+
+    def _download(self, buffer: Any, array: np.ndarray) -> np.ndarray:
+        if array.nbytes:
+            self._pyopencl.enqueue_copy(self._cl.queue, array, buffer)
+        return array
+
+    def _run(self, name: str, global_size: int, *args: Any) -> None:
+        kernel = self._kernels[name]
+        kernel(self._cl.queue, (_round_up(global_size, WORK_GROUP),), (WORK_GROUP,), *args)
+
+    def release(self) -> None:
+        """Release every device buffer (owner thread); the engine is unusable afterwards."""
+        self._cl.check_owner()
+        for buffer in self._buffers.values():
+            buffer.release()
+        self._buffers.clear()
+        self._kernels.clear()
+
+    # -- grid ------------------------------------------------------------------------------
+
+    def _prefix_sum(self, counts: Any, m: int, starts: Any) -> None:
+        """starts[0..m] = exclusive prefix sum of counts[0..m-1] (starts[m] = total)."""
+        chunk = max(32, -(-m // SCAN_CHUNKS))
+        chunks = -(-m // chunk)
+        sums = self._buffer("scan_sums", 4 * (chunks + 1))
+        u32 = np.uint32
+        self._run("chunk_sums", chunks, counts, u32(m), u32(chunk), sums)
+        self._kernels["scan_chunk_sums"](self._cl.queue, (1,), (1,), sums, u32(chunks))
+        self._run("chunk_scan", chunks, counts, u32(m), u32(chunk), u32(chunks), sums, starts)
+
+    def _build_grid(self, positions: F64, h: float) -> _Grid:
+        n = positions.shape[0]
+        lo = positions.min(axis=0)
+        relative = positions - lo
+        cell_f = np.floor(relative / h)
+        span = cell_f.max(axis=0)
+        if float(span.max()) >= MAX_CELL_SPAN:
+            extent = float((positions.max(axis=0) - lo).max())
+            raise InputError(
+                "positions",
+                f"the particles span {extent:g} units, more than {MAX_CELL_SPAN} support radii "
+                f"({h:g}); split the frame or raise sph.support_radius",
+            )
+        cell = np.zeros((n, 4), dtype=np.int32)
+        cell[:, :3] = cell_f
+        local = np.zeros((n, 4), dtype=np.float32)
+        local[:, :3] = relative - cell_f * h
+        dims = [int(s) + 1 for s in span]
+        cells = dims[0] * dims[1] * dims[2]
+        if cells <= DENSE_CELLS_PER_PARTICLE * n + 4096:
+            nx, ny, nz, mask, buckets = dims[0], dims[1], dims[2], 0, cells
+        else:
+            buckets = 1 << max(10, math.ceil(math.log2(2 * n)))
+            nx, ny, nz, mask = 0, 0, 0, buckets - 1
+
+        queue = self._cl.queue
+        cell_buf = self._upload("cell", cell)
+        local_buf = self._upload("local", local)
+        counts = self._buffer("bucket_counts", 4 * buckets)
+        self._pyopencl.enqueue_fill_buffer(queue, counts, np.uint32(0), 0, 4 * buckets)
+        bucket = self._buffer("bucket", 4 * n)
+        rank = self._buffer("rank", 4 * n)
+        i32, u32 = np.int32, np.uint32
+        self._run(
+            "count_buckets", n, cell_buf, u32(n), i32(nx), i32(ny), u32(mask), bucket, rank, counts
+        )
+        starts = self._buffer("bucket_starts", 4 * (buckets + 1))
+        self._prefix_sum(counts, buckets, starts)
+        self._run(
+            "scatter_sorted",
+            n,
+            cell_buf,
+            local_buf,
+            bucket,
+            rank,
+            starts,
+            u32(n),
+            self._buffer("sorted_cell", 16 * n),
+            self._buffer("sorted_local", 16 * n),
+            self._buffer("sorted_to_original", 4 * n),
+        )
+        return _Grid(n, nx, ny, nz, mask, h)
+
+    def _grid_args(self, grid: _Grid) -> tuple[Any, ...]:
+        """The GRID_ARGS of sph.cl followed by sorted_to_original and n."""
+        return (
+            self._buffers["sorted_cell"],
+            self._buffers["sorted_local"],
+            self._buffers["bucket_starts"],
+            np.int32(grid.nx),
+            np.int32(grid.ny),
+            np.int32(grid.nz),
+            np.uint32(grid.mask),
+            np.float32(grid.h),
+            self._buffers["sorted_to_original"],
+            np.uint32(grid.count),
+        )
+
+    # -- public ----------------------------------------------------------------------------
+
+    def neighbour_lists(
+        self, positions: npt.ArrayLike, support_radius: float
+    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+        """CSR neighbour lists: for particle i, ``indices[offsets[i]:offsets[i+1]]`` are the j != i
+        with |x_i - x_j| < support_radius, in no particular order."""
+        self._cl.check_owner()
+        points = np.ascontiguousarray(positions, dtype=np.float64)
+        n = points.shape[0]
+        if n == 0:
+            return np.zeros(1, np.int64), np.zeros(0, np.int64)
+        grid = self._build_grid(points, support_radius)
+        args = self._grid_args(grid)
+        counts = self._buffer("neighbour_counts", 4 * n)
+        self._run("count_neighbours", n, *args, counts)
+        offsets_buf = self._buffer("neighbour_offsets", 4 * (n + 1))
+        self._prefix_sum(counts, n, offsets_buf)
+        offsets = self._download(offsets_buf, np.empty(n + 1, np.uint32))
+        total = int(offsets[-1])
+        neighbours = self._buffer("neighbour_list", 4 * total)
+        self._run("list_neighbours", n, *args, offsets_buf, neighbours)
+        indices = self._download(neighbours, np.empty(total, np.uint32))
+        return offsets.astype(np.int64), indices.astype(np.int64)
+
+    def compute(
+        self,
+        positions: npt.ArrayLike,
+        params: SphParameters,
+        densities: npt.ArrayLike | None = None,
+        *,
+        gradient: bool = True,
+        splat_mask: bool = False,
+    ) -> SphResult:
+        """Density (unless `densities` are given), colour field, surface flags; the gradient and
+        the surface-only splat mask only when asked for (their read-back costs time)."""
+        self._cl.check_owner()
+        points = np.ascontiguousarray(positions, dtype=np.float64)
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise InputError("positions", f"must have shape (N, 3), got {points.shape}")
+        n = points.shape[0]
+        if not np.isfinite(points).all():
+            bad = int(np.flatnonzero(~np.isfinite(points).all(axis=1))[0])
+            raise InputError(f"positions[{bad}]", "must be finite (found NaN or Inf)")
+        client_densities = None if densities is None else check_densities(densities, n)
+        if n == 0:
+            empty = np.zeros(0, np.float32)
+            return SphResult(
+                empty,
+                client_densities is None,
+                empty,
+                np.zeros((0, 3), np.float32) if gradient else None,
+                np.zeros(0, bool),
+                np.zeros(0, bool) if splat_mask else None,
+            )
+        grid = self._build_grid(points, params.support_radius)
+        args = self._grid_args(grid)
+        f32 = np.float32
+        sorted_volume = self._buffer("sorted_volume", 4 * n)
+        density_out = self._buffer("density", 4 * n)
+        if client_densities is None:
+            self._run("density", n, *args, f32(params.mass), sorted_volume, density_out)
+        else:
+            self._upload("density", client_densities)
+            self._run(
+                "gather_volumes",
+                n,
+                density_out,
+                self._buffers["sorted_to_original"],
+                np.uint32(n),
+                f32(params.mass),
+                sorted_volume,
+            )
+        color_out = self._buffer("color", 4 * n)
+        gradient_out = self._buffer("gradient", 16 * n)
+        surface_out = self._buffer("surface", n)
+        sorted_flag = self._buffer("sorted_flag", n)
+        self._run(
+            "color_field",
+            n,
+            *args,
+            f32(params.mass),
+            sorted_volume,
+            f32(params.surface_threshold),
+            f32(params.sparse_density),
+            color_out,
+            gradient_out,
+            surface_out,
+            sorted_flag,
+        )
+        keep_out = None
+        if splat_mask:
+            keep_out = self._buffer("splat_keep", n)
+            self._run("dilate_flags", n, *args, sorted_flag, f32(params.safety_reach), keep_out)
+
+        density = (
+            client_densities
+            if client_densities is not None
+            else self._download(density_out, np.empty(n, np.float32))
+        )
+        color = self._download(color_out, np.empty(n, np.float32))
+        surface = self._download(surface_out, np.empty(n, np.uint8)).astype(bool)
+        gradient_xyz = None
+        if gradient:
+            gradient4 = self._download(gradient_out, np.empty((n, 4), np.float32))
+            gradient_xyz = np.ascontiguousarray(gradient4[:, :3])
+        keep = None
+        if keep_out is not None:
+            keep = self._download(keep_out, np.empty(n, np.uint8)).astype(bool)
+        return SphResult(density, client_densities is None, color, gradient_xyz, surface, keep)
+
+
+# -- renderer glue ---------------------------------------------------------------------------
+
+
+def needs_sph(scene: Scene) -> bool:
+    """Whether a frame of this scene needs the SPH pass at all (compute only what is needed).
+
+    Densities alone are needed by no feature yet, so a client that sends none costs nothing
+    unless adaptive radii or surface-only splatting are on."""
+    return scene.sph.adaptive_radius or scene.sph.surface_only
+
+
+def eq29_radii(result: SphResult, frame: ParticleFrame, scene: Scene) -> F32:
+    """Eq 29's adaptive radii for this frame: the body radius (the frame's radii, else the
+    scene's) shrunk for particles less dense than the surface average."""
+    body: float | F32 = frame.radii if frame.radii is not None else scene.particles.radius
+    return adaptive_radii(
+        result.density,
+        body,
+        surface_density(result.density, result.surface),
+        min_fraction=scene.sph.min_radius,
+        decline=scene.sph.radius_decline,
+    )
+
+
+def apply_to_frame(
+    engine: SphEngine, frame: ParticleFrame, scene: Scene
+) -> tuple[ParticleFrame, SphResult]:
+    """The frame the splat pass should draw: eq 29 radii and/or only the particles to splat."""
+    particle_radius = frame_particle_radius(frame, scene)
+    params = SphParameters.from_scene(scene, particle_radius)
+    sph = scene.sph
+    result = engine.compute(
+        frame.positions,
+        params,
+        frame.densities,
+        gradient=False,
+        splat_mask=sph.surface_only,
+    )
+    radii = eq29_radii(result, frame, scene) if sph.adaptive_radius else frame.radii
+    out = replace(frame, radii=radii)
+    if result.splat_keep is not None:
+        keep = result.splat_keep
+        out = ParticleFrame(
+            positions=out.positions[keep],
+            densities=None if out.densities is None else out.densities[keep],
+            radii=None if out.radii is None else out.radii[keep],
+            temperatures=None if out.temperatures is None else out.temperatures[keep],
+        )
+    return out, result
