@@ -66,6 +66,15 @@ def _build_parser() -> argparse.ArgumentParser:
     )
     render.add_argument("--scene", type=Path, help="scene TOML (default: built-in defaults)")
     render.add_argument(
+        "--env-dir",
+        type=Path,
+        action="append",
+        default=[],
+        metavar="DIR",
+        help="directory that [environment] file may name files in (repeatable; default: the "
+        "scene file's directory)",
+    )
+    render.add_argument(
         "-o",
         "--output",
         type=Path,
@@ -121,8 +130,9 @@ def _run_render(args: argparse.Namespace) -> int:
     paths = _output_paths(args.inputs, args.output, encoders.file_suffix(fmt))
     frames = [(name, path) for name, path in zip(args.inputs, paths, strict=True)]
     failures: list[str] = []
+    env_dirs = list(args.env_dir) or ([args.scene.resolve().parent] if args.scene else [])
     with GLContext() as gl:
-        renderer = SurfaceRenderer(gl)
+        renderer = SurfaceRenderer(gl, environment_dirs=env_dirs)
         renderer.check_image_size(scene)
         log.info("GL renderer: %s (%s)", gl.renderer, gl.version)
         try:
@@ -162,7 +172,9 @@ def _render_one(
     try:
         if fmt == "png":
             options = encoders.PngOptions(
-                bits=scene.output.png_bits, exposure=scene.output.exposure
+                bits=scene.output.png_bits,
+                exposure=scene.output.exposure,
+                tone_mapper=scene.output.tone_mapper,
             )
             encoders.write_png(frame, partial, options)
         else:

@@ -245,7 +245,9 @@ class EnvironmentConfig:
         "overcast (CIE overcast sky over grey ground) or studio (soft boxes on dark grey); "
         "default workshop",
     )
-    uniform: Vec3 | None = spec(None, "constant radiance from every direction (linear RGB)", low=0.0)
+    uniform: Vec3 | None = spec(
+        None, "constant radiance from every direction (linear RGB)", low=0.0
+    )
     file: str | None = spec(
         None,
         "equirectangular HDR/EXR (2:1, +y up) read with OpenImageIO, relative to one of the "
@@ -313,8 +315,10 @@ class OutputConfig:
     aovs: tuple[AovName, ...] = spec(
         ("Z", "N"), "extra EXR layers: Z (eye depth) and N (world normal); ignored for PNG"
     )
-    exr_pixel_type: Literal["half", "float"] = spec(
-        "half", "EXR colour/normal precision (Z is always float32); molten metal needs float"
+    exr_pixel_type: Literal["half", "float", "auto"] = spec(
+        "auto",
+        "EXR colour/normal precision (Z is always float32): half, float, or auto = half unless "
+        "a colour exceeds half's 65504 (molten metal does), then float",
     )
     png_bits: Literal[8, 16] = spec(8, "PNG bit depth")
     exposure: float = spec(0.0, "PNG exposure in stops (EXR stays scene-linear)", low=-32, high=32)
@@ -524,6 +528,7 @@ def load_scene(path: str | Path) -> Scene:
 
 def scene_to_dict(scene: Scene) -> dict[str, Any]:
     """The scene as a plain mapping (for JSON over the wire and for `scene_from_dict`)."""
+
     def table(value: Any) -> dict[str, Any]:
         return {
             f.name: list(v) if isinstance(v := getattr(value, f.name), tuple) else v

@@ -8,8 +8,9 @@ XYZ -> linear Rec.709 normalised to luminance 1. Both reproduce validation-data.
 Gamut: below about 1900 K the colour lies outside Rec.709 (negative blue, -0.09 at 1000 K). The
 negative channel is clipped to 0 and the colour rescaled to luminance 1 again. Of the simple
 choices this moves the colour least: at 1000 K red changes by 0.7%, whereas desaturating towards
-white until blue reaches 0 would change red by 6.5% and triple green. Absolute values reach 5.6e6 cd/m^2 at 2500 K, far above half float's 65504:
-the shader works in fp32, and EXR output switches to float when values exceed half range.
+white until blue reaches 0 would change red by 6.5% and triple green. Absolute values reach
+5.6e6 cd/m^2 at 2500 K, far above half float's 65504: the shader works in fp32, and EXR output
+(exr_pixel_type = "auto") switches to float when values exceed half range.
 """
 
 from __future__ import annotations
@@ -67,8 +68,10 @@ def to_gamut(rgb: F64) -> F64:
     """Clip negative channels of a luminance-1 colour and rescale it to luminance 1."""
     clipped = np.maximum(np.asarray(rgb, dtype=np.float64), 0.0)
     luminance = clipped @ REC709_LUMINANCE
-    result: F64 = clipped / np.maximum(luminance, 1e-30)[..., None] if clipped.ndim > 1 else (
-        clipped / max(float(luminance), 1e-30)
+    result: F64 = (
+        clipped / np.maximum(luminance, 1e-30)[..., None]
+        if clipped.ndim > 1
+        else (clipped / max(float(luminance), 1e-30))
     )
     return result
 

@@ -184,7 +184,9 @@ def _workshop(width: int, height: int) -> F64:
     with np.errstate(divide="ignore", invalid="ignore"):
         tx = np.where(d[..., 0] != 0, np.abs(half[0] / d[..., 0]), np.inf)
         tz = np.where(d[..., 2] != 0, np.abs(half[2] / d[..., 2]), np.inf)
-        ty = np.where(d[..., 1] > 0, ceiling / d[..., 1], np.where(d[..., 1] < 0, -1.6 / d[..., 1], np.inf))
+        ty = np.where(
+            d[..., 1] > 0, ceiling / d[..., 1], np.where(d[..., 1] < 0, -1.6 / d[..., 1], np.inf)
+        )
     t = np.minimum(np.minimum(tx, tz), ty)
     p = d * t[..., None]
     x, y, z = p[..., 0], p[..., 1], p[..., 2]
@@ -243,9 +245,13 @@ def _overcast(width: int, height: int) -> F64:
     elevation = np.arcsin(np.clip(up, -1, 1))
     buildings = (elevation > 0) & (elevation < skyline)
     ground = 0.2 * (7.0 / 9.0) * lz
-    ground_rgb = np.array([0.95, 0.9, 0.8]) * ground * (
-        0.8 + 0.4 * _value_noise(d[..., 0] * 8 / (np.abs(up) + 0.05), d[..., 2] * 8, 2)
-    )[..., None]
+    ground_rgb = (
+        np.array([0.95, 0.9, 0.8])
+        * ground
+        * (0.8 + 0.4 * _value_noise(d[..., 0] * 8 / (np.abs(up) + 0.05), d[..., 2] * 8, 2))[
+            ..., None
+        ]
+    )
     rgb = np.where((up > 0)[..., None], sky_rgb, ground_rgb)
     rgb = np.where(buildings[..., None], np.array([0.18, 0.18, 0.2]), rgb)
     return rgb

@@ -51,7 +51,7 @@ def write_matrix(program: moderngl.Program, name: str, matrix: npt.NDArray[np.fl
 def _set(program: moderngl.Program, name: str, value: object) -> None:
     """Set a uniform if the compiled variant uses it (GLSL drops unused ones)."""
     if name in program:
-        program[name] = value  # type: ignore[assignment]
+        program[name] = value
 
 
 class ShadePass:
@@ -104,17 +104,20 @@ class ShadePass:
         """Shade `normal_depth` (world normal xyz, eye depth w) into `target`."""
         program = self.program_for(scene, temperature is not None)
         shading = scene.shading
-        unit = 0
+        # Textures are bound only after every resource exists: building one (prefiltering, the
+        # BRDF table) runs passes of its own that rebind texture units.
+        textures: list[tuple[str, moderngl.Texture]] = []
 
         def bind(name: str, texture: moderngl.Texture) -> None:
-            nonlocal unit
             if name in program:
-                texture.use(unit)
-                program[name] = unit
-                unit += 1
+                textures.append((name, texture))
 
         bind("u_normal_depth", normal_depth)
-        _set(program, "u_tan_half_fov", (camera.tan_half_fov_y * camera.aspect, camera.tan_half_fov_y))
+        _set(
+            program,
+            "u_tan_half_fov",
+            (camera.tan_half_fov_y * camera.aspect, camera.tan_half_fov_y),
+        )
         write_matrix(program, "u_view_to_world", camera.rotation.T)
 
         material = resolve_material(scene.material)
@@ -150,6 +153,9 @@ class ShadePass:
             _set(program, "u_emissivity", material.normal_emissivity)
             _set(program, "u_emission_scale", shading.emission_scale)
 
+        for unit, (name, texture) in enumerate(textures):
+            texture.use(unit)
+            program[name] = unit
         target.use()
         vao = self._vaos.get(program.glo)
         if vao is None:
