@@ -196,7 +196,7 @@ def _workshop(width: int, height: int) -> F64:
 
     rgb = np.zeros((height, width, 3))
     # Walls: painted grey-beige, darker lower band, shelving as dark horizontal bands with boxes.
-    wall = np.array([0.060, 0.057, 0.050]) * (0.85 + 0.3 * _value_noise(x + z, y * 2, 3))[..., None]
+    wall = np.array([0.130, 0.122, 0.105]) * (0.85 + 0.3 * _value_noise(x + z, y * 2, 3))[..., None]
     lower = _box(y, -1.7, -0.6, 0.02)[..., None]
     wall = wall * (1 - 0.45 * lower)
     shelf_rows = sum(_box(y, h, h + 0.05, 0.01) for h in (-0.9, -0.1, 0.7))
@@ -211,12 +211,12 @@ def _workshop(width: int, height: int) -> F64:
     mullion_x = sum(_box(x, m - 0.04, m + 0.04, 0.01) for m in (-1.75, 0.0, 1.75))
     mullion_y = sum(_box(y, m - 0.04, m + 0.04, 0.01) for m in (1.4, 2.5))
     glass = pane_x * pane_y * (1 - np.clip(mullion_x + mullion_y, 0, 1))
-    sky = np.array([2.2, 2.9, 4.2]) * (0.8 + 0.4 * ((y - 0.3) / 3.3))[..., None]
+    sky = np.array([4.4, 5.8, 8.4]) * (0.8 + 0.4 * ((y - 0.3) / 3.3))[..., None]
     sky_window = glass[..., None] * sky
     rgb = np.where(on_wall[..., None], wall, rgb)
     rgb = np.where(window_wall[..., None], rgb * (1 - glass[..., None]) + sky_window, rgb)
     # Floor: concrete with mottling and a yellow safety line; lit more under the window.
-    concrete = 0.022 * (0.75 + 0.5 * _value_noise(x * 0.7, z * 0.7, 5))
+    concrete = 0.05 * (0.75 + 0.5 * _value_noise(x * 0.7, z * 0.7, 5))
     floor = np.stack([concrete * 1.02, concrete, concrete * 0.95], axis=-1)
     line = _box(x, 2.4, 2.55, 0.01)[..., None] * np.array([0.05, 0.04, 0.0])
     pool = 1.0 + 1.5 * np.exp(-((x / 4.0) ** 2 + ((z + 8.0) / 4.0) ** 2))
@@ -226,7 +226,7 @@ def _workshop(width: int, height: int) -> F64:
     tubes = sum(_box(x, c - 0.12, c + 0.12, 0.015) for c in (-4.5, 0.0, 4.5))
     segments = _box(np.mod(z + 9.0, 3.0), 0.3, 2.7, 0.02)
     lamp = np.clip(tubes, 0, 1) * segments
-    ceil = np.array([0.012, 0.012, 0.013]) + lamp[..., None] * np.array([5.0, 5.2, 5.4])
+    ceil = np.array([0.03, 0.03, 0.032]) + lamp[..., None] * np.array([8.0, 8.3, 8.6])
     rgb = np.where(on_ceiling[..., None], ceil, rgb)
     return rgb
 

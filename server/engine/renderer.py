@@ -305,6 +305,10 @@ class SurfaceRenderer:
             self._fullscreen(program).render(moderngl.TRIANGLES, vertices=3)
 
         with self._stage(stats, "shade"):
+            if temperature is not None and stats.particles_drawn:
+                temperature = self._shade.smooth_temperature(
+                    temperature, surface, camera, prepared.reference_radius
+                )
             self._shade.run(scene, camera, targets.normal_depth, temperature, targets.color_fbo)
 
         with self._stage(stats, "readback"):

@@ -39,6 +39,11 @@ _VIEW_DEFINES = {
     "irradiance": 5,
 }
 _G_TERM_DEFINES = {"smith_height_correlated": 0, "eq37": 1}
+#: Temperature blur: sigma in projected particle radii, kernel cap, and the depth window (in
+#: particle radii) outside which samples belong to another surface.
+TEMPERATURE_SIGMA_RADII = 2.0
+TEMPERATURE_MAX_REACH_PX = 24
+TEMPERATURE_DEPTH_RANGE_RADII = 4.0
 
 
 def write_matrix(program: moderngl.Program, name: str, matrix: npt.NDArray[np.floating]) -> None:
@@ -67,6 +72,10 @@ class ShadePass:
         self.ibl = IblCache(gl, programs)
         self._blackbody: moderngl.Texture | None = None
         self._vaos: dict[int, moderngl.VertexArray] = {}
+        # Ping-pong targets of the temperature blur, rebuilt only when the image size changes.
+        self._blur_size: tuple[int, int] | None = None
+        self._blur_textures: list[moderngl.Texture] = []
+        self._blur_fbos: list[moderngl.Framebuffer] = []
 
     def program_for(self, scene: Scene, has_temperature: bool) -> moderngl.Program:
         shading = scene.shading
@@ -93,6 +102,63 @@ class ShadePass:
             self._blackbody = texture
         return self._blackbody
 
+    def _vao(self, program: moderngl.Program) -> moderngl.VertexArray:
+        vao = self._vaos.get(program.glo)
+        if vao is None:
+            vao = self._gl.ctx.vertex_array(program, [])
+            self._vaos[program.glo] = vao
+        return vao
+
+    def _blur_targets(self, size: tuple[int, int]) -> list[moderngl.Framebuffer]:
+        if self._blur_size != size:
+            self._release_blur()
+            ctx = self._gl.ctx
+            for _ in range(2):
+                texture = ctx.texture(size, 1, dtype="f4")
+                texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+                self._blur_textures.append(texture)
+                self._blur_fbos.append(ctx.framebuffer([texture]))
+            self._blur_size = size
+        return self._blur_fbos
+
+    def _release_blur(self) -> None:
+        for fbo in self._blur_fbos:
+            fbo.release()
+        for texture in self._blur_textures:
+            texture.release()
+        self._blur_fbos.clear()
+        self._blur_textures.clear()
+        self._blur_size = None
+
+    def smooth_temperature(
+        self,
+        temperature: moderngl.Texture,
+        depth: moderngl.Texture,
+        camera: Camera,
+        particle_radius: float,
+    ) -> moderngl.Texture:
+        """Depth-aware separable blur of the splatted temperature (`smooth_temperature.frag`);
+        sigma = TEMPERATURE_SIGMA_RADII projected particle radii."""
+        fbos = self._blur_targets(temperature.size)
+        program = self._programs.get("fullscreen.vert.glsl", "smooth_temperature.frag.glsl")
+        program["u_radius_px_at_unit_depth"] = (
+            particle_radius * camera.pixels_per_unit_at_unit_depth
+        )
+        program["u_sigma_radii"] = TEMPERATURE_SIGMA_RADII
+        program["u_max_reach_px"] = TEMPERATURE_MAX_REACH_PX
+        program["u_depth_range"] = TEMPERATURE_DEPTH_RANGE_RADII * particle_radius
+        program["u_temperature"] = 0
+        program["u_depth"] = 1
+        depth.use(1)
+        source = temperature
+        for index, direction in enumerate(((1, 0), (0, 1))):
+            source.use(0)
+            program["u_direction"] = direction
+            fbos[index].use()
+            self._vao(program).render(moderngl.TRIANGLES, vertices=3)
+            source = self._blur_textures[index]
+        return source
+
     def run(
         self,
         scene: Scene,
@@ -101,7 +167,8 @@ class ShadePass:
         temperature: moderngl.Texture | None,
         target: moderngl.Framebuffer,
     ) -> None:
-        """Shade `normal_depth` (world normal xyz, eye depth w) into `target`."""
+        """Shade `normal_depth` (world normal xyz, eye depth w) into `target`; `temperature`
+        (kelvin per pixel, already smoothed) adds the hot-metal glow."""
         program = self.program_for(scene, temperature is not None)
         shading = scene.shading
         # Textures are bound only after every resource exists: building one (prefiltering, the
@@ -157,11 +224,7 @@ class ShadePass:
             texture.use(unit)
             program[name] = unit
         target.use()
-        vao = self._vaos.get(program.glo)
-        if vao is None:
-            vao = self._gl.ctx.vertex_array(program, [])
-            self._vaos[program.glo] = vao
-        vao.render(moderngl.TRIANGLES, vertices=3)
+        self._vao(program).render(moderngl.TRIANGLES, vertices=3)
 
     def _set_lights(self, program: moderngl.Program, scene: Scene, camera: Camera) -> None:
         count = len(scene.lights)
@@ -191,6 +254,7 @@ class ShadePass:
         for vao in self._vaos.values():
             vao.release()
         self._vaos.clear()
+        self._release_blur()
         self.ibl.release()
         if self._blackbody is not None:
             self._blackbody.release()
