@@ -46,10 +46,10 @@ PREFILTER_LEVELS = 6
 #: Width of the prefiltered chain's level 0 (clamped to a power of two between these).
 PREFILTER_MIN_WIDTH = 64
 PREFILTER_MAX_WIDTH = 512
-#: BRDF table size and samples per texel: 128 x 128 keeps bilinear interpolation error below
-#: 1e-3 of the albedo; 1024 Hammersley samples keep the estimator error below ~1e-3 (tested).
-BRDF_LUT_SIZE = 128
-BRDF_LUT_SAMPLES = 1024
+#: BRDF table size (texels per axis) and Gauss-Legendre nodes per texel axis of its product
+#: rule (brdf_lut.frag.glsl; the error budget is in tests/test_shading_ibl.py).
+BRDF_LUT_SIZE = 64
+BRDF_LUT_NODES = 64
 _G_TERM_DEFINES = {"smith_height_correlated": 0, "eq37": 1}
 
 
@@ -218,14 +218,18 @@ class IblCache:
         lut.filter = (moderngl.LINEAR, moderngl.LINEAR)
         lut.repeat_x = lut.repeat_y = False
         program = self._programs.get(
-            "fullscreen.vert.glsl", "brdf_lut.frag.glsl", {"G_TERM": _G_TERM_DEFINES[g_term]}
+            "fullscreen.vert.glsl",
+            "brdf_lut.frag.glsl",
+            {"G_TERM": _G_TERM_DEFINES[g_term], "NODES": BRDF_LUT_NODES},
         )
         fbo = ctx.framebuffer([lut])
         vao = ctx.vertex_array(program, [])
         try:
             fbo.use()
             program["u_size"] = (float(size[0]), float(size[1]))
-            program["u_samples"] = BRDF_LUT_SAMPLES
+            nodes, weights = np.polynomial.legendre.leggauss(BRDF_LUT_NODES)
+            program["u_nodes"].write(((nodes + 1.0) * 0.5).astype(np.float32).tobytes())  # type: ignore[union-attr]
+            program["u_weights"].write((weights * 0.5).astype(np.float32).tobytes())  # type: ignore[union-attr]
             vao.render(moderngl.TRIANGLES, vertices=3)
         finally:
             vao.release()
