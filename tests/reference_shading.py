@@ -71,8 +71,8 @@ def albedo_weights(g_term: str, nv: float, alpha: float, h: F64) -> tuple[F64, F
     directional albedo for F0 is mean(G_vis ((1 - Fc) F0 + Fc)) under h ~ D (n.h)."""
     v = np.array([np.sqrt(max(1 - nv * nv, 0.0)), 0.0, nv])
     vh = h @ v
-    l = 2 * vh[..., None] * h - v
-    nl = l[..., 2]
+    light = 2 * vh[..., None] * h - v
+    nl = light[..., 2]
     nh = h[..., 2]
     ok = (nl > 0) & (vh > 0)
     nl_s = np.where(ok, nl, 1.0)
@@ -101,8 +101,8 @@ def albedo_quadrature(g_term: str, nv: float, alpha: float, f0: float = 1.0, n: 
 
 
 def radical_inverse(i: npt.NDArray[np.int64]) -> F64:
-    bits = i.astype(np.uint32)
-    bits = (bits << 16) | (bits >> 16)
+    bits: npt.NDArray[np.integer] = i.astype(np.uint32)
+    bits = ((bits << 16) | (bits >> 16)) & 0xFFFFFFFF
     bits = ((bits & 0x55555555) << 1) | ((bits & 0xAAAAAAAA) >> 1)
     bits = ((bits & 0x33333333) << 2) | ((bits & 0xCCCCCCCC) >> 2)
     bits = ((bits & 0x0F0F0F0F) << 4) | ((bits & 0xF0F0F0F0) >> 4)
@@ -146,8 +146,8 @@ def albedo_hammersley_at(g_term: str, n: F64, v: F64, alpha: float, count: int) 
         + n[..., None, :] * h_t[:, 2, None]
     )
     vh = np.einsum("...sk,...k->...s", h, v)
-    l = 2 * vh[..., None] * h - v[..., None, :]
-    nl = np.einsum("...sk,...k->...s", l, n)
+    light = 2 * vh[..., None] * h - v[..., None, :]
+    nl = np.einsum("...sk,...k->...s", light, n)
     nh = h_t[:, 2]
     nv = np.maximum(np.einsum("...k,...k->...", n, v), 1e-4)[..., None]
     ok = (nl > 0) & (vh > 0)

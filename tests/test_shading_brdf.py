@@ -105,8 +105,8 @@ def reference_brdf(params0: np.ndarray, params1: np.ndarray, g_term: str) -> np.
     alpha = ref.alpha_of(roughness)
     v = np.stack([np.sqrt(1 - nv**2), np.zeros_like(nv), nv], axis=-1)
     sl = np.sqrt(1 - nl**2)
-    l = np.stack([sl * np.cos(phi), sl * np.sin(phi), nl], axis=-1)
-    h = (v + l) / np.linalg.norm(v + l, axis=-1, keepdims=True)
+    light = np.stack([sl * np.cos(phi), sl * np.sin(phi), nl], axis=-1)
+    h = (v + light) / np.linalg.norm(v + light, axis=-1, keepdims=True)
     nh = h[..., 2]
     vh = np.einsum("...k,...k->...", v, h)
     d = ref.d_ggx(nh, alpha)
