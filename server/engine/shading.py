@@ -185,7 +185,8 @@ class ShadePass:
             "u_tan_half_fov",
             (camera.tan_half_fov_y * camera.aspect, camera.tan_half_fov_y),
         )
-        write_matrix(program, "u_view_to_world", camera.rotation.T)
+        if "u_view_to_world" in program:
+            write_matrix(program, "u_view_to_world", camera.rotation.T)
 
         material = resolve_material(scene.material)
         _set(program, "u_f0", material.specular_f0)
