@@ -37,7 +37,9 @@ XYZ_TO_REC709 = np.array(
         [0.0556434, -0.2040259, 1.0572252],
     ]
 )
-REC709_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+#: Luminance of linear Rec.709 RGB: the Y row of the inverse matrix (0.2126729, 0.7151522,
+#: 0.0721750), so that a colour computed as XYZ / Y has luminance exactly 1.
+REC709_LUMINANCE = np.linalg.inv(XYZ_TO_REC709)[1]
 
 #: Temperature range of the shader's table: below 500 K nothing visible is emitted (luminance
 #: ~1e-13 cd/m^2); above 12000 K the table clamps (welding arcs are not rendered as particles).
