@@ -119,3 +119,67 @@ def test_particle_temperatures_glow_where_the_hot_particles_are(
     assert np.median(right) > 100.0  # 2500 K iron-free default steel: ~1e3 scene units
     assert np.median(left) < 1e-6  # 300 K emits nothing visible
     assert glow[covered].max() < 1e4  # no 1e4 K particle leaked in (that would be ~1e5)
+
+
+def test_direct_lights_and_eq55_combination(renderer: SurfaceRenderer) -> None:
+    """A directional and a point light on a flat patch facing +z, against the numpy BRDF times
+    irradiance (E cos for the sun, I cos / d^2 for the point light, positions relative to an
+    eye at 1e5: the float64 subtraction keeps them exact). Then eq 55 with k = 0.3 must give
+    0.3 direct + 0.7 indirect, and 'add' their sum. fp32: 1e-4 relative."""
+    eye = np.array([1e5, 0.0, 3.0])
+    light_position = np.array([1e5 + 0.5, 0.4, 1.0])
+    sections = {
+        "image": {"width": 6, "height": 4},
+        "camera": {"eye": list(eye), "target": [1e5, 0.0, 0.0], "fov_y": 20.0},
+        "material": {"preset": "copper", "roughness": 0.4, "metallic": 0.7},
+        "lights": [
+            {"direction": [0.3, -0.2, -1.0], "intensity": 2.0, "color": [1.0, 0.9, 0.8]},
+            {"type": "point", "position": list(light_position), "intensity": 3.0},
+        ],
+        "environment": {"preset": "overcast"},
+    }
+    base = scene_from_dict(sections)
+    camera = Camera.from_config(base.camera, 6, 4)
+    normals = np.zeros((4, 6, 3))
+    normals[..., 2] = 1.0
+    image = ref.normal_depth_image(camera, normals, depth=3.0)
+
+    def shade(**shading: object) -> np.ndarray:
+        scene = scene_from_dict({**sections, "shading": shading})
+        return renderer.shade_normal_depth(image, scene)[..., :3].astype(np.float64)
+
+    direct = shade(debug_view="direct")
+    from sphrender.server.analytic_scenes import pixel_rays
+    from sphrender.server.engine.materials import resolve_material
+
+    material = resolve_material(base.material)
+    rays = pixel_rays(camera)
+    points = rays.origin + rays.directions * (3.0 / rays.view_z)[..., None]
+    v = -rays.directions
+    n = np.array([0.0, 0.0, 1.0])
+    alpha = float(ref.alpha_of(material.roughness))
+    f0 = np.array(material.specular_f0)
+    albedo = np.array(material.diffuse_albedo)
+
+    def brdf(light: np.ndarray) -> np.ndarray:
+        h = (v + light) / np.linalg.norm(v + light, axis=-1, keepdims=True)
+        nl, nv, nh = light @ n, v @ n, h @ n
+        vh = np.einsum("...k,...k->...", v, h)
+        f = ref.schlick(f0, vh[..., None])
+        spec = ref.d_ggx(nh, alpha) * ref.visibility(
+            "smith_height_correlated", nl, nv, nh, vh, alpha
+        )
+        return (1 - f) * albedo / np.pi + spec[..., None] * f
+
+    sun = -np.array([0.3, -0.2, -1.0]) / np.linalg.norm([0.3, -0.2, -1.0])
+    sun_l = np.broadcast_to(sun, points.shape)
+    want = brdf(sun_l) * (2.0 * np.array([1.0, 0.9, 0.8])) * (sun_l @ n)[..., None]
+    to_light = light_position - points
+    d2 = np.einsum("...k,...k->...", to_light, to_light)
+    point_l = to_light / np.sqrt(d2)[..., None]
+    want += brdf(point_l) * (3.0 / d2 * (point_l @ n))[..., None]
+    assert np.allclose(direct, want, rtol=1e-4)
+
+    indirect = shade(debug_view="diffuse_ibl") + shade(debug_view="specular_ibl")
+    assert np.allclose(shade(), direct + indirect, rtol=1e-5)
+    assert np.allclose(shade(combine="eq55", eq55_k=0.3), 0.3 * direct + 0.7 * indirect, rtol=1e-5)
