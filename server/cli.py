@@ -50,6 +50,22 @@ def _add_cl_device(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_env_dir(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--env-dir",
+        type=Path,
+        action="append",
+        default=[],
+        metavar="DIR",
+        help="directory that [environment] file may name files in (repeatable; default: the "
+        "scene file's directory)",
+    )
+
+
+def _environment_dirs(args: argparse.Namespace) -> list[Path]:
+    return list(args.env_dir) or ([args.scene.resolve().parent] if args.scene else [])
+
+
 def _build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="sphrender",
@@ -75,6 +91,7 @@ def _build_parser() -> argparse.ArgumentParser:
         help="particle files: .npz .npy .vtk .vtu .ply .bgeo .csv",
     )
     render.add_argument("--scene", type=Path, help="scene TOML (default: built-in defaults)")
+    _add_env_dir(render)
     render.add_argument(
         "-o",
         "--output",
@@ -129,6 +146,7 @@ def _build_parser() -> argparse.ArgumentParser:
     submit.add_argument("inputs", nargs="+", metavar="INPUT", help="files, globs or directories")
     submit.add_argument("-o", "--output", type=Path, required=True, help="output directory")
     submit.add_argument("--scene", type=Path, help="scene TOML (default: built-in defaults)")
+    _add_env_dir(submit)
     submit.add_argument(
         "--format", choices=["png", "exr"], help="output format (default: the scene's)"
     )
@@ -190,8 +208,9 @@ def _run_render(args: argparse.Namespace) -> int:
     paths = _output_paths(args.inputs, args.output, encoders.file_suffix(fmt))
     frames = [(name, path) for name, path in zip(args.inputs, paths, strict=True)]
     failures: list[str] = []
+    env_dirs = _environment_dirs(args)
     with GLContext() as gl:
-        renderer = SurfaceRenderer(gl, cl_device=args.cl_device)
+        renderer = SurfaceRenderer(gl, cl_device=args.cl_device, environment_dirs=env_dirs)
         renderer.check_image_size(scene)
         log.info("GL renderer: %s (%s)", gl.renderer, gl.version)
         try:
@@ -349,7 +368,7 @@ def _run_submit(args: argparse.Namespace) -> int:
         args.output.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError("output", f"cannot create {args.output}: {exc.strerror}") from None
-    backend = LocalFrameRenderer(scene, fmt)
+    backend = LocalFrameRenderer(scene, fmt, _environment_dirs(args))
     log.info("GL renderer: %s", backend.gl_renderer)
     try:
         summary = run_submission(

@@ -1,6 +1,11 @@
-"""The built-in demo scene: a weld bead with ripples on a steel plate, plus a few spatter droplets.
+"""The built-in demo scene: a weld bead with ripples on a steel plate, plus a few spatter droplets,
+still glowing behind the arc.
 
 Generated procedurally (no downloads). Units are millimetres, particle radius 0.4 mm.
+Temperatures follow a moving-heat-source picture (Rosenthal): a liquid pool at ~2500 K where the
+arc is (GTA pools on stainless reach 2000-2800 K, validation-data.md), a long hot trail behind it
+along the bead, a short steep fall ahead and sideways, and the plate at room temperature away
+from it.
 """
 
 from __future__ import annotations
@@ -16,6 +21,20 @@ from sphrender.server.analytic_scenes import lattice_slab
 from sphrender.server.scene import Scene, scene_from_dict
 
 PARTICLE_RADIUS = 0.4
+#: Where the arc is (mm): near the end of the bead, which the torch travels towards (+x).
+ARC_POSITION = (24.0, 3.0, 0.0)
+POOL_KELVIN = 2500.0
+ROOM_KELVIN = 300.0
+#: The temperature excess over room temperature is the sum of a small, hot pool (1/e radius
+#: POOL_LENGTH mm, POOL_SHARE of the excess) and a long trail that cools behind the arc (1/e
+#: length TRAIL_LENGTH mm along -x, TRAIL_WIDTH mm across); ahead of the arc both fall off
+#: AHEAD_FACTOR times faster. Along the bead this gives ~1700 K (solidus) 6 mm behind the arc,
+#: 1250 K at 15 mm and 900 K at 30 mm: white pool, orange then dull red trail, grey bead.
+POOL_SHARE = 0.35
+POOL_LENGTH = 4.0
+TRAIL_LENGTH = 50.0
+TRAIL_WIDTH = 14.0
+AHEAD_FACTOR = 2.0
 
 
 def weld_bead_positions(seed: int = 7) -> npt.NDArray[np.float64]:
@@ -48,10 +67,25 @@ def weld_bead_positions(seed: int = 7) -> npt.NDArray[np.float64]:
     return np.concatenate([plate, bead, spatter])
 
 
+def weld_temperatures(positions: npt.NDArray[np.float64]) -> npt.NDArray[np.float32]:
+    """Kelvin per particle: POOL_KELVIN at the arc, a pool term plus a long trail behind it."""
+    offset = positions - np.asarray(ARC_POSITION)
+    along = offset[:, 0]
+    ahead = along > 0.0
+    behind_scale = np.where(ahead, 1.0 / AHEAD_FACTOR, 1.0)
+    across = np.hypot(offset[:, 1], offset[:, 2])
+    pool = np.hypot(along / (POOL_LENGTH * behind_scale), across / POOL_LENGTH)
+    trail = np.hypot(along / (TRAIL_LENGTH * behind_scale), across / TRAIL_WIDTH)
+    excess = POOL_SHARE * np.exp(-pool) + (1.0 - POOL_SHARE) * np.exp(-trail)
+    kelvin = ROOM_KELVIN + (POOL_KELVIN - ROOM_KELVIN) * excess
+    return kelvin.astype(np.float32)
+
+
 def demo_scene() -> Scene:
     text = importlib.resources.files("sphrender.configs").joinpath("demo.toml").read_text()
     return scene_from_dict(tomllib.loads(text))
 
 
 def demo_frame() -> ParticleFrame:
-    return make_frame(weld_bead_positions())
+    positions = weld_bead_positions()
+    return make_frame(positions, temperatures=weld_temperatures(positions))

@@ -4,8 +4,9 @@ Encoding is a separate step from rendering: the engine returns float arrays, the
 them into bytes (for the service) or files (for the CLI).
 
 PNG (via OpenImageIO)
-    Scene-linear RGB is scaled by ``2**exposure``, tone mapped (`TONE_MAPPERS`; only ``"clamp"``
-    for now) and encoded with the exact sRGB OETF. Quantisation is done here, in numpy, as
+    Scene-linear RGB is scaled by ``2**exposure``, tone mapped (`TONE_MAPPERS`: ``"aces"``, a
+    filmic curve, or ``"clamp"``; `PngOptions` defaults to clamp, the scene's ``[output]`` to aces)
+    and encoded with the exact sRGB OETF. Quantisation is done here, in numpy, as
     ``floor(v * maxcode + 0.5)`` (round half up), and OpenImageIO receives integer pixels, so it
     performs no float conversion of its own. Alpha is *straight* coverage: the spec carries
     ``oiio:UnassociatedAlpha = 1`` because without it OpenImageIO's PNG writer assumes the data is
@@ -26,7 +27,8 @@ OpenEXR (via the ``OpenEXR`` module, >= 3.5, which writes to binary streams)
 
     The largest finite half is 65504 and anything above becomes +inf, so in half mode RGB
     is clamped to +-65504; molten metal emission can exceed that, use ``pixel_type="float"`` to
-    keep it. Every channel is passed to OpenEXR as a C-contiguous array: its Python binding ignores
+    keep it, or ``"auto"``: half unless some colour value exceeds half's range, then float.
+    Every channel is passed to OpenEXR as a C-contiguous array: its Python binding ignores
     numpy strides, and a strided view such as ``rgba[..., 0]`` is written as garbage.
 """
 
@@ -127,15 +129,15 @@ class ExrOptions:
     requires (compositors such as Nuke assume it); False stores the frame's straight RGB as is.
     """
 
-    pixel_type: Literal["half", "float"] = "half"
+    pixel_type: Literal["half", "float", "auto"] = "half"
     aovs: tuple[str, ...] = ("Z", "N")
     compression: str = "zip"
     associated_alpha: bool = True
 
     def __post_init__(self) -> None:
-        if self.pixel_type not in ("half", "float"):
+        if self.pixel_type not in ("half", "float", "auto"):
             raise ValueError(
-                f"ExrOptions.pixel_type must be 'half' or 'float', got {self.pixel_type!r}"
+                f"ExrOptions.pixel_type must be 'half', 'float' or 'auto', got {self.pixel_type!r}"
             )
         unknown = [aov for aov in self.aovs if aov not in EXR_AOVS]
         if unknown:
@@ -160,8 +162,40 @@ def tone_map_clamp(rgb: Float32Array) -> Float32Array:
     return np.clip(rgb, 0.0, 1.0).astype(np.float32, copy=False)
 
 
+#: Stephen Hill's fit of the ACES reference rendering transform + sRGB output transform
+#: (as in MJP's BakingLab): linear sRGB -> (RRT_SAT · sRGB->AP1) -> rational curve ->
+#: (ODT_SAT · AP1->sRGB). The matrices apply ACES's saturation tweak; the curve has a toe and
+#: a long shoulder, so very bright values (molten metal at 1e3-1e4 x the walls) roll off to white
+#: instead of clipping per channel with hue shifts.
+ACES_INPUT = np.array(
+    [[0.59719, 0.35458, 0.04823], [0.07600, 0.90834, 0.01566], [0.02840, 0.13383, 0.83777]],
+    dtype=np.float32,
+)
+ACES_OUTPUT = np.array(
+    [[1.60475, -0.53108, -0.07367], [-0.10208, 1.10813, -0.00605], [-0.00327, -0.07276, 1.07602]],
+    dtype=np.float32,
+)
+
+
+def tone_map_aces(rgb: Float32Array) -> Float32Array:
+    """Filmic ACES fit (Hill): 0.18 -> 0.106 display-linear (sRGB 0.36), 1 -> 0.62, white is
+    approached asymptotically (0.97 at 10); negative input is treated as 0."""
+    x = np.maximum(np.asarray(rgb, dtype=np.float32), 0.0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        v = x @ ACES_INPUT.T
+        # Rational fit of RRT + ODT; for huge v both polynomials are ~v^2, the ratio ~1.0165,
+        # so divide by v^2 first where v is large to stay finite.
+        big = v > 1e6
+        safe = np.where(big, 1.0, v)
+        a = safe * (safe + 0.0245786) - 0.000090537
+        b = safe * (0.983729 * safe + 0.4329510) + 0.238081
+        curve = np.where(big, 1.0 / 0.983729, a / b)
+        out = curve @ ACES_OUTPUT.T
+    return np.clip(out, 0.0, 1.0).astype(np.float32, copy=False)
+
+
 #: Tone mappers by name: exposed scene-linear RGB -> display-linear RGB in [0, 1].
-TONE_MAPPERS: dict[str, ToneMapper] = {"clamp": tone_map_clamp}
+TONE_MAPPERS: dict[str, ToneMapper] = {"clamp": tone_map_clamp, "aces": tone_map_aces}
 
 
 def srgb_oetf(linear: Float32Array) -> Float32Array:
@@ -263,9 +297,19 @@ def encode_png(frame: RenderedFrame, options: PngOptions | None = None) -> bytes
 # EXR
 
 
+def exr_needs_float(frame: RenderedFrame) -> bool:
+    """Whether some finite colour value lies outside half float's range (|v| > 65504)."""
+    rgb = frame.rgba[..., :3]
+    with np.errstate(invalid="ignore"):
+        return bool(np.any(np.abs(np.where(np.isfinite(rgb), rgb, 0.0)) > HALF_MAX))
+
+
 def _exr_channels(frame: RenderedFrame, options: ExrOptions) -> dict[str, np.ndarray]:
-    colour_type = np.float16 if options.pixel_type == "half" else np.float32
-    colour_max = HALF_MAX if options.pixel_type == "half" else float(np.finfo(np.float32).max)
+    half = options.pixel_type == "half" or (
+        options.pixel_type == "auto" and not exr_needs_float(frame)
+    )
+    colour_type = np.float16 if half else np.float32
+    colour_max = HALF_MAX if half else float(np.finfo(np.float32).max)
 
     def colour(plane: Float32Array, lo: float, hi: float) -> np.ndarray:
         # NaN → 0, ±inf and out-of-range values clamp to the limits (never inf in half).

@@ -6,6 +6,8 @@ to read back and which encoder options to use; the service's encoder pool uses t
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from pathlib import Path
 from typing import Literal
 
 from sphrender.client.frame import ParticleFrame
@@ -28,7 +30,11 @@ def render_for_output(
 
 def encode_for_scene(rendered: RenderedFrame, scene: Scene, fmt: ImageFormat) -> bytes:
     if fmt == "png":
-        png = encoders.PngOptions(bits=scene.output.png_bits, exposure=scene.output.exposure)
+        png = encoders.PngOptions(
+            bits=scene.output.png_bits,
+            exposure=scene.output.exposure,
+            tone_mapper=scene.output.tone_mapper,
+        )
         return encoders.encode_png(rendered, png)
     exr = encoders.ExrOptions(pixel_type=scene.output.exr_pixel_type, aovs=scene.output.aovs)
     return encoders.encode_exr(rendered, exr)
@@ -39,11 +45,13 @@ class LocalFrameRenderer:
 
     Creates its GL context on construction; must be used and closed on that same thread."""
 
-    def __init__(self, scene: Scene, fmt: ImageFormat) -> None:
+    def __init__(
+        self, scene: Scene, fmt: ImageFormat, environment_dirs: Sequence[str | Path] = ()
+    ) -> None:
         self.scene = scene
         self.format = fmt
         self._gl = GLContext()
-        self._renderer = SurfaceRenderer(self._gl)
+        self._renderer = SurfaceRenderer(self._gl, environment_dirs=environment_dirs)
         self._renderer.check_image_size(scene)
 
     @property

@@ -217,6 +217,164 @@ class SphConfig:
     )
 
 
+MaterialPreset = Literal[
+    "iron",
+    "stainless_steel",
+    "silver",
+    "gold",
+    "copper",
+    "aluminium",
+    "titanium",
+    "chromium",
+    "nickel",
+    "zinc",
+]
+
+
+@dataclass(frozen=True)
+class MaterialConfig:
+    """The surface material. A preset supplies measured F0 (linear sRGB, see
+    `sphrender.server.engine.materials`), metallic = 1 and a default roughness; explicit keys
+    override the preset's values one by one."""
+
+    preset: MaterialPreset = spec(
+        "stainless_steel",
+        "metal whose measured normal-incidence reflectance F0 is used: iron, stainless_steel, "
+        "silver, gold, copper, aluminium, titanium, chromium, nickel, zinc",
+    )
+    f0: Vec3 | None = spec(
+        None,
+        "override: linear RGB reflectance at normal incidence of the metal (the base colour of "
+        "the metallic workflow); gold's measured red is 1.059, hence the upper limit",
+        low=0.0,
+        high=1.2,
+    )
+    roughness: float | None = spec(
+        None,
+        "override: perceptual roughness; GGX alpha = roughness^2, clamped below at "
+        "roughness 0.045 (alpha 0.002) so fp32 D stays finite",
+        low=0.0,
+        high=1.0,
+    )
+    metallic: float | None = spec(
+        None,
+        "override: 1 = metal (F0 = f0, no diffuse); 0 = dielectric (F0 = 0.04, diffuse albedo "
+        "= f0); in between blends linearly",
+        low=0.0,
+        high=1.0,
+    )
+    emissivity: Vec3 | None = spec(
+        None,
+        "normal-incidence emissivity of hot metal for the glow; absent = 1 - F0 (Kirchhoff, "
+        "consistent with the Fresnel term); liquid iron near 0.8 um is about 0.28",
+        low=0.0,
+        high=1.0,
+    )
+
+
+LightType = Literal["directional", "point"]
+
+#: Most lights a scene may have (uniform arrays in the shading shader are sized for it).
+MAX_LIGHTS = 8
+
+
+@dataclass(frozen=True)
+class LightConfig:
+    """One direct light ([[lights]] array of tables). A scene without lights has none."""
+
+    type: LightType = spec(
+        "directional", "directional (parallel rays, like the sun) or point (inverse square)"
+    )
+    color: Vec3 = spec((1.0, 1.0, 1.0), "linear RGB tint multiplied with intensity", low=0.0)
+    intensity: float = spec(
+        1.0,
+        "directional: irradiance on a surface facing the light (scene-linear radiance x sr); "
+        "point: radiant intensity (per sr), divided by distance^2",
+        low=0.0,
+        high=1e12,
+    )
+    direction: Vec3 | None = spec(
+        None, "directional only: the direction the light travels (from the light to the scene)"
+    )
+    position: Vec3 | None = spec(None, "point only: world position (float64 precision)")
+
+
+EnvironmentPreset = Literal["workshop", "overcast", "studio"]
+
+
+@dataclass(frozen=True)
+class EnvironmentConfig:
+    """Image-based lighting. Give at most one of preset, uniform, file; none = the default
+    preset. Radiance is scene-linear with 1.0 = `shading.emission_scale`^-1 cd/m^2 (1000 cd/m^2
+    by default), so the presets and the hot-metal glow share one scale."""
+
+    preset: EnvironmentPreset | None = spec(
+        None,
+        "built-in procedural environment: workshop (dim hall, bright window, ceiling lamps), "
+        "overcast (CIE overcast sky over grey ground) or studio (soft boxes on dark grey); "
+        "default workshop",
+    )
+    uniform: Vec3 | None = spec(
+        None, "constant radiance from every direction (linear RGB)", low=0.0
+    )
+    file: str | None = spec(
+        None,
+        "equirectangular HDR/EXR (2:1, +y up) read with OpenImageIO, relative to one of the "
+        "server's configured environment directories",
+    )
+    intensity: float = spec(1.0, "radiance multiplier", low=0.0, high=1e9)
+    rotation_deg: float = spec(
+        0.0, "rotation of the environment about the world +y axis, degrees", low=-360, high=360
+    )
+
+
+@dataclass(frozen=True)
+class ShadingConfig:
+    g_term: Literal["smith_height_correlated", "eq37"] = spec(
+        "smith_height_correlated",
+        "microfacet shadowing: Smith height-correlated GGX (validates against the furnace table "
+        "and Mitsuba) or the thesis's eq 37 (Cook-Torrance / Blinn, roughness independent)",
+    )
+    ibl_mode: Literal["prefiltered", "sampled", "none"] = spec(
+        "prefiltered",
+        "specular image-based light: prefiltered mip chain + split-sum BRDF table, per-pixel "
+        "GGX importance sampling with ibl_samples Hammersley points (thesis §4.2.2), or none "
+        "(no environment light at all, diffuse included)",
+    )
+    ibl_samples: int = spec(64, "samples per pixel for ibl_mode = sampled", low=1, high=4096)
+    prefilter_samples: int = spec(
+        512,
+        "GGX samples per texel when prefiltering an environment (once per environment)",
+        low=16,
+        high=16384,
+    )
+    combine: Literal["add", "eq55"] = spec(
+        "add",
+        "add: direct + indirect (physically correct); eq55: the thesis's blend "
+        "k * direct + (1 - k) * indirect",
+    )
+    eq55_k: float = spec(0.5, "k of eq 55 (combine = eq55)", low=0.0, high=1.0)
+    background: Literal["transparent", "environment"] = spec(
+        "transparent",
+        "where no surface: transparent (alpha 0, alpha = coverage) or the environment (alpha 1)",
+    )
+    emission_scale: float = spec(
+        1e-3,
+        "scene-linear value of 1 cd/m^2 of blackbody luminance (hot-metal glow); the built-in "
+        "environments use the same scale",
+        low=0.0,
+        low_open=True,
+        high=1e6,
+    )
+    debug_view: Literal[
+        "none", "direct", "diffuse_ibl", "specular_ibl", "emission", "irradiance"
+    ] = spec(
+        "none",
+        "show one term instead of the beauty: direct light, diffuse IBL, specular IBL, "
+        "emission, or the SH irradiance E(n) itself",
+    )
+
+
 AovName = Literal["Z", "N"]
 
 
@@ -226,11 +384,19 @@ class OutputConfig:
     aovs: tuple[AovName, ...] = spec(
         ("Z", "N"), "extra EXR layers: Z (eye depth) and N (world normal); ignored for PNG"
     )
-    exr_pixel_type: Literal["half", "float"] = spec(
-        "half", "EXR colour/normal precision (Z is always float32); molten metal needs float"
+    exr_pixel_type: Literal["half", "float", "auto"] = spec(
+        "auto",
+        "EXR colour/normal precision (Z is always float32): half, float, or auto = half unless "
+        "a colour exceeds half's 65504 (molten metal does), then float",
     )
     png_bits: Literal[8, 16] = spec(8, "PNG bit depth")
     exposure: float = spec(0.0, "PNG exposure in stops (EXR stays scene-linear)", low=-32, high=32)
+    tone_mapper: Literal["aces", "clamp"] = spec(
+        "aces",
+        "PNG tone mapper: aces (Hill's fit of the ACES RRT + sRGB ODT: filmic toe and "
+        "shoulder, highlights desaturate to white) or clamp (hard clip at 1); EXR is never "
+        "tone mapped",
+    )
 
 
 @dataclass(frozen=True)
@@ -241,6 +407,10 @@ class Scene:
     quality: QualityConfig = field(default_factory=QualityConfig)
     sph: SphConfig = field(default_factory=SphConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
+    material: MaterialConfig = field(default_factory=MaterialConfig)
+    lights: tuple[LightConfig, ...] = field(default=(), metadata={"max_items": MAX_LIGHTS})
+    environment: EnvironmentConfig = field(default_factory=EnvironmentConfig)
+    shading: ShadingConfig = field(default_factory=ShadingConfig)
 
     def with_overrides(self, **sections: Any) -> Scene:
         return replace(self, **sections)
@@ -282,6 +452,12 @@ def _convert(key: str, value: Any, annotation: Any, meta: Mapping[str, Any]) -> 
         allowed = get_args(annotation)
         if value not in allowed or isinstance(value, bool) != isinstance(allowed[0], bool):
             raise InputError(key, f"must be one of {', '.join(map(repr, allowed))}, got {value!r}")
+        return value
+    if annotation is str:
+        if not isinstance(value, str):
+            raise InputError(key, f"must be a string, got {value!r}")
+        if len(value) > 4096 or "\x00" in value:
+            raise InputError(key, "must be at most 4096 characters without NUL")
         return value
     if annotation is bool:
         if not isinstance(value, bool):
@@ -330,6 +506,17 @@ def _section_from_dict(cls: type[T], data: Any, prefix: str) -> T:
     return cls(**kwargs)
 
 
+def _sections_from_list(cls: type[T], data: Any, prefix: str, section: Any) -> tuple[T, ...]:
+    """An array of tables (TOML ``[[lights]]``): each entry validated as a section, errors
+    named ``prefix[i].key``; the scene field's metadata may cap the count (``max_items``)."""
+    if not isinstance(data, list | tuple):
+        raise InputError(prefix, f"must be an array of tables, got {type(data).__name__}")
+    limit = section.metadata.get("max_items")
+    if limit is not None and len(data) > limit:
+        raise InputError(prefix, f"at most {limit} entries, got {len(data)}")
+    return tuple(_section_from_dict(cls, item, f"{prefix}[{i}]") for i, item in enumerate(data))
+
+
 def scene_from_dict(data: Mapping[str, Any]) -> Scene:
     """Build and validate a `Scene` from a TOML/JSON-like mapping (missing keys keep defaults)."""
     if not isinstance(data, Mapping):
@@ -340,7 +527,11 @@ def scene_from_dict(data: Mapping[str, Any]) -> Scene:
     for key, value in data.items():
         if key not in known:
             raise InputError(key, f"unknown section; allowed: {', '.join(sorted(known))}")
-        sections[key] = _section_from_dict(hints[key], value, key)
+        hint = hints[key]
+        if get_origin(hint) is tuple:
+            sections[key] = _sections_from_list(get_args(hint)[0], value, key, known[key])
+        else:
+            sections[key] = _section_from_dict(hint, value, key)
     scene = Scene(**sections)
     _check_cross_field(scene)
     return scene
@@ -362,9 +553,35 @@ def _check_cross_field(scene: Scene) -> None:
     cos = abs(sum(v * u for v, u in zip(view, cam.up, strict=True))) / (length * up_len)
     if cos > 1.0 - 1e-9:
         raise InputError("camera.up", "must not be parallel to the view direction (target - eye)")
+    _check_lights(scene.lights)
+    env = scene.environment
+    given = [k for k in ("preset", "uniform", "file") if getattr(env, k) is not None]
+    if len(given) > 1:
+        raise InputError(
+            f"environment.{given[1]}", f"give only one of preset, uniform, file (got {given})"
+        )
+    if env.file is not None and not env.file.strip():
+        raise InputError("environment.file", "must not be empty")
     w, h = scene.image.width, scene.image.height
     if w * h > MAX_IMAGE_PIXELS:
         raise InputError("image", f"{w}x{h} exceeds the limit of {MAX_IMAGE_PIXELS} pixels")
+
+
+def _check_lights(lights: tuple[LightConfig, ...]) -> None:
+    for i, light in enumerate(lights):
+        key = f"lights[{i}]"
+        if light.type == "directional":
+            if light.direction is None:
+                raise InputError(f"{key}.direction", "a directional light needs a direction")
+            if math.sqrt(sum(c * c for c in light.direction)) == 0.0:
+                raise InputError(f"{key}.direction", "must not be the zero vector")
+            if light.position is not None:
+                raise InputError(f"{key}.position", "only point lights have a position")
+        else:
+            if light.position is None:
+                raise InputError(f"{key}.position", "a point light needs a position")
+            if light.direction is not None:
+                raise InputError(f"{key}.direction", "only directional lights have a direction")
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -381,12 +598,19 @@ def load_scene(path: str | Path) -> Scene:
 
 def scene_to_dict(scene: Scene) -> dict[str, Any]:
     """The scene as a plain mapping (for JSON over the wire and for `scene_from_dict`)."""
-    out: dict[str, Any] = {}
-    for section in fields(Scene):
-        value = getattr(scene, section.name)
-        out[section.name] = {
+
+    def table(value: Any) -> dict[str, Any]:
+        return {
             f.name: list(v) if isinstance(v := getattr(value, f.name), tuple) else v
             for f in fields(value)
             if getattr(value, f.name) is not None
         }
+
+    out: dict[str, Any] = {}
+    for section in fields(Scene):
+        value = getattr(scene, section.name)
+        if isinstance(value, tuple):
+            out[section.name] = [table(item) for item in value]
+        else:
+            out[section.name] = table(value)
     return out

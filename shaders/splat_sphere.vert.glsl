@@ -6,11 +6,13 @@
 
 in vec2 in_corner;          // per vertex: (+-1, +-1)
 in vec4 in_center_radius;   // per instance: view-space centre (float32 after float64 subtraction), radius
+in float in_temperature;    // per instance, kelvin; not bound (constant 0) when the frame has none
 
 uniform mat4 u_projection;
 
 out vec3 v_view_position;   // point on the quad, view space; interpolated perspective-correctly
 flat out vec4 v_sphere;     // view-space centre and radius
+flat out float v_temperature;
 
 void main() {
     vec3 center = in_center_radius.xyz;
@@ -25,5 +27,6 @@ void main() {
     vec3 corner = center + (in_corner.x * u + in_corner.y * v) * half_size;
     v_view_position = corner;
     v_sphere = in_center_radius;
+    v_temperature = in_temperature;
     gl_Position = u_projection * vec4(corner, 1.0);
 }

@@ -164,19 +164,40 @@ def test_tone_map_exposure_is_a_power_of_two_scale() -> None:
     np.testing.assert_array_equal(out[..., 3], rgba[..., 3])  # alpha untouched by exposure
 
 
+@pytest.mark.parametrize("tone_mapper", ["clamp", "aces"])
 @pytest.mark.parametrize("exposure", [0.0, -200.0, 200.0, -5000.0, 5000.0])
-def test_tone_map_never_emits_nan_or_inf(exposure: float) -> None:
+def test_tone_map_never_emits_nan_or_inf(exposure: float, tone_mapper: str) -> None:
     rgba = f32(
         [[[np.nan, np.inf, -np.inf, np.nan], [3e38, -3e38, 0.5, np.inf], [0.5, 0.5, 0.5, -np.inf]]]
     )
     with np.errstate(all="raise"):  # no floating-point warnings leak out either
-        out = encoders.tone_map_for_display(rgba, exposure=exposure)
+        out = encoders.tone_map_for_display(rgba, exposure=exposure, tone_mapper=tone_mapper)
     assert out.dtype == np.float32 and np.all(np.isfinite(out))
     assert np.all((out >= 0.0) & (out <= 1.0))
     assert out[0, 0, 0] == 0.0 and out[0, 0, 2] == 0.0 and out[0, 0, 3] == 0.0  # NaN, -inf → 0
     assert out[0, 0, 1] == pytest.approx(1.0, abs=1e-6)  # +inf → white whatever the exposure
     assert out[0, 1, 3] == 1.0 and out[0, 2, 3] == 0.0  # alpha: +inf → 1, -inf → 0
-    assert out[0, 1, 1] == 0.0  # huge negative → 0
+    if tone_mapper == "clamp":  # aces mixes channels: the 3e38 red whitens the pixel
+        assert out[0, 1, 1] == 0.0  # huge negative → 0
+
+
+def test_aces_is_filmic_monotone_and_saturates_to_white() -> None:
+    """Hill's ACES fit: the documented anchor points (from its rational curve and matrices),
+    monotone on grey, white only asymptotically, and very bright orange (molten metal) rolls
+    off to white instead of clipping to a hue-shifted yellow."""
+    grey = np.geomspace(1e-4, 1e6, 400, dtype=np.float32)
+    mapped = encoders.tone_map_aces(np.repeat(grey[:, None], 3, axis=1))
+    assert np.all(np.diff(mapped[:, 0]) >= 0.0)
+    assert np.allclose(mapped[:, 0], mapped[:, 2], atol=2e-5)  # grey stays grey
+    at = {float(g): float(m) for g, m in zip(grey, mapped[:, 0], strict=True)}
+    assert at[min(at, key=lambda g: abs(g - 0.18))] == pytest.approx(0.1056, abs=2e-3)
+    assert float(encoders.tone_map_aces(f32([[1.0, 1.0, 1.0]]))[0, 0]) == pytest.approx(
+        0.619, abs=1e-3
+    )
+    assert float(encoders.tone_map_aces(f32([[10.0, 10.0, 10.0]]))[0, 0]) < 0.98
+    hot = encoders.tone_map_aces(f32([[1e4, 3e3, 5e2]]))
+    assert np.all(hot >= 0.999)
+    assert encoders.TONE_MAPPERS["aces"] is encoders.tone_map_aces
 
 
 def test_tone_map_rejects_unknown_mapper_and_bad_exposure() -> None:

@@ -34,7 +34,20 @@ def test_every_shipped_program_compiles(gl_context: GLContext) -> None:
     cache = ProgramCache(gl_context)
     cache.get("splat_sphere.vert.glsl", "splat_sphere.frag.glsl")
     cache.get("fullscreen.vert.glsl", "surface_normals.frag.glsl")
-    cache.get("fullscreen.vert.glsl", "shade_placeholder.frag.glsl")
+    cache.get("splat_sphere.vert.glsl", "splat_sphere.frag.glsl", {"HAS_TEMPERATURE": True})
+    for fragment in ("prefilter_ggx.frag.glsl", "brdf_probe.frag.glsl"):
+        cache.get("fullscreen.vert.glsl", fragment)
+    for g_term in (0, 1):
+        cache.get("fullscreen.vert.glsl", "brdf_lut.frag.glsl", {"G_TERM": g_term})
+    # Every define of the shading shader on its own (the combinations share the code paths).
+    for defines in (
+        {},
+        {"IBL_MODE": 0},
+        {"IBL_MODE": 2, "G_TERM": 1},
+        {"COMBINE": 1, "HAS_TEMPERATURE": True, "BACKGROUND_ENVIRONMENT": True},
+        *({"DEBUG_VIEW": view} for view in range(1, 6)),
+    ):
+        cache.get("fullscreen.vert.glsl", "shade_pbr.frag.glsl", defines)
     for filter_id in (0, 1, 2):
         for separable in (True, False):
             cache.get(

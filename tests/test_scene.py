@@ -73,6 +73,37 @@ def test_partial_sections_keep_other_defaults() -> None:
         ({"output": {"aovs": ["Z", "Z"]}}, "output.aovs", "repeat"),
         ({"output": {"png_bits": 12}}, "output.png_bits", "8, 16"),
         ({"output": {"png_bits": True}}, "output.png_bits", "8, 16"),
+        ({"output": {"tone_mapper": "reinhard"}}, "output.tone_mapper", "'aces'"),
+        ({"material": {"preset": "brass"}}, "material.preset", "'iron'"),
+        ({"material": {"roughness": 1.5}}, "material.roughness", "[0, 1]"),
+        ({"material": {"f0": [0.5, 0.5, 2.0]}}, "material.f0[2]", "[0, 1.2]"),
+        ({"material": {"metallic": -0.1}}, "material.metallic", "[0, 1]"),
+        ({"lights": {"type": "point"}}, "lights", "array of tables"),
+        ({"lights": [{"type": "spot"}]}, "lights[0].type", "'directional'"),
+        ({"lights": [{"direction": [0, -1, 0]}, {"intensity": -1}]}, "lights[1].intensity", "[0, "),
+        ({"lights": [{"type": "point"}]}, "lights[0].position", "needs a position"),
+        ({"lights": [{"direction": [0, 0, 0]}]}, "lights[0].direction", "zero"),
+        (
+            {"lights": [{"direction": [0, -1, 0], "position": [0, 0, 0]}]},
+            "lights[0].position",
+            "only",
+        ),
+        ({"lights": [{"direction": [0, -1, 0]}] * 9}, "lights", "at most 8"),
+        (
+            {"lights": [{"direction": [0, -1, 0], "colour": [1, 1, 1]}]},
+            "lights[0].colour",
+            "unknown",
+        ),
+        ({"environment": {"preset": "beach"}}, "environment.preset", "'workshop'"),
+        ({"environment": {"preset": "studio", "file": "a.exr"}}, "environment.file", "only one"),
+        ({"environment": {"uniform": [1, -1, 1]}}, "environment.uniform[1]", "[0, inf]"),
+        ({"environment": {"file": 3}}, "environment.file", "string"),
+        ({"environment": {"file": " "}}, "environment.file", "empty"),
+        ({"shading": {"ibl_mode": "cubemap"}}, "shading.ibl_mode", "'prefiltered'"),
+        ({"shading": {"ibl_samples": 0}}, "shading.ibl_samples", "[1, 4096]"),
+        ({"shading": {"eq55_k": 2}}, "shading.eq55_k", "[0, 1]"),
+        ({"shading": {"g_term": "beckmann"}}, "shading.g_term", "'eq37'"),
+        ({"shading": {"emission_scale": 0}}, "shading.emission_scale", "(0, 1000000]"),
     ],
 )
 def test_bad_values_name_the_key_and_limit(data: dict[str, Any], field: str, words: str) -> None:
@@ -80,6 +111,32 @@ def test_bad_values_name_the_key_and_limit(data: dict[str, Any], field: str, wor
         scene_from_dict(data)
     assert info.value.field == field
     assert words in info.value.message
+
+
+def test_lights_round_trip_and_material_overrides() -> None:
+    from sphrender.server.engine.materials import METAL_F0, resolve_material
+
+    data = {
+        "lights": [
+            {"type": "point", "position": [1e5, 2.0, 3.0], "intensity": 4.0},
+            {"direction": [0.0, -1.0, 0.0], "color": [1.0, 0.9, 0.8]},
+        ],
+        "material": {"preset": "copper", "roughness": 0.3},
+    }
+    scene = scene_from_dict(data)
+    assert scene_from_dict(scene_to_dict(scene)) == scene
+    assert scene.lights[0].position == (1e5, 2.0, 3.0)
+    material = resolve_material(scene.material)
+    assert material.f0 == METAL_F0["copper"] and material.roughness == 0.3
+    assert material.metallic == 1.0 and material.diffuse_albedo == (0.0, 0.0, 0.0)
+    override = resolve_material(
+        scene_from_dict(
+            {"material": {"preset": "copper", "f0": [0.5, 0.5, 0.5], "metallic": 0}}
+        ).material
+    )
+    assert override.specular_f0 == (0.04, 0.04, 0.04)
+    assert override.diffuse_albedo == (0.5, 0.5, 0.5)
+    assert Scene().lights == ()  # no [[lights]]: no direct light
 
 
 def test_bad_toml_files(tmp_path: Path) -> None:

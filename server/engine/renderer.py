@@ -9,19 +9,22 @@ reused; per frame it only uploads the visible particles and runs the passes the 
                             (see `sph.py`); the CL context is created on first need
     prepare (CPU, float64)  positions relative to the eye, rotated to view space, culled,
                             then converted to float32
-    splat                   instanced sphere impostors -> eye depth (R32F, 0 = background)
+    splat                   instanced sphere impostors -> eye depth (R32F, 0 = background),
+                            plus the front particle's temperature when the frame has them
     smooth                  gaussian | bilateral | narrow_range, 1-D x2 or 2-D, iterated
     normals                 one-sided differences of the smoothed depth -> world normals
-    shade                   PLACEHOLDER grey Lambert (physically based shading is its own issue)
+    shade                   physically based metal: direct lights, SH + specular IBL, hot-metal
+                            emission (`shading.ShadePass`)
     readback                colour always; depth and normals only when asked for
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import moderngl
 import numpy as np
@@ -34,6 +37,7 @@ from sphrender.server.engine.cl_context import CLContext
 from sphrender.server.engine.frame_output import RenderedFrame
 from sphrender.server.engine.gl_context import GLContext
 from sphrender.server.engine.programs import ProgramCache
+from sphrender.server.engine.shading import ShadePass
 from sphrender.server.engine.sph import (
     SphEngine,
     apply_to_frame,
@@ -67,6 +71,7 @@ class PreparedParticles:
     center_radius: npt.NDArray[np.float32]
     far: float
     reference_radius: float
+    temperatures: npt.NDArray[np.float32] | None = None  # (N,) kelvin of the kept particles
 
 
 def prepare_particles(
@@ -100,7 +105,12 @@ def prepare_particles(
         reference_radius = (
             float(np.median(frame.radii)) if frame.radii is not None and frame.count else radius
         )
-    return PreparedParticles(center_radius, far, reference_radius)
+    temperatures = (
+        np.ascontiguousarray(frame.temperatures[keep], dtype=np.float32)
+        if frame.temperatures is not None
+        else None
+    )
+    return PreparedParticles(center_radius, far, reference_radius, temperatures)
 
 
 def _write_matrix(program: moderngl.Program, name: str, matrix: npt.NDArray[np.floating]) -> None:
@@ -132,12 +142,29 @@ class _Targets:
         self.normal_fbo = ctx.framebuffer([self.normal_depth])
         self.color = float_texture(4)
         self.color_fbo = ctx.framebuffer([self.color])
+        # Built on the first frame that carries temperatures (most frames never need them).
+        self._ctx = ctx
+        self._float_texture = float_texture
+        self.temperature: moderngl.Texture | None = None
+        self.splat_with_temperature: moderngl.Framebuffer | None = None
+
+    def temperature_targets(self) -> tuple[moderngl.Texture, moderngl.Framebuffer]:
+        if self.temperature is None or self.splat_with_temperature is None:
+            self.temperature = self._float_texture(1)
+            self.splat_with_temperature = self._ctx.framebuffer(
+                [self.splat_depth, self.temperature], self.depth_buffer
+            )
+        return self.temperature, self.splat_with_temperature
 
     def release(self) -> None:
-        for fbo in (self.splat, *self.ping_fbos, self.normal_fbo, self.color_fbo):
-            fbo.release()
+        fbos = (self.splat, *self.ping_fbos, self.normal_fbo, self.color_fbo)
+        for fbo in (*fbos, self.splat_with_temperature):
+            if fbo is not None:
+                fbo.release()
         for texture in (self.splat_depth, *self.ping, self.normal_depth, self.color):
             texture.release()
+        if self.temperature is not None:
+            self.temperature.release()
         self.depth_buffer.release()
 
 
@@ -145,8 +172,15 @@ class SurfaceRenderer:
     """Renders particle frames with one GL context; see the module docstring for the passes."""
 
     def __init__(
-        self, gl: GLContext, *, stage_timings: bool = True, cl_device: str | None = None
+        self,
+        gl: GLContext,
+        *,
+        stage_timings: bool = True,
+        cl_device: str | None = None,
+        environment_dirs: Sequence[str | Path] = (),
     ) -> None:
+        """`cl_device`: OpenCL device for the SPH stage (None = probe); `environment_dirs`: the
+        only directories `[environment] file` may name files in."""
         self._gl = gl
         # OpenCL is created on the first frame that needs SPH, on this (the owner) thread.
         self._cl_device = cl_device
@@ -158,13 +192,21 @@ class SurfaceRenderer:
         corners = np.array([-1, -1, 1, -1, -1, 1, 1, 1], dtype=np.float32)
         self._corner_buffer = ctx.buffer(corners.tobytes())
         self._instance_buffer = ctx.buffer(reserve=16 * 1024)
+        self._temperature_buffer = ctx.buffer(reserve=4 * 1024)
         self._splat_vao: moderngl.VertexArray | None = None
+        self._splat_temperature_vao: moderngl.VertexArray | None = None
+        self._shade = ShadePass(gl, self._programs, environment_dirs)
         self._fullscreen_vaos: dict[int, moderngl.VertexArray] = {}
         self._targets: _Targets | None = None
 
     @property
     def gl(self) -> GLContext:
         return self._gl
+
+    @property
+    def shade_pass(self) -> ShadePass:
+        """The shading pass and its caches (environments, IBL, BRDF tables)."""
+        return self._shade
 
     def max_image_side(self) -> int:
         return self._gl.limits.max_image_side
@@ -206,12 +248,31 @@ class SurfaceRenderer:
             )
         return program, self._splat_vao
 
-    def _upload_instances(self, data: npt.NDArray[np.float32]) -> None:
+    def _splat_temperature_vertex_array(self) -> tuple[moderngl.Program, moderngl.VertexArray]:
+        program = self._programs.get(
+            "splat_sphere.vert.glsl", "splat_sphere.frag.glsl", {"HAS_TEMPERATURE": True}
+        )
+        if self._splat_temperature_vao is None:
+            self._splat_temperature_vao = self._gl.ctx.vertex_array(
+                program,
+                [
+                    (self._corner_buffer, "2f", "in_corner"),
+                    (self._instance_buffer, "4f/i", "in_center_radius"),
+                    (self._temperature_buffer, "1f/i", "in_temperature"),
+                ],
+            )
+        return program, self._splat_temperature_vao
+
+    @staticmethod
+    def _upload(buffer: moderngl.Buffer, data: npt.NDArray[np.float32]) -> None:
         nbytes = data.nbytes
-        if nbytes > self._instance_buffer.size:
-            # Grow geometrically; the VAO refers to the buffer object, so rebuild it.
-            self._instance_buffer.orphan(max(nbytes, self._instance_buffer.size * 2))
-        self._instance_buffer.write(data.tobytes())
+        if nbytes > buffer.size:
+            # Grow geometrically; orphan keeps the buffer object, so the VAOs stay valid.
+            buffer.orphan(max(nbytes, buffer.size * 2))
+        buffer.write(data.tobytes())
+
+    def _upload_instances(self, data: npt.NDArray[np.float32]) -> None:
+        self._upload(self._instance_buffer, data)
 
     # -- frame -----------------------------------------------------------------------------
 
@@ -260,7 +321,7 @@ class SurfaceRenderer:
             stats.far = prepared.far
 
         with self._stage(stats, "splat"):
-            self._splat(ctx, targets, camera, prepared)
+            temperature = self._splat(ctx, targets, camera, prepared)
 
         surface = targets.splat_depth
         if scene.quality.filter != "none" and stats.particles_drawn:
@@ -285,15 +346,11 @@ class SurfaceRenderer:
             self._fullscreen(program).render(moderngl.TRIANGLES, vertices=3)
 
         with self._stage(stats, "shade"):
-            program = self._programs.get("fullscreen.vert.glsl", "shade_placeholder.frag.glsl")
-            targets.normal_depth.use(0)
-            program["u_normal_depth"] = 0
-            light_view = np.array([-0.4, 0.6, 0.7])
-            light_world = camera.rotation.T @ (light_view / np.linalg.norm(light_view))
-            program["u_light_direction_world"] = tuple(float(v) for v in light_world)
-            program["u_base_color"] = (0.56, 0.57, 0.58)
-            targets.color_fbo.use()
-            self._fullscreen(program).render(moderngl.TRIANGLES, vertices=3)
+            if temperature is not None and stats.particles_drawn:
+                temperature = self._shade.smooth_temperature(
+                    temperature, surface, camera, prepared.reference_radius
+                )
+            self._shade.run(scene, camera, targets.normal_depth, temperature, targets.color_fbo)
 
         with self._stage(stats, "readback"):
             rendered = self._read_back(targets, want_depth=depth, want_normals=normals)
@@ -301,13 +358,22 @@ class SurfaceRenderer:
 
     def _splat(
         self, ctx: moderngl.Context, targets: _Targets, camera: Camera, prepared: PreparedParticles
-    ) -> None:
-        targets.splat.use()
-        targets.splat.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+    ) -> moderngl.Texture | None:
+        """Splat the spheres; returns the temperature target when the frame has temperatures."""
+        temperature: moderngl.Texture | None = None
+        fbo = targets.splat
+        if prepared.temperatures is not None:
+            temperature, fbo = targets.temperature_targets()
+        fbo.use()
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         count = int(prepared.center_radius.shape[0])
         if count == 0:
-            return
-        program, vao = self._splat_vertex_array()
+            return temperature
+        if prepared.temperatures is not None:
+            program, vao = self._splat_temperature_vertex_array()
+            self._upload(self._temperature_buffer, prepared.temperatures)
+        else:
+            program, vao = self._splat_vertex_array()
         self._upload_instances(prepared.center_radius)
         _write_matrix(program, "u_projection", camera.projection_matrix(prepared.far))
         program["u_near"] = camera.near
@@ -317,6 +383,33 @@ class SurfaceRenderer:
             vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
+        return temperature
+
+    def shade_normal_depth(
+        self,
+        normal_depth: npt.NDArray[np.float32],
+        scene: Scene,
+        temperatures: npt.NDArray[np.float32] | None = None,
+    ) -> npt.NDArray[np.float32]:
+        """Run only the shade pass on given world normals + eye depth (H, W, 4), rows top first
+        (depth 0 = no surface), and optional per-pixel kelvin (H, W); returns straight RGBA.
+
+        The same code path as `render` uses; exposed so shading can be compared with references
+        on exact normals, without the splat and smoothing error in between."""
+        self._gl.check_owner()
+        height, width = normal_depth.shape[:2]
+        if (width, height) != (scene.image.width, scene.image.height):
+            raise ValueError("normal_depth must have the scene's image size")
+        targets = self._targets_for(width, height)
+        targets.normal_depth.write(np.ascontiguousarray(normal_depth[::-1], np.float32).tobytes())
+        temperature = None
+        if temperatures is not None:
+            temperature, _ = targets.temperature_targets()
+            temperature.write(np.ascontiguousarray(temperatures[::-1], np.float32).tobytes())
+        camera = Camera.from_config(scene.camera, width, height)
+        self._shade.run(scene, camera, targets.normal_depth, temperature, targets.color_fbo)
+        rgba = np.frombuffer(targets.color.read(), dtype=np.float32).reshape(height, width, 4)
+        return np.ascontiguousarray(rgba[::-1])
 
     def filter_depth_image(
         self,
@@ -423,9 +516,11 @@ class SurfaceRenderer:
         for vao in self._fullscreen_vaos.values():
             vao.release()
         self._fullscreen_vaos.clear()
-        if self._splat_vao is not None:
-            self._splat_vao.release()
-            self._splat_vao = None
+        for splat_vao in (self._splat_vao, self._splat_temperature_vao):
+            if splat_vao is not None:
+                splat_vao.release()
+        self._splat_vao = self._splat_temperature_vao = None
+        self._shade.release()
         self._programs.release()
         if self._sph is not None:
             self._sph.release()
@@ -435,3 +530,4 @@ class SurfaceRenderer:
             self._cl = None
         self._corner_buffer.release()
         self._instance_buffer.release()
+        self._temperature_buffer.release()

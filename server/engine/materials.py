@@ -1,0 +1,82 @@
+"""Metal presets and the resolved material the shading pass consumes.
+
+F0 values are linear sRGB (Rec.709 primaries) reflectance at normal incidence, from
+physicallybased.info (computed there from refractiveindex.info n, k data); see
+`../shared/reference/validation-data.md`. Gold's red exceeds 1 (out of gamut) and is kept as is:
+the shader works in float, Schlick's F stays finite and tends to 1 at grazing angles either way.
+
+The metallic workflow (Filament, Burley 2012): ``F0 = mix(0.04, f0, metallic)`` and the diffuse
+albedo is ``f0 * (1 - metallic)``, so a pure metal has no diffuse term and a dielectric reflects
+4% at normal incidence. Emission of hot metal uses the normal-incidence emissivity
+``1 - F0`` unless the scene gives one (Kirchhoff's law: what is not reflected is absorbed, and
+a body emits as much as it absorbs).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from sphrender.server.scene import MaterialConfig, Vec3
+
+#: Measured linear-sRGB F0 per preset name (validation-data.md, "Metal F0").
+METAL_F0: dict[str, Vec3] = {
+    "iron": (0.530, 0.513, 0.494),
+    "stainless_steel": (0.669, 0.639, 0.598),
+    "silver": (0.991, 0.985, 0.974),
+    "gold": (1.059, 0.773, 0.307),
+    "copper": (0.932, 0.623, 0.522),
+    "aluminium": (0.916, 0.923, 0.924),
+    "titanium": (0.441, 0.400, 0.361),
+    "chromium": (0.654, 0.685, 0.701),
+    "nickel": (0.697, 0.641, 0.563),
+    "zinc": (0.808, 0.844, 0.865),
+}
+
+#: Roughness a preset uses when the scene does not set one: a lightly worked metal surface.
+PRESET_ROUGHNESS = 0.35
+
+#: Smallest perceptual roughness the shader uses (Frostbite / Filament clamp): alpha = 0.045^2
+#: = 0.002025 keeps D's peak 1 / (pi alpha^2) ~ 7.8e4 and alpha^4 ~ 1.7e-11 inside fp32's
+#: normal range, so a mirror-like surface under a 1e5 light stays finite.
+MIN_ROUGHNESS = 0.045
+
+#: F0 of the dielectric end of the metallic workflow (4%, most non-metals).
+DIELECTRIC_F0 = 0.04
+
+
+@dataclass(frozen=True)
+class Material:
+    """A material resolved from the scene: every value the shader needs."""
+
+    f0: Vec3  # metal F0 / base colour
+    roughness: float  # perceptual, as given (the shader clamps to MIN_ROUGHNESS)
+    metallic: float
+    emissivity: Vec3 | None  # None = 1 - F0 (per channel)
+
+    @property
+    def specular_f0(self) -> Vec3:
+        """Effective F0 after the metallic blend."""
+        m = self.metallic
+        r, g, b = (DIELECTRIC_F0 * (1.0 - m) + c * m for c in self.f0)
+        return (r, g, b)
+
+    @property
+    def diffuse_albedo(self) -> Vec3:
+        r, g, b = (c * (1.0 - self.metallic) for c in self.f0)
+        return (r, g, b)
+
+    @property
+    def normal_emissivity(self) -> Vec3:
+        """Emissivity at normal incidence: the scene's value or 1 - F0 (clamped to [0, 1])."""
+        if self.emissivity is not None:
+            return self.emissivity
+        r, g, b = (min(max(1.0 - c, 0.0), 1.0) for c in self.specular_f0)
+        return (r, g, b)
+
+
+def resolve_material(config: MaterialConfig) -> Material:
+    """The preset's values, each overridden by the explicit key when the scene gives one."""
+    f0 = config.f0 if config.f0 is not None else METAL_F0[config.preset]
+    roughness = config.roughness if config.roughness is not None else PRESET_ROUGHNESS
+    metallic = config.metallic if config.metallic is not None else 1.0
+    return Material(f0=f0, roughness=roughness, metallic=metallic, emissivity=config.emissivity)

@@ -1,0 +1,212 @@
+#version 330 core
+// Physically based shading of the reconstructed surface (thesis chapter 4):
+//   direct   sum over lights of f_r (Lambert + Cook-Torrance, common/brdf.glsl) E_light (n.l)
+//   indirect diffuse (1 - (F0 A + B)) c_diff E_sh(n) / pi, E_sh from 9 SH coefficients
+//            + specular IBL: prefiltered mip chain x (F0 A + B) (split sum), or per-pixel GGX
+//            importance sampling with pdf-based source LOD (eq 50-53, corrected)
+//   combine  direct + indirect (default) or eq 55's k direct + (1 - k) indirect
+//   emission (1 - F(n.v)) B(T) for hot metal, from the splatted temperature (added after)
+// Output: straight scene-linear RGB, alpha = coverage (1 over the environment background).
+
+#define IBL_NONE 0
+#define IBL_PREFILTERED 1
+#define IBL_SAMPLED 2
+#define IBL_MODE 1
+#define COMBINE_ADD 0
+#define COMBINE_EQ55 1
+#define COMBINE 0
+#define HAS_TEMPERATURE 0
+#define BACKGROUND_ENVIRONMENT 0
+#define VIEW_BEAUTY 0
+#define VIEW_DIRECT 1
+#define VIEW_DIFFUSE_IBL 2
+#define VIEW_SPECULAR_IBL 3
+#define VIEW_EMISSION 4
+#define VIEW_IRRADIANCE 5
+#define DEBUG_VIEW 0
+#define MAX_LIGHTS 8
+#define LIGHT_DIRECTIONAL 0
+#define LIGHT_POINT 1
+
+#include "common/depth_image.glsl"
+#include "common/brdf.glsl"
+#include "common/sampling.glsl"
+#include "common/equirect.glsl"
+#include "common/sh9.glsl"
+
+uniform sampler2D u_normal_depth;   // world normal xyz, eye depth w (0 = no surface)
+uniform vec2 u_tan_half_fov;        // (tan(fov_y / 2) * aspect, tan(fov_y / 2))
+uniform mat3 u_view_to_world;
+
+uniform vec3 u_f0;                  // effective specular F0 (after the metallic blend)
+uniform vec3 u_diffuse_albedo;
+uniform float u_roughness;
+
+uniform int u_light_count;
+uniform int u_light_type[MAX_LIGHTS];
+uniform vec3 u_light_vector[MAX_LIGHTS];    // directional: unit vector towards the light;
+                                            // point: position relative to the eye (world axes)
+uniform vec3 u_light_radiance[MAX_LIGHTS];  // colour * intensity
+
+uniform mat3 u_world_to_env;
+uniform float u_env_intensity;
+uniform vec3 u_sh[9];               // radiance SH of the environment (environment frame)
+uniform sampler2D u_env_source;     // equirect radiance, box-filtered mip chain
+uniform vec2 u_env_source_size;
+uniform sampler2D u_env_prefiltered;  // level i = roughness i / (levels - 1)
+uniform float u_prefiltered_max_lod;
+uniform sampler2D u_brdf_lut;       // (n.v, roughness) -> (A, B)
+uniform int u_ibl_samples;
+uniform float u_eq55_k;
+
+uniform sampler2D u_temperature;    // kelvin, nearest particle (0 = none)
+uniform sampler2D u_blackbody;      // 1 x N: rgb at luminance 1, log2(luminance) in alpha
+uniform vec2 u_blackbody_range;     // kelvin at the first and last texel centres
+uniform vec3 u_emissivity;          // normal-incidence emissivity
+uniform float u_emission_scale;     // scene-linear per cd/m^2
+
+layout(location = 0) out vec4 out_color;
+
+vec3 environment_radiance(vec3 world_direction, float lod) {
+    vec3 d = u_world_to_env * world_direction;
+    return textureLod(u_env_source, equirect_uv(d), lod).rgb * u_env_intensity;
+}
+
+vec3 direct_light(vec3 n, vec3 v, vec3 position, float alpha) {
+    vec3 sum = vec3(0.0);
+    for (int i = 0; i < MAX_LIGHTS; ++i) {
+        if (i >= u_light_count) {
+            break;
+        }
+        vec3 l;
+        vec3 irradiance = u_light_radiance[i];
+        if (u_light_type[i] == LIGHT_POINT) {
+            vec3 to_light = u_light_vector[i] - position;
+            // Floor the distance at a micrometre of scene units so a light on the surface
+            // stays finite (1e12 / 1e-12 still fits fp32).
+            float d2 = max(dot(to_light, to_light), 1e-12);
+            l = to_light * inversesqrt(d2);
+            irradiance /= d2;
+        } else {
+            l = u_light_vector[i];
+        }
+        float nl = dot(n, l);
+        if (nl > 0.0) {
+            sum += brdf(n, v, l, u_f0, u_diffuse_albedo, alpha) * irradiance * nl;
+        }
+    }
+    return sum;
+}
+
+// Per-pixel GGX importance sampling of the environment (thesis §4.2.2 with eq 52 corrected).
+// Estimator per sample: L(l) F V 4 (n.l)(v.h) / (n.h), i.e. f_r (n.l) / pdf(l),
+// pdf(l) = D (n.h) / (4 v.h). Each sample reads the source at the LOD whose texel covers the
+// sample's share of the solid angle, 1 / (N pdf) (Krivanek & Colbert 2008).
+vec3 sampled_specular(vec3 n, vec3 v, float nv, float alpha) {
+    vec3 t;
+    vec3 b;
+    tangent_frame(n, t, b);
+    vec3 sum = vec3(0.0);
+    for (int i = 0; i < u_ibl_samples; ++i) {
+        float sin2;
+        vec3 h_t = sample_ggx_tangent(hammersley(i, u_ibl_samples), alpha, sin2);
+        vec3 h = t * h_t.x + b * h_t.y + n * h_t.z;
+        float vh = dot(v, h);
+        vec3 l = 2.0 * vh * h - v;  // eq 53
+        float nl = dot(n, l);
+        if (nl <= 0.0 || vh <= 0.0) {
+            continue;
+        }
+        float nh = h_t.z;
+        float pdf = d_ggx(nh, sin2, alpha) * nh / (4.0 * vh);
+        vec3 l_env = u_world_to_env * l;
+        float omega_s = 1.0 / (float(u_ibl_samples) * pdf);
+        float omega_p = equirect_texel_solid_angle(l_env, u_env_source_size);
+        float lod = max(0.5 * log2(omega_s / omega_p) + 1.0, 0.0);
+        vec3 radiance = textureLod(u_env_source, equirect_uv(l_env), lod).rgb;
+        float weight = visibility(nl, nv, nh, vh, alpha) * 4.0 * nl * vh / nh;
+        sum += radiance * fresnel_schlick(u_f0, vh) * weight;
+    }
+    return sum * (u_env_intensity / float(u_ibl_samples));
+}
+
+vec3 blackbody_radiance(float kelvin) {
+    if (kelvin < u_blackbody_range.x) {
+        return vec3(0.0);  // below the table nothing visible is emitted
+    }
+    float count = float(textureSize(u_blackbody, 0).x);
+    float x = (min(kelvin, u_blackbody_range.y) - u_blackbody_range.x)
+        / (u_blackbody_range.y - u_blackbody_range.x);
+    vec4 entry = textureLod(u_blackbody, vec2((x * (count - 1.0) + 0.5) / count, 0.5), 0.0);
+    return entry.rgb * exp2(entry.a);
+}
+
+void main() {
+    ivec2 pixel = ivec2(gl_FragCoord.xy);
+    vec4 normal_depth = texelFetch(u_normal_depth, pixel, 0);
+    ivec2 size = textureSize(u_normal_depth, 0);
+    if (normal_depth.w <= 0.0) {
+#if BACKGROUND_ENVIRONMENT
+        vec3 ray = u_view_to_world * view_position(pixel, size, u_tan_half_fov, 1.0);
+        out_color = vec4(environment_radiance(normalize(ray), 0.0), 1.0);
+#else
+        out_color = vec4(0.0);
+#endif
+        return;
+    }
+    vec3 position = u_view_to_world * view_position(pixel, size, u_tan_half_fov, normal_depth.w);
+    vec3 n = normalize(normal_depth.xyz);
+    vec3 v = -normalize(position);
+    float nv = max(dot(n, v), MIN_NV);
+    float alpha = alpha_from_roughness(u_roughness);
+
+    vec3 direct = direct_light(n, v, position, alpha);
+
+    vec3 diffuse_ibl = vec3(0.0);
+    vec3 specular_ibl = vec3(0.0);
+    vec3 irradiance = vec3(0.0);
+#if IBL_MODE != IBL_NONE
+    vec2 scale_bias = texture(u_brdf_lut, vec2(nv, u_roughness)).rg;
+    vec3 specular_albedo = u_f0 * scale_bias.x + scale_bias.y;
+    irradiance = max(sh9_irradiance(u_sh, u_world_to_env * n), 0.0) * u_env_intensity;
+    diffuse_ibl = (1.0 - specular_albedo) * u_diffuse_albedo * irradiance * (1.0 / PI);
+#if IBL_MODE == IBL_PREFILTERED
+    vec3 r = u_world_to_env * reflect(-v, n);
+    float lod = clamp(u_roughness, 0.0, 1.0) * u_prefiltered_max_lod;
+    specular_ibl = textureLod(u_env_prefiltered, equirect_uv(r), lod).rgb * u_env_intensity
+        * specular_albedo;
+#else
+    specular_ibl = sampled_specular(n, v, nv, alpha);
+#endif
+#endif
+    vec3 indirect = diffuse_ibl + specular_ibl;
+
+    vec3 emission = vec3(0.0);
+#if HAS_TEMPERATURE
+    float kelvin = texelFetch(u_temperature, pixel, 0).r;
+    // Kirchhoff: emissivity = 1 - reflectance; its angular shape follows Schlick with
+    // F0_e = 1 - emissivity, so (1 - F) = emissivity (1 - (1 - n.v)^5).
+    vec3 emissivity = u_emissivity * (1.0 - pow5(1.0 - nv));
+    emission = emissivity * blackbody_radiance(kelvin) * u_emission_scale;
+#endif
+
+#if COMBINE == COMBINE_EQ55
+    vec3 color = u_eq55_k * direct + (1.0 - u_eq55_k) * indirect + emission;
+#else
+    vec3 color = direct + indirect + emission;
+#endif
+#if DEBUG_VIEW == VIEW_DIRECT
+    color = direct;
+#elif DEBUG_VIEW == VIEW_DIFFUSE_IBL
+    color = diffuse_ibl;
+#elif DEBUG_VIEW == VIEW_SPECULAR_IBL
+    color = specular_ibl;
+#elif DEBUG_VIEW == VIEW_EMISSION
+    color = emission;
+#elif DEBUG_VIEW == VIEW_IRRADIANCE
+    color = irradiance;
+#endif
+    // Radiance is non-negative and finite; clamp keeps absurd inputs (1e12 lights on mirrors)
+    // inside fp32 instead of letting them reach +inf.
+    out_color = vec4(clamp(color, vec3(0.0), vec3(1e30)), 1.0);
+}
