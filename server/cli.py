@@ -1,4 +1,4 @@
-"""The `sphrender` command line: render, demo, info.
+"""The `sphrender` command line: render, demo, info, serve.
 
 Bad input (a scene key, a particle array, an unreadable file) prints one line naming the field and
 the limit and exits with status 2; a machine without EGL/Mesa prints which Debian packages to
@@ -82,6 +82,33 @@ def _build_parser() -> argparse.ArgumentParser:
     )
     demo.add_argument("-o", "--output", type=Path, default=Path("demo.png"), help="output image")
     _add_output_format(demo)
+
+    serve = commands.add_parser(
+        "serve",
+        parents=[common],
+        help="run the render service (HTTP API and streaming socket)",
+        description="Run the long-running render service: one render thread owns the GL "
+        "context; clients send frames over HTTP (POST /v1/render, sessions) or the streaming "
+        "protocol (PROTOCOL.md). Settings come from --config (see configs/server.toml); the "
+        "options below override it. The token comes from the config or $SPHRENDER_TOKEN. On "
+        "start-up one JSON line with the bound ports is printed on stdout. SIGTERM or SIGINT "
+        "drains (in-flight frames are answered) and exits 0.",
+    )
+    serve.add_argument("--config", type=Path, help="server settings TOML (default: built-in)")
+    serve.add_argument("--host", help="address to bind both listeners (default 127.0.0.1)")
+    serve.add_argument("--port", type=int, help="HTTP port (0 = any free port)")
+    serve.add_argument("--stream-port", type=int, help="stream port (0 = any free port)")
+    serve.add_argument(
+        "--no-stream", action="store_true", help="serve HTTP only (no streaming socket)"
+    )
+    serve.add_argument(
+        "--allow-remote-without-token",
+        action="store_true",
+        help="allow a non-loopback --host without a token (anyone who can reach it may render)",
+    )
+    serve.add_argument(
+        "--log-json", action="store_true", help="structured logs: one JSON object per line"
+    )
 
     commands.add_parser(
         "info",
@@ -217,6 +244,28 @@ def _run_info(_args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_serve(args: argparse.Namespace) -> int:
+    from sphrender.server.service.app import serve
+    from sphrender.server.service.config import load_server_config
+
+    config = load_server_config(args.config)
+    overrides: dict[str, dict[str, object]] = {"http": {}, "stream": {}, "security": {}}
+    if args.host is not None:
+        overrides["http"]["host"] = args.host
+    if args.port is not None:
+        overrides["http"]["port"] = args.port
+    if args.stream_port is not None:
+        overrides["stream"]["port"] = args.stream_port
+    if args.no_stream:
+        overrides["stream"]["enabled"] = False
+    if args.allow_remote_without_token:
+        overrides["security"]["allow_remote_without_token"] = True
+    overrides["logging"] = {"json": True} if args.log_json else {}
+    if args.verbose:
+        overrides["logging"]["level"] = "debug"
+    return serve(config.with_overrides(overrides))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = _build_parser().parse_args(argv)
     logging.basicConfig(
@@ -226,7 +275,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     from sphrender.server.engine.gl_context import GLUnavailableError
 
-    runners = {"render": _run_render, "demo": _run_demo, "info": _run_info}
+    runners = {"render": _run_render, "demo": _run_demo, "info": _run_info, "serve": _run_serve}
     try:
         return runners[args.command](args)
     except InputError as exc:
