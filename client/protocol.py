@@ -39,7 +39,7 @@ import zlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -313,7 +313,7 @@ def _shape(field: str, value: Any, name: str) -> tuple[int, ...]:
 
 
 def decode_frame_arrays(
-    specs: Any, payload: memoryview | bytes, *, max_particles: int
+    specs: Any, payload: bytes | bytearray | memoryview, *, max_particles: int
 ) -> dict[str, np.ndarray]:
     """The arrays of a FRAME from its header's ``arrays`` list and its payload.
 
@@ -397,7 +397,8 @@ def encode_npz_frame(
         text = scene if isinstance(scene, str) else json.dumps(scene, allow_nan=False)
         entries["scene"] = np.array(text)
     buffer = io.BytesIO()
-    (np.savez_compressed if compress else np.savez)(buffer, **entries)  # type: ignore[operator]
+    save: Callable[..., None] = np.savez_compressed if compress else np.savez
+    save(buffer, **entries)
     return buffer.getvalue()
 
 
@@ -454,8 +455,8 @@ def _read_npy_entry(
                 f"{info.file_size - header_size} bytes",
             )
         data = _read_exact(handle, nbytes, field)
-    order = "F" if fortran else "C"
-    array = np.frombuffer(data, dtype=dtype).reshape(shape, order=order)
+    order: Literal["C", "F"] = "F" if fortran else "C"
+    array = np.frombuffer(data, dtype=dtype).reshape(tuple(shape), order=order)
     return array, info.file_size
 
 

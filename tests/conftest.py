@@ -8,11 +8,15 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 
 from sphrender.server.engine.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
+
+if TYPE_CHECKING:
+    from service_harness import ServerProcess
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared"
@@ -37,3 +41,12 @@ def dambreak() -> Path:
     if not DAMBREAK.is_dir():
         pytest.skip(f"shared data not found at {DAMBREAK}")
     return DAMBREAK
+
+
+@pytest.fixture(scope="session")
+def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
+    """One real `sphrender serve` process on loopback shared by the service tests."""
+    from service_harness import MAIN_CONFIG, ServerProcess
+
+    with ServerProcess(tmp_path_factory.mktemp("service"), MAIN_CONFIG) as server:
+        yield server

@@ -119,10 +119,6 @@ class ApiHandler(BaseHTTPRequestHandler):
 
     # -- plumbing -------------------------------------------------------------------------------
 
-    def setup(self) -> None:
-        self.timeout = self.service.config.http.read_timeout_s
-        super().setup()
-
     def handle(self) -> None:
         server: SphrenderHttpServer = self.server  # type: ignore[assignment]
         if not server.enter_connection():
@@ -309,7 +305,16 @@ class ApiHandler(BaseHTTPRequestHandler):
                 raise HttpError(
                     408, ErrorCode.TIMEOUT, "the body did not arrive in time", "body", close=True
                 )
-            chunk = self.rfile.read1(min(remaining, 1 << 20))  # type: ignore[attr-defined]
+            try:
+                chunk = self.rfile.read1(min(remaining, 1 << 20))
+            except TimeoutError:
+                raise HttpError(
+                    408,
+                    ErrorCode.TIMEOUT,
+                    "the body stalled (http.read_timeout_s)",
+                    "body",
+                    close=True,
+                ) from None
             if not chunk:
                 raise ConnectionError("client closed the connection mid-body")
             chunks.append(chunk)
@@ -425,8 +430,8 @@ class ApiHandler(BaseHTTPRequestHandler):
         key = f"http-connection-{id(self.connection):x}"
         self._render_and_answer(FrameJob(key, particles, scene, self._format(scene), "http"))
 
-    def _session(self, session_id: str) -> Session:
-        session = self.service.sessions.get(session_id)
+    def _session(self, session_id: str, *, touch: bool = True) -> Session:
+        session = self.service.sessions.get(session_id, touch=touch)
         if session is None:
             raise HttpError(
                 404,
@@ -547,7 +552,7 @@ class ApiHandler(BaseHTTPRequestHandler):
         )
 
     def _get_session(self, session_id: str) -> None:
-        self._send_json(200, self._session(session_id).describe())
+        self._send_json(200, self._session(session_id, touch=False).describe())
 
     def _delete_session(self, session_id: str) -> None:
         if not self.service.close_session(session_id):
@@ -593,7 +598,9 @@ class SphrenderHttpServer(ThreadingHTTPServer):
 
 def make_handler(service: RenderService) -> type[ApiHandler]:
     """A handler class with `service` bound (no module-level state)."""
-    return type("BoundApiHandler", (ApiHandler,), {"service": service})
+    # `timeout` is StreamRequestHandler's per-read socket timeout.
+    attributes = {"service": service, "timeout": service.config.http.read_timeout_s}
+    return type("BoundApiHandler", (ApiHandler,), attributes)
 
 
 def make_http_server(service: RenderService) -> SphrenderHttpServer:

@@ -188,7 +188,8 @@ class Histogram(_Family):
             cumulative = 0
             for bound, count in zip((*self.buckets, math.inf), counts, strict=True):
                 cumulative += count
-                le = f'le="{_number(bound)}"'
+                # Bounds as Prometheus clients write them ("1.0", "+Inf"): dashboards match on them.
+                le = f'le="{"+Inf" if math.isinf(bound) else repr(float(bound))}"'
                 lines.append(f"{self.name}_bucket{_labels(self.label_names, key, le)} {cumulative}")
             lines.append(f"{self.name}_sum{_labels(self.label_names, key)} {_number(total)}")
             lines.append(f"{self.name}_count{_labels(self.label_names, key)} {cumulative}")

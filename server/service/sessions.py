@@ -77,10 +77,11 @@ class SessionRegistry:
             self._sessions[session.id] = session
             return session
 
-    def get(self, session_id: str) -> Session | None:
+    def get(self, session_id: str, *, touch: bool = True) -> Session | None:
+        """The session, marked as used unless `touch` is False (looking is not using)."""
         with self._lock:
             session = self._sessions.get(session_id)
-            if session is not None:
+            if session is not None and touch:
                 session.last_used = time.monotonic()
             return session
 
