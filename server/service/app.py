@@ -194,9 +194,8 @@ class RenderService:
         block: bool = False,
         abort: Callable[[], bool] | None = None,
     ) -> None:
-        """Queue a frame; raises `QueueFull` or `SchedulerClosed` (also while draining)."""
-        if self.draining.is_set() and job.transport == "http":
-            raise SchedulerClosed
+        """Queue a frame; raises `QueueFull`, or `SchedulerClosed` once the drain has closed the
+        scheduler (which happens only after every request in flight has been queued)."""
         self.metrics.in_flight.add(1)
         job.add_done_callback(self._record)
         try:

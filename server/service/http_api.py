@@ -197,6 +197,16 @@ class ApiHandler(BaseHTTPRequestHandler):
                 )
             if url.path not in ("/healthz", "/readyz"):
                 self._check_auth()
+            # Counted as active (above) before looking at the flag: a request that passes this
+            # check is waited for by the drain; one that arrives later is refused here.
+            if service.draining.is_set() and method in ("POST", "PUT"):
+                raise HttpError(
+                    503,
+                    ErrorCode.SHUTTING_DOWN,
+                    "the server is shutting down",
+                    retry_after_s=1,
+                    close=True,
+                )
             handler()
         except HttpError as error:
             self._send_error(error, method=method)
@@ -210,10 +220,16 @@ class ApiHandler(BaseHTTPRequestHandler):
                 method=method,
             )
         finally:
+            if not self._status:
+                self._count_request(0)  # no answer could be sent
             service.leave_http_request()
-            service.metrics.http_requests.inc(
-                method, _route_label(urlsplit(self.path).path), str(self._status or 0)
-            )
+
+    def _count_request(self, status: int) -> None:
+        """Counted before the answer is written, so a client that reads /metrics right after
+        its answer sees its own request."""
+        self._status = status
+        route = _route_label(urlsplit(self.path).path)
+        self.service.metrics.http_requests.inc(self.command, route, str(status))
 
     def _route(self, method: str, path: str) -> tuple[Any, list[str]]:
         table: dict[str, dict[str, Any]] = {
@@ -333,7 +349,7 @@ class ApiHandler(BaseHTTPRequestHandler):
         *,
         close: bool = False,
     ) -> None:
-        self._status = status
+        self._count_request(status)
         self.send_response(status)
         self.send_header("Content-Type", content_type)
         self.send_header("Content-Length", str(len(body)))
@@ -557,7 +573,7 @@ class ApiHandler(BaseHTTPRequestHandler):
     def _delete_session(self, session_id: str) -> None:
         if not self.service.close_session(session_id):
             raise HttpError(404, ErrorCode.NOT_FOUND, "no such session", "session")
-        self._status = 204
+        self._count_request(204)
         self.send_response(204)
         self.send_header("Content-Length", "0")
         self.end_headers()
