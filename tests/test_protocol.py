@@ -10,6 +10,7 @@ import io
 import json
 import struct
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -215,3 +216,23 @@ def test_npz_without_positions_names_what_it_has() -> None:
         decode_npz_frame(buffer.getvalue(), max_particles=10, max_uncompressed_bytes=1 << 20)
     assert info.value.field == "positions"
     assert "points" in info.value.message
+
+
+def _doc_example(name: str) -> bytes:
+    """The bytes of a hex example in PROTOCOL.md (`<!-- example: name -->` + a hexdump)."""
+    text = (Path(__file__).resolve().parents[1] / "PROTOCOL.md").read_text()
+    block = text.split(f"<!-- example: {name} -->", 1)[1].split("```text\n", 1)[1]
+    block = block.split("```", 1)[0]
+    return bytes.fromhex("".join(line[6:54] for line in block.splitlines()))
+
+
+def test_protocol_md_examples_are_what_the_codec_writes() -> None:
+    hello = {"scene": {"image": {"width": 64, "height": 48}}, "mode": "queue"}
+    hello["token"] = "0123456789abcdef"
+    assert _doc_example("hello") == encode_message(MessageType.HELLO, hello)
+    positions = np.array([[0.0, 0.5, -1.0], [1.0, 2.0, 3.0]])
+    radii = np.array([0.02, 0.03], dtype=np.float32)
+    assert _doc_example("frame") == encode_frame(7, positions, radii=radii)
+    dropped = {"id": 7, "reason": "superseded"}
+    assert _doc_example("dropped") == encode_message(MessageType.DROPPED, dropped)
+    assert _doc_example("bye") == encode_message(MessageType.BYE, {})
