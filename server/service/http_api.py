@@ -460,7 +460,8 @@ class ApiHandler(BaseHTTPRequestHandler):
 
     def _session_frame(self, session_id: str) -> None:
         session = self._session(session_id)
-        session.active += 1
+        sessions = self.service.sessions
+        sessions.begin_frame(session)
         try:
             arrays, scene_json = self._decode_body()
             try:
@@ -473,11 +474,10 @@ class ApiHandler(BaseHTTPRequestHandler):
             except InputError as exc:
                 self.service.record_invalid_frame("http", _code(exc))
                 raise HttpError.from_input(exc) from None
-            session.frames += 1
             job = FrameJob(session.id, particles, scene, self._format(scene), "http")
             self._render_and_answer(job)
         finally:
-            session.active -= 1
+            sessions.end_frame(session)
 
     def _render_and_answer(self, job: FrameJob) -> None:
         service = self.service

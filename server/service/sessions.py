@@ -85,6 +85,18 @@ class SessionRegistry:
                 session.last_used = time.monotonic()
             return session
 
+    def begin_frame(self, session: Session) -> None:
+        """A frame of `session` is in progress (it is not reaped meanwhile)."""
+        with self._lock:
+            session.active += 1
+            session.frames += 1
+            session.last_used = time.monotonic()
+
+    def end_frame(self, session: Session) -> None:
+        with self._lock:
+            session.active -= 1
+            session.last_used = time.monotonic()
+
     def remove(self, session_id: str) -> Session | None:
         with self._lock:
             return self._sessions.pop(session_id, None)

@@ -428,7 +428,7 @@ class StreamConnection:
             service.record_invalid_frame("stream", code)
             self._push(_Slot(frame_id, outcome=ErrorOutcome(code, exc.message, exc.field)))
             return None
-        self.session.frames += 1
+        self.session.frames += 1  # only this connection's reader thread touches it
         job = FrameJob(
             self.session.id, particles, scene, scene.output.format, "stream", frame_id=frame_id
         )
