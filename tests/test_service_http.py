@@ -155,10 +155,20 @@ def test_bad_scenes_name_the_key(service: ServerProcess, scene: dict, field: str
     assert status == (413 if field == "image" else 400)
 
 
-def test_scene_entry_that_is_not_json(service: ServerProcess) -> None:
-    status, _h, body = render(service, encode_npz_frame(ball(10), scene="{camera: oops"))
+@pytest.mark.parametrize("text", ["{camera: oops", '{"camera": {"fov_y": NaN}}', "[1, 2]"])
+def test_scene_entry_that_is_not_a_json_object(service: ServerProcess, text: str) -> None:
+    status, _h, body = render(service, encode_npz_frame(ball(10), scene=text))
     assert status == 400
     assert json.loads(body)["field"] == "scene"
+
+
+def test_format_query_overrides_the_scene(service: ServerProcess) -> None:
+    body = encode_npz_frame(ball(300), scene=SMALL_SCENE)
+    status, headers, data = render(service, body, "/v1/render?format=exr")
+    assert status == 200 and headers["Content-Type"] == "image/x-exr"
+    assert read_exr(data)["A"].shape == (48, 64)
+    status, _headers, data = render(service, body, "/v1/render?format=tiff")
+    assert status == 400 and json.loads(data)["field"] == "format"
 
 
 def test_too_many_particles_is_413(service: ServerProcess) -> None:
@@ -259,8 +269,21 @@ def test_client_vanishing_mid_body_leaves_the_server_up(service: ServerProcess) 
         with socket.create_connection((HOST, service.http_port), timeout=10) as sock:
             head = f"POST /v1/render HTTP/1.1\r\nHost: x\r\nContent-Length: {len(body)}\r\n\r\n"
             sock.sendall(head.encode() + body[:cut])
+    # Gone after sending the whole request, before the answer: the server's write fails.
+    with socket.create_connection((HOST, service.http_port), timeout=10) as sock:
+        head = f"POST /v1/render HTTP/1.1\r\nHost: x\r\nContent-Length: {len(body)}\r\n\r\n"
+        sock.sendall(head.encode() + body)
     status, _headers, _data = render(service, body)
     assert status == 200
+
+
+def test_serve_help_documents_every_option() -> None:
+    result = subprocess.run(
+        [SPHRENDER, "serve", "--help"], capture_output=True, text=True, timeout=60, check=False
+    )
+    assert result.returncode == 0
+    for option in ("--config", "--host", "--port", "--stream-port", "--log-json", "--no-stream"):
+        assert option in result.stdout
 
 
 def test_sessions_lifecycle_and_override(
