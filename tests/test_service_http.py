@@ -259,8 +259,28 @@ def test_slow_body_times_out_and_others_are_served(service: ServerProcess) -> No
         start = time.monotonic()
         answer = slow.recv(65536)
         waited = time.monotonic() - start
-        assert answer == b"" or answer.startswith(b"HTTP/1.1 408 "), answer[:200]
+        assert answer.startswith(b"HTTP/1.1 408 "), answer[:200]
         assert waited < 15
+
+
+def test_dribbling_body_is_cut_off_by_the_body_deadline(service: ServerProcess) -> None:
+    """One byte every 0.5 s never trips the per-read timeout (2 s) but the whole body must
+    arrive within body_timeout_s (3 s): the server answers 408 and closes."""
+    body = encode_npz_frame(ball(200), scene=SMALL_SCENE)
+    head = f"POST /v1/render HTTP/1.1\r\nHost: x\r\nContent-Length: {len(body)}\r\n\r\n"
+    with socket.create_connection((HOST, service.http_port), timeout=30) as slow:
+        slow.sendall(head.encode())
+        start = time.monotonic()
+        try:
+            for index in range(30):  # at most 15 s
+                slow.sendall(body[index : index + 1])
+                time.sleep(0.5)
+        except OSError:
+            pass  # the server closed the connection: expected
+        answer = slow.recv(65536)
+        assert answer.startswith(b"HTTP/1.1 408 "), answer[:200]
+        assert b'"field": "body"' in answer
+        assert time.monotonic() - start < 15
 
 
 def test_client_vanishing_mid_body_leaves_the_server_up(service: ServerProcess) -> None:

@@ -145,8 +145,10 @@ def test_stream_token_auth(strict: ServerProcess) -> None:
 
 
 def test_full_queue_answers_503_with_retry_after(strict: ServerProcess) -> None:
-    scene = {**SMALL_SCENE, "image": {"width": 320, "height": 240}}
-    body = encode_npz_frame(ball(30_000), scene=scene)
+    # Frames heavy enough (render, then a 640x480 PNG encode on the single encoder thread) that
+    # ten simultaneous requests cannot all fit through a queue of one.
+    scene = {**SMALL_SCENE, "image": {"width": 640, "height": 480}}
+    body = encode_npz_frame(ball(50_000), scene=scene)
     results: list[tuple[int, dict[str, str], bytes]] = []
     barrier = threading.Barrier(10)
 
