@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import signal
+import socket
 import subprocess
 import threading
 import time
@@ -241,3 +242,19 @@ def test_bad_server_config_is_refused_naming_the_key(tmp_path: Path) -> None:
     )
     assert result.returncode == 2
     assert "stream.max_in_flight" in result.stderr
+
+
+def test_port_in_use_is_a_one_line_error(tmp_path: Path) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        result = subprocess.run(
+            [SPHRENDER, "serve", "--port", str(port), "--stream-port", "0"],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            check=False,
+        )
+    assert result.returncode == 2, result.stderr
+    assert "http.port" in result.stderr and "Traceback" not in result.stderr

@@ -621,6 +621,11 @@ def make_handler(service: RenderService) -> type[ApiHandler]:
 
 def make_http_server(service: RenderService) -> SphrenderHttpServer:
     config = service.config.http
-    return SphrenderHttpServer(
-        (config.host, config.port), make_handler(service), config.max_connections
-    )
+    try:
+        return SphrenderHttpServer(
+            (config.host, config.port), make_handler(service), config.max_connections
+        )
+    except OSError as exc:
+        raise InputError(
+            "http.port", f"cannot listen on {config.host}:{config.port}: {exc.strerror or exc}"
+        ) from None

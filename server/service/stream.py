@@ -553,4 +553,10 @@ class StreamServer(socketserver.ThreadingTCPServer):
 
 
 def make_stream_server(service: RenderService) -> StreamServer:
-    return StreamServer((service.config.http.host, service.config.stream.port), service)
+    host, port = service.config.http.host, service.config.stream.port
+    try:
+        return StreamServer((host, port), service)
+    except OSError as exc:
+        raise InputError(
+            "stream.port", f"cannot listen on {host}:{port}: {exc.strerror or exc}"
+        ) from None
