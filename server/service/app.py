@@ -201,8 +201,11 @@ class RenderService:
         try:
             self.scheduler.submit(job, latest=latest, block=block, abort=abort)
         except (QueueFull, SchedulerClosed) as exc:
-            code = ErrorCode.BUSY if isinstance(exc, QueueFull) else ErrorCode.SHUTTING_DOWN
-            job.resolve(ErrorOutcome(code, "busy", retry_after_s=self.retry_after_s()))
+            if isinstance(exc, QueueFull):
+                code, message = ErrorCode.BUSY, "the render queue is full; retry later"
+            else:
+                code, message = ErrorCode.SHUTTING_DOWN, "the server is shutting down"
+            job.resolve(ErrorOutcome(code, message, retry_after_s=self.retry_after_s()))
             raise
 
     def _record(self, job: FrameJob, outcome: Outcome) -> None:
