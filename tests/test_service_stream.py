@@ -42,6 +42,17 @@ from sphrender.server.encoders import read_exr
 from sphrender.server.engine.renderer import SurfaceRenderer
 
 
+def quiet_metrics(service: ServerProcess) -> dict[tuple[str, tuple[tuple[str, str], ...]], float]:
+    """/metrics once no stream session is open (earlier tests' connections fully counted)."""
+    deadline = time.monotonic() + 20
+    while (values := metric_values(service.metrics_text())).get(
+        ("sphrender_sessions", (("transport", "stream"),)), 0
+    ) > 0:
+        assert time.monotonic() < deadline, "stream sessions stay open"
+        time.sleep(0.05)
+    return values
+
+
 def test_stream_frame_matches_sphrender_render(service: ServerProcess, tmp_path: Path) -> None:
     positions = ball(3000)
     npz = tmp_path / "frame.npz"
@@ -112,7 +123,7 @@ def test_pipelined_frames_keep_order_and_echo_ids(
 def test_latest_mode_answers_superseded_frames_dropped(service: ServerProcess) -> None:
     scene = {**SMALL_SCENE, "image": {"width": 240, "height": 180}}
     count = 30
-    before = metric_values(service.metrics_text())
+    before = quiet_metrics(service)
     with service.stream() as client:
         assert client.hello(scene, mode="latest")["mode"] == "latest"
         data = b"".join(encode_frame(i, ball(20_000, seed=i)) for i in range(count))
@@ -361,7 +372,7 @@ def test_payload_shorter_than_announced_times_out(service: ServerProcess) -> Non
 def test_client_vanishing_mid_frame_and_mid_pipeline(
     service: ServerProcess, renderer: SurfaceRenderer, tmp_path: Path
 ) -> None:
-    before = metric_values(service.metrics_text())
+    before = quiet_metrics(service)
     with bystander(service, renderer, tmp_path):
         # Gone in the middle of a message.
         with service.stream() as client:
@@ -415,7 +426,7 @@ def test_half_close_still_gets_its_answers(service: ServerProcess) -> None:
 
 
 def test_stream_metrics_count_frames_and_bytes(service: ServerProcess) -> None:
-    before = metric_values(service.metrics_text())
+    before = quiet_metrics(service)
     with service.stream() as client:
         client.hello()
         sent = 0

@@ -240,9 +240,11 @@ class StreamConnection:
             finally:
                 self.server.unregister(self)
         finally:
+            # Counted before the session goes, so "no stream session open" implies "every
+            # ended connection is counted" for anyone reading /metrics.
+            self.service.metrics.connections.inc(end)
             if self.session is not None:
                 self.service.close_session(self.session.id)
-            self.service.metrics.connections.inc(end)
             log.info(
                 "stream connection ended",
                 extra={
