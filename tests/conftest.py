@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 
@@ -16,6 +17,9 @@ from sphrender.server.engine.cl_context import CLContext
 from sphrender.server.engine.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.engine.sph import SphEngine
+
+if TYPE_CHECKING:
+    from service_harness import ServerProcess
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared"
@@ -53,3 +57,12 @@ def dambreak() -> Path:
     if not DAMBREAK.is_dir():
         pytest.skip(f"shared data not found at {DAMBREAK}")
     return DAMBREAK
+
+
+@pytest.fixture(scope="session")
+def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
+    """One real `sphrender serve` process on loopback shared by the service tests."""
+    from service_harness import MAIN_CONFIG, ServerProcess
+
+    with ServerProcess(tmp_path_factory.mktemp("service"), MAIN_CONFIG) as server:
+        yield server

@@ -1,0 +1,564 @@
+"""The streaming socket for live frontends (the wire format is specified in PROTOCOL.md).
+
+One connection = one session. Per connection there are two threads:
+
+* the **reader** (the socketserver handler thread) reads a message, validates it and, for a
+  FRAME, appends an answer slot to the connection's ordered answer list *before* queueing the
+  job, so answers leave in the order frames arrived whatever happens to each frame;
+* the **writer** takes the slots in order, waits for each one's outcome (image, error or dropped)
+  and sends it.
+
+Backpressure: the reader stops reading while ``max_in_flight`` frames are unanswered. In ``queue``
+mode a frame waits for room in the scheduler (nothing is dropped); in ``latest`` mode a new frame
+supersedes the session's frames that have not started rendering, which are answered DROPPED.
+
+Every wait is bounded: the HELLO within ``handshake_timeout_s``; a started message within
+``message_timeout_s``; with nothing in flight, the next message within ``idle_timeout_s``; an
+answer must be taken by the client within ``write_timeout_s``. The socket is polled with a short
+timeout so the threads also notice a drain or the other thread's failure quickly.
+
+Framing errors (bad magic, unknown type, oversized lengths, a header that is not JSON, a frame
+without a usable id) are fatal: the connection gets one ERROR with ``"id": null`` after the
+answers already owed, then closes. Errors in a frame's content answer that frame only.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hmac
+import logging
+import socket
+import socketserver
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
+
+from sphrender.client.errors import InputError
+from sphrender.client.protocol import (
+    MAX_FRAME_ID,
+    PREFIX_SIZE,
+    ErrorCode,
+    LimitError,
+    MessageType,
+    ProtocolError,
+    decode_frame_arrays,
+    encode_message,
+    parse_header,
+    parse_prefix,
+)
+from sphrender.server.service.config import public_limits
+from sphrender.server.service.jobs import (
+    DroppedOutcome,
+    ErrorOutcome,
+    FrameJob,
+    ImageOutcome,
+    Outcome,
+)
+from sphrender.server.service.scheduler import QueueFull, SchedulerClosed
+from sphrender.server.service.sessions import Session, SessionLimitReached, merge_scene
+
+if TYPE_CHECKING:  # a runtime import would be circular
+    from sphrender.server.service.app import RenderService
+
+log = logging.getLogger("sphrender.service.stream")
+
+#: Socket poll interval: how quickly a blocked thread notices a drain or a dead peer.
+TICK_S = 0.2
+_HELLO_KEYS = {"token", "scene", "mode", "max_in_flight", "client"}
+_FRAME_KEYS = {"id", "arrays", "scene"}
+
+
+class _Closed(Exception):
+    """The connection is over; `reason` says how (metrics label and log field)."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
+
+
+@dataclass
+class _Slot:
+    """One owed answer, in arrival order: a job still running or an outcome already known."""
+
+    frame_id: int | None
+    job: FrameJob | None = None
+    outcome: Outcome | None = None
+    fatal: bool = False
+
+
+def _answer(slot: _Slot, outcome: Outcome) -> bytes:
+    if isinstance(outcome, ImageOutcome):
+        header: dict[str, Any] = {
+            "id": slot.frame_id,
+            "format": outcome.format,
+            "width": outcome.width,
+            "height": outcome.height,
+            "particles": outcome.particles,
+            "drawn": outcome.drawn,
+            "timings_ms": outcome.timings_ms,
+        }
+        return encode_message(MessageType.IMAGE, header, outcome.data)
+    if isinstance(outcome, DroppedOutcome):
+        return encode_message(MessageType.DROPPED, {"id": slot.frame_id, "reason": outcome.reason})
+    return encode_message(
+        MessageType.ERROR,
+        {
+            "id": slot.frame_id,
+            "code": outcome.code,
+            "error": outcome.message,
+            "field": outcome.field,
+            "fatal": slot.fatal,
+        },
+    )
+
+
+class StreamConnection:
+    """Both halves of one client connection (see the module docstring)."""
+
+    def __init__(
+        self, sock: socket.socket, peer: Any, service: RenderService, server: StreamServer
+    ) -> None:
+        self.sock = sock
+        self.peer = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else str(peer)
+        self.service = service
+        self.server = server
+        self.config = service.config.stream
+        self._cond = threading.Condition()
+        self._answers: deque[_Slot] = deque()
+        self._in_flight = 0
+        self._reading_done = False
+        self._goodbye: str | None = None
+        self._dead = threading.Event()
+        self._draining = threading.Event()
+        self.session: Session | None = None
+        self.mode: Literal["queue", "latest"] = "queue"
+        self.max_in_flight = self.config.max_in_flight
+        sock.settimeout(TICK_S)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+    def begin_drain(self) -> None:
+        self._draining.set()
+
+    # -- socket I/O -----------------------------------------------------------------------------
+
+    def _recv_exact(
+        self, n: int, deadline: float, *, idle_deadline: float | None = None
+    ) -> bytearray:
+        """n bytes, or `_Closed`. Before the first byte the idle rules apply (the message has not
+        started: a drain may end the connection here); after it, the message deadline."""
+        buffer = bytearray()
+        while len(buffer) < n:
+            if self._dead.is_set():
+                raise _Closed("gone")
+            now = time.monotonic()
+            if idle_deadline is not None and not buffer:
+                if self._draining.is_set():
+                    raise _Closed("shutdown")
+                if self._in_flight > 0:
+                    idle_deadline = now + self.config.idle_timeout_s  # waiting for answers
+                if now > idle_deadline:
+                    raise _Closed("idle_timeout")
+            elif now > deadline:
+                raise _Closed("slow")
+            try:
+                chunk = self.sock.recv(min(n - len(buffer), 1 << 20))
+            except TimeoutError:
+                continue
+            except OSError:
+                raise _Closed("gone") from None
+            if not chunk:
+                raise _Closed("eof" if idle_deadline is not None and not buffer else "vanished")
+            buffer += chunk
+        return buffer
+
+    def _read_message(
+        self, idle_deadline: float, message_deadline: float | None = None
+    ) -> tuple[MessageType, dict[str, Any], bytearray, int]:
+        first = self._recv_exact(1, message_deadline or 0.0, idle_deadline=idle_deadline)
+        deadline = message_deadline or time.monotonic() + self.config.message_timeout_s
+        prefix = first + self._recv_exact(PREFIX_SIZE - 1, deadline)
+        kind, header_len, payload_len = parse_prefix(
+            prefix,
+            max_header_bytes=self.config.max_header_bytes,
+            max_payload_bytes=self.config.max_payload_bytes,
+        )
+        header = parse_header(self._recv_exact(header_len, deadline)) if header_len else {}
+        payload = self._recv_exact(payload_len, deadline) if payload_len else bytearray()
+        size = PREFIX_SIZE + header_len + payload_len
+        self.service.metrics.bytes_in.inc("stream", amount=size)
+        return kind, header, payload, size
+
+    def _send_all(self, data: bytes) -> None:
+        view = memoryview(data)
+        sent = 0
+        deadline = time.monotonic() + self.config.write_timeout_s
+        while sent < len(view):
+            if time.monotonic() > deadline:
+                raise _Closed("write_timeout")
+            try:
+                sent += self.sock.send(view[sent:])
+            except TimeoutError:
+                continue
+            except OSError:
+                raise _Closed("gone") from None
+        self.service.metrics.bytes_out.inc("stream", amount=len(data))
+
+    def _send_fatal(self, code: str, message: str, field: str | None) -> None:
+        """An immediate fatal ERROR (handshake only; later ones go through the answer list)."""
+        with contextlib.suppress(_Closed):
+            self._send_all(
+                encode_message(
+                    MessageType.ERROR,
+                    {"id": None, "code": code, "error": message, "field": field, "fatal": True},
+                )
+            )
+
+    # -- lifecycle ------------------------------------------------------------------------------
+
+    def run(self) -> None:
+        end = "gone"
+        try:
+            if not self.server.register(self):
+                self._send_fatal(ErrorCode.BUSY, "too many stream connections", None)
+                end = "busy"
+                return
+            try:
+                end = self._handshake()
+                if end != "ok":
+                    return
+                writer = threading.Thread(
+                    target=self._write_loop, name="sphrender-stream-writer", daemon=True
+                )
+                writer.start()
+                end = self._read_loop()
+                with self._cond:
+                    self._reading_done = True
+                    self._cond.notify_all()
+                writer.join()
+            finally:
+                self.server.unregister(self)
+        finally:
+            # Counted before the session goes, so "no stream session open" implies "every
+            # ended connection is counted" for anyone reading /metrics.
+            self.service.metrics.connections.inc(end)
+            if self.session is not None:
+                self.service.close_session(self.session.id)
+            log.info(
+                "stream connection ended",
+                extra={
+                    "event": "stream_end",
+                    "peer": self.peer,
+                    "reason": end,
+                    "session": self.session.id if self.session else None,
+                },
+            )
+
+    def _handshake(self) -> str:
+        deadline = time.monotonic() + self.config.handshake_timeout_s
+        try:
+            kind, header, payload, _size = self._read_message(deadline, deadline)
+        except _Closed as closed:
+            if closed.reason in ("slow", "idle_timeout"):
+                self._send_fatal(ErrorCode.TIMEOUT, "no HELLO within handshake_timeout_s", None)
+                return "timeout"
+            return closed.reason
+        except ProtocolError as exc:
+            self._send_fatal(exc.code, exc.message, exc.field)
+            return "protocol"
+        try:
+            if kind != MessageType.HELLO:
+                raise ProtocolError(ErrorCode.PROTOCOL, f"expected HELLO, got {kind.name}", "type")
+            if payload:
+                raise ProtocolError(ErrorCode.PROTOCOL, "HELLO has no payload", "payload_length")
+            for key in header:
+                if key not in _HELLO_KEYS:
+                    raise ProtocolError(ErrorCode.BAD_INPUT, "unknown key", f"header.{key}")
+            self._check_token(header.get("token"))
+            self.mode = self._mode(header.get("mode", "queue"))
+            self.max_in_flight = self._max_in_flight(header.get("max_in_flight"))
+            scene = header.get("scene", {})
+            if not isinstance(scene, dict):
+                raise ProtocolError(ErrorCode.BAD_INPUT, "must be a JSON object", "scene")
+            self.session = self.service.create_session(scene, "stream")
+        except ProtocolError as exc:
+            self._send_fatal(exc.code, exc.message, exc.field)
+            return "unauthorized" if exc.code == ErrorCode.UNAUTHORIZED else "handshake"
+        except InputError as exc:
+            code = ErrorCode.TOO_LARGE if isinstance(exc, LimitError) else ErrorCode.BAD_INPUT
+            self._send_fatal(code, exc.message, exc.field)
+            return "handshake"
+        except SessionLimitReached:
+            self._send_fatal(ErrorCode.BUSY, "too many sessions (limits.max_sessions)", None)
+            return "busy"
+        except SchedulerClosed:
+            self._send_fatal(ErrorCode.SHUTTING_DOWN, "the server is shutting down", None)
+            return "shutdown"
+        except Exception as exc:  # GL failure while warming the scene, or a warm timeout
+            self._send_fatal(ErrorCode.RENDER_FAILED, f"preparing the scene failed: {exc}", None)
+            return "handshake"
+        welcome = {
+            "session": self.session.id,
+            "mode": self.mode,
+            "max_in_flight": self.max_in_flight,
+            "limits": public_limits(self.service.config),
+            "server": {
+                "version": self.service.info()["version"],
+                "gl_renderer": self.service.worker.gl_renderer,
+            },
+        }
+        try:
+            self._send_all(encode_message(MessageType.WELCOME, welcome))
+        except _Closed as closed:
+            return closed.reason
+        return "ok"
+
+    def _check_token(self, presented: Any) -> None:
+        token = self.service.config.security.token
+        if not token:
+            return
+        given = presented.encode("utf-8") if isinstance(presented, str) else b""
+        if not hmac.compare_digest(given, token.encode("utf-8")):
+            raise ProtocolError(ErrorCode.UNAUTHORIZED, "missing or wrong token", "token")
+
+    @staticmethod
+    def _mode(value: Any) -> Literal["queue", "latest"]:
+        if value == "queue":
+            return "queue"
+        if value == "latest":
+            return "latest"
+        raise ProtocolError(
+            ErrorCode.BAD_INPUT, f"must be 'queue' or 'latest', got {value!r}", "mode"
+        )
+
+    def _max_in_flight(self, value: Any) -> int:
+        limit = self.config.max_in_flight
+        if value is None:
+            return limit
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= limit:
+            raise ProtocolError(
+                ErrorCode.BAD_INPUT,
+                f"must be an integer in [1, {limit}], got {value!r}",
+                "max_in_flight",
+            )
+        return value
+
+    # -- reader ---------------------------------------------------------------------------------
+
+    def _read_loop(self) -> str:
+        while True:
+            with self._cond:
+                while (
+                    self._in_flight >= self.max_in_flight
+                    and not self._dead.is_set()
+                    and not self._draining.is_set()
+                ):
+                    self._cond.wait(TICK_S)
+            if self._dead.is_set():
+                return "gone"
+            idle_deadline = time.monotonic() + self.config.idle_timeout_s
+            try:
+                kind, header, payload, _size = self._read_message(idle_deadline)
+            except _Closed as closed:
+                return self._reader_closed(closed.reason)
+            except ProtocolError as exc:
+                self._push(
+                    _Slot(None, outcome=ErrorOutcome(exc.code, exc.message, exc.field), fatal=True)
+                )
+                return "protocol"
+            if kind == MessageType.BYE:
+                self._goodbye = "bye"
+                return "bye"
+            if kind != MessageType.FRAME:
+                message = f"unexpected {kind.name} after the handshake"
+                self._push(
+                    _Slot(
+                        None, outcome=ErrorOutcome(ErrorCode.PROTOCOL, message, "type"), fatal=True
+                    )
+                )
+                return "protocol"
+            fatal = self._accept_frame(header, payload)
+            if fatal is not None:
+                self._push(fatal)
+                return "protocol"
+
+    def _reader_closed(self, reason: str) -> str:
+        if reason == "slow":
+            message = (
+                f"message not complete within message_timeout_s ({self.config.message_timeout_s} s)"
+            )
+            self._push(_Slot(None, outcome=ErrorOutcome(ErrorCode.TIMEOUT, message), fatal=True))
+        elif reason in ("eof", "shutdown", "idle_timeout"):
+            self._goodbye = reason
+        elif reason == "vanished":
+            log.info(
+                "client vanished mid-message", extra={"event": "stream_vanished", "peer": self.peer}
+            )
+            self._dead.set()
+        return reason
+
+    def _accept_frame(self, header: dict[str, Any], payload: bytearray) -> _Slot | None:
+        """Queue one FRAME (or answer its error); returns a fatal slot if it has no usable id."""
+        frame_id = header.get("id")
+        if (
+            isinstance(frame_id, bool)
+            or not isinstance(frame_id, int)
+            or not (0 <= frame_id <= MAX_FRAME_ID)
+        ):
+            message = f"FRAME needs an integer id in [0, 2^53 - 1], got {frame_id!r}"
+            return _Slot(None, outcome=ErrorOutcome(ErrorCode.PROTOCOL, message, "id"), fatal=True)
+        assert self.session is not None
+        service = self.service
+        try:
+            for key in header:
+                if key not in _FRAME_KEYS:
+                    raise InputError(f"header.{key}", "unknown key")
+            arrays = decode_frame_arrays(
+                header.get("arrays"), payload, max_particles=service.config.limits.max_particles
+            )
+            particles = service.make_particles(arrays)
+            scene = self.session.scene
+            if "scene" in header:
+                override = header["scene"]
+                if not isinstance(override, dict):
+                    raise InputError("scene", "must be a JSON object (a partial scene)")
+                scene = service.scenes.from_dict(merge_scene(self.session.raw_scene, override))
+                service.worker.check_image_size(scene)
+        except InputError as exc:
+            code = ErrorCode.TOO_LARGE if isinstance(exc, LimitError) else ErrorCode.BAD_INPUT
+            service.record_invalid_frame("stream", code)
+            self._push(_Slot(frame_id, outcome=ErrorOutcome(code, exc.message, exc.field)))
+            return None
+        self.session.frames += 1  # only this connection's reader thread touches it
+        job = FrameJob(
+            self.session.id, particles, scene, scene.output.format, "stream", frame_id=frame_id
+        )
+        self._push(_Slot(frame_id, job=job))
+        # On QueueFull/SchedulerClosed the job has been answered with the error; its slot has it.
+        with contextlib.suppress(QueueFull, SchedulerClosed):
+            service.submit(
+                job,
+                latest=self.mode == "latest",
+                block=self.mode == "queue",
+                abort=self._dead.is_set,
+            )
+        return None
+
+    def _push(self, slot: _Slot) -> None:
+        with self._cond:
+            self._answers.append(slot)
+            self._in_flight += 1
+            self._cond.notify_all()
+
+    # -- writer ---------------------------------------------------------------------------------
+
+    def _outcome(self, slot: _Slot) -> Outcome | None:
+        if slot.outcome is not None:
+            return slot.outcome
+        assert slot.job is not None
+        while not self._dead.is_set():
+            try:
+                return slot.job.future.result(timeout=TICK_S)
+            except TimeoutError:
+                continue
+        return None
+
+    def _write_loop(self) -> None:
+        try:
+            while True:
+                with self._cond:
+                    while not self._answers and not self._reading_done:
+                        self._cond.wait(TICK_S)
+                    if not self._answers:
+                        break
+                    slot = self._answers[0]
+                outcome = self._outcome(slot)
+                if outcome is None:
+                    raise _Closed("gone")
+                self._send_all(_answer(slot, outcome))
+                with self._cond:
+                    self._answers.popleft()
+                    self._in_flight -= 1
+                    self._cond.notify_all()
+                if slot.fatal:
+                    return
+            if self._goodbye is not None:
+                self._send_all(encode_message(MessageType.GOODBYE, {"reason": self._goodbye}))
+        except _Closed as closed:
+            log.info(
+                "stream client gone while answering",
+                extra={"event": "stream_write_failed", "peer": self.peer, "reason": closed.reason},
+            )
+            self._dead.set()
+        finally:
+            self._abandon()
+            with contextlib.suppress(OSError):
+                self.sock.shutdown(socket.SHUT_RDWR)
+
+    def _abandon(self) -> None:
+        """Cancel whatever is still owed (the client cannot receive it any more)."""
+        with self._cond:
+            slots = list(self._answers)
+            self._answers.clear()
+            self._in_flight = 0
+            self._cond.notify_all()
+        for slot in slots:
+            if slot.job is not None:
+                slot.job.cancel()
+        if self.session is not None:
+            self.service.scheduler.cancel_key(self.session.id)
+
+
+class StreamHandler(socketserver.BaseRequestHandler):
+    service: ClassVar[RenderService]
+
+    def handle(self) -> None:
+        server: StreamServer = self.server  # type: ignore[assignment]
+        StreamConnection(self.request, self.client_address, self.service, server).run()
+
+
+class StreamServer(socketserver.ThreadingTCPServer):
+    daemon_threads = True
+    allow_reuse_address = True
+    request_queue_size = 128
+
+    def __init__(self, address: tuple[str, int], service: RenderService) -> None:
+        if ":" in address[0]:
+            self.address_family = socket.AF_INET6
+        handler = type("BoundStreamHandler", (StreamHandler,), {"service": service})
+        super().__init__(address, handler)
+        self._max = service.config.stream.max_connections
+        self._lock = threading.Lock()
+        self._connections: set[StreamConnection] = set()
+
+    def register(self, connection: StreamConnection) -> bool:
+        with self._lock:
+            if len(self._connections) >= self._max:
+                return False
+            self._connections.add(connection)
+            return True
+
+    def unregister(self, connection: StreamConnection) -> None:
+        with self._lock:
+            self._connections.discard(connection)
+
+    def open_connections(self) -> int:
+        with self._lock:
+            return len(self._connections)
+
+    def drain_connections(self) -> None:
+        with self._lock:
+            connections = list(self._connections)
+        for connection in connections:
+            connection.begin_drain()
+
+
+def make_stream_server(service: RenderService) -> StreamServer:
+    host, port = service.config.http.host, service.config.stream.port
+    try:
+        return StreamServer((host, port), service)
+    except OSError as exc:
+        raise InputError(
+            "stream.port", f"cannot listen on {host}:{port}: {exc.strerror or exc}"
+        ) from None
