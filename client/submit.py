@@ -16,13 +16,15 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol, TextIO
+from typing import Literal, Protocol, TextIO
 
+from sphrender.client.api import Client, ServerError, ServerUnavailable
 from sphrender.client.errors import InputError
 from sphrender.client.frame import ParticleFrame
 from sphrender.client.image_check import is_complete_image
@@ -100,8 +102,13 @@ class Progress:
         self.stream = stream or sys.stderr
         self.interactive = self.stream.isatty()
         self.start = time.monotonic()
+        self._lock = threading.Lock()
 
     def update(self, job: FrameJob, status: str) -> None:
+        with self._lock:
+            self._update(job, status)
+
+    def _update(self, job: FrameJob, status: str) -> None:
         self.done += 1
         elapsed = max(time.monotonic() - self.start, 1e-9)
         fps = self.done / elapsed
@@ -123,6 +130,10 @@ class Progress:
         self.stream.flush()
 
 
+#: Longest wait between two attempts at one frame.
+MAX_RETRY_DELAY_S = 8.0
+
+
 def _with_retries(action: Callable[[], bytes], attempts: int, base_delay: float) -> bytes:
     for attempt in range(attempts):
         try:
@@ -130,8 +141,37 @@ def _with_retries(action: Callable[[], bytes], attempts: int, base_delay: float)
         except TransientError:
             if attempt == attempts - 1:
                 raise
-            time.sleep(base_delay * 2**attempt)
+            time.sleep(min(base_delay * 2**attempt, MAX_RETRY_DELAY_S))
     raise AssertionError("unreachable")
+
+
+class RemoteFrameRenderer:
+    """A `FrameRenderer` that renders on a server over HTTP (thread-safe: one connection per
+    request). Input errors fail the frame; an unreachable or busy server is a `TransientError`,
+    which the submitter retries with backoff (the client itself does not retry, so the two
+    do not multiply)."""
+
+    def __init__(
+        self,
+        url: str,
+        scene: Mapping[str, object] | None,
+        fmt: Literal["png", "exr"],
+        token: str | None = None,
+        timeout: float = 300.0,
+    ) -> None:
+        self.client = Client(url, token=token, timeout=timeout, retries=0)
+        self.scene = scene
+        self.format: Literal["png", "exr"] = fmt
+
+    def render(self, frame: ParticleFrame) -> bytes:
+        try:
+            return self.client.render_frame(frame, self.scene, format=self.format)
+        except ServerUnavailable as exc:
+            raise TransientError(str(exc)) from None
+        except ServerError as exc:
+            if exc.retryable or exc.code == "render_failed":
+                raise TransientError(str(exc)) from None
+            raise InputError(exc.field or "server", exc.message) from None
 
 
 def run_submission(
@@ -141,11 +181,15 @@ def run_submission(
     resume: bool = False,
     attribute_map: Mapping[str, str] | None = None,
     read_ahead: int = 2,
-    retry_attempts: int = 5,
+    concurrency: int = 1,
+    retry_attempts: int = 8,
     retry_delay: float = 0.5,
     progress: Progress | None = None,
 ) -> Summary:
-    """Render every job (in order), reading input files `read_ahead` frames ahead on threads."""
+    """Render every job. With `concurrency` 1 frames render in order on the calling thread
+    (required by the local engine, whose GL context belongs to this thread) while input files
+    are read `read_ahead` frames ahead; with more, that many frames are in flight at once on
+    worker threads (a thread-safe renderer such as `RemoteFrameRenderer`)."""
     summary = Summary()
     start = time.monotonic()
     remove_stale_partials(jobs)
@@ -159,6 +203,23 @@ def run_submission(
 
     def load(job: FrameJob) -> ParticleFrame:
         return read_particles(job.input, attribute_map=attribute_map)
+
+    if concurrency > 1:
+        # Each worker reads, renders and writes one frame at a time, so at most `concurrency`
+        # frames are in memory whatever the length of the sequence.
+        def process(job: FrameJob) -> None:
+            loaded: Future[ParticleFrame] = Future()
+            try:
+                loaded.set_result(load(job))
+            except Exception as exc:
+                loaded.set_exception(exc)
+            _finish((job, loaded), renderer, summary, progress, retry_attempts, retry_delay)
+
+        with ThreadPoolExecutor(max_workers=concurrency) as pool:
+            for future in [pool.submit(process, job) for job in todo]:
+                future.result()
+        summary.seconds = time.monotonic() - start
+        return summary
 
     with ThreadPoolExecutor(max_workers=max(1, read_ahead)) as pool:
         pending: Iterator[tuple[FrameJob, Future[ParticleFrame]]] = (

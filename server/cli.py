@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 import time
 from collections.abc import Sequence
@@ -150,17 +151,26 @@ def _build_parser() -> argparse.ArgumentParser:
     submit.add_argument(
         "--format", choices=["png", "exr"], help="output format (default: the scene's)"
     )
-    submit.add_argument(
+    where = submit.add_mutually_exclusive_group(required=True)
+    where.add_argument(
+        "--server", metavar="URL", help="render on a running `sphrender serve` (http://HOST:PORT)"
+    )
+    where.add_argument(
         "--local",
         action="store_true",
-        required=True,
         help="render with the embedded engine in this process (no server)",
     )
+    submit.add_argument("--token", help="bearer token for --server (default: $SPHRENDER_TOKEN)")
     submit.add_argument(
         "--resume", action="store_true", help="skip frames whose output is a complete image"
     )
     submit.add_argument(
-        "--jobs", type=int, default=2, metavar="N", help="input files read ahead in parallel"
+        "--jobs",
+        type=int,
+        default=2,
+        metavar="N",
+        help="frames in flight at once on the server (--server), or input files read ahead "
+        "(--local, which renders one frame at a time)",
     )
     submit.add_argument(
         "--attribute",
@@ -379,15 +389,16 @@ def _parse_attribute_map(pairs: Sequence[str]) -> dict[str, str]:
 
 
 def _run_submit(args: argparse.Namespace) -> int:
+    import tomllib
+
     from sphrender.client.sequences import expand_inputs, plan_jobs
-    from sphrender.client.submit import run_submission
+    from sphrender.client.submit import FrameRenderer, RemoteFrameRenderer, run_submission
     from sphrender.server import encoders
-    from sphrender.server.local_backend import LocalFrameRenderer
     from sphrender.server.scene import Scene, load_scene
 
     if args.jobs < 1:
         raise InputError("--jobs", f"must be at least 1, got {args.jobs}")
-    scene = load_scene(args.scene) if args.scene else Scene()
+    scene = load_scene(args.scene) if args.scene else Scene()  # validated here: fail fast
     fmt: ImageFormat = args.format or scene.output.format
     attribute_map = _parse_attribute_map(args.attribute)
     jobs = plan_jobs(expand_inputs(args.inputs), args.output, encoders.file_suffix(fmt))
@@ -395,14 +406,32 @@ def _run_submit(args: argparse.Namespace) -> int:
         args.output.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError("output", f"cannot create {args.output}: {exc.strerror}") from None
-    backend = LocalFrameRenderer(scene, fmt, _environment_dirs(args))
-    log.info("GL renderer: %s", backend.gl_renderer)
+    backend: FrameRenderer
+    if args.server:
+        # The server validates the scene again under its own limits; send what the user wrote.
+        raw_scene = tomllib.loads(args.scene.read_text()) if args.scene else None
+        token = args.token or os.environ.get("SPHRENDER_TOKEN")
+        backend = RemoteFrameRenderer(args.server, raw_scene, fmt, token=token)
+        close = None
+        concurrency = args.jobs
+    else:
+        from sphrender.server.local_backend import LocalFrameRenderer
+
+        local = LocalFrameRenderer(scene, fmt, _environment_dirs(args))
+        log.info("GL renderer: %s", local.gl_renderer)
+        backend, close, concurrency = local, local.close, 1
     try:
         summary = run_submission(
-            jobs, backend, resume=args.resume, attribute_map=attribute_map, read_ahead=args.jobs
+            jobs,
+            backend,
+            resume=args.resume,
+            attribute_map=attribute_map,
+            read_ahead=args.jobs,
+            concurrency=concurrency,
         )
     finally:
-        backend.close()
+        if close is not None:
+            close()
     print(summary.report(), file=sys.stderr)
     return 0 if summary.ok else EXIT_FRAMES_FAILED
 

@@ -1,0 +1,431 @@
+"""Python client of `sphrender serve`: numpy + standard library only (no GL, no OpenCL).
+
+    client = Client("http://127.0.0.1:8080", token=None)
+    png = client.render(positions, scene={"image": {"width": 640, "height": 360}})
+
+    with client.stream(scene) as session:           # pipelined over the streaming socket
+        for result in session.render_all(frames):   # yields answers in order, one per frame
+            ...
+
+Retries happen only where repeating is safe: rendering a frame is a pure function of its input,
+so a render request is retried after connection failures and ``503 busy`` answers (honouring
+``Retry-After``), with exponential backoff. Errors the server reports about the input are raised
+at once as `ServerError`, carrying the server's message, field and code.
+"""
+
+from __future__ import annotations
+
+import http.client
+import json
+import socket
+import time
+import urllib.parse
+from collections import deque
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+from sphrender.client.errors import InputError
+from sphrender.client.frame import ParticleFrame
+from sphrender.client.protocol import (
+    ErrorCode,
+    MessageType,
+    ProtocolError,
+    encode_frame,
+    encode_message,
+    encode_npz_frame,
+    read_message,
+)
+
+ImageFormat = Literal["png", "exr"]
+
+#: Errors of the transport itself: the server is down, restarting or went away mid-request.
+CONNECTION_ERRORS: tuple[type[BaseException], ...] = (
+    ConnectionError,
+    http.client.RemoteDisconnected,
+    http.client.BadStatusLine,
+    http.client.IncompleteRead,
+    TimeoutError,
+    socket.timeout,
+)
+
+
+class ServerError(Exception):
+    """The server refused a request: `code` (see PROTOCOL.md §4.4), `field`, HTTP `status`."""
+
+    def __init__(self, message: str, code: str, field: str | None, status: int | None) -> None:
+        where = f"{field}: " if field else ""
+        super().__init__(f"{where}{message} ({code})")
+        self.message = message
+        self.code = code
+        self.field = field
+        self.status = status
+
+    @property
+    def retryable(self) -> bool:
+        return self.code in (ErrorCode.BUSY, ErrorCode.SHUTTING_DOWN)
+
+
+class ServerUnavailable(Exception):
+    """Every attempt to reach the server failed (the last cause is chained)."""
+
+
+@dataclass
+class StreamResult:
+    """One answer of a streaming session: ``kind`` is "image", "error" or "dropped"."""
+
+    id: int
+    kind: Literal["image", "error", "dropped"]
+    header: dict[str, Any]
+    data: bytes = b""
+
+    @property
+    def error(self) -> ServerError | None:
+        if self.kind != "error":
+            return None
+        return ServerError(
+            str(self.header.get("error")),
+            str(self.header.get("code")),
+            self.header.get("field"),
+            None,
+        )
+
+
+def _frame_arrays(frame: ParticleFrame) -> dict[str, Any]:
+    return {
+        "densities": frame.densities,
+        "radii": frame.radii,
+        "temperatures": frame.temperatures,
+    }
+
+
+@dataclass
+class Client:
+    """A client of one server. Thread-safe: every request uses its own connection."""
+
+    url: str
+    token: str | None = None
+    timeout: float = 120.0
+    retries: int = 4
+    backoff_s: float = 0.5
+    _host: str = field(init=False)
+    _port: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        parsed = urllib.parse.urlsplit(self.url if "//" in self.url else f"http://{self.url}")
+        if parsed.scheme != "http" or not parsed.hostname:
+            raise InputError("server", f"expected http://HOST:PORT, got {self.url!r}")
+        self._host = parsed.hostname
+        self._port = parsed.port or 80
+
+    # -- HTTP ------------------------------------------------------------------------------
+
+    def _headers(self, content_type: str | None = None) -> dict[str, str]:
+        headers = {}
+        if self.token:
+            headers["Authorization"] = f"Bearer {self.token}"
+        if content_type:
+            headers["Content-Type"] = content_type
+        return headers
+
+    def _request_once(
+        self, method: str, path: str, body: bytes | None, content_type: str | None
+    ) -> tuple[int, dict[str, str], bytes]:
+        connection = http.client.HTTPConnection(self._host, self._port, timeout=self.timeout)
+        try:
+            connection.request(method, path, body=body, headers=self._headers(content_type))
+            response = connection.getresponse()
+            return (
+                response.status,
+                {k.lower(): v for k, v in response.getheaders()},
+                response.read(),
+            )
+        finally:
+            connection.close()
+
+    def request(
+        self,
+        method: str,
+        path: str,
+        body: bytes | None = None,
+        content_type: str | None = None,
+        *,
+        retry: bool = True,
+    ) -> tuple[dict[str, str], bytes]:
+        """One request, retried (when `retry`) on connection failures and 503; raises
+        `ServerError` for every other non-2xx answer."""
+        attempts = 1 + (self.retries if retry else 0)
+        last: BaseException | None = None
+        for attempt in range(attempts):
+            delay = self.backoff_s * 2**attempt
+            try:
+                status, headers, data = self._request_once(method, path, body, content_type)
+            except CONNECTION_ERRORS as exc:
+                last = exc
+            else:
+                if 200 <= status < 300:
+                    return headers, data
+                error = _error_from_http(status, data)
+                if not (retry and error.retryable):
+                    raise error
+                last = error
+                delay = max(delay, float(headers.get("retry-after", "0") or 0))
+            if attempt + 1 < attempts:
+                time.sleep(delay)
+        if isinstance(last, ServerError):
+            raise last
+        raise ServerUnavailable(
+            f"{self.url} unreachable after {attempts} attempts: {last}"
+        ) from last
+
+    def info(self) -> dict[str, Any]:
+        _headers, data = self.request("GET", "/v1/info")
+        info: dict[str, Any] = json.loads(data)
+        return info
+
+    def render(
+        self,
+        positions: object,
+        scene: Mapping[str, Any] | None = None,
+        *,
+        densities: object | None = None,
+        radii: object | None = None,
+        temperatures: object | None = None,
+        format: ImageFormat | None = None,
+    ) -> bytes:
+        """Render one frame over HTTP; returns the PNG or EXR file bytes."""
+        body = encode_npz_frame(
+            positions, densities=densities, radii=radii, temperatures=temperatures, scene=scene
+        )
+        path = "/v1/render" + (f"?format={format}" if format else "")
+        _headers, data = self.request("POST", path, body, "application/x-npz")
+        return data
+
+    def render_arrays(
+        self, positions: object, scene: Mapping[str, Any] | None = None, **arrays: Any
+    ) -> dict[str, np.ndarray]:
+        """Render as EXR and decode it: {"R", "G", "B", "A", "Z", "N.X", ...: (H, W) arrays}."""
+        return decode_exr(self.render(positions, scene, format="exr", **arrays))
+
+    def render_frame(
+        self, frame: ParticleFrame, scene: Mapping[str, Any] | None = None, **kwargs: Any
+    ) -> bytes:
+        return self.render(frame.positions, scene, **_frame_arrays(frame), **kwargs)
+
+    # -- streaming -------------------------------------------------------------------------
+
+    def stream(
+        self,
+        scene: Mapping[str, Any] | None = None,
+        *,
+        mode: Literal["queue", "latest"] = "queue",
+        max_in_flight: int | None = None,
+        stream_port: int | None = None,
+    ) -> StreamSession:
+        """Open a streaming session (the port comes from /v1/info unless given)."""
+        if stream_port is None:
+            stream_port = self.info().get("stream_port")
+            if not stream_port:
+                raise ServerUnavailable(f"{self.url} has no streaming socket")
+        return StreamSession(
+            self._host, stream_port, scene, self.token, mode, max_in_flight, self.timeout
+        )
+
+
+def _error_from_http(status: int, data: bytes) -> ServerError:
+    try:
+        body = json.loads(data)
+        return ServerError(
+            str(body.get("error", "")), str(body.get("code", "")), body.get("field"), status
+        )
+    except (ValueError, AttributeError):
+        return ServerError(data[:200].decode("utf-8", "replace"), "http", None, status)
+
+
+class StreamSession:
+    """One streaming connection (PROTOCOL.md): HELLO, pipelined FRAMEs, answers in order.
+
+    Use as a context manager; `render_all` keeps up to ``max_in_flight`` frames outstanding."""
+
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        scene: Mapping[str, Any] | None,
+        token: str | None,
+        mode: str,
+        max_in_flight: int | None,
+        timeout: float,
+    ) -> None:
+        self._socket = socket.create_connection((host, port), timeout=timeout)
+        self._reader = self._socket.makefile("rb")
+        hello: dict[str, Any] = {"mode": mode, "client": "sphrender.client"}
+        if scene is not None:
+            hello["scene"] = dict(scene)
+        if token:
+            hello["token"] = token
+        if max_in_flight is not None:
+            hello["max_in_flight"] = max_in_flight
+        self._socket.sendall(encode_message(MessageType.HELLO, hello))
+        welcome = self._read()
+        if welcome.type == MessageType.ERROR:
+            self.close()
+            raise _stream_error(welcome.header)
+        if welcome.type != MessageType.WELCOME:
+            self.close()
+            raise ProtocolError(f"expected WELCOME, got {welcome.type!r}")
+        self.welcome = welcome.header
+        self.max_in_flight = int(welcome.header["max_in_flight"])
+        self._next_id = 0
+        self._outstanding: deque[int] = deque()
+        self.closed_reason: str | None = None
+
+    def _read_exact(self, n: int) -> bytes:
+        data = self._reader.read(n)
+        if data is None or len(data) != n:
+            raise ConnectionError("the server closed the stream")
+        return bytes(data)
+
+    def _read(self) -> Any:
+        return read_message(self._read_exact, max_payload_bytes=1 << 31)
+
+    def send(self, positions: object, *, frame_id: int | None = None, **arrays: Any) -> int:
+        """Send one FRAME (does not wait); returns its id."""
+        if frame_id is None:
+            frame_id = self._next_id
+        self._next_id = frame_id + 1
+        self._socket.sendall(encode_frame(frame_id, positions, **arrays))
+        self._outstanding.append(frame_id)
+        return frame_id
+
+    def receive(self) -> StreamResult:
+        """The next answer (in the order frames were sent)."""
+        message = self._read()
+        header = dict(message.header)
+        if message.type == MessageType.IMAGE:
+            result = StreamResult(int(header["id"]), "image", header, bytes(message.payload))
+        elif message.type == MessageType.DROPPED:
+            result = StreamResult(int(header["id"]), "dropped", header)
+        elif message.type == MessageType.ERROR and header.get("id") is not None:
+            result = StreamResult(int(header["id"]), "error", header)
+        elif message.type == MessageType.ERROR:
+            raise _stream_error(header)
+        elif message.type == MessageType.GOODBYE:
+            self.closed_reason = str(header.get("reason"))
+            raise ConnectionError(f"the server ended the session: {self.closed_reason}")
+        else:
+            raise ProtocolError(f"unexpected message {message.type!r}")
+        if self._outstanding and self._outstanding[0] == result.id:
+            self._outstanding.popleft()
+        return result
+
+    def render_all(self, frames: Iterable[ParticleFrame]) -> Iterator[StreamResult]:
+        """Pipeline `frames`; yields one result per frame, in order."""
+        for frame in frames:
+            while len(self._outstanding) >= self.max_in_flight:
+                yield self.receive()
+            self.send(frame.positions, **_frame_arrays(frame))
+        while self._outstanding:
+            yield self.receive()
+
+    def close(self) -> None:
+        """Say BYE (after draining answers still owed) and close the socket."""
+        try:
+            if self.closed_reason is None:
+                while self._outstanding:
+                    self.receive()
+                self._socket.sendall(encode_message(MessageType.BYE, {}))
+                while True:
+                    message = self._read()
+                    if message.type == MessageType.GOODBYE:
+                        self.closed_reason = str(message.header.get("reason"))
+                        break
+        except (OSError, ProtocolError, ServerError):
+            pass
+        finally:
+            self._reader.close()
+            self._socket.close()
+
+    def __enter__(self) -> StreamSession:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _stream_error(header: Mapping[str, Any]) -> ServerError:
+    code = str(header.get("code"))
+    return ServerError(
+        str(header.get("error")), code, header.get("field"), ErrorCode.HTTP_STATUS.get(code)
+    )
+
+
+def decode_exr(data: bytes) -> dict[str, np.ndarray]:
+    """Decode the EXR files the server writes (single-part scanline; NONE, ZIPS or ZIP
+    compression; HALF and FLOAT channels) into {channel name: (H, W) array}, with numpy and
+    zlib only. Rows top first, as the server writes them."""
+    if data[:4] != bytes.fromhex("76 2f 31 01"):
+        raise ValueError("not an OpenEXR file")
+    version = int.from_bytes(data[4:8], "little")
+    if version & 0x1200:
+        raise ValueError("tiled and multi-part EXR are not supported by this decoder")
+    pos = 8
+    attributes: dict[str, bytes] = {}
+    while data[pos] != 0:
+        end = data.index(b"\0", pos)
+        name = data[pos:end].decode()
+        end_type = data.index(b"\0", end + 1)
+        size = int.from_bytes(data[end_type + 1 : end_type + 5], "little")
+        attributes[name] = data[end_type + 5 : end_type + 5 + size]
+        pos = end_type + 5 + size
+    pos += 1
+    channels: list[tuple[str, np.dtype[Any]]] = []
+    raw = attributes["channels"]
+    cursor = 0
+    while raw[cursor] != 0:
+        end = raw.index(b"\0", cursor)
+        pixel_type = int.from_bytes(raw[end + 1 : end + 5], "little")
+        dtype = {0: np.dtype("<u4"), 1: np.dtype("<f2"), 2: np.dtype("<f4")}[pixel_type]
+        channels.append((raw[cursor:end].decode(), dtype))
+        cursor = end + 1 + 16
+    xmin, ymin, xmax, ymax = np.frombuffer(attributes["dataWindow"], "<i4")
+    width, height = int(xmax - xmin + 1), int(ymax - ymin + 1)
+    compression = attributes["compression"][0]
+    lines = {0: 1, 2: 1, 3: 16}.get(compression)
+    if lines is None:
+        raise ValueError(f"EXR compression {compression} is not supported by this decoder")
+    chunks = -(-height // lines)
+    offsets = np.frombuffer(data, "<u8", chunks, pos)
+    out = {name: np.empty((height, width), dtype.newbyteorder("=")) for name, dtype in channels}
+    for offset in offsets:
+        y = int.from_bytes(data[offset : offset + 4], "little", signed=True) - int(ymin)
+        size = int.from_bytes(data[offset + 4 : offset + 8], "little")
+        block = data[offset + 8 : offset + 8 + size]
+        rows = min(lines, height - y)
+        expected = rows * width * sum(dtype.itemsize for _, dtype in channels)
+        if compression != 0 and size < expected:
+            block = _unzip_exr_block(block)
+        cursor = 0
+        for row in range(rows):
+            for name, dtype in channels:
+                nbytes = width * dtype.itemsize
+                out[name][y + row] = np.frombuffer(block, dtype, width, cursor)
+                cursor += nbytes
+    return out
+
+
+def _unzip_exr_block(block: bytes) -> bytes:
+    """OpenEXR's ZIP: zlib, then undo the byte predictor and the even/odd interleave."""
+    import zlib
+
+    raw = np.frombuffer(zlib.decompress(block), np.uint8)
+    deltas = raw.copy()
+    deltas[1:] -= np.uint8(128)  # each byte holds (value - previous + 128) mod 256
+    decoded = np.cumsum(deltas, dtype=np.uint8)  # wraps mod 256, as the encoder did
+    half = (decoded.size + 1) // 2
+    out = np.empty_like(decoded)
+    out[0::2] = decoded[:half]
+    out[1::2] = decoded[half:]
+    return out.tobytes()
