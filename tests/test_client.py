@@ -200,3 +200,97 @@ def test_submit_survives_a_server_restart(tmp_path: Path, dambreak: Path) -> Non
         if submitter.poll() is None:
             submitter.kill()
         first.stop()
+
+
+def test_submit_bgeo_to_server_and_kill_then_resume(
+    tmp_path: Path, service: ServerProcess, dambreak: Path
+) -> None:
+    """bgeo frames end to end through the server; then a run killed mid-way and resumed renders
+    each remaining frame once and leaves no partial file."""
+    scene = tmp_path / "scene.toml"
+    scene.write_text(SCENE_TOML)
+    bgeo_out = tmp_path / "bgeo"
+    result = subprocess.run(
+        [
+            SPHRENDER,
+            "submit",
+            str(dambreak / "bgeo"),
+            "--server",
+            url(service),
+            "-o",
+            str(bgeo_out),
+            "--scene",
+            str(scene),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert result.returncode == 0, result.stderr
+    assert sorted(p.name for p in bgeo_out.iterdir()) == [
+        "ParticleData_Fluid_11.png",
+        "ParticleData_Fluid_5.png",
+    ]
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for n in range(30):
+        shutil.copyfile(dambreak / "vtk" / "ParticleData_Fluid_1.vtk", frames / f"f_{n}.vtk")
+    out = tmp_path / "out"
+    command = [SPHRENDER, "submit", str(frames), "--server", url(service), "-o", str(out)]
+    command += ["--scene", str(scene), "--jobs", "2"]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and len(list(out.glob("*.png"))) < 3:
+        time.sleep(0.02)
+    process.kill()
+    process.wait(30)
+    finished = {p.name: p.stat().st_mtime_ns for p in out.glob("*.png")}
+    assert 3 <= len(finished) < 30
+    rerun = subprocess.run([*command, "--resume"], capture_output=True, text=True, timeout=300)
+    assert rerun.returncode == 0, rerun.stderr
+    assert f"{30 - len(finished)} rendered, {len(finished)} skipped" in rerun.stderr
+    assert all((out / n).stat().st_mtime_ns == t for n, t in finished.items())
+    assert len(list(out.glob("*.png"))) == 30
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]
+
+
+def test_progress_bar_on_a_terminal(tmp_path: Path, service: ServerProcess, dambreak: Path) -> None:
+    """On a terminal the submitter draws one updating bar (frames, fps, ETA); piped, it logs
+    one line per frame (the other tests)."""
+    import os
+    import pty
+
+    scene = tmp_path / "scene.toml"
+    scene.write_text(SCENE_TOML)
+    leader, follower = pty.openpty()
+    process = subprocess.Popen(
+        [
+            SPHRENDER,
+            "submit",
+            str(dambreak / "bgeo"),
+            "--server",
+            url(service),
+            "-o",
+            str(tmp_path / "out"),
+            "--scene",
+            str(scene),
+        ],
+        stdout=follower,
+        stderr=follower,
+    )
+    os.close(follower)
+    output = b""
+    while True:
+        try:
+            chunk = os.read(leader, 4096)
+        except OSError:  # EIO: the child closed the terminal
+            break
+        if not chunk:
+            break
+        output += chunk
+    os.close(leader)
+    assert process.wait(60) == 0
+    text = output.decode(errors="replace")
+    assert "\r[" in text and "2/2 frames" in text and "fps" in text and "ETA" in text
