@@ -275,7 +275,7 @@ class StreamSession:
             raise _stream_error(welcome.header)
         if welcome.type != MessageType.WELCOME:
             self.close()
-            raise ProtocolError(f"expected WELCOME, got {welcome.type!r}")
+            raise ProtocolError(ErrorCode.PROTOCOL, f"expected WELCOME, got {welcome.type!r}")
         self.welcome = welcome.header
         self.max_in_flight = int(welcome.header["max_in_flight"])
         self._next_id = 0
@@ -316,7 +316,7 @@ class StreamSession:
             self.closed_reason = str(header.get("reason"))
             raise ConnectionError(f"the server ended the session: {self.closed_reason}")
         else:
-            raise ProtocolError(f"unexpected message {message.type!r}")
+            raise ProtocolError(ErrorCode.PROTOCOL, f"unexpected message {message.type!r}")
         if self._outstanding and self._outstanding[0] == result.id:
             self._outstanding.popleft()
         return result
@@ -387,7 +387,12 @@ def decode_exr(data: bytes) -> dict[str, np.ndarray]:
     while raw[cursor] != 0:
         end = raw.index(b"\0", cursor)
         pixel_type = int.from_bytes(raw[end + 1 : end + 5], "little")
-        dtype = {0: np.dtype("<u4"), 1: np.dtype("<f2"), 2: np.dtype("<f4")}[pixel_type]
+        dtypes: dict[int, np.dtype[Any]] = {
+            0: np.dtype("<u4"),
+            1: np.dtype("<f2"),
+            2: np.dtype("<f4"),
+        }
+        dtype = dtypes[pixel_type]
         channels.append((raw[cursor:end].decode(), dtype))
         cursor = end + 1 + 16
     xmin, ymin, xmax, ymax = np.frombuffer(attributes["dataWindow"], "<i4")
