@@ -211,15 +211,22 @@ def bystander(
         except BaseException as exc:
             failures.append(exc)
 
+    def wait_for_frames(count: int) -> None:
+        deadline = time.monotonic() + 60
+        while len(good) < count and not failures and time.monotonic() < deadline:
+            time.sleep(0.01)
+
     thread = threading.Thread(target=run)
     thread.start()
     try:
+        wait_for_frames(1)  # streaming before the misbehaving clients start
         yield good
+        wait_for_frames(len(good) + 1)  # and still served after them
     finally:
         stop.set()
         thread.join(60)
     assert not failures, failures
-    assert good, "the bystander got no frame through"
+    assert len(good) >= 2, "the bystander was not served before and after"
 
 
 def expect_fatal(client: StreamClient, code: str, field: str | None) -> dict[str, Any]:
