@@ -490,7 +490,10 @@ def _convert(key: str, value: Any, annotation: Any, meta: Mapping[str, Any]) -> 
     raise TypeError(f"unsupported annotation {annotation!r} for {key}")  # programming error
 
 
-def _section_from_dict(cls: type[T], data: Any, prefix: str) -> T:
+def section_from_dict(cls: type[T], data: Any, prefix: str) -> T:
+    """Validate one table into the frozen dataclass `cls` whose fields are declared with `spec`
+    (also used for the server settings): unknown keys, wrong types and values outside a field's
+    range raise `InputError` named `prefix.key`."""
     if not isinstance(data, Mapping):
         raise InputError(prefix, f"must be a table, got {type(data).__name__}")
     hints = typing.get_type_hints(cls)
@@ -514,7 +517,7 @@ def _sections_from_list(cls: type[T], data: Any, prefix: str, section: Any) -> t
     limit = section.metadata.get("max_items")
     if limit is not None and len(data) > limit:
         raise InputError(prefix, f"at most {limit} entries, got {len(data)}")
-    return tuple(_section_from_dict(cls, item, f"{prefix}[{i}]") for i, item in enumerate(data))
+    return tuple(section_from_dict(cls, item, f"{prefix}[{i}]") for i, item in enumerate(data))
 
 
 def scene_from_dict(data: Mapping[str, Any]) -> Scene:
@@ -531,7 +534,7 @@ def scene_from_dict(data: Mapping[str, Any]) -> Scene:
         if get_origin(hint) is tuple:
             sections[key] = _sections_from_list(get_args(hint)[0], value, key, known[key])
         else:
-            sections[key] = _section_from_dict(hint, value, key)
+            sections[key] = section_from_dict(hint, value, key)
     scene = Scene(**sections)
     _check_cross_field(scene)
     return scene

@@ -20,13 +20,10 @@ import typing
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, Literal, TypeVar, get_args, get_origin
+from typing import Any, Literal, TypeVar
 
 from sphrender.client.errors import InputError
-from sphrender.server.scene import MAX_IMAGE_PIXELS, spec
-
-# The scene's converter handles numbers, booleans, literals and tuples; strings are added here.
-from sphrender.server.scene import _convert as _convert_scene_value
+from sphrender.server.scene import MAX_IMAGE_PIXELS, section_from_dict, spec
 
 #: Environment variable that supplies the bearer token (keeps it out of files and `ps`).
 TOKEN_ENV = "SPHRENDER_TOKEN"
@@ -187,35 +184,6 @@ class ServerConfig:
 T = TypeVar("T")
 
 
-def _convert(key: str, value: Any, annotation: Any, meta: Mapping[str, Any]) -> Any:
-    if annotation is str:
-        if not isinstance(value, str):
-            raise InputError(key, f"must be a string, got {value!r}")
-        return value
-    if get_origin(annotation) is tuple and get_args(annotation)[0] is str:
-        if not isinstance(value, list | tuple):
-            raise InputError(key, f"must be a list of strings, got {value!r}")
-        return tuple(_convert(f"{key}[{i}]", v, str, meta) for i, v in enumerate(value))
-    return _convert_scene_value(key, value, annotation, meta)
-
-
-def _section(cls: type[T], data: Any, prefix: str) -> T:
-    if not isinstance(data, Mapping):
-        raise InputError(prefix, f"must be a table, got {type(data).__name__}")
-    hints = typing.get_type_hints(cls)
-    known = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]
-    for key in data:
-        if key not in known:
-            raise InputError(f"{prefix}.{key}", f"unknown key; allowed: {', '.join(sorted(known))}")
-    return cls(
-        **{
-            name: _convert(f"{prefix}.{name}", data[name], hints[name], f.metadata)
-            for name, f in known.items()
-            if name in data
-        }
-    )
-
-
 def server_config_from_dict(data: Mapping[str, Any]) -> ServerConfig:
     """Build and validate a `ServerConfig` (missing keys keep their defaults)."""
     if not isinstance(data, Mapping):
@@ -226,7 +194,7 @@ def server_config_from_dict(data: Mapping[str, Any]) -> ServerConfig:
     for key, value in data.items():
         if key not in known:
             raise InputError(key, f"unknown section; allowed: {', '.join(sorted(known))}")
-        sections[key] = _section(hints[key], value, key)
+        sections[key] = section_from_dict(hints[key], value, key)
     config = ServerConfig(**sections)
     _check_cross_field(config)
     return config
