@@ -62,6 +62,21 @@ def _add_env_dir(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_quality(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--quality",
+        choices=["fast", "balanced", "best"],
+        help="quality preset (configs/quality-NAME.toml) the scene file is laid over; the "
+        "scene's own keys win (default: balanced = the built-in defaults)",
+    )
+
+
+def _load_scene(args: argparse.Namespace) -> Scene:
+    from sphrender.server.presets import load_scene_with_preset
+
+    return load_scene_with_preset(args.scene, args.quality)
+
+
 def _environment_dirs(args: argparse.Namespace) -> list[Path]:
     return list(args.env_dir) or ([args.scene.resolve().parent] if args.scene else [])
 
@@ -91,6 +106,7 @@ def _build_parser() -> argparse.ArgumentParser:
         help="particle files: .npz .npy .vtk .vtu .ply .bgeo .csv",
     )
     render.add_argument("--scene", type=Path, help="scene TOML (default: built-in defaults)")
+    _add_quality(render)
     _add_env_dir(render)
     render.add_argument(
         "-o",
@@ -146,6 +162,7 @@ def _build_parser() -> argparse.ArgumentParser:
     submit.add_argument("inputs", nargs="+", metavar="INPUT", help="files, globs or directories")
     submit.add_argument("-o", "--output", type=Path, required=True, help="output directory")
     submit.add_argument("--scene", type=Path, help="scene TOML (default: built-in defaults)")
+    _add_quality(submit)
     _add_env_dir(submit)
     submit.add_argument(
         "--format", choices=["png", "exr"], help="output format (default: the scene's)"
@@ -169,6 +186,25 @@ def _build_parser() -> argparse.ArgumentParser:
         metavar="NAME=FILE_NAME",
         help="map an attribute to the file's name for it, e.g. density=rho (repeatable)",
     )
+
+    bench = commands.add_parser(
+        "bench",
+        parents=[common],
+        help="benchmark quality settings and peers; write a table, report and Pareto plot",
+        description="Time quality settings on reference scenes (ball, slab, thin sheet, "
+        "droplets, dam break) against their true surfaces, run the peers (VTK fluid mapper, "
+        "PyVista, pysplashsurf, scipy) on the same particles and camera, and write "
+        "bench-table.csv, REPORT.md and pareto.png into --out. Needs pip install '.[bench]' "
+        "for the peers and the plot; missing peers are skipped with the reason.",
+    )
+    bench.add_argument("--out", type=Path, default=Path("bench-out"), help="output directory")
+    bench.add_argument(
+        "--quick", action="store_true", help="small scenes, few settings, no peers (smoke test)"
+    )
+    bench.add_argument("--no-peers", action="store_true", help="skip the peers")
+    bench.add_argument("--frames", type=int, default=3, help="timed frames per setting")
+    bench.add_argument("--width", type=int, help="sweep image width (default 1280, quick 320)")
+    bench.add_argument("--height", type=int, help="sweep image height (default 720, quick 180)")
 
     commands.add_parser(
         "info",
@@ -201,9 +237,8 @@ def _run_render(args: argparse.Namespace) -> int:
     from sphrender.server import encoders
     from sphrender.server.engine.gl_context import GLContext
     from sphrender.server.engine.renderer import SurfaceRenderer
-    from sphrender.server.scene import Scene, load_scene
 
-    scene = load_scene(args.scene) if args.scene else Scene()
+    scene = _load_scene(args)
     fmt = _choose_format(args.format, args.output, scene.output.format)
     paths = _output_paths(args.inputs, args.output, encoders.file_suffix(fmt))
     frames = [(name, path) for name, path in zip(args.inputs, paths, strict=True)]
@@ -356,11 +391,10 @@ def _run_submit(args: argparse.Namespace) -> int:
     from sphrender.client.submit import run_submission
     from sphrender.server import encoders
     from sphrender.server.local_backend import LocalFrameRenderer
-    from sphrender.server.scene import Scene, load_scene
 
     if args.jobs < 1:
         raise InputError("--jobs", f"must be at least 1, got {args.jobs}")
-    scene = load_scene(args.scene) if args.scene else Scene()
+    scene = _load_scene(args)
     fmt: ImageFormat = args.format or scene.output.format
     attribute_map = _parse_attribute_map(args.attribute)
     jobs = plan_jobs(expand_inputs(args.inputs), args.output, encoders.file_suffix(fmt))
@@ -378,6 +412,22 @@ def _run_submit(args: argparse.Namespace) -> int:
         backend.close()
     print(summary.report(), file=sys.stderr)
     return 0 if summary.ok else EXIT_FRAMES_FAILED
+
+
+def _run_bench(args: argparse.Namespace) -> int:
+    from sphrender.server.bench.run import run_bench
+
+    if args.frames < 1:
+        raise InputError("--frames", f"must be at least 1, got {args.frames}")
+    run_bench(
+        args.out,
+        quick=args.quick,
+        width=args.width or (320 if args.quick else 1280),
+        height=args.height or (180 if args.quick else 720),
+        frames=1 if args.quick else args.frames,
+        with_peers=not args.no_peers,
+    )
+    return 0
 
 
 def _run_info(_args: argparse.Namespace) -> int:
@@ -415,6 +465,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "sph": _run_sph,
         "demo": _run_demo,
         "submit": _run_submit,
+        "bench": _run_bench,
         "info": _run_info,
     }
     try:
