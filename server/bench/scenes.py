@@ -133,7 +133,7 @@ def ball_scene(particles: int, radius: float = 0.01) -> BenchScene:
     ball_radius = (particles * (2 * radius) ** 3 * 3 / (4 * np.pi)) ** (1 / 3)
     positions = jittered_lattice_ball(ball_radius, radius)
     surface = ball_radius + radius
-    distance = 3.2 * surface  # the eye of bench_engine.py's ball, scaled to the ball
+    distance = 4.0 * surface  # the eye of bench_engine.py's ball, scaled to the ball
     eye = np.array([1.3, 1.0, 1.7]) / np.linalg.norm([1.3, 1.0, 1.7]) * distance
     return BenchScene(
         "ball",
