@@ -260,23 +260,32 @@ def tone_map_for_display(
     rgba = np.asarray(rgba, dtype=np.float32)
     if rgba.ndim != 3 or rgba.shape[-1] != 4:
         raise ValueError(f"rgba must have shape (H, W, 4), got {rgba.shape}")
-    # The transform is per pixel, and a render is mostly background whose RGB is exactly 0:
-    # map only the other pixels and give the zeros the mapped value of one zero pixel (the same
-    # function, so the output is identical). At 1280x720 this saves ~50-80 ms per PNG on a CPU.
     flat = np.ascontiguousarray(rgba).reshape(-1, 4)
+    live = _live_pixels(flat)
+    if live is None:
+        return _tone_map_pixels(rgba, exposure, mapper)
+    out = np.empty(flat.shape, dtype=np.float32)
+    out[:, :3] = _tone_map_pixels(np.zeros((1, 1, 4), np.float32), exposure, mapper)[0, 0, :3]
+    if live.size:
+        sub = np.take(flat, live, axis=0)[None]
+        out[live, :3] = _tone_map_pixels(sub, exposure, mapper)[0, :, :3]
+    out[:, 3] = _display_alpha(flat[:, 3])
+    return out.reshape(rgba.shape)
+
+
+def _live_pixels(flat: Float32Array) -> npt.NDArray[np.intp] | None:
+    """Indices of the (N, 4) pixels whose RGB is not exactly +0, or None when that is most of
+    them. The display transform is per pixel and a render is mostly background with RGB exactly
+    0, so only these need mapping; the rest get the mapped value of one zero pixel (the same
+    function, so the output is identical). At 1280x720 this saved ~50-80 ms per PNG on a CPU."""
     bits = flat.view(np.uint32)  # any set bit: nonzero, -0.0 or NaN (all mapped as they are)
-    live = (bits[:, 0] | bits[:, 1] | bits[:, 2]) != 0
-    live_count = int(np.count_nonzero(live))
-    if 0 < live_count < flat.shape[0] // 2 or (live_count == 0 and flat.shape[0] > 1):
-        out = np.empty(flat.shape, dtype=np.float32)
-        zero = np.zeros((1, 1, 4), dtype=np.float32)
-        out[:, :3] = _tone_map_pixels(zero, exposure, mapper)[0, 0, :3]
-        if live_count:
-            out[live, :3] = _tone_map_pixels(flat[live][None], exposure, mapper)[0, :, :3]
-        alpha = flat[:, 3]
-        out[:, 3] = _sanitize_unit(np.clip(alpha, 0.0, 1.0), alpha)
-        return out.reshape(rgba.shape)
-    return _tone_map_pixels(rgba, exposure, mapper)
+    live = np.flatnonzero((bits[:, 0] | bits[:, 1] | bits[:, 2]) != 0)
+    return live if live.size < flat.shape[0] // 2 else None
+
+
+def _display_alpha(alpha: Float32Array) -> Float32Array:
+    """Alpha clamped to [0, 1], NaN -> 0, +inf -> 1 (as `tone_map_for_display` documents)."""
+    return _sanitize_unit(np.clip(alpha, 0.0, 1.0), alpha)
 
 
 def _tone_map_pixels(rgba: Float32Array, exposure: float, mapper: ToneMapper) -> Float32Array:
@@ -288,8 +297,7 @@ def _tone_map_pixels(rgba: Float32Array, exposure: float, mapper: ToneMapper) ->
         display_linear = _sanitize_unit(mapper(exposed), rgb)
     out = np.empty(rgba.shape, dtype=np.float32)
     out[..., :3] = srgb_oetf(display_linear)
-    alpha = rgba[..., 3]
-    out[..., 3] = _sanitize_unit(np.clip(alpha, 0.0, 1.0), alpha)
+    out[..., 3] = _display_alpha(rgba[..., 3])
     return out
 
 
@@ -306,8 +314,25 @@ def _quantise(display: Float32Array, bits: Literal[8, 16]) -> npt.NDArray[np.uin
 
 
 def _png_pixels(frame: RenderedFrame, options: PngOptions) -> npt.NDArray[np.uint8 | np.uint16]:
-    display = tone_map_for_display(frame.rgba, options.exposure, options.tone_mapper)
-    return np.ascontiguousarray(_quantise(display, options.bits))
+    """Code values per pixel: `_quantise(tone_map_for_display(...))`, computed only for the
+    pixels with RGB (see `_live_pixels`); the rest get the code of one zero pixel."""
+    rgba = np.asarray(frame.rgba, dtype=np.float32)
+    flat = np.ascontiguousarray(rgba).reshape(-1, 4)
+    live = _live_pixels(flat)
+    if live is None:
+        display = tone_map_for_display(rgba, options.exposure, options.tone_mapper)
+        return np.ascontiguousarray(_quantise(display, options.bits))
+    mapper = options.tone_mapper
+    dtype = np.uint8 if options.bits == 8 else np.uint16
+    codes = np.empty(flat.shape, dtype=dtype)
+    zero = tone_map_for_display(np.zeros((1, 1, 4), np.float32), options.exposure, mapper)
+    codes[:, :3] = _quantise(zero, options.bits)[0, 0, :3]
+    if live.size:
+        sub = np.take(flat, live, axis=0)[None]
+        mapped = tone_map_for_display(sub, options.exposure, mapper)
+        codes[live, :3] = _quantise(mapped, options.bits)[0, :, :3]
+    codes[:, 3] = _quantise(_display_alpha(flat[:, 3]), options.bits)
+    return codes.reshape(rgba.shape)
 
 
 def write_png(frame: RenderedFrame, path: StrPath, options: PngOptions | None = None) -> None:

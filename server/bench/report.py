@@ -113,7 +113,9 @@ def write_report(results: BenchResults, path: Path, *, plot_name: str) -> None:
         lines.append(f"| {peer.name} | {_ms(peer.ms)} | {ratio(peer.ms, ours)} | {peer.note} |")
     lines += [
         "",
-        "CPU peers (no rendering) on the same ball:",
+        "CPU peers (no rendering), on the same ball unless named: the SPH density pass (scipy "
+        "reference vs the renderer's OpenCL pass, which also computes the colour field, its "
+        "gradient and the surface flags) and the offline surface reconstruction:",
         "",
         "| tool | ms | notes |",
         "|---|---|---|",

@@ -155,7 +155,8 @@ def run_bench(
 
                 def mesh_truth(positions: Any, radius: float, camera: Any) -> Any:
                     result, mesh = peers.run_pysplashsurf(positions, radius)
-                    results.cpu_peers.append((result.name, result.ms, result.note))
+                    label = f"{result.name} (dam break, {len(positions)} particles)"
+                    results.cpu_peers.append((label, result.ms, result.note))
                     if mesh is None:
                         raise ImportError(result.note)
                     return rasterise(gl, renderer._programs, mesh, camera)
@@ -261,9 +262,9 @@ def _run_peers(results: BenchResults, frames: int, log: Callable[[str], None]) -
         log(f"  sphrender SPH pass (OpenCL): {cl_ms:.0f} ms")
     except Exception as exc:
         results.cpu_peers.append(("sphrender_sph_opencl", None, f"skipped: {exc}"))
-    if not any(name == "pysplashsurf_reconstruction" for name, _, _ in results.cpu_peers):
-        result, _ = peers.run_pysplashsurf(ball.positions, ball.radius)
-        results.cpu_peers.append((result.name, result.ms, result.note))
+    result, _ = peers.run_pysplashsurf(ball.positions, ball.radius)
+    results.cpu_peers.append((f"{result.name} (ball)", result.ms, result.note))
+    log(f"  pysplashsurf reconstruction: {result.ms} ms  {result.note}")
 
 
 def ratio(slow: float | None, fast: float | None) -> str:
