@@ -14,19 +14,24 @@ import sys
 from dataclasses import fields
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from sphrender.client.errors import InputError
+from sphrender.server.analytic_scenes import jittered_lattice_ball
 from sphrender.server.bench.run import CSV_COLUMNS
 from sphrender.server.bench.sweep import QUICK_SWEEP
+from sphrender.server.encoders import read_exr
 from sphrender.server.presets import PRESETS, load_scene_with_preset, preset_sections
 from sphrender.server.scene import Scene, scene_from_dict
+
+CLI = (sys.executable, "-m", "sphrender.server.cli")
 
 
 def test_bench_quick_writes_the_table(tmp_path: Path) -> None:
     out = tmp_path / "bench"
     done = subprocess.run(
-        [sys.executable, "-m", "sphrender.server.cli", "bench", "--quick", "--out", str(out)],
+        [*CLI, "bench", "--quick", "--out", str(out)],
         capture_output=True,
         text=True,
         timeout=120,
@@ -75,3 +80,44 @@ def test_scene_file_keys_win_over_the_preset(tmp_path: Path) -> None:
 def test_unknown_preset_names_the_field() -> None:
     with pytest.raises(InputError, match="quality"):
         preset_sections("ultra")
+
+
+def test_render_takes_a_quality_preset(tmp_path: Path) -> None:
+    """`--quality` reaches the renderer: `fast` (one narrow-range iteration) and `best` (three,
+    sampled IBL) give different images of the same particles; an unknown name is a usage error."""
+    particles = tmp_path / "ball.npz"
+    np.savez(particles, positions=jittered_lattice_ball(0.1, 0.01))
+    scene = tmp_path / "scene.toml"
+    scene.write_text(
+        "[image]\nwidth = 96\nheight = 64\n[camera]\neye = [0.25, 0.2, 0.35]\n"
+        "[particles]\nradius = 0.01\n"
+    )
+    images = {}
+    for preset in ("fast", "best"):
+        out = tmp_path / f"{preset}.exr"
+        done = subprocess.run(
+            [
+                *CLI,
+                "render",
+                str(particles),
+                "--scene",
+                str(scene),
+                "--quality",
+                preset,
+                "-o",
+                str(out),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert done.returncode == 0, done.stderr
+        images[preset] = read_exr(out)
+    assert not np.array_equal(images["fast"]["Z"], images["best"]["Z"])
+    bad = subprocess.run(
+        [*CLI, "render", str(particles), "--quality", "ultra", "-o", str(tmp_path / "x.png")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert bad.returncode == 2 and "--quality" in bad.stderr
