@@ -15,6 +15,7 @@ import os
 import sys
 import time
 from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
@@ -22,7 +23,8 @@ from sphrender.client.errors import InputError
 
 if TYPE_CHECKING:
     from sphrender.client.frame import ParticleFrame
-    from sphrender.server.engine.renderer import SurfaceRenderer
+    from sphrender.server.engine.frame_output import RenderedFrame
+    from sphrender.server.engine.renderer import RenderStats, SurfaceRenderer
     from sphrender.server.scene import Scene
 
 ImageFormat = Literal["png", "exr"]
@@ -63,6 +65,21 @@ def _add_env_dir(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_quality(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--quality",
+        choices=["fast", "balanced", "best"],
+        help="quality preset (configs/quality-NAME.toml) the scene file is laid over; the "
+        "scene's own keys win (default: balanced = the built-in defaults)",
+    )
+
+
+def _load_scene(args: argparse.Namespace) -> Scene:
+    from sphrender.server.presets import load_scene_with_preset
+
+    return load_scene_with_preset(args.scene, args.quality)
+
+
 def _environment_dirs(args: argparse.Namespace) -> list[Path]:
     return list(args.env_dir) or ([args.scene.resolve().parent] if args.scene else [])
 
@@ -92,6 +109,7 @@ def _build_parser() -> argparse.ArgumentParser:
         help="particle files: .npz .npy .vtk .vtu .ply .bgeo .csv",
     )
     render.add_argument("--scene", type=Path, help="scene TOML (default: built-in defaults)")
+    _add_quality(render)
     _add_env_dir(render)
     render.add_argument(
         "-o",
@@ -147,6 +165,7 @@ def _build_parser() -> argparse.ArgumentParser:
     submit.add_argument("inputs", nargs="+", metavar="INPUT", help="files, globs or directories")
     submit.add_argument("-o", "--output", type=Path, required=True, help="output directory")
     submit.add_argument("--scene", type=Path, help="scene TOML (default: built-in defaults)")
+    _add_quality(submit)
     _add_env_dir(submit)
     submit.add_argument(
         "--format", choices=["png", "exr"], help="output format (default: the scene's)"
@@ -206,6 +225,24 @@ def _build_parser() -> argparse.ArgumentParser:
     serve.add_argument(
         "--log-json", action="store_true", help="structured logs: one JSON object per line"
     )
+    bench = commands.add_parser(
+        "bench",
+        parents=[common],
+        help="benchmark quality settings and peers; write a table, report and Pareto plot",
+        description="Time quality settings on reference scenes (ball, slab, thin sheet, "
+        "droplets, dam break) against their true surfaces, run the peers (VTK fluid mapper, "
+        "PyVista, pysplashsurf, scipy) on the same particles and camera, and write "
+        "bench-table.csv, REPORT.md and pareto.png into --out. Needs pip install '.[bench]' "
+        "for the peers and the plot; missing peers are skipped with the reason.",
+    )
+    bench.add_argument("--out", type=Path, default=Path("bench-out"), help="output directory")
+    bench.add_argument(
+        "--quick", action="store_true", help="small scenes, few settings, no peers (smoke test)"
+    )
+    bench.add_argument("--no-peers", action="store_true", help="skip the peers")
+    bench.add_argument("--frames", type=int, default=3, help="timed frames per setting")
+    bench.add_argument("--width", type=int, help="sweep image width (default 1280, quick 320)")
+    bench.add_argument("--height", type=int, help="sweep image height (default 720, quick 180)")
 
     commands.add_parser(
         "info",
@@ -238,27 +275,41 @@ def _run_render(args: argparse.Namespace) -> int:
     from sphrender.server import encoders
     from sphrender.server.engine.gl_context import GLContext
     from sphrender.server.engine.renderer import SurfaceRenderer
-    from sphrender.server.scene import Scene, load_scene
 
-    scene = load_scene(args.scene) if args.scene else Scene()
+    scene = _load_scene(args)
     fmt = _choose_format(args.format, args.output, scene.output.format)
     paths = _output_paths(args.inputs, args.output, encoders.file_suffix(fmt))
     frames = [(name, path) for name, path in zip(args.inputs, paths, strict=True)]
     failures: list[str] = []
     env_dirs = _environment_dirs(args)
-    with GLContext() as gl:
+    # Encoding + writing frame N (numpy and OpenImageIO, no GL) runs on one worker thread while
+    # this (the GL owner) thread reads and renders frame N + 1: on a CPU-rendered machine the
+    # PNG encode was a fifth of the per-frame time.
+    command_start = time.perf_counter()
+    with GLContext() as gl, ThreadPoolExecutor(max_workers=1) as encoder:
         renderer = SurfaceRenderer(gl, cl_device=args.cl_device, environment_dirs=env_dirs)
         renderer.check_image_size(scene)
         log.info("GL renderer: %s (%s)", gl.renderer, gl.version)
+        pending: list[tuple[str, Future[None]]] = []
         try:
             for name, path in frames:
                 try:
-                    _render_one(renderer, read_particles(name), scene, fmt, path)
+                    start = time.perf_counter()
+                    rendered = _render_for_output(renderer, read_particles(name), scene, fmt)
                 except InputError as exc:
                     # One bad frame of a sequence does not stop the others; all are reported.
                     failures.append(f"{name}: {exc}")
+                    continue
+                if len(pending) >= MAX_FRAMES_IN_ENCODER:  # bounded: frames are ~15 MB each
+                    _collect(*pending.pop(0), failures)
+                job = encoder.submit(
+                    _encode_and_write, *rendered, scene, fmt, path, start, command_start
+                )
+                pending.append((name, job))
         finally:
             renderer.release()
+            for name, job in pending:
+                _collect(name, job, failures)
     if failures:
         for failure in failures:
             print(f"sphrender: error: {failure}", file=sys.stderr)
@@ -268,27 +319,62 @@ def _run_render(args: argparse.Namespace) -> int:
     return 0
 
 
-def _render_one(
-    renderer: SurfaceRenderer, particles: ParticleFrame, scene: Scene, fmt: ImageFormat, path: Path
-) -> None:
-    from sphrender.client.submit import write_atomically
-    from sphrender.server.local_backend import encode_for_scene, render_for_output
+MAX_FRAMES_IN_ENCODER = 2
 
-    start = time.perf_counter()
-    frame, stats = render_for_output(renderer, particles, scene, fmt)
+
+def _collect(name: str, job: Future[None], failures: list[str]) -> None:
+    try:
+        job.result()
+    except InputError as exc:
+        failures.append(f"{name}: {exc}")
+
+
+def _render_for_output(
+    renderer: SurfaceRenderer, particles: ParticleFrame, scene: Scene, fmt: ImageFormat
+) -> tuple[RenderedFrame, RenderStats]:
+    from sphrender.server.local_backend import render_for_output
+
+    return render_for_output(renderer, particles, scene, fmt)
+
+
+def _encode_and_write(
+    frame: RenderedFrame,
+    stats: RenderStats,
+    scene: Scene,
+    fmt: ImageFormat,
+    path: Path,
+    start: float,
+    command_start: float,
+) -> None:
+    """Encode and write one rendered frame (any thread: no GL); logs its stage times, the time
+    from render start to written file, and when it was written (seconds since the command
+    started: the spacing of those is the steady per-frame time `sphrender bench` reports)."""
+    from sphrender.client.submit import write_atomically
+    from sphrender.server.local_backend import encode_for_scene
+
     try:
         write_atomically(path, encode_for_scene(frame, scene, fmt))
     except OSError as exc:
         raise InputError("output", f"cannot write {path}: {exc.strerror or exc}") from None
     stages = " ".join(f"{k}={v:.1f}ms" for k, v in stats.stage_ms.items())
+    now = time.perf_counter()
     log.info(
-        "%s: %d particles (%d drawn), %s, total %.1f ms",
+        "%s: %d particles (%d drawn), %s, total %.1f ms, written at %.3f s",
         path,
         stats.particles_in,
         stats.particles_drawn,
         stages,
-        (time.perf_counter() - start) * 1e3,
+        (now - start) * 1e3,
+        now - command_start,
     )
+
+
+def _render_one(
+    renderer: SurfaceRenderer, particles: ParticleFrame, scene: Scene, fmt: ImageFormat, path: Path
+) -> None:
+    start = time.perf_counter()
+    frame, stats = _render_for_output(renderer, particles, scene, fmt)
+    _encode_and_write(frame, stats, scene, fmt, path, start, start)
 
 
 def _run_sph(args: argparse.Namespace) -> int:
@@ -389,16 +475,14 @@ def _parse_attribute_map(pairs: Sequence[str]) -> dict[str, str]:
 
 
 def _run_submit(args: argparse.Namespace) -> int:
-    import tomllib
-
     from sphrender.client.sequences import expand_inputs, plan_jobs
     from sphrender.client.submit import FrameRenderer, RemoteFrameRenderer, run_submission
     from sphrender.server import encoders
-    from sphrender.server.scene import Scene, load_scene
+    from sphrender.server.scene import scene_to_dict
 
     if args.jobs < 1:
         raise InputError("--jobs", f"must be at least 1, got {args.jobs}")
-    scene = load_scene(args.scene) if args.scene else Scene()  # validated here: fail fast
+    scene = _load_scene(args)
     fmt: ImageFormat = args.format or scene.output.format
     attribute_map = _parse_attribute_map(args.attribute)
     jobs = plan_jobs(expand_inputs(args.inputs), args.output, encoders.file_suffix(fmt))
@@ -408,8 +492,9 @@ def _run_submit(args: argparse.Namespace) -> int:
         raise InputError("output", f"cannot create {args.output}: {exc.strerror}") from None
     backend: FrameRenderer
     if args.server:
-        # The server validates the scene again under its own limits; send what the user wrote.
-        raw_scene = tomllib.loads(args.scene.read_text()) if args.scene else None
+        # The validated scene with the quality preset applied; the server validates it again
+        # under its own limits.
+        raw_scene = scene_to_dict(scene)
         token = args.token or os.environ.get("SPHRENDER_TOKEN")
         backend = RemoteFrameRenderer(args.server, raw_scene, fmt, token=token)
         close = None
@@ -434,6 +519,22 @@ def _run_submit(args: argparse.Namespace) -> int:
             close()
     print(summary.report(), file=sys.stderr)
     return 0 if summary.ok else EXIT_FRAMES_FAILED
+
+
+def _run_bench(args: argparse.Namespace) -> int:
+    from sphrender.server.bench.run import run_bench
+
+    if args.frames < 1:
+        raise InputError("--frames", f"must be at least 1, got {args.frames}")
+    run_bench(
+        args.out,
+        quick=args.quick,
+        width=args.width or (320 if args.quick else 1280),
+        height=args.height or (180 if args.quick else 720),
+        frames=1 if args.quick else args.frames,
+        with_peers=not args.no_peers,
+    )
+    return 0
 
 
 def _run_info(_args: argparse.Namespace) -> int:
@@ -494,6 +595,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "demo": _run_demo,
         "submit": _run_submit,
         "serve": _run_serve,
+        "bench": _run_bench,
         "info": _run_info,
     }
     try:

@@ -101,19 +101,31 @@ EXR_COMPRESSIONS: dict[str, object] = {
 # Options
 
 
+PNG_FILTER_SUB = 0x10  # libpng's PNG_FILTER_SUB flag (OpenImageIO's "png:filter")
+
+
 @dataclass(frozen=True)
 class PngOptions:
-    """PNG encoding: 8 or 16 bits per channel, exposure in stops, tone mapper name."""
+    """PNG encoding: 8 or 16 bits per channel, exposure in stops, tone mapper name, zlib level.
+
+    Rows are written with zlib level 3 and PNG's "sub" row filter instead of libpng's level 6
+    with adaptive filter choice: on a 1280x720 render of a ball that measured 26 ms against
+    79-102 ms, and the file came out 25% larger (171 vs 138 kB)."""
 
     bits: Literal[8, 16] = 8
     exposure: float = 0.0
     tone_mapper: str = "clamp"
+    compression_level: int = 3
 
     def __post_init__(self) -> None:
         if self.bits not in (8, 16):
             raise ValueError(f"PngOptions.bits must be 8 or 16, got {self.bits!r}")
         if not np.isfinite(self.exposure):
             raise ValueError(f"PngOptions.exposure must be finite, got {self.exposure!r}")
+        if not 0 <= self.compression_level <= 9:
+            raise ValueError(
+                f"PngOptions.compression_level must be 0..9, got {self.compression_level!r}"
+            )
         if self.tone_mapper not in TONE_MAPPERS:
             raise ValueError(
                 f"PngOptions.tone_mapper must be one of {sorted(TONE_MAPPERS)}, "
@@ -177,12 +189,23 @@ ACES_OUTPUT = np.array(
 )
 
 
+def _apply_3x3(x: Float32Array, matrix: Float32Array) -> Float32Array:
+    """`x @ matrix.T` over the last axis, written out per channel: for (N, 3) float32 inputs
+    numpy's matmul takes a slow generic path (17 ms for 150k pixels vs ~1 ms here)."""
+    out = np.empty(x.shape, dtype=np.float32)
+    r, g, b = x[..., 0], x[..., 1], x[..., 2]
+    for row in range(3):
+        m0, m1, m2 = (np.float32(v) for v in matrix[row])
+        out[..., row] = r * m0 + g * m1 + b * m2
+    return out
+
+
 def tone_map_aces(rgb: Float32Array) -> Float32Array:
     """Filmic ACES fit (Hill): 0.18 -> 0.106 display-linear (sRGB 0.36), 1 -> 0.62, white is
     approached asymptotically (0.97 at 10); negative input is treated as 0."""
     x = np.maximum(np.asarray(rgb, dtype=np.float32), 0.0)
     with np.errstate(over="ignore", invalid="ignore"):
-        v = x @ ACES_INPUT.T
+        v = _apply_3x3(x, ACES_INPUT)
         # Rational fit of RRT + ODT; for huge v both polynomials are ~v^2, the ratio ~1.0165,
         # so divide by v^2 first where v is large to stay finite.
         big = v > 1e6
@@ -190,7 +213,7 @@ def tone_map_aces(rgb: Float32Array) -> Float32Array:
         a = safe * (safe + 0.0245786) - 0.000090537
         b = safe * (0.983729 * safe + 0.4329510) + 0.238081
         curve = np.where(big, 1.0 / 0.983729, a / b)
-        out = curve @ ACES_OUTPUT.T
+        out = _apply_3x3(curve.astype(np.float32, copy=False), ACES_OUTPUT)
     return np.clip(out, 0.0, 1.0).astype(np.float32, copy=False)
 
 
@@ -210,9 +233,10 @@ def srgb_oetf(linear: Float32Array) -> Float32Array:
 def _sanitize_unit(mapped: Float32Array, source: Float32Array) -> Float32Array:
     """Clip to [0, 1]; where the *source* was NaN → 0, +inf → 1, −inf → 0 (whatever the mapper)."""
     out = np.clip(np.nan_to_num(mapped, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
-    out[np.isnan(source)] = 0.0
-    out[np.isposinf(source)] = 1.0
-    out[np.isneginf(source)] = 0.0
+    if not np.isfinite(source).all():  # the usual frame is finite: skip three full masks
+        out[np.isnan(source)] = 0.0
+        out[np.isposinf(source)] = 1.0
+        out[np.isneginf(source)] = 0.0
     return out.astype(np.float32, copy=False)
 
 
@@ -236,6 +260,36 @@ def tone_map_for_display(
     rgba = np.asarray(rgba, dtype=np.float32)
     if rgba.ndim != 3 or rgba.shape[-1] != 4:
         raise ValueError(f"rgba must have shape (H, W, 4), got {rgba.shape}")
+    flat = np.ascontiguousarray(rgba).reshape(-1, 4)
+    live = _live_pixels(flat)
+    if live is None:
+        return _tone_map_pixels(rgba, exposure, mapper)
+    out = np.empty(flat.shape, dtype=np.float32)
+    out[:, :3] = _tone_map_pixels(np.zeros((1, 1, 4), np.float32), exposure, mapper)[0, 0, :3]
+    if live.size:
+        sub = np.take(flat, live, axis=0)[None]
+        out[live, :3] = _tone_map_pixels(sub, exposure, mapper)[0, :, :3]
+    out[:, 3] = _display_alpha(flat[:, 3])
+    return out.reshape(rgba.shape)
+
+
+def _live_pixels(flat: Float32Array) -> npt.NDArray[np.intp] | None:
+    """Indices of the (N, 4) pixels whose RGB is not exactly +0, or None when that is most of
+    them. The display transform is per pixel and a render is mostly background with RGB exactly
+    0, so only these need mapping; the rest get the mapped value of one zero pixel (the same
+    function, so the output is identical). At 1280x720 this saved ~50-80 ms per PNG on a CPU."""
+    bits = flat.view(np.uint32)  # any set bit: nonzero, -0.0 or NaN (all mapped as they are)
+    live = np.flatnonzero((bits[:, 0] | bits[:, 1] | bits[:, 2]) != 0)
+    return live if live.size < flat.shape[0] // 2 else None
+
+
+def _display_alpha(alpha: Float32Array) -> Float32Array:
+    """Alpha clamped to [0, 1], NaN -> 0, +inf -> 1 (as `tone_map_for_display` documents)."""
+    return _sanitize_unit(np.clip(alpha, 0.0, 1.0), alpha)
+
+
+def _tone_map_pixels(rgba: Float32Array, exposure: float, mapper: ToneMapper) -> Float32Array:
+    """`tone_map_for_display` on every pixel of an (H, W, 4) array."""
     rgb = rgba[..., :3]
     with np.errstate(over="ignore", under="ignore", invalid="ignore"):
         scale = np.float32(np.exp2(np.float64(exposure)))  # inf/0 for absurd exposures, no raise
@@ -243,8 +297,7 @@ def tone_map_for_display(
         display_linear = _sanitize_unit(mapper(exposed), rgb)
     out = np.empty(rgba.shape, dtype=np.float32)
     out[..., :3] = srgb_oetf(display_linear)
-    alpha = rgba[..., 3]
-    out[..., 3] = _sanitize_unit(np.clip(alpha, 0.0, 1.0), alpha)
+    out[..., 3] = _display_alpha(rgba[..., 3])
     return out
 
 
@@ -261,8 +314,25 @@ def _quantise(display: Float32Array, bits: Literal[8, 16]) -> npt.NDArray[np.uin
 
 
 def _png_pixels(frame: RenderedFrame, options: PngOptions) -> npt.NDArray[np.uint8 | np.uint16]:
-    display = tone_map_for_display(frame.rgba, options.exposure, options.tone_mapper)
-    return np.ascontiguousarray(_quantise(display, options.bits))
+    """Code values per pixel: `_quantise(tone_map_for_display(...))`, computed only for the
+    pixels with RGB (see `_live_pixels`); the rest get the code of one zero pixel."""
+    rgba = np.asarray(frame.rgba, dtype=np.float32)
+    flat = np.ascontiguousarray(rgba).reshape(-1, 4)
+    live = _live_pixels(flat)
+    if live is None:
+        display = tone_map_for_display(rgba, options.exposure, options.tone_mapper)
+        return np.ascontiguousarray(_quantise(display, options.bits))
+    mapper = options.tone_mapper
+    dtype = np.uint8 if options.bits == 8 else np.uint16
+    codes = np.empty(flat.shape, dtype=dtype)
+    zero = tone_map_for_display(np.zeros((1, 1, 4), np.float32), options.exposure, mapper)
+    codes[:, :3] = _quantise(zero, options.bits)[0, 0, :3]
+    if live.size:
+        sub = np.take(flat, live, axis=0)[None]
+        mapped = tone_map_for_display(sub, options.exposure, mapper)
+        codes[live, :3] = _quantise(mapped, options.bits)[0, :, :3]
+    codes[:, 3] = _quantise(_display_alpha(flat[:, 3]), options.bits)
+    return codes.reshape(rgba.shape)
 
 
 def write_png(frame: RenderedFrame, path: StrPath, options: PngOptions | None = None) -> None:
@@ -272,6 +342,8 @@ def write_png(frame: RenderedFrame, path: StrPath, options: PngOptions | None = 
     spec = oiio.ImageSpec(frame.width, frame.height, 4, "uint8" if options.bits == 8 else "uint16")
     spec.attribute("oiio:UnassociatedAlpha", 1)  # straight alpha: do not divide RGB by alpha
     spec.attribute("oiio:ColorSpace", "sRGB")
+    spec.attribute("png:compressionLevel", options.compression_level)
+    spec.attribute("png:filter", PNG_FILTER_SUB)
     filename = os.fspath(path)
     out = oiio.ImageOutput.create("png")  # by format name, so the path's suffix does not matter
     if out is None:

@@ -587,16 +587,21 @@ def _check_lights(lights: tuple[LightConfig, ...]) -> None:
                 raise InputError(f"{key}.direction", "only directional lights have a direction")
 
 
-def load_scene(path: str | Path) -> Scene:
-    """Load a scene TOML file; unreadable or malformed files raise `InputError('scene', ...)`."""
+def read_scene_toml(path: str | Path) -> dict[str, Any]:
+    """A scene TOML file as a mapping, unvalidated; unreadable or malformed files raise
+    `InputError('scene', ...)`."""
     try:
         with open(path, "rb") as handle:
-            data = tomllib.load(handle)
+            return tomllib.load(handle)
     except OSError as exc:
         raise InputError("scene", f"cannot read {path}: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise InputError("scene", f"{path} is not valid TOML: {exc}") from None
-    return scene_from_dict(data)
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Load and validate a scene TOML file (see `read_scene_toml` for file errors)."""
+    return scene_from_dict(read_scene_toml(path))
 
 
 def scene_to_dict(scene: Scene) -> dict[str, Any]:

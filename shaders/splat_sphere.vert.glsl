@@ -5,8 +5,8 @@
 // half-size s = r d / sqrt(d^2 - r^2), d = |centre|. The CPU culls spheres that contain the eye.
 
 in vec2 in_corner;          // per vertex: (+-1, +-1)
-in vec4 in_center_radius;   // per instance: view-space centre (float32 after float64 subtraction), radius
-in float in_temperature;    // per instance, kelvin; not bound (constant 0) when the frame has none
+in vec4 in_center_radius;   // per particle, on each of its 4 corners: view-space centre (float32 after float64 subtraction), radius
+in float in_temperature;    // per particle, kelvin; not bound (constant 0) when the frame has none
 
 uniform mat4 u_projection;
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import io
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -496,3 +496,30 @@ def test_rendered_frame_validates_shapes() -> None:
         RenderedFrame(rgba=np.zeros((3, 5, 4), np.float32), depth=np.zeros((5, 3), np.float32))
     with pytest.raises(ValueError, match="normals"):
         RenderedFrame(rgba=np.zeros((3, 5, 4), np.float32), normals=np.zeros((3, 5, 4), np.float32))
+
+
+@pytest.mark.parametrize("tone_mapper", ["aces", "clamp"])
+@pytest.mark.parametrize("bits", [8, 16])
+def test_background_shortcut_gives_the_per_pixel_result(
+    tone_mapper: str, bits: Literal[8, 16]
+) -> None:
+    """The PNG path maps only pixels with RGB and gives the background the code of one zero
+    pixel; it must equal mapping every pixel, including NaN/inf, -0.0 and alpha-only pixels."""
+    rng = np.random.default_rng(7)
+    rgba = np.zeros((40, 60, 4), np.float32)
+    rgba[10:25, 15:40] = rng.uniform(0.0, 8.0, (15, 25, 4)).astype(np.float32)
+    rgba[0, 0] = np.nan
+    rgba[0, 1] = np.inf
+    rgba[1, 1, :3] = -np.inf
+    rgba[1, 2, :3] = -0.0
+    rgba[0, 2, 3] = 0.5  # alpha without colour: a black surface pixel
+    rgba[2, 2, 3] = np.nan
+    rgba[2, 3, 3] = np.inf
+    options = encoders.PngOptions(bits=bits, exposure=1.5, tone_mapper=tone_mapper)
+    frame = RenderedFrame(rgba=rgba)
+    mapper = encoders.TONE_MAPPERS[tone_mapper]
+    every_pixel = encoders._tone_map_pixels(rgba, 1.5, mapper)
+    assert np.array_equal(encoders.tone_map_for_display(rgba, 1.5, tone_mapper), every_pixel)
+    assert np.array_equal(
+        encoders._png_pixels(frame, options), encoders._quantise(every_pixel, bits)
+    )

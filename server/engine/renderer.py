@@ -113,6 +113,61 @@ def prepare_particles(
     return PreparedParticles(center_radius, far, reference_radius, temperatures)
 
 
+ScreenBox = tuple[int, int, int, int]  # x, y (GL window coordinates, bottom-left), width, height
+
+
+def screen_box(prepared: PreparedParticles, camera: Camera, margin_px: int = 2) -> ScreenBox | None:
+    """A conservative pixel rectangle holding every splatted fragment, or None (whole image)
+    when a sphere comes close to the eye plane.
+
+    Each quad corner lies within sqrt(2) s of its centre (s = the quad's half size) along
+    every view axis, so its projection lies between the extremes of (x +- k)/(z -+ k) with
+    k = 1.5 s. The passes after the splat touch only pixels with a surface (or their direct
+    neighbours), so running them inside this box, on targets cleared outside it, gives the
+    same image while skipping the background: with a ball filling a quarter of a 1280x720
+    image that is 3/4 of the fragments of every full-screen pass."""
+    data = prepared.center_radius
+    if data.shape[0] == 0:
+        return None
+    view = data[:, :3].astype(np.float64)
+    radius = data[:, 3].astype(np.float64)
+    distance = np.linalg.norm(view, axis=1)
+    z = -view[:, 2]
+    gap = np.maximum((distance - radius) * (distance + radius), 1e-30)
+    reach = 1.5 * radius * distance / np.sqrt(gap)
+    near_z = z - reach
+    if not np.all(near_z > 1e-3 * np.maximum(z, 1e-30)):
+        return None
+    far_z = z + reach
+    f = 1.0 / camera.tan_half_fov_y
+    extents = []
+    for axis, scale, size in ((0, f / camera.aspect, camera.width), (1, f, camera.height)):
+        low = np.minimum((view[:, axis] - reach) / near_z, (view[:, axis] - reach) / far_z)
+        high = np.maximum((view[:, axis] + reach) / near_z, (view[:, axis] + reach) / far_z)
+        lo_px = (float(np.min(low)) * scale + 1.0) * 0.5 * size
+        hi_px = (float(np.max(high)) * scale + 1.0) * 0.5 * size
+        lo = int(np.clip(np.floor(lo_px) - margin_px, 0, size))
+        hi = int(np.clip(np.ceil(hi_px) + margin_px, 0, size))
+        extents.append((lo, hi))
+    (x0, x1), (y0, y1) = extents
+    if x1 <= x0 or y1 <= y0:
+        return (0, 0, 1, 1)  # nothing on screen: a token box keeps the passes trivial
+    return (x0, y0, x1 - x0, y1 - y0)
+
+
+def _set_scissor(fbo: moderngl.Framebuffer, box: ScreenBox | None) -> None:
+    """Restrict passes into `fbo` to `box`; None lifts the restriction (moderngl accepts None
+    at run time, its type stub only lists the tuple)."""
+    fbo.scissor = box  # type: ignore[assignment]
+
+
+def _scissored(fbo: moderngl.Framebuffer, box: ScreenBox | None) -> None:
+    """Clear the whole target, then restrict the next passes into it to `box` (None: all)."""
+    _set_scissor(fbo, None)
+    fbo.clear(0.0, 0.0, 0.0, 0.0)
+    _set_scissor(fbo, box)
+
+
 def _write_matrix(program: moderngl.Program, name: str, matrix: npt.NDArray[np.floating]) -> None:
     """Upload a row-major numpy matrix to a GLSL matN uniform (GLSL is column-major)."""
     uniform = program[name]
@@ -189,8 +244,13 @@ class SurfaceRenderer:
         ctx = gl.ctx
         self._programs = ProgramCache(gl)
         self._stage_timings = stage_timings
-        corners = np.array([-1, -1, 1, -1, -1, 1, 1, 1], dtype=np.float32)
-        self._corner_buffer = ctx.buffer(corners.tobytes())
+        # Sphere quads are drawn as plain indexed triangles, 4 vertices per particle, not as
+        # instances: llvmpipe's draw module runs its vertex pipeline once per instance, which
+        # made the splat of 90k particles cost ~70 ms of pure per-instance overhead. The corner
+        # and index buffers depend only on the particle count and grow geometrically.
+        self._quad_capacity = 0
+        self._corner_buffer = ctx.buffer(reserve=4)
+        self._index_buffer = ctx.buffer(reserve=4)
         self._instance_buffer = ctx.buffer(reserve=16 * 1024)
         self._temperature_buffer = ctx.buffer(reserve=4 * 1024)
         self._splat_vao: moderngl.VertexArray | None = None
@@ -243,8 +303,10 @@ class SurfaceRenderer:
                 program,
                 [
                     (self._corner_buffer, "2f", "in_corner"),
-                    (self._instance_buffer, "4f/i", "in_center_radius"),
+                    (self._instance_buffer, "4f", "in_center_radius"),
                 ],
+                index_buffer=self._index_buffer,
+                index_element_size=4,
             )
         return program, self._splat_vao
 
@@ -257,9 +319,11 @@ class SurfaceRenderer:
                 program,
                 [
                     (self._corner_buffer, "2f", "in_corner"),
-                    (self._instance_buffer, "4f/i", "in_center_radius"),
-                    (self._temperature_buffer, "1f/i", "in_temperature"),
+                    (self._instance_buffer, "4f", "in_center_radius"),
+                    (self._temperature_buffer, "1f", "in_temperature"),
                 ],
+                index_buffer=self._index_buffer,
+                index_element_size=4,
             )
         return program, self._splat_temperature_vao
 
@@ -272,7 +336,24 @@ class SurfaceRenderer:
         buffer.write(data.tobytes())
 
     def _upload_instances(self, data: npt.NDArray[np.float32]) -> None:
-        self._upload(self._instance_buffer, data)
+        """Per-particle rows, repeated once per quad corner."""
+        self._upload(self._instance_buffer, np.repeat(data, 4, axis=0))
+
+    def _ensure_quads(self, count: int) -> None:
+        """Corner (+-1, +-1 per vertex) and index (two triangles per quad) buffers for at least
+        `count` quads."""
+        if count <= self._quad_capacity:
+            return
+        capacity = max(count, 2 * self._quad_capacity, 1024)
+        corners = np.tile(np.array([-1, -1, 1, -1, -1, 1, 1, 1], np.float32), capacity)
+        first = np.arange(capacity, dtype=np.uint32)[:, None] * 4
+        indices = first + np.array([0, 1, 2, 2, 1, 3], dtype=np.uint32)
+        # orphan keeps the buffer objects, so the vertex arrays that use them stay valid
+        self._corner_buffer.orphan(corners.nbytes)
+        self._corner_buffer.write(corners.tobytes())
+        self._index_buffer.orphan(indices.nbytes)
+        self._index_buffer.write(indices.tobytes())
+        self._quad_capacity = capacity
 
     # -- frame -----------------------------------------------------------------------------
 
@@ -324,6 +405,7 @@ class SurfaceRenderer:
             temperature = self._splat(ctx, targets, camera, prepared)
 
         surface = targets.splat_depth
+        box = screen_box(prepared, camera)
         if scene.quality.filter != "none" and stats.particles_drawn:
             with self._stage(stats, "smooth"):
                 surface = self._smooth(
@@ -331,6 +413,7 @@ class SurfaceRenderer:
                     px_per_unit=camera.pixels_per_unit_at_unit_depth,
                     particle_radius=prepared.reference_radius,
                     quality=scene.quality,
+                    box=box,
                 )
 
         with self._stage(stats, "normals"):
@@ -342,15 +425,22 @@ class SurfaceRenderer:
                 camera.tan_half_fov_y,
             )
             _write_matrix(program, "u_view_to_world", camera.rotation.T)
+            _scissored(targets.normal_fbo, box)
             targets.normal_fbo.use()
             self._fullscreen(program).render(moderngl.TRIANGLES, vertices=3)
+            _set_scissor(targets.normal_fbo, None)
 
         with self._stage(stats, "shade"):
             if temperature is not None and stats.particles_drawn:
                 temperature = self._shade.smooth_temperature(
                     temperature, surface, camera, prepared.reference_radius
                 )
+            # A transparent background is vec4(0) from the shader, so the box is exact; an
+            # environment background covers every pixel.
+            transparent = scene.shading.background == "transparent"
+            _scissored(targets.color_fbo, box if transparent else None)
             self._shade.run(scene, camera, targets.normal_depth, temperature, targets.color_fbo)
+            _set_scissor(targets.color_fbo, None)
 
         with self._stage(stats, "readback"):
             rendered = self._read_back(targets, want_depth=depth, want_normals=normals)
@@ -371,16 +461,17 @@ class SurfaceRenderer:
             return temperature
         if prepared.temperatures is not None:
             program, vao = self._splat_temperature_vertex_array()
-            self._upload(self._temperature_buffer, prepared.temperatures)
+            self._upload(self._temperature_buffer, np.repeat(prepared.temperatures, 4))
         else:
             program, vao = self._splat_vertex_array()
+        self._ensure_quads(count)
         self._upload_instances(prepared.center_radius)
         _write_matrix(program, "u_projection", camera.projection_matrix(prepared.far))
         program["u_near"] = camera.near
         program["u_far"] = prepared.far
         ctx.enable(moderngl.DEPTH_TEST)
         try:
-            vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
+            vao.render(moderngl.TRIANGLES, vertices=6 * count)
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
         return temperature
@@ -440,8 +531,10 @@ class SurfaceRenderer:
         px_per_unit: float,
         particle_radius: float,
         quality: QualityConfig,
+        box: ScreenBox | None = None,
     ) -> moderngl.Texture:
-        """Smooth `targets.splat_depth`; returns the texture holding the result."""
+        """Smooth `targets.splat_depth`; returns the texture holding the result. With a `box`
+        (see `screen_box`) the passes run only inside it, on targets cleared outside it."""
         if quality.filter == "none":
             return targets.splat_depth
         program = self._programs.get(
@@ -471,6 +564,9 @@ class SurfaceRenderer:
                 program[name] = value
         program["u_depth"] = 0
         vao = self._fullscreen(program)
+        if box is not None:
+            for fbo in targets.ping_fbos:
+                _scissored(fbo, box)
         source = targets.splat_depth
         write_index = 0
         for iteration in range(quality.iterations):
@@ -488,6 +584,8 @@ class SurfaceRenderer:
                 vao.render(moderngl.TRIANGLES, vertices=3)
                 source = targets.ping[write_index]
                 write_index = 1 - write_index
+        for fbo in targets.ping_fbos:
+            _set_scissor(fbo, None)
         return source
 
     def _read_back(
@@ -529,5 +627,6 @@ class SurfaceRenderer:
             self._cl.release()
             self._cl = None
         self._corner_buffer.release()
+        self._index_buffer.release()
         self._instance_buffer.release()
         self._temperature_buffer.release()

@@ -1,0 +1,209 @@
+"""The benchmark's Markdown report and its Pareto plot (ms against normal error)."""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from sphrender.server.bench.sweep import STAGES, SweepRow
+
+if TYPE_CHECKING:
+    from sphrender.server.bench.run import BenchResults
+
+
+def pareto_front(rows: list[SweepRow]) -> list[SweepRow]:
+    """Rows no other row beats on both total ms and mean normal error."""
+    front = []
+    for row in rows:
+        dominated = any(
+            other.total_ms <= row.total_ms
+            and other.metrics.normal_mean_deg <= row.metrics.normal_mean_deg
+            and (
+                other.total_ms < row.total_ms
+                or other.metrics.normal_mean_deg < row.metrics.normal_mean_deg
+            )
+            for other in rows
+            if other.scene == row.scene
+        )
+        if not dominated:
+            front.append(row)
+    return front
+
+
+def write_plot(rows: list[SweepRow], path: Path) -> str | None:
+    """One panel per scene: total ms against mean normal error, Pareto front joined. Returns a
+    note when matplotlib is missing (the table is written regardless)."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return "pareto plot skipped: matplotlib not installed (pip install '.[bench]')"
+    scenes = list(dict.fromkeys(row.scene for row in rows))
+    if not scenes:
+        return None
+    columns = min(len(scenes), 3)
+    lines = math.ceil(len(scenes) / columns)
+    figure, axes = plt.subplots(lines, columns, figsize=(6.0 * columns, 4.6 * lines), squeeze=False)
+    for axis in axes.flat[len(scenes) :]:
+        axis.set_visible(False)
+    for axis, scene in zip(axes.flat, scenes, strict=False):
+        mine = [r for r in rows if r.scene == scene and math.isfinite(r.metrics.normal_mean_deg)]
+        front = sorted(pareto_front(mine), key=lambda r: r.total_ms)
+        on_front = {r.setting for r in front}
+        for r in mine:
+            colour = "tab:red" if r.setting in on_front else "tab:blue"
+            marker = "s" if r.setting.startswith("preset") else "o"
+            axis.scatter(r.total_ms, r.metrics.normal_mean_deg, s=22, c=colour, marker=marker)
+            axis.annotate(
+                r.setting,
+                (r.total_ms, r.metrics.normal_mean_deg),
+                fontsize=6.5,
+                xytext=(3, 2),
+                textcoords="offset points",
+            )
+        axis.plot(
+            [r.total_ms for r in front], [r.metrics.normal_mean_deg for r in front], "r-", lw=0.8
+        )
+        axis.set_xscale("log")
+        axis.set_yscale("log")
+        axis.set_title(f"{scene} ({mine[0].width}x{mine[0].height})" if mine else scene)
+        axis.set_xlabel("frame ms (median, log)")
+        axis.set_ylabel("mean normal error, deg (log)")
+        axis.grid(True, which="both", alpha=0.3)
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+    return None
+
+
+def _ms(value: float | None) -> str:
+    return "skipped" if value is None else f"{value:,.0f}"
+
+
+def markdown_table(rows: list[SweepRow]) -> list[str]:
+    head = ["scene", "setting", *STAGES, "total", "normal mean°", "p95°", "depth err (r)"]
+    head += ["IoU", "PSNR dB"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    front = {(r.scene, r.setting) for r in pareto_front(rows)}
+    for r in rows:
+        m = r.metrics
+        name = f"**{r.setting}**" if (r.scene, r.setting) in front else r.setting
+        cells = [r.scene, name, *(f"{r.stage_ms[s]:.1f}" for s in STAGES), f"{r.total_ms:.1f}"]
+        cells += [f"{m.normal_mean_deg:.2f}", f"{m.normal_p95_deg:.2f}"]
+        cells += [f"{m.depth_err_radii:.2f}", f"{m.silhouette_iou:.3f}", f"{r.psnr_db:.1f}"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+def write_report(results: BenchResults, path: Path, *, plot_name: str) -> None:
+    from sphrender.server.bench.run import growth_exponent, ratio
+
+    lines = [
+        "# Benchmark report: speed against error, peers side by side",
+        "",
+        "Regenerate with `.venv/bin/sphrender bench --out benchmarks/` (after "
+        "`pip install -e '.[bench]'`; about 5-10 minutes on 2 CPU cores). Every number below "
+        "was measured in that one run, on this machine:",
+        "",
+        *(f"* {line}" for line in results.machine),
+        f"* {time.strftime('%Y-%m-%d %H:%M')}",
+        "",
+        "Other processes may have been running (see the load averages): compare ratios within "
+        "this run, not absolute times across runs.",
+        "",
+        "## Headline: `sphrender render` against the peers",
+        "",
+        f"{results.headline_scene}. Steady per-frame time (median after the first frame) from "
+        "render to encoded PNG, same particles, camera and resolution:",
+        "",
+        "| renderer | ms per frame | peer / sphrender | notes |",
+        "|---|---|---|---|",
+    ]
+    ours = next((p.ms for p in results.headline if p.name == "sphrender_render"), None)
+    for peer in results.headline:
+        lines.append(f"| {peer.name} | {_ms(peer.ms)} | {ratio(peer.ms, ours)} | {peer.note} |")
+    vtk = [p.ms for p in results.headline if p.name.startswith("vtk_fluid") and p.ms]
+    if ours and vtk:
+        fastest = min(vtk)
+        verdict = "met" if ours * 10 <= fastest else "NOT met"
+        lines += [
+            "",
+            f'Target (issue "Speed against error"): sphrender <= 1/10 of VTK\'s fluid mapper. '
+            f"Against the faster VTK filter: {fastest / ours:.1f}x, {verdict} in this run.",
+        ]
+    lines += [
+        "",
+        "How the rows were timed: `sphrender render` renders one frame while its worker thread "
+        "encodes and writes the previous one, so its steady time is the spacing of written "
+        "frames; VTK and PyVista render, read back and encode each frame in turn (their own "
+        "loop, as a user script would). VTK's fluid mapper runs with its default filter "
+        "settings (3 iterations, radius 5 px) in opaque-surface mode.",
+    ]
+    lines += [
+        "",
+        "CPU peers (no rendering), on the same ball unless named: the SPH density pass (scipy "
+        "reference vs the renderer's OpenCL pass, which also computes the colour field, its "
+        "gradient and the surface flags) and the offline surface reconstruction:",
+        "",
+        "| tool | ms | notes |",
+        "|---|---|---|",
+        *(f"| {name} | {_ms(ms)} | {note} |" for name, ms, note in results.cpu_peers),
+        "",
+        "## Sweep",
+        "",
+        "Milliseconds per engine stage (median of the timed frames; `readback` includes the "
+        "depth and normal AOVs the metrics need) and error against each scene's truth. Normal "
+        "error over pixels where the true surface faces the camera (n.v >= 0.3); depth error "
+        "= mean |z - z_true| / r there; IoU of the coverage; PSNR of the tone-mapped image "
+        "against the `best` preset with 1024-sample specular IBL. **Bold** = on the scene's "
+        "Pareto front (no other setting is both faster and more accurate).",
+        "",
+        *markdown_table(results.rows),
+        "",
+        f"![Pareto plot: ms against mean normal error]({plot_name})",
+        "",
+        "Reading the table:",
+        "",
+        "* The ball's truth is the envelope sphere (lattice radius + r); the particles' own "
+        "surface lies up to about a lattice spacing inside it on the stair-stepped shell, and "
+        "depth is measured along the view axis (1/cos of the radial gap at the rim), which is "
+        "why even the unfiltered splat shows ~2.3 r there. Compare depth errors between "
+        "settings, not against zero.",
+        "* The slab's p95 comes from its edges (the box's corners are sharp, a screen-space "
+        "surface of spheres is round there).",
+        "* Isolated droplets: every smoothing filter flattens a lone sphere into a lens (the "
+        "unfiltered splat is exact to ~4 degrees), because the kernel (sigma = kernel_scale "
+        "projected radii) is wider than the droplet. This is the known weakness of "
+        "screen-space smoothing that the thesis's eq 29 (shrinking sparse particles) and "
+        "surface-only splatting do not address.",
+        "* The dam break is compared with a pysplashsurf surface (iso 0.6 of the colour field, "
+        "smoothed mesh): that surface is itself an approximation and differs from a union of "
+        "spheres at splashes and thin sheets, so its errors measure agreement with splashsurf.",
+        "",
+    ]
+    if results.scaling_particles:
+        counts = [float(n) for n, _ in results.scaling_particles]
+        times = [ms for _, ms in results.scaling_particles]
+        pixels = [float(w * h) for w, h, _ in results.scaling_resolution]
+        res_times = [ms for _, _, ms in results.scaling_resolution]
+        lines += [
+            "## Scaling (balanced preset, engine frame time without encoding)",
+            "",
+            "| particles | 1280x720 ms |",
+            "|---|---|",
+            *(f"| {n:,} | {ms:.1f} |" for n, ms in results.scaling_particles),
+            "",
+            f"Growth with particle count: time ~ N^{growth_exponent(counts, times):.2f}.",
+            "",
+            "| resolution | ms |",
+            "|---|---|",
+            *(f"| {w}x{h} | {ms:.1f} |" for w, h, ms in results.scaling_resolution),
+            "",
+            f"Growth with pixel count: time ~ P^{growth_exponent(pixels, res_times):.2f}.",
+            "",
+        ]
+    path.write_text("\n".join(lines))

@@ -1,0 +1,273 @@
+"""`sphrender bench`: the whole benchmark in one command, writing the table, report and plot.
+
+    sphrender bench --out benchmarks/            # full run (tens of minutes on 2 CPU cores)
+    sphrender bench --quick --out /tmp/bench     # smoke run (seconds): small scenes, no peers
+
+Full run: the sweep on every reference scene at 1280x720, the headline comparison (a ~90k
+ball, `sphrender render` to PNG against VTK's fluid mapper and PyVista on the same particles,
+camera and resolution), pysplashsurf and scipy against the OpenCL SPH pass, and scaling with
+particle count and resolution.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import platform
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sphrender.client.frame import make_frame
+from sphrender.server.bench import peers
+from sphrender.server.bench.scenes import (
+    DAMBREAK_RADIUS,
+    BenchScene,
+    ball_scene,
+    dambreak_frame,
+    dambreak_scene,
+    droplets_scene,
+    slab_scene,
+)
+from sphrender.server.bench.sweep import (
+    QUICK_SWEEP,
+    STAGES,
+    SWEEP,
+    Setting,
+    SweepRow,
+    bench_scene_dict,
+    run_sweep,
+    scene_for,
+)
+from sphrender.server.engine.gl_context import GLContext
+from sphrender.server.engine.renderer import SurfaceRenderer
+
+CSV_COLUMNS = (
+    "scene",
+    "setting",
+    "particles",
+    "width",
+    "height",
+    *(f"{stage}_ms" for stage in STAGES),
+    "total_ms",
+    "normal_mean_deg",
+    "normal_p95_deg",
+    "depth_err_radii",
+    "silhouette_iou",
+    "psnr_db",
+)
+
+
+@dataclass
+class BenchResults:
+    machine: list[str] = field(default_factory=list)
+    rows: list[SweepRow] = field(default_factory=list)
+    headline: list[peers.PeerResult] = field(default_factory=list)
+    headline_scene: str = ""
+    cpu_peers: list[tuple[str, float | None, str]] = field(default_factory=list)
+    scaling_particles: list[tuple[int, float]] = field(default_factory=list)
+    scaling_resolution: list[tuple[int, int, float]] = field(default_factory=list)
+
+
+def _load() -> str:
+    try:
+        one, five, _ = os.getloadavg()
+    except OSError:
+        return "load average unknown"
+    return f"load average {one:.2f} (1 min), {five:.2f} (5 min)"
+
+
+def write_csv(rows: list[SweepRow], path: Path) -> None:
+    with open(path, "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(CSV_COLUMNS)
+        for row in rows:
+            m = row.metrics
+            writer.writerow(
+                [
+                    row.scene,
+                    row.setting,
+                    row.particles,
+                    row.width,
+                    row.height,
+                    *(f"{row.stage_ms[stage]:.2f}" for stage in STAGES),
+                    f"{row.total_ms:.2f}",
+                    f"{m.normal_mean_deg:.3f}",
+                    f"{m.normal_p95_deg:.3f}",
+                    f"{m.depth_err_radii:.3f}",
+                    f"{m.silhouette_iou:.4f}",
+                    f"{row.psnr_db:.2f}",
+                ]
+            )
+
+
+def growth_exponent(xs: list[float], ys: list[float]) -> float:
+    """Least-squares slope of log y against log x (time ~ x^slope)."""
+    if len(xs) < 2:
+        return float("nan")
+    return float(np.polyfit(np.log(xs), np.log(ys), 1)[0])
+
+
+def _median_frame_ms(renderer: SurfaceRenderer, scene: BenchScene, w: int, h: int) -> float:
+    frame = make_frame(scene.positions)
+    render_scene = scene_for(Setting("balanced", preset="balanced"), bench_scene_dict(scene, w, h))
+    renderer.render(frame, render_scene)
+    return float(np.median([renderer.render(frame, render_scene)[1].total_ms for _ in range(3)]))
+
+
+def run_bench(
+    out: Path,
+    *,
+    quick: bool,
+    width: int,
+    height: int,
+    frames: int,
+    with_peers: bool,
+    log: Callable[[str], None] = print,
+) -> BenchResults:
+    out.mkdir(parents=True, exist_ok=True)
+    results = BenchResults()
+    results.machine = [
+        f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPU cores, "
+        f"{platform.system()} {platform.release()}",
+        f"at start: {_load()}",
+    ]
+    if quick:
+        scenes = [ball_scene(3000), slab_scene(0.3, 3)]
+        settings: tuple[Setting, ...] = QUICK_SWEEP
+    else:
+        scenes = [ball_scene(90_000), slab_scene(1.2, 4), slab_scene(1.0, 1, "sheet")]
+        scenes.append(droplets_scene(150))
+        settings = SWEEP
+    mesh_note = ""
+    with GLContext() as gl:
+        results.machine.insert(0, f"GL: {gl.renderer}")
+        renderer = SurfaceRenderer(gl)
+        try:
+            dam = dambreak_frame()
+            if not quick and dam is not None:
+                from sphrender.server.bench.mesh_reference import rasterise
+
+                def mesh_truth(positions: Any, radius: float, camera: Any) -> Any:
+                    result, mesh = peers.run_pysplashsurf(positions, radius)
+                    label = f"{result.name} (dam break, {len(positions)} particles)"
+                    results.cpu_peers.append((label, result.ms, result.note))
+                    if mesh is None:
+                        raise ImportError(result.note)
+                    return rasterise(gl, renderer._programs, mesh, camera)
+
+                scenes.append(dambreak_scene(dam, mesh_truth, DAMBREAK_RADIUS))
+            elif not quick:
+                mesh_note = "dam break skipped: ../shared/data not found"
+            for scene in scenes:
+                log(f"{scene.name}: {scene.description}, {width}x{height}")
+                try:
+                    results.rows += run_sweep(
+                        renderer,
+                        scene,
+                        settings,
+                        width=width,
+                        height=height,
+                        frames=frames,
+                        log=log,
+                    )
+                except ImportError as exc:
+                    log(f"  {scene.name} skipped: {exc}")
+            if not quick:
+                log("scaling (balanced preset)")
+                for count in (10_000, 100_000, 1_000_000):
+                    scene = ball_scene(count)
+                    ms = _median_frame_ms(renderer, scene, 1280, 720)
+                    results.scaling_particles.append((len(scene.positions), ms))
+                    log(f"  {len(scene.positions):8d} particles 1280x720: {ms:8.1f} ms")
+                ball = ball_scene(90_000)
+                for w, h in ((640, 360), (1280, 720), (1920, 1080)):
+                    ms = _median_frame_ms(renderer, ball, w, h)
+                    results.scaling_resolution.append((w, h, ms))
+                    log(f"  {len(ball.positions):8d} particles {w}x{h}: {ms:8.1f} ms")
+        finally:
+            renderer.release()
+    if mesh_note:
+        log(mesh_note)
+    if with_peers and not quick:
+        _run_peers(results, frames, log)
+    results.machine.append(f"at end: {_load()}")
+    write_csv(results.rows, out / "bench-table.csv")
+    from sphrender.server.bench.report import write_plot, write_report
+
+    plot = write_plot(results.rows, out / "pareto.png")
+    if plot is not None:
+        log(plot)
+    if not quick:
+        write_report(results, out / "REPORT.md", plot_name="pareto.png")
+    log(f"wrote {out / 'bench-table.csv'}")
+    return results
+
+
+def _run_peers(results: BenchResults, frames: int, log: Callable[[str], None]) -> None:
+    ball = ball_scene(90_000)
+    results.headline_scene = f"{ball.description}, 1280x720, PNG"
+    log(f"headline: {results.headline_scene}")
+    args = (ball.positions, ball.radius, 1280, 720, ball.camera)
+    # sphrender runs before and after the peers, so a change of machine load during the run
+    # shows up as a difference between the two instead of silently favouring one side.
+    ours = [peers.run_sphrender_render(*args, max(frames, 8))]
+    log(f"  sphrender render (balanced): {ours[0].ms} ms  {ours[0].note}")
+    others = []
+    for name in peers.CHILD_PEERS:
+        result = peers.run_child_peer(name, *args, frames)
+        others.append(result)
+        log(f"  {name}: {result.ms} ms  {result.note}")
+    ours.append(peers.run_sphrender_render(*args, max(frames, 8)))
+    log(f"  sphrender render (balanced), again: {ours[1].ms} ms  {ours[1].note}")
+    times = [r.ms for r in ours if r.ms is not None]
+    note = (
+        "mean of two runs (before / after the peers: "
+        + " / ".join(f"{t:.0f}" for t in times)
+        + f" ms); {ours[0].note}"
+    )
+    results.headline.append(
+        peers.PeerResult("sphrender_render", sum(times) / len(times) if times else None, note)
+    )
+    results.headline += others
+    # CPU peers of the SPH pass, on the same ball.
+    support = 4 * ball.radius
+    mass = 1000.0 * (2 * ball.radius) ** 3
+    scipy_ms = peers.scipy_density_ms(ball.positions, support, mass)
+    results.cpu_peers.append(("scipy_sph_density", scipy_ms, "cKDTree pairs + float64 sums"))
+    log(f"  scipy SPH density: {scipy_ms:.0f} ms")
+    try:
+        from sphrender.server.engine.cl_context import CLContext
+        from sphrender.server.engine.sph import SphEngine, SphParameters
+
+        with CLContext() as cl:
+            engine = SphEngine(cl)
+            try:
+                params = SphParameters(support, mass, 1000.0, 0.5 / support, 750.0, 0.9 * support)
+                engine.compute(ball.positions, params)
+                start = time.perf_counter()
+                for _ in range(3):
+                    engine.compute(ball.positions, params)
+                cl_ms = (time.perf_counter() - start) / 3 * 1e3
+            finally:
+                engine.release()
+        results.cpu_peers.append(
+            ("sphrender_sph_opencl", cl_ms, f"{cl.device_info.label}: density+colour+flags")
+        )
+        log(f"  sphrender SPH pass (OpenCL): {cl_ms:.0f} ms")
+    except Exception as exc:
+        results.cpu_peers.append(("sphrender_sph_opencl", None, f"skipped: {exc}"))
+    result, _ = peers.run_pysplashsurf(ball.positions, ball.radius)
+    results.cpu_peers.append((f"{result.name} (ball)", result.ms, result.note))
+    log(f"  pysplashsurf reconstruction: {result.ms} ms  {result.note}")
+
+
+def ratio(slow: float | None, fast: float | None) -> str:
+    if slow is None or fast is None or fast <= 0 or not math.isfinite(slow):
+        return "-"
+    return f"{slow / fast:.1f}x"

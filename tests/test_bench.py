@@ -1,0 +1,123 @@
+"""`sphrender bench --quick` end to end (real EGL, real CLI process), and the quality presets.
+
+The benchmark's numbers are not asserted (speed lives in the report, never in tests); what is
+checked is that the command produces the table it documents: one row per scene x setting of
+the quick sweep, every documented column, finite times, and metrics in their ranges.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import subprocess
+import sys
+from dataclasses import fields
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sphrender.client.errors import InputError
+from sphrender.server.analytic_scenes import jittered_lattice_ball
+from sphrender.server.bench.run import CSV_COLUMNS
+from sphrender.server.bench.sweep import QUICK_SWEEP
+from sphrender.server.encoders import read_exr
+from sphrender.server.presets import PRESETS, load_scene_with_preset, preset_sections
+from sphrender.server.scene import Scene, scene_from_dict
+
+CLI = (sys.executable, "-m", "sphrender.server.cli")
+
+
+def test_bench_quick_writes_the_table(tmp_path: Path) -> None:
+    out = tmp_path / "bench"
+    done = subprocess.run(
+        [*CLI, "bench", "--quick", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    with open(out / "bench-table.csv", newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    assert tuple(rows[0].keys()) == CSV_COLUMNS
+    expected = [(scene, s.name) for scene in ("ball", "slab") for s in QUICK_SWEEP]
+    assert [(row["scene"], row["setting"]) for row in rows] == expected
+    for row in rows:
+        total = float(row["total_ms"])
+        assert math.isfinite(total) and total > 0
+        assert 0.0 <= float(row["normal_mean_deg"]) <= float(row["normal_p95_deg"]) <= 180.0
+        assert 0.0 < float(row["silhouette_iou"]) <= 1.0
+        assert float(row["depth_err_radii"]) >= 0.0
+    # The unfiltered splat shows the particles' bumps: its normals must be worse than any
+    # filtered setting's on the same scene (a metric that could not tell them apart is broken).
+    for scene in ("ball", "slab"):
+        mine = {r["setting"]: float(r["normal_mean_deg"]) for r in rows if r["scene"] == scene}
+        assert mine["filter none"] > max(v for k, v in mine.items() if k != "filter none")
+
+
+def test_balanced_preset_is_the_builtin_default() -> None:
+    assert scene_from_dict(preset_sections("balanced")) == Scene()
+
+
+@pytest.mark.parametrize("name", PRESETS)
+def test_presets_are_valid_scenes_of_speed_sections_only(name: str) -> None:
+    sections = preset_sections(name)
+    assert set(sections) <= {"quality", "shading", "sph"}
+    scene_from_dict(sections)  # validates every key and range
+
+
+def test_scene_file_keys_win_over_the_preset(tmp_path: Path) -> None:
+    scene_file = tmp_path / "scene.toml"
+    scene_file.write_text("[quality]\niterations = 4\n[image]\nwidth = 100\n")
+    scene = load_scene_with_preset(scene_file, "fast")
+    fast = scene_from_dict(preset_sections("fast"))
+    assert scene.quality.iterations == 4
+    assert scene.quality.kernel_scale == fast.quality.kernel_scale
+    assert scene.image.width == 100
+    assert [f.name for f in fields(scene)] == [f.name for f in fields(Scene)]
+
+
+def test_unknown_preset_names_the_field() -> None:
+    with pytest.raises(InputError, match="quality"):
+        preset_sections("ultra")
+
+
+def test_render_takes_a_quality_preset(tmp_path: Path) -> None:
+    """`--quality` reaches the renderer: `fast` (one narrow-range iteration) and `best` (three,
+    sampled IBL) give different images of the same particles; an unknown name is a usage error."""
+    particles = tmp_path / "ball.npz"
+    np.savez(particles, positions=jittered_lattice_ball(0.1, 0.01))
+    scene = tmp_path / "scene.toml"
+    scene.write_text(
+        "[image]\nwidth = 96\nheight = 64\n[camera]\neye = [0.25, 0.2, 0.35]\n"
+        "[particles]\nradius = 0.01\n"
+    )
+    images = {}
+    for preset in ("fast", "best"):
+        out = tmp_path / f"{preset}.exr"
+        done = subprocess.run(
+            [
+                *CLI,
+                "render",
+                str(particles),
+                "--scene",
+                str(scene),
+                "--quality",
+                preset,
+                "-o",
+                str(out),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert done.returncode == 0, done.stderr
+        images[preset] = read_exr(out)
+    assert not np.array_equal(images["fast"]["Z"], images["best"]["Z"])
+    bad = subprocess.run(
+        [*CLI, "render", str(particles), "--quality", "ultra", "-o", str(tmp_path / "x.png")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert bad.returncode == 2 and "--quality" in bad.stderr
