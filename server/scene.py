@@ -12,6 +12,7 @@ could list. Adding a field means adding one line here.
 
 from __future__ import annotations
 
+import copy
 import math
 import tomllib
 import types
@@ -602,6 +603,20 @@ def read_scene_toml(path: str | Path) -> dict[str, Any]:
 def load_scene(path: str | Path) -> Scene:
     """Load and validate a scene TOML file (see `read_scene_toml` for file errors)."""
     return scene_from_dict(read_scene_toml(path))
+
+
+def merge_scene_dicts(base: Mapping[str, Any], top: Mapping[str, Any]) -> dict[str, Any]:
+    """`top` laid over `base` (neither is modified): tables merge key by key, anything else
+    (values, the ``lights`` array) replaces the base's value. Used for quality presets under a
+    scene file and for per-frame partial scenes over a session's scene."""
+    merged = copy.deepcopy(dict(base))
+    for key, value in top.items():
+        current = merged.get(key)
+        if isinstance(value, Mapping) and isinstance(current, Mapping):
+            merged[key] = merge_scene_dicts(current, value)
+        else:
+            merged[key] = copy.deepcopy(value)
+    return merged
 
 
 def scene_to_dict(scene: Scene) -> dict[str, Any]:

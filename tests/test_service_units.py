@@ -16,7 +16,7 @@ from prometheus_client.parser import text_string_to_metric_families
 from sphrender.client.errors import InputError
 from sphrender.client.frame import make_frame
 from sphrender.client.protocol import LimitError
-from sphrender.server.scene import Scene
+from sphrender.server.scene import Scene, merge_scene_dicts
 from sphrender.server.service.config import (
     ServerConfig,
     check_bind_policy,
@@ -27,7 +27,7 @@ from sphrender.server.service.config import (
 from sphrender.server.service.jobs import DroppedOutcome, FrameJob
 from sphrender.server.service.metrics import Registry
 from sphrender.server.service.scheduler import FairScheduler, QueueFull, SchedulerClosed
-from sphrender.server.service.sessions import SceneValidator, merge_scene
+from sphrender.server.service.sessions import SceneValidator
 
 REPO = Path(__file__).resolve().parents[1]
 PARTICLES = make_frame(np.zeros((1, 3)))
@@ -189,7 +189,7 @@ def test_bind_policy_refuses_remote_without_token() -> None:
 
 def test_merge_scene_merges_tables_and_replaces_the_rest() -> None:
     base: dict[str, Any] = {"camera": {"eye": [0, 0, 1], "fov_y": 40.0}, "lights": [{"a": 1}]}
-    merged = merge_scene(base, {"camera": {"eye": [1, 1, 1]}, "lights": []})
+    merged = merge_scene_dicts(base, {"camera": {"eye": [1, 1, 1]}, "lights": []})
     assert merged == {"camera": {"eye": [1, 1, 1], "fov_y": 40.0}, "lights": []}
     assert base["camera"]["eye"] == [0, 0, 1]  # the session's scene is untouched
 

@@ -26,8 +26,8 @@ from sphrender.server.bench.metrics import (
 from sphrender.server.bench.scenes import BenchScene
 from sphrender.server.engine.camera import Camera
 from sphrender.server.engine.renderer import SurfaceRenderer
-from sphrender.server.presets import merge_sections, preset_sections
-from sphrender.server.scene import Scene, scene_from_dict
+from sphrender.server.presets import preset_sections
+from sphrender.server.scene import Scene, merge_scene_dicts, scene_from_dict
 
 STAGES = ("sph", "prepare", "splat", "smooth", "normals", "shade", "readback")
 
@@ -102,8 +102,8 @@ def bench_scene_dict(scene: BenchScene, width: int, height: int) -> dict[str, di
 
 def scene_for(setting: Setting, base: Mapping[str, Any]) -> Scene:
     sections: dict[str, Any] = dict(preset_sections(setting.preset)) if setting.preset else {}
-    sections = merge_sections(sections, base)
-    return scene_from_dict(merge_sections(sections, setting.overrides))
+    sections = merge_scene_dicts(sections, base)
+    return scene_from_dict(merge_scene_dicts(sections, setting.overrides))
 
 
 def run_sweep(

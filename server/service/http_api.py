@@ -43,7 +43,7 @@ from sphrender.client.protocol import (
     decode_npz_frame,
     parse_json_object,
 )
-from sphrender.server.scene import Scene
+from sphrender.server.scene import Scene, merge_scene_dicts
 from sphrender.server.service.jobs import (
     CONTENT_TYPES,
     DroppedOutcome,
@@ -54,7 +54,7 @@ from sphrender.server.service.jobs import (
 )
 from sphrender.server.service.metrics import CONTENT_TYPE as METRICS_CONTENT_TYPE
 from sphrender.server.service.scheduler import QueueFull, SchedulerClosed
-from sphrender.server.service.sessions import Session, SessionLimitReached, merge_scene
+from sphrender.server.service.sessions import Session, SessionLimitReached
 
 if TYPE_CHECKING:  # a runtime import would be circular
     from sphrender.server.service.app import RenderService
@@ -468,7 +468,9 @@ class ApiHandler(BaseHTTPRequestHandler):
                 scene = session.scene
                 if scene_json is not None:
                     override = parse_json_object(scene_json.encode("utf-8"), "scene")
-                    scene = self.service.scenes.from_dict(merge_scene(session.raw_scene, override))
+                    scene = self.service.scenes.from_dict(
+                        merge_scene_dicts(session.raw_scene, override)
+                    )
                     self.service.worker.check_image_size(scene)
                 particles = self.service.make_particles(arrays)
             except InputError as exc:

@@ -16,7 +16,6 @@ renderer carries the resolved absolute path. Error messages never reveal server 
 
 from __future__ import annotations
 
-import copy
 import functools
 import secrets
 import threading
@@ -121,19 +120,6 @@ class SessionRegistry:
             for session in self._sessions.values():
                 result[session.transport] += 1
             return result
-
-
-def merge_scene(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
-    """``override`` applied to ``base`` section by section: tables merge key by key, anything
-    else (e.g. a ``lights`` array) replaces the base's value."""
-    merged = copy.deepcopy(dict(base))
-    for section, value in override.items():
-        current = merged.get(section)
-        if isinstance(value, Mapping) and isinstance(current, Mapping):
-            merged[section] = {**current, **value}
-        else:
-            merged[section] = copy.deepcopy(value)
-    return merged
 
 
 class SceneValidator:

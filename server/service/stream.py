@@ -48,6 +48,7 @@ from sphrender.client.protocol import (
     parse_header,
     parse_prefix,
 )
+from sphrender.server.scene import merge_scene_dicts
 from sphrender.server.service.config import public_limits
 from sphrender.server.service.jobs import (
     DroppedOutcome,
@@ -57,7 +58,7 @@ from sphrender.server.service.jobs import (
     Outcome,
 )
 from sphrender.server.service.scheduler import QueueFull, SchedulerClosed
-from sphrender.server.service.sessions import Session, SessionLimitReached, merge_scene
+from sphrender.server.service.sessions import Session, SessionLimitReached
 
 if TYPE_CHECKING:  # a runtime import would be circular
     from sphrender.server.service.app import RenderService
@@ -423,7 +424,9 @@ class StreamConnection:
                 override = header["scene"]
                 if not isinstance(override, dict):
                     raise InputError("scene", "must be a JSON object (a partial scene)")
-                scene = service.scenes.from_dict(merge_scene(self.session.raw_scene, override))
+                scene = service.scenes.from_dict(
+                    merge_scene_dicts(self.session.raw_scene, override)
+                )
                 service.worker.check_image_size(scene)
         except InputError as exc:
             code = ErrorCode.TOO_LARGE if isinstance(exc, LimitError) else ErrorCode.BAD_INPUT
