@@ -13,7 +13,6 @@ import selectors
 import signal
 import socket
 import subprocess
-import sys
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -22,6 +21,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 import OpenImageIO as oiio
+from cli_harness import SPHRENDER
 
 from sphrender.client.protocol import (
     PREFIX_SIZE,
@@ -35,7 +35,6 @@ from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.local_backend import encode_for_scene
 from sphrender.server.scene import Scene, scene_from_dict
 
-SPHRENDER = str(Path(sys.executable).with_name("sphrender"))
 HOST = "127.0.0.1"
 START_TIMEOUT_S = 90.0
 

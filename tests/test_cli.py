@@ -3,21 +3,18 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import OpenImageIO as oiio
 import pytest
+from cli_harness import run_sphrender
 
 from sphrender.client.frame import make_frame
 from sphrender.server.encoders import read_exr
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import load_scene
-
-SPHRENDER = str(Path(sys.executable).with_name("sphrender"))
 
 SMALL_SCENE = """
 [image]
@@ -36,17 +33,6 @@ radius = 0.02
 format = "exr"
 exr_pixel_type = "float"
 """
-
-
-def run(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [SPHRENDER, *args],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env={**os.environ, **(env or {})},
-        check=False,
-    )
 
 
 @pytest.fixture
@@ -75,14 +61,14 @@ def read_png(path: Path) -> np.ndarray:
 
 @pytest.mark.parametrize("command", [[], ["render"], ["sph"], ["demo"], ["info"]])
 def test_help(command: list[str]) -> None:
-    result = run(*command, "--help")
+    result = run_sphrender(*command, "--help")
     assert result.returncode == 0
     assert "usage: sphrender" in result.stdout
 
 
 def test_demo_renders_a_png(tmp_path: Path) -> None:
     out = tmp_path / "demo.png"
-    result = run("demo", "-o", str(out))
+    result = run_sphrender("demo", "-o", str(out))
     assert result.returncode == 0, result.stderr
     pixels = read_png(out).astype(np.float64) / 255.0
     assert pixels.shape == (540, 960, 4)
@@ -104,7 +90,7 @@ def test_render_exr_matches_in_process_render(
     """Two renders must match: the CLI's float EXR equals the engine's arrays for the same input
     and scene (same driver, same code path), except that EXR colour is premultiplied."""
     out = tmp_path / "ball.exr"
-    result = run("render", str(ball_npz), "--scene", str(scene_file), "-o", str(out))
+    result = run_sphrender("render", str(ball_npz), "--scene", str(scene_file), "-o", str(out))
     assert result.returncode == 0, result.stderr
     channels = read_exr(out)
     assert set(channels) == {"R", "G", "B", "A", "Z", "N.X", "N.Y", "N.Z"}
@@ -129,7 +115,7 @@ def test_render_several_inputs_into_a_directory(
     ]
     out_dir = tmp_path / "frames"
     out_dir.mkdir()
-    result = run(
+    result = run_sphrender(
         "render",
         *map(str, inputs),
         "--scene",
@@ -151,7 +137,7 @@ def test_render_several_inputs_into_a_directory(
 
 
 def test_info_reports_the_renderer() -> None:
-    result = run("info")
+    result = run_sphrender("info")
     assert result.returncode == 0, result.stderr
     info = json.loads(result.stdout)
     assert info["gl_renderer"] and info["max_image_side"] >= 1024
@@ -169,7 +155,7 @@ def assert_one_line_error(result: subprocess.CompletedProcess[str], code: int, *
 def test_nan_positions_give_a_one_line_error(tmp_path: Path) -> None:
     bad = tmp_path / "bad.npz"
     np.savez(bad, positions=np.array([[0.0, 0.0, 0.0], [np.nan, 0.0, 0.0]]))
-    result = run("render", str(bad), "-o", str(tmp_path / "out.png"))
+    result = run_sphrender("render", str(bad), "-o", str(tmp_path / "out.png"))
     assert_one_line_error(result, 2, "positions[1]", "finite", "bad.npz")
     assert not (tmp_path / "out.png").exists()
 
@@ -177,23 +163,27 @@ def test_nan_positions_give_a_one_line_error(tmp_path: Path) -> None:
 def test_bad_scene_gives_a_one_line_error(tmp_path: Path, ball_npz: Path) -> None:
     scene = tmp_path / "scene.toml"
     scene.write_text("[camera]\nfov_y = 190\n")
-    result = run("render", str(ball_npz), "--scene", str(scene), "-o", str(tmp_path / "o.png"))
+    result = run_sphrender(
+        "render", str(ball_npz), "--scene", str(scene), "-o", str(tmp_path / "o.png")
+    )
     assert_one_line_error(result, 2, "camera.fov_y", "(0, 180)")
 
 
 def test_degenerate_camera_gives_a_one_line_error(tmp_path: Path, ball_npz: Path) -> None:
     scene = tmp_path / "scene.toml"
     scene.write_text("[camera]\neye = [0, 1, 0]\ntarget = [0, 0, 0]\nup = [0, 1, 0]\n")
-    result = run("render", str(ball_npz), "--scene", str(scene), "-o", str(tmp_path / "o.png"))
+    result = run_sphrender(
+        "render", str(ball_npz), "--scene", str(scene), "-o", str(tmp_path / "o.png")
+    )
     assert_one_line_error(result, 2, "camera.up", "parallel")
 
 
 def test_unreadable_input_gives_a_one_line_error(tmp_path: Path) -> None:
     garbage = tmp_path / "frame.vtk"
     garbage.write_bytes(b"\x00\x01not a vtk file")
-    result = run("render", str(garbage), "-o", str(tmp_path / "o.png"))
+    result = run_sphrender("render", str(garbage), "-o", str(tmp_path / "o.png"))
     assert_one_line_error(result, 2, "file", "frame.vtk")
-    result = run("render", str(tmp_path / "missing.npz"), "-o", str(tmp_path / "o.png"))
+    result = run_sphrender("render", str(tmp_path / "missing.npz"), "-o", str(tmp_path / "o.png"))
     assert_one_line_error(result, 2, "file", "missing.npz")
 
 
@@ -201,7 +191,7 @@ def test_missing_egl_names_the_packages(tmp_path: Path, ball_npz: Path) -> None:
     """glcontext honours GLCONTEXT_LINUX_LIBEGL: point it at a library that does not exist, as
     on a machine without Mesa's EGL."""
     env = {"GLCONTEXT_LINUX_LIBEGL": str(tmp_path / "libEGL.so.1")}
-    result = run("render", str(ball_npz), "-o", str(tmp_path / "o.png"), env=env)
+    result = run_sphrender("render", str(ball_npz), "-o", str(tmp_path / "o.png"), env=env)
     assert_one_line_error(result, 3, "apt-get install", "libegl-mesa0", "libgl1-mesa-dri")
 
 
@@ -211,7 +201,7 @@ def test_a_corrupt_frame_does_not_stop_the_others(tmp_path: Path, ball_npz: Path
     second = tmp_path / "frame_3.npz"
     second.write_bytes(ball_npz.read_bytes())
     out_dir = tmp_path / "out"
-    result = run("render", str(ball_npz), str(corrupt), str(second), "-o", str(out_dir))
+    result = run_sphrender("render", str(ball_npz), str(corrupt), str(second), "-o", str(out_dir))
     assert result.returncode == 2
     assert "Traceback" not in result.stderr
     assert "frame_2.npz" in result.stderr and "1 of 3 inputs failed" in result.stderr
@@ -219,5 +209,7 @@ def test_a_corrupt_frame_does_not_stop_the_others(tmp_path: Path, ball_npz: Path
 
 
 def test_unwritable_output_is_a_clear_error(tmp_path: Path, ball_npz: Path) -> None:
-    result = run("render", str(ball_npz), "-o", str(tmp_path / "no" / "such" / "dir" / "x.png"))
+    result = run_sphrender(
+        "render", str(ball_npz), "-o", str(tmp_path / "no" / "such" / "dir" / "x.png")
+    )
     assert_one_line_error(result, 2, "output", "cannot write")

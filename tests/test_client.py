@@ -5,13 +5,13 @@ from __future__ import annotations
 import shutil
 import socket
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_harness import DAMBREAK_SCENE_TOML, SPHRENDER
 from service_harness import MAIN_CONFIG, SMALL_SCENE, ServerProcess, ball, reference_png
 
 from sphrender.client.api import Client, ServerError, ServerUnavailable, decode_exr
@@ -20,18 +20,7 @@ from sphrender.client.image_check import is_complete_exr
 from sphrender.server.encoders import read_exr
 from sphrender.server.engine.renderer import SurfaceRenderer
 
-SPHRENDER = str(Path(sys.executable).with_name("sphrender"))
-
-SCENE_TOML = """
-[image]
-width = 64
-height = 40
-[camera]
-eye = [0.0, 2.5, 5.0]
-target = [0.0, 0.5, 0.0]
-[particles]
-radius = 0.015
-"""
+SCENE_TOML = DAMBREAK_SCENE_TOML
 
 
 def url(server: ServerProcess) -> str:

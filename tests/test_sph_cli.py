@@ -9,33 +9,19 @@ of its terms for the reason given there.
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_harness import run_sphrender
 from sph_reference import reference_sph
 
 from sphrender.client.readers import read_particles
 
-SPHRENDER = str(Path(sys.executable).with_name("sphrender"))
 R = 0.015
 H = 4 * R
 MASS = 1000.0 * (2 * R) ** 3
 ARRAYS = ("density", "color_field", "color_gradient", "surface", "radius", "splat")
-
-
-def run(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [SPHRENDER, *args],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env={**os.environ, **(env or {})},
-        check=False,
-    )
 
 
 @pytest.fixture
@@ -50,7 +36,7 @@ def scene_toml(tmp_path: Path) -> Path:
 
 
 def run_sph(frame: Path, scene: Path, out: Path, *extra: str) -> dict[str, np.ndarray]:
-    result = run("sph", str(frame), "--scene", str(scene), "-o", str(out), *extra)
+    result = run_sphrender("sph", str(frame), "--scene", str(scene), "-o", str(out), *extra)
     assert result.returncode == 0, result.stderr
     assert "on the surface" in result.stdout
     with np.load(out) as data:
@@ -123,18 +109,18 @@ def test_no_opencl_platform_names_what_to_install(tmp_path: Path) -> None:
     np.savez(frame, positions=np.zeros((3, 3)))
     # The ICD loader reads vendor files from OCL_ICD_VENDORS; a missing folder = no platform.
     env = {"OCL_ICD_VENDORS": str(tmp_path / "no-vendors"), "PYOPENCL_CTX": ""}
-    result = run("sph", str(frame), "-o", str(tmp_path / "o.npz"), env=env)
+    result = run_sphrender("sph", str(frame), "-o", str(tmp_path / "o.npz"), env=env)
     assert result.returncode == 3, result.stderr
     assert "Traceback" not in result.stderr
     assert "no OpenCL platform" in result.stderr and "pocl" in result.stderr
-    info = run("info", env=env)
+    info = run_sphrender("info", env=env)
     assert info.returncode == 0 and json.loads(info.stdout)["opencl_devices"] == []
 
 
 def test_bad_densities_in_file_name_the_index(tmp_path: Path) -> None:
     frame = tmp_path / "f.npz"
     np.savez(frame, positions=np.zeros((4, 3)), densities=np.array([1000.0, 990.0, -1.0, 1000.0]))
-    result = run("sph", str(frame), "-o", str(tmp_path / "o.npz"))
+    result = run_sphrender("sph", str(frame), "-o", str(tmp_path / "o.npz"))
     assert result.returncode == 2
     assert "densities[2]" in result.stderr and "Traceback" not in result.stderr
 
@@ -142,7 +128,7 @@ def test_bad_densities_in_file_name_the_index(tmp_path: Path) -> None:
 def test_bad_device_choice_is_a_clear_error(tmp_path: Path) -> None:
     frame = tmp_path / "f.npz"
     np.savez(frame, positions=np.zeros((3, 3)))
-    result = run("sph", str(frame), "-o", str(tmp_path / "o.npz"), "--cl-device", "42:7")
+    result = run_sphrender("sph", str(frame), "-o", str(tmp_path / "o.npz"), "--cl-device", "42:7")
     assert result.returncode == 3
     assert "cl_device" in result.stderr and "available" in result.stderr
 
@@ -156,6 +142,8 @@ def test_render_with_adaptive_radius_logs_the_sph_stage(tmp_path: Path) -> None:
         "[image]\nwidth = 64\nheight = 48\n[camera]\neye = [0.0, 0.0, 0.6]\n"
         "[particles]\nradius = 0.01\n[sph]\nadaptive_radius = true\n"
     )
-    result = run("render", str(frame), "--scene", str(scene), "-o", str(tmp_path / "o.png"), "-v")
+    result = run_sphrender(
+        "render", str(frame), "--scene", str(scene), "-o", str(tmp_path / "o.png"), "-v"
+    )
     assert result.returncode == 0, result.stderr
     assert " sph=" in result.stderr

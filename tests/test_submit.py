@@ -7,30 +7,19 @@ import os
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_harness import DAMBREAK_SCENE_TOML, SPHRENDER
 
 from sphrender.client.errors import InputError
 from sphrender.client.image_check import is_complete_exr, is_complete_png
 from sphrender.client.sequences import expand_inputs, frame_stem, plan_jobs
 from sphrender.server.encoders import read_exr
 
-SPHRENDER = str(Path(sys.executable).with_name("sphrender"))
-
-SCENE = """
-[image]
-width = 64
-height = 40
-[camera]
-eye = [0.0, 2.5, 5.0]
-target = [0.0, 0.5, 0.0]
-[particles]
-radius = 0.015
-"""
+SCENE = DAMBREAK_SCENE_TOML
 
 
 def submit(*args: str) -> subprocess.CompletedProcess[str]:
