@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
 from sphrender.client.errors import InputError
+from sphrender.server.presets import PRESETS
 
 if TYPE_CHECKING:
     from sphrender.client.frame import ParticleFrame
@@ -68,7 +69,7 @@ def _add_env_dir(parser: argparse.ArgumentParser) -> None:
 def _add_quality(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--quality",
-        choices=["fast", "balanced", "best"],
+        choices=PRESETS,
         help="quality preset (configs/quality-NAME.toml) the scene file is laid over; the "
         "scene's own keys win (default: balanced = the built-in defaults)",
     )

@@ -18,11 +18,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_harness import run_sphrender
 from prometheus_client.parser import text_string_to_metric_families
 from service_harness import (
     HOST,
     SMALL_SCENE,
-    SPHRENDER,
     ServerProcess,
     ball,
     png_pixels,
@@ -57,13 +57,7 @@ def test_http_frame_matches_sphrender_render(service: ServerProcess, tmp_path: P
         scene_toml = tmp_path / f"scene-{fmt}.toml"
         scene_toml.write_text(toml_text(scene))
         out = tmp_path / f"cli.{fmt}"
-        cli = subprocess.run(
-            [SPHRENDER, "render", str(npz), "--scene", str(scene_toml), "-o", str(out)],
-            capture_output=True,
-            text=True,
-            timeout=120,
-            check=False,
-        )
+        cli = run_sphrender("render", str(npz), "--scene", str(scene_toml), "-o", str(out))
         assert cli.returncode == 0, cli.stderr
         status, headers, body = render(service, encode_npz_frame(positions, scene=scene))
         assert status == 200, body
@@ -298,9 +292,7 @@ def test_client_vanishing_mid_body_leaves_the_server_up(service: ServerProcess) 
 
 
 def test_serve_help_documents_every_option() -> None:
-    result = subprocess.run(
-        [SPHRENDER, "serve", "--help"], capture_output=True, text=True, timeout=60, check=False
-    )
+    result = run_sphrender("serve", "--help")
     assert result.returncode == 0
     for option in ("--config", "--host", "--port", "--stream-port", "--log-json", "--no-stream"):
         assert option in result.stdout

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import socket
 import struct
-import subprocess
 import threading
 import time
 from collections.abc import Iterator
@@ -19,9 +18,9 @@ from typing import Any
 
 import numpy as np
 import pytest
+from cli_harness import run_sphrender
 from service_harness import (
     SMALL_SCENE,
-    SPHRENDER,
     ServerProcess,
     StreamClient,
     ball,
@@ -60,13 +59,7 @@ def test_stream_frame_matches_sphrender_render(service: ServerProcess, tmp_path:
     scene_toml = tmp_path / "scene.toml"
     scene_toml.write_text(toml_text(SMALL_SCENE))
     out = tmp_path / "cli.png"
-    cli = subprocess.run(
-        [SPHRENDER, "render", str(npz), "--scene", str(scene_toml), "-o", str(out)],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
+    cli = run_sphrender("render", str(npz), "--scene", str(scene_toml), "-o", str(out))
     assert cli.returncode == 0, cli.stderr
     with service.stream() as client:
         welcome = client.hello(SMALL_SCENE)
