@@ -147,6 +147,11 @@ class QualityConfig:
     narrow_range_clamp: float = spec(
         1.0, "narrow-range mu: nearer samples are clamped to z - mu*r", low=0.0, low_open=True
     )
+    occlusion_culling: bool = spec(
+        True,
+        "splat the front layer first and skip particles hidden behind it (exact: the depth "
+        "image is unchanged; off only to measure it)",
+    )
 
 
 @dataclass(frozen=True)

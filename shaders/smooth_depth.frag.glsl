@@ -1,5 +1,6 @@
 #version 330 core
-// Depth smoothing (thesis §3.3) of an eye-depth image. Background (0) is never read into the
+// Depth smoothing (thesis §3.3) of an eye-depth image with one 2-D kernel (the separable
+// kernels are in smooth_depth_separable.frag.glsl, on a packed image). Background (0) is never read into the
 // surface and stays background. By default (KERNEL_SIZE_PROJECTED_RADIUS) the kernel follows the
 // projected particle radius:
 //   r_px(z) = r * px_per_unit / z,  sigma = kernel_scale * r_px,  reach = clamp(ceil(3 sigma),
@@ -12,8 +13,6 @@
 #define FILTER_BILATERAL 1
 #define FILTER_NARROW_RANGE 2
 #define FILTER 2
-// 1: 1-D kernel along u_direction (run once per axis). 0: one 2-D kernel.
-#define SEPARABLE 1
 #define KERNEL_SIZE_PROJECTED_RADIUS 0
 #define KERNEL_SIZE_EQ25 1
 #define KERNEL_SIZE 0
@@ -21,7 +20,6 @@
 #include "common/depth_image.glsl"
 
 uniform sampler2D u_depth;
-uniform ivec2 u_direction;
 uniform float u_particle_radius;   // scene units
 uniform float u_px_per_unit;       // (H / 2) / tan(fov_y / 2)
 uniform float u_kernel_scale;
@@ -67,15 +65,8 @@ void main() {
     float lower = zc - u_nr_threshold;
     float lower_clamp = zc - u_nr_clamp;
     for (int k = 1; k <= radius; ++k) {
-#if SEPARABLE
-        const int pairs_in_ring = 1;
-#else
         int pairs_in_ring = 4 * k;
-#endif
         for (int i = 0; i < pairs_in_ring; ++i) {
-#if SEPARABLE
-            ivec2 offset = k * u_direction;
-#else
             // Half of the square ring at Chebyshev distance k; the other half is its mirror.
             ivec2 offset;
             if (i < 2 * k + 1) {
@@ -88,7 +79,6 @@ void main() {
             if (dot(vec2(offset), vec2(offset)) > reach * reach) {
                 continue;
             }
-#endif
             float d2 = dot(vec2(offset), vec2(offset));
             float w = exp(-d2 * inv_two_sigma2);
             float za = fetch_depth(u_depth, center + offset);
@@ -116,18 +106,12 @@ void main() {
     }
 #else
     float inv_two_range2 = 1.0 / (2.0 * u_range_sigma * u_range_sigma);
-#if SEPARABLE
-    for (int k = -radius; k <= radius; ++k) {
-        ivec2 offset = k * u_direction;
-        {
-#else
     for (int y = -radius; y <= radius; ++y) {
         for (int x = -radius; x <= radius; ++x) {
             ivec2 offset = ivec2(x, y);
             if (dot(vec2(offset), vec2(offset)) > reach * reach) {
                 continue;
             }
-#endif
             if (offset == ivec2(0)) {
                 continue;
             }

@@ -54,15 +54,14 @@ QUALITIES = {
 }
 
 
-@pytest.mark.parametrize("name", list(QUALITIES))
-def test_filter_matches_numpy_reference(renderer: SurfaceRenderer, name: str) -> None:
-    quality = QUALITIES[name]
-    depth = synthetic_depth()
+def assert_matches_reference(
+    renderer: SurfaceRenderer, depth: np.ndarray, px_per_unit: float, quality: QualityConfig
+) -> None:
     gpu = renderer.filter_depth_image(
-        depth, particle_radius=RADIUS, px_per_unit=PX_PER_UNIT, quality=quality
+        depth, particle_radius=RADIUS, px_per_unit=px_per_unit, quality=quality
     )
-    reference = filter_depth(depth, RADIUS, PX_PER_UNIT, quality)
-    ambiguous = np.vectorize(lambda z: z > 0 and ambiguous_reach(z, RADIUS, PX_PER_UNIT, quality))(
+    reference = filter_depth(depth, RADIUS, px_per_unit, quality)
+    ambiguous = np.vectorize(lambda z: z > 0 and ambiguous_reach(z, RADIUS, px_per_unit, quality))(
         depth
     )
     assert not ambiguous.any(), "pick a synthetic image whose kernel reaches are unambiguous"
@@ -72,8 +71,37 @@ def test_filter_matches_numpy_reference(renderer: SurfaceRenderer, name: str) ->
 
     # The comparison is sharp enough to catch the classic porting bug: spatial weights that
     # degenerate to a box filter.
-    box = filter_depth(depth, RADIUS, PX_PER_UNIT, quality, box=True)
+    box = filter_depth(depth, RADIUS, px_per_unit, quality, box=True)
     assert np.abs(gpu - box).max() > 30 * TOLERANCE
+
+
+@pytest.mark.parametrize("name", list(QUALITIES))
+def test_filter_matches_numpy_reference(renderer: SurfaceRenderer, name: str) -> None:
+    assert_matches_reference(renderer, synthetic_depth(), PX_PER_UNIT, QUALITIES[name])
+
+
+SEPARABLE = [name for name, quality in QUALITIES.items() if quality.separable]
+
+
+@pytest.mark.parametrize("width", [41, 42, 43])
+@pytest.mark.parametrize("name", SEPARABLE)
+def test_packed_filters_at_widths_not_divisible_by_four(
+    renderer: SurfaceRenderer, name: str, width: int
+) -> None:
+    """The separable filters work on four pixels per texel; the image's last texel is partly
+    outside it (those pixels must read as background, not as garbage or as edge copies)."""
+    depth = synthetic_depth()[:, :width]  # cropped: the same (unambiguous) values
+    assert_matches_reference(renderer, depth, PX_PER_UNIT, QUALITIES[name])
+
+
+@pytest.mark.parametrize("name", SEPARABLE)
+def test_packed_filters_with_wide_and_capped_kernels(renderer: SurfaceRenderer, name: str) -> None:
+    """Kernels reaching across many packed texels (r_px = 4.6 at z = 2: reach ~28 px, sliding
+    seven texel pairs per side) and kernels capped by kernel_max_px."""
+    depth = synthetic_depth(height=72, width=90)
+    quality = QUALITIES[name]
+    assert_matches_reference(renderer, depth, 920.0, quality)
+    assert_matches_reference(renderer, depth, 920.0, replace(quality, kernel_max_px=11))
 
 
 def test_filter_smooths_noise_and_keeps_steps(renderer: SurfaceRenderer) -> None:

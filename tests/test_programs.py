@@ -49,10 +49,18 @@ def test_every_shipped_program_compiles(gl_context: GLContext) -> None:
     ):
         cache.get("fullscreen.vert.glsl", "shade_pbr.frag.glsl", defines)
     for filter_id in (0, 1, 2):
-        for separable in (True, False):
+        for kernel_size in (0, 1):
             cache.get(
                 "fullscreen.vert.glsl",
                 "smooth_depth.frag.glsl",
-                {"FILTER": filter_id, "SEPARABLE": separable},
+                {"FILTER": filter_id, "KERNEL_SIZE": kernel_size},
             )
+            for axis in (0, 1):
+                cache.get(
+                    "fullscreen.vert.glsl",
+                    "smooth_depth_separable.frag.glsl",
+                    {"FILTER": filter_id, "KERNEL_SIZE": kernel_size, "AXIS": axis},
+                )
+    cache.get("fullscreen.vert.glsl", "depth_pack.frag.glsl")
+    cache.get("fullscreen.vert.glsl", "depth_unpack.frag.glsl")
     cache.release()

@@ -9,9 +9,12 @@ reused; per frame it only uploads the visible particles and runs the passes the 
                             (see `sph.py`); the CL context is created on first need
     prepare (CPU, float64)  positions relative to the eye, rotated to view space, culled,
                             then converted to float32
-    splat                   instanced sphere impostors -> eye depth (R32F, 0 = background),
-                            plus the front particle's temperature when the frame has them
-    smooth                  gaussian | bilateral | narrow_range, 1-D x2 or 2-D, iterated
+    splat                   sphere impostors (two triangles each) -> eye depth (R32F,
+                            0 = background), plus the front particle's temperature when the
+                            frame has them; the front layer first, then only the particles its
+                            depth does not hide (`occlusion.py`, exact)
+    smooth                  gaussian | bilateral | narrow_range, 1-D x2 (on a packed image,
+                            four pixels per texel) or 2-D, iterated
     normals                 one-sided differences of the smoothed depth -> world normals
     shade                   physically based metal: direct lights, SH + specular IBL, hot-metal
                             emission (`shading.ShadePass`)
@@ -32,6 +35,7 @@ import numpy.typing as npt
 
 from sphrender.client.errors import InputError
 from sphrender.client.frame import ParticleFrame
+from sphrender.server.engine import occlusion
 from sphrender.server.engine.camera import Camera
 from sphrender.server.engine.cl_context import CLContext
 from sphrender.server.engine.frame_output import RenderedFrame
@@ -56,7 +60,8 @@ class RenderStats:
 
     stage_ms: dict[str, float] = field(default_factory=dict)
     particles_in: int = 0
-    particles_drawn: int = 0
+    particles_drawn: int = 0  # visible: in front of the camera and inside the image
+    particles_splatted: int = 0  # rasterised: the visible ones less those found hidden
     far: float = 0.0
 
     @property
@@ -168,6 +173,13 @@ def _scissored(fbo: moderngl.Framebuffer, box: ScreenBox | None) -> None:
     _set_scissor(fbo, box)
 
 
+def _packed_box(box: ScreenBox) -> ScreenBox:
+    """`box` in the texels of a packed image (four pixels per texel along x)."""
+    x, y, width, height = box
+    first = x // 4
+    return (first, y, (x + width + 3) // 4 - first, height)
+
+
 def _write_matrix(program: moderngl.Program, name: str, matrix: npt.NDArray[np.floating]) -> None:
     """Upload a row-major numpy matrix to a GLSL matN uniform (GLSL is column-major)."""
     uniform = program[name]
@@ -193,6 +205,13 @@ class _Targets:
         self.splat = ctx.framebuffer([self.splat_depth], self.depth_buffer)
         self.ping = [float_texture(1), float_texture(1)]
         self.ping_fbos = [ctx.framebuffer([t]) for t in self.ping]
+        # Four pixels per texel along x, for the separable filters (see `_smooth`).
+        packed_size = ((width + 3) // 4, height)
+        self.packed = [ctx.texture(packed_size, 4, dtype="f4") for _ in range(2)]
+        for texture in self.packed:
+            texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            texture.repeat_x = texture.repeat_y = False
+        self.packed_fbos = [ctx.framebuffer([t]) for t in self.packed]
         self.normal_depth = float_texture(4)
         self.normal_fbo = ctx.framebuffer([self.normal_depth])
         self.color = float_texture(4)
@@ -212,11 +231,11 @@ class _Targets:
         return self.temperature, self.splat_with_temperature
 
     def release(self) -> None:
-        fbos = (self.splat, *self.ping_fbos, self.normal_fbo, self.color_fbo)
+        fbos = (self.splat, *self.ping_fbos, *self.packed_fbos, self.normal_fbo, self.color_fbo)
         for fbo in (*fbos, self.splat_with_temperature):
             if fbo is not None:
                 fbo.release()
-        for texture in (self.splat_depth, *self.ping, self.normal_depth, self.color):
+        for texture in (self.splat_depth, *self.ping, *self.packed, self.normal_depth, self.color):
             texture.release()
         if self.temperature is not None:
             self.temperature.release()
@@ -328,16 +347,11 @@ class SurfaceRenderer:
         return program, self._splat_temperature_vao
 
     @staticmethod
-    def _upload(buffer: moderngl.Buffer, data: npt.NDArray[np.float32]) -> None:
-        nbytes = data.nbytes
+    def _reserve(buffer: moderngl.Buffer, nbytes: int) -> None:
+        """Grow `buffer` geometrically to at least `nbytes`; orphan keeps the buffer object, so
+        the VAOs stay valid (the contents are lost)."""
         if nbytes > buffer.size:
-            # Grow geometrically; orphan keeps the buffer object, so the VAOs stay valid.
             buffer.orphan(max(nbytes, buffer.size * 2))
-        buffer.write(data.tobytes())
-
-    def _upload_instances(self, data: npt.NDArray[np.float32]) -> None:
-        """Per-particle rows, repeated once per quad corner."""
-        self._upload(self._instance_buffer, np.repeat(data, 4, axis=0))
 
     def _ensure_quads(self, count: int) -> None:
         """Corner (+-1, +-1 per vertex) and index (two triangles per quad) buffers for at least
@@ -401,11 +415,19 @@ class SurfaceRenderer:
             stats.particles_drawn = int(prepared.center_radius.shape[0])
             stats.far = prepared.far
 
+        box = screen_box(prepared, camera)
         with self._stage(stats, "splat"):
-            temperature = self._splat(ctx, targets, camera, prepared)
+            temperature = self._splat(
+                ctx,
+                targets,
+                camera,
+                prepared,
+                cull=scene.quality.occlusion_culling,
+                box=box,
+                stats=stats,
+            )
 
         surface = targets.splat_depth
-        box = screen_box(prepared, camera)
         if scene.quality.filter != "none" and stats.particles_drawn:
             with self._stage(stats, "smooth"):
                 surface = self._smooth(
@@ -447,9 +469,20 @@ class SurfaceRenderer:
         return rendered, stats
 
     def _splat(
-        self, ctx: moderngl.Context, targets: _Targets, camera: Camera, prepared: PreparedParticles
+        self,
+        ctx: moderngl.Context,
+        targets: _Targets,
+        camera: Camera,
+        prepared: PreparedParticles,
+        *,
+        cull: bool,
+        box: ScreenBox | None,
+        stats: RenderStats,
     ) -> moderngl.Texture | None:
-        """Splat the spheres; returns the temperature target when the frame has temperatures."""
+        """Splat the spheres; returns the temperature target when the frame has temperatures.
+
+        With `cull` (and enough particles) the front layer is drawn first and only the
+        particles its depth image does not hide follow (see `occlusion.py`)."""
         temperature: moderngl.Texture | None = None
         fbo = targets.splat
         if prepared.temperatures is not None:
@@ -457,24 +490,63 @@ class SurfaceRenderer:
         fbo.use()
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         count = int(prepared.center_radius.shape[0])
+        stats.particles_splatted = count
         if count == 0:
             return temperature
         if prepared.temperatures is not None:
             program, vao = self._splat_temperature_vertex_array()
-            self._upload(self._temperature_buffer, np.repeat(prepared.temperatures, 4))
         else:
             program, vao = self._splat_vertex_array()
         self._ensure_quads(count)
-        self._upload_instances(prepared.center_radius)
+        self._reserve(self._instance_buffer, count * 64)  # 4 corners x vec4
+        if prepared.temperatures is not None:
+            self._reserve(self._temperature_buffer, count * 16)  # 4 corners x float
         _write_matrix(program, "u_projection", camera.projection_matrix(prepared.far))
         program["u_near"] = camera.near
         program["u_far"] = prepared.far
         ctx.enable(moderngl.DEPTH_TEST)
         try:
-            vao.render(moderngl.TRIANGLES, vertices=6 * count)
+            if not cull or count < occlusion.MIN_PARTICLES:
+                self._draw_spheres(vao, prepared, None, first=0)
+                return temperature
+            bounds = occlusion.sphere_bounds(prepared.center_radius, camera)
+            radius = prepared.center_radius[:, 3].astype(np.float64)
+            in_front = occlusion.front_layer(bounds, radius, (camera.width, camera.height))
+            front = np.flatnonzero(in_front)
+            self._draw_spheres(vao, prepared, front, first=0)
+            read_box = box if box is not None else (0, 0, camera.width, camera.height)
+            x, y, w, h = read_box
+            depth = np.frombuffer(
+                fbo.read(viewport=read_box, components=1, attachment=0, dtype="f4"), np.float32
+            ).reshape(h, w)
+            table = occlusion.DepthMaxTable(depth, (x, y))
+            rest = np.flatnonzero(~in_front)
+            survivors = rest[~table.occluded(bounds, rest)]
+            self._draw_spheres(vao, prepared, survivors, first=front.size)
+            stats.particles_splatted = int(front.size + survivors.size)
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
         return temperature
+
+    def _draw_spheres(
+        self,
+        vao: moderngl.VertexArray,
+        prepared: PreparedParticles,
+        rows: npt.NDArray[np.intp] | None,
+        *,
+        first: int,
+    ) -> None:
+        """Upload particles `rows` (None: all) as quads number `first`, `first + 1`, ... and
+        draw them. Quads already uploaded below `first` stay in the buffers untouched; the
+        buffers must already hold every particle (`_reserve`)."""
+        data = prepared.center_radius if rows is None else prepared.center_radius[rows]
+        if data.shape[0] == 0:
+            return
+        self._instance_buffer.write(np.repeat(data, 4, axis=0).tobytes(), offset=first * 64)
+        if prepared.temperatures is not None:
+            kelvin = prepared.temperatures if rows is None else prepared.temperatures[rows]
+            self._temperature_buffer.write(np.repeat(kelvin, 4).tobytes(), offset=first * 16)
+        vao.render(moderngl.TRIANGLES, vertices=6 * data.shape[0], first=6 * first)
 
     def shade_normal_depth(
         self,
@@ -534,22 +606,88 @@ class SurfaceRenderer:
         box: ScreenBox | None = None,
     ) -> moderngl.Texture:
         """Smooth `targets.splat_depth`; returns the texture holding the result. With a `box`
-        (see `screen_box`) the passes run only inside it, on targets cleared outside it."""
+        (see `screen_box`) the passes run only inside it, on targets cleared outside it.
+
+        Separable filters run on a packed image (four pixels per texel, see
+        `smooth_depth_separable.frag.glsl`): pack, the 1-D passes, unpack; the 2-D kernels on
+        the plain image (`smooth_depth.frag.glsl`)."""
         if quality.filter == "none":
             return targets.splat_depth
-        program = self._programs.get(
-            "fullscreen.vert.glsl",
-            "smooth_depth.frag.glsl",
-            {
-                "FILTER": _FILTER_DEFINES[quality.filter],
-                "SEPARABLE": quality.separable,
-                "KERNEL_SIZE": _KERNEL_SIZE_DEFINES[quality.kernel_size],
-            },
-        )
+        filter_define = _FILTER_DEFINES[quality.filter]
+        kernel_define = _KERNEL_SIZE_DEFINES[quality.kernel_size]
+        if not quality.separable:
+            program = self._programs.get(
+                "fullscreen.vert.glsl",
+                "smooth_depth.frag.glsl",
+                {"FILTER": filter_define, "KERNEL_SIZE": kernel_define},
+            )
+            self._set_filter_uniforms(program, px_per_unit, particle_radius, quality)
+            program["u_depth"] = 0
+            vao = self._fullscreen(program)
+            for fbo in targets.ping_fbos:
+                _scissored(fbo, box)
+            source = targets.splat_depth
+            write_index = 0
+            for _ in range(quality.iterations):
+                source.use(0)
+                targets.ping_fbos[write_index].use()
+                vao.render(moderngl.TRIANGLES, vertices=3)
+                source = targets.ping[write_index]
+                write_index = 1 - write_index
+            for fbo in targets.ping_fbos:
+                _set_scissor(fbo, None)
+            return source
+
+        packed_box = None if box is None else _packed_box(box)
+        for fbo in targets.packed_fbos:
+            _scissored(fbo, packed_box)
+        pack = self._programs.get("fullscreen.vert.glsl", "depth_pack.frag.glsl")
+        pack["u_depth"] = 0
+        targets.splat_depth.use(0)
+        targets.packed_fbos[0].use()
+        self._fullscreen(pack).render(moderngl.TRIANGLES, vertices=3)
+        passes = {
+            axis: self._programs.get(
+                "fullscreen.vert.glsl",
+                "smooth_depth_separable.frag.glsl",
+                {"FILTER": filter_define, "KERNEL_SIZE": kernel_define, "AXIS": axis},
+            )
+            for axis in (0, 1)
+        }
+        for program in passes.values():
+            self._set_filter_uniforms(program, px_per_unit, particle_radius, quality)
+            program["u_packed_depth"] = 0
+        read_index = 0
+        for iteration in range(quality.iterations):
+            # The passes alternate their order (x y, y x, ...): the nonlinear filters leave
+            # streaks along the axis filtered last, and alternating keeps them from piling up.
+            for axis in (0, 1) if iteration % 2 == 0 else (1, 0):
+                targets.packed[read_index].use(0)
+                targets.packed_fbos[1 - read_index].use()
+                self._fullscreen(passes[axis]).render(moderngl.TRIANGLES, vertices=3)
+                read_index = 1 - read_index
+        for fbo in targets.packed_fbos:
+            _set_scissor(fbo, None)
+        unpack = self._programs.get("fullscreen.vert.glsl", "depth_unpack.frag.glsl")
+        unpack["u_packed_depth"] = 0
+        targets.packed[read_index].use(0)
+        _scissored(targets.ping_fbos[0], box)
+        targets.ping_fbos[0].use()
+        self._fullscreen(unpack).render(moderngl.TRIANGLES, vertices=3)
+        _set_scissor(targets.ping_fbos[0], None)
+        return targets.ping[0]
+
+    @staticmethod
+    def _set_filter_uniforms(
+        program: moderngl.Program,
+        px_per_unit: float,
+        particle_radius: float,
+        quality: QualityConfig,
+    ) -> None:
         r = particle_radius
-        program["u_kernel_min_px"] = quality.kernel_min_px
-        program["u_kernel_max_px"] = quality.kernel_max_px
         for name, value in (
+            ("u_kernel_min_px", quality.kernel_min_px),
+            ("u_kernel_max_px", quality.kernel_max_px),
             ("u_particle_radius", r),
             ("u_px_per_unit", px_per_unit),
             ("u_kernel_scale", quality.kernel_scale),
@@ -562,31 +700,6 @@ class SurfaceRenderer:
         ):
             if name in program:  # the GLSL compiler drops uniforms the chosen filter never reads
                 program[name] = value
-        program["u_depth"] = 0
-        vao = self._fullscreen(program)
-        if box is not None:
-            for fbo in targets.ping_fbos:
-                _scissored(fbo, box)
-        source = targets.splat_depth
-        write_index = 0
-        for iteration in range(quality.iterations):
-            # Separable passes alternate their order (x y, y x, ...): the nonlinear filters leave
-            # streaks along the axis filtered last, and alternating keeps them from piling up.
-            if quality.separable:
-                directions = [(1, 0), (0, 1)] if iteration % 2 == 0 else [(0, 1), (1, 0)]
-            else:
-                directions = [(0, 0)]
-            for direction in directions:
-                if "u_direction" in program:
-                    program["u_direction"] = direction
-                source.use(0)
-                targets.ping_fbos[write_index].use()
-                vao.render(moderngl.TRIANGLES, vertices=3)
-                source = targets.ping[write_index]
-                write_index = 1 - write_index
-        for fbo in targets.ping_fbos:
-            _set_scissor(fbo, None)
-        return source
 
     def _read_back(
         self, targets: _Targets, *, want_depth: bool, want_normals: bool

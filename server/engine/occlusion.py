@@ -1,0 +1,198 @@
+"""Exact occlusion culling for the sphere splat, so hidden particles are never rasterised.
+
+A particle cloud is mostly interior: of the 90k particles of a ball only the outer layer or two
+can own a pixel, yet every one of them costs llvmpipe a quad (two triangles, their set-up and
+their fragments). The splat therefore runs in two draws:
+
+1. `front_layer`: per screen tile, the particles whose nearest point is within a band of the
+   tile's front-most particle (the visible layer, chosen on the CPU from the centres alone).
+2. The rest is tested against the depth image of draw 1 (`DepthMaxTable`): a particle whose
+   nearest eye depth lies behind the largest depth in every pixel its silhouette can touch
+   would fail the depth test on every fragment, so it is dropped; the survivors are drawn.
+
+The test is conservative, so the depth image is the one a single draw of every particle gives
+(equal up to ties in the 24-bit depth buffer, far / 2**24); the front-layer choice only decides
+how much is culled, never what is drawn. All screen coordinates here are GL window pixels
+(origin bottom-left), as the splat's render target.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from sphrender.server.engine.camera import Camera
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+Mask = npt.NDArray[np.bool_]
+
+# Below this many particles one draw is cheaper than the extra read-back and synchronisation.
+MIN_PARTICLES = 8192
+# The front layer keeps particles whose nearest point is within this many radii of the tile's
+# front-most nearest point: the first two layers of a lattice (spacing 2 r) and a tilted surface.
+FRONT_BAND_RADII = 4.0
+# Tiles are this many projected radii (of the median particle) wide: about one particle apiece.
+TILE_RADII = 2.0
+
+
+@dataclass(frozen=True)
+class SphereBounds:
+    """Per particle: the inclusive pixel rectangle holding every pixel whose centre ray can hit
+    the sphere (GL window coordinates), its nearest eye depth, and whether the bound is valid
+    (False for spheres reaching the eye plane: those are always drawn)."""
+
+    x0: I64
+    x1: I64
+    y0: I64
+    y1: I64
+    near_depth: F64
+    valid: Mask
+
+
+def _tangent_extent(
+    lateral: F64, depth: F64, radius: F64, tan_half_fov: float, size: int
+) -> tuple[F64, F64]:
+    """Pixel interval (window coordinates, continuous) of a sphere's silhouette along one axis.
+
+    In the plane of this axis and the view axis the sphere is a circle at (a, d) = (lateral,
+    depth) of radius r; a line through the eye with slope m (lateral = m depth) touches it when
+    (a - m d)^2 = r^2 (1 + m^2), i.e. m = (a d +- r sqrt(a^2 + d^2 - r^2)) / (d^2 - r^2).
+    Requires d > r (the circle lies in front of the eye)."""
+    d2_r2 = (depth - radius) * (depth + radius)
+    spread = radius * np.sqrt(lateral * lateral + d2_r2)
+    ad = lateral * depth
+    scale = 0.5 * size / tan_half_fov
+    center = 0.5 * size
+    return (ad - spread) / d2_r2 * scale + center, (ad + spread) / d2_r2 * scale + center
+
+
+def sphere_bounds(center_radius: npt.NDArray[np.float32], camera: Camera) -> SphereBounds:
+    """Conservative pixel rectangles of the spheres' silhouettes (see `SphereBounds`).
+
+    A fragment is produced at pixel i when its centre i + 0.5 lies inside the silhouette, so the
+    continuous interval [lo, hi] maps to pixels ceil(lo - 0.5) .. floor(hi - 0.5); one pixel of
+    margin on each side covers float32 rounding in the shader."""
+    view = center_radius[:, :3].astype(np.float64)
+    radius = center_radius[:, 3].astype(np.float64)
+    depth = -view[:, 2]
+    # theta +- alpha must stay inside (-90, 90) degrees on both axes: true when the sphere lies
+    # in front of the eye plane with some room (depth - r > 1e-6 depth).
+    valid = (depth - radius) > 1e-6 * np.maximum(depth, 1e-300)
+    safe_depth = np.where(valid, depth, 1.0)
+    safe_radius = np.where(valid, radius, 0.0)
+    tan_y = camera.tan_half_fov_y
+    x_lo, x_hi = _tangent_extent(
+        view[:, 0], safe_depth, safe_radius, tan_y * camera.aspect, camera.width
+    )
+    y_lo, y_hi = _tangent_extent(view[:, 1], safe_depth, safe_radius, tan_y, camera.height)
+    finite = np.isfinite(x_lo) & np.isfinite(x_hi) & np.isfinite(y_lo) & np.isfinite(y_hi)
+    valid &= finite
+    limit = 4.0 * max(camera.width, camera.height)  # keeps the integer casts in range
+    x0 = np.ceil(np.clip(np.where(valid, x_lo, 0.0), -limit, limit) - 0.5) - 1
+    x1 = np.floor(np.clip(np.where(valid, x_hi, 0.0), -limit, limit) - 0.5) + 1
+    y0 = np.ceil(np.clip(np.where(valid, y_lo, 0.0), -limit, limit) - 0.5) - 1
+    y1 = np.floor(np.clip(np.where(valid, y_hi, 0.0), -limit, limit) - 0.5) + 1
+    return SphereBounds(
+        x0.astype(np.int64),
+        x1.astype(np.int64),
+        y0.astype(np.int64),
+        y1.astype(np.int64),
+        depth - radius,
+        valid,
+    )
+
+
+def front_layer(bounds: SphereBounds, radius: F64, image_size: tuple[int, int]) -> Mask:
+    """Particles to draw first: those within `FRONT_BAND_RADII` radii (in eye depth) of the
+    front-most particle of their screen tile, plus every particle without a valid bound.
+
+    Tiles are keyed by the centre of each particle's rectangle and are `TILE_RADII` median
+    projected radii wide, so a tile holds about one column of particles."""
+    valid = bounds.valid
+    front = ~valid
+    if not valid.any():
+        return front
+    index = np.flatnonzero(valid)
+    x0, x1 = bounds.x0[index], bounds.x1[index]
+    y0, y1 = bounds.y0[index], bounds.y1[index]
+    radius_px = float(np.median(x1 - x0 - 1)) * 0.5  # the rectangles carry a pixel of margin
+    tile = max(TILE_RADII * radius_px, 1.0)
+    # Centres off the image share the border tiles, which keeps the tile grid image-sized.
+    width, height = image_size
+    tx = np.floor(np.clip((x0 + x1) * 0.5, 0, width) / tile).astype(np.int64)
+    ty = np.floor(np.clip((y0 + y1) * 0.5, 0, height) / tile).astype(np.int64)
+    key = ty * (int(width // tile) + 2) + tx
+    near = bounds.near_depth[index]
+    tile_front = np.full(int(key.max()) + 1, np.inf)
+    np.minimum.at(tile_front, key, near)
+    in_band = near <= tile_front[key] + FRONT_BAND_RADII * radius[index]
+    front[index[in_band]] = True
+    return front
+
+
+class DepthMaxTable:
+    """Range-maximum queries over an eye-depth image (0 = background, read as +inf).
+
+    `levels[k][y, x]` is the largest depth in the 2**k x 2**k block whose lower-left pixel is
+    (x, y) (a sparse table, not an aligned pyramid), so any rectangle of side >= 2**k is covered
+    exactly by a few overlapping blocks: the maximum is exact, not rounded up to a coarser tile.
+    Levels stop at `max_side`: larger rectangles are simply not culled."""
+
+    def __init__(
+        self, depth: npt.NDArray[np.float32], origin: tuple[int, int], max_side: int = 64
+    ) -> None:
+        """`depth`: (H, W) rows bottom first, covering window pixels from `origin` (x, y)."""
+        image = np.where(depth > 0.0, depth.astype(np.float64), np.inf)
+        self.origin = origin
+        self.shape = image.shape
+        self.levels: list[F64] = [image]
+        step = 1
+        while 2 * step <= min(max_side, *image.shape):
+            previous = self.levels[-1]
+            rows = np.maximum(previous[:-step], previous[step:])
+            self.levels.append(np.maximum(rows[:, :-step], rows[:, step:]))
+            step *= 2
+
+    def occluded(self, bounds: SphereBounds, candidates: I64) -> Mask:
+        """For each candidate particle (indices into `bounds`): True when its nearest eye depth
+        is larger than every depth inside its rectangle, i.e. no fragment of it can pass the
+        depth test. Rectangles leaving the table count as visible.
+
+        The level k = floor(log2(shorter side)) has blocks of side s = 2**k <= side < 2 s, so
+        two blocks per axis (at the low and the high end) cover the rectangle exactly when its
+        longer side is below 2 s too; longer rectangles (elongated silhouettes near the image
+        border, or sides beyond the last level) are counted as visible."""
+        result = np.zeros(candidates.size, dtype=bool)
+        if candidates.size == 0:
+            return result
+        ox, oy = self.origin
+        height, width = self.shape
+        x0 = bounds.x0[candidates] - ox
+        x1 = bounds.x1[candidates] - ox
+        y0 = bounds.y0[candidates] - oy
+        y1 = bounds.y1[candidates] - oy
+        inside = bounds.valid[candidates] & (x0 >= 0) & (y0 >= 0) & (x1 < width) & (y1 < height)
+        inside &= (x1 >= x0) & (y1 >= y0)
+        w = x1 - x0 + 1
+        h = y1 - y0 + 1
+        level = np.floor(np.log2(np.maximum(np.minimum(w, h), 1))).astype(np.int64)
+        inside &= level < len(self.levels)
+        block = np.left_shift(1, np.minimum(level, len(self.levels) - 1))
+        inside &= (w < 2 * block) & (h < 2 * block)
+        near = bounds.near_depth[candidates]
+        for k in np.unique(level[inside]):
+            rows = np.flatnonzero(inside & (level == k))
+            table = self.levels[int(k)]
+            flat = table.ravel()
+            size = 1 << int(k)
+            stride = table.shape[1]
+            low_x, high_x = x0[rows], x1[rows] - size + 1
+            low_y, high_y = y0[rows] * stride, (y1[rows] - size + 1) * stride
+            largest = np.maximum(flat[low_y + low_x], flat[low_y + high_x])
+            np.maximum(largest, flat[high_y + low_x], out=largest)
+            np.maximum(largest, flat[high_y + high_x], out=largest)
+            result[rows] = near[rows] > largest
+        return result

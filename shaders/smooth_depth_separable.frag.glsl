@@ -1,0 +1,166 @@
+#version 330 core
+// Separable depth smoothing (thesis §3.3) on a packed eye-depth image: texel (x, y) holds pixels
+// 4x .. 4x+3 of row y in .xyzw (0 = background), so one fragment filters four horizontally
+// adjacent pixels, one per component. Same filters and kernel rule as smooth_depth.frag.glsl
+// (which does the 2-D kernels); packing only changes how often the image is read:
+//   AXIS 1 (columns): each fetch serves all four pixels, 4x fewer fetches;
+//   AXIS 0 (rows): the taps of the four pixels slide over the same texels, so a pair of
+//   texels per side serves four tap offsets of four pixels, 16x fewer fetches.
+// llvmpipe spends most of a 1-D pass on texel fetches, so this is where the time goes.
+// Every tap is applied in the same order as in the unpacked filter (offset 1, 2, ... outwards,
+// the mirror pair together), which the narrow-range filter's growing range depends on.
+
+#define FILTER_GAUSSIAN 0
+#define FILTER_BILATERAL 1
+#define FILTER_NARROW_RANGE 2
+#define FILTER 2
+// 0: filter along rows (x), 1: along columns (y).
+#define AXIS 0
+#define KERNEL_SIZE_PROJECTED_RADIUS 0
+#define KERNEL_SIZE_EQ25 1
+#define KERNEL_SIZE 0
+
+uniform sampler2D u_packed_depth;
+uniform float u_particle_radius;   // scene units
+uniform float u_px_per_unit;       // (H / 2) / tan(fov_y / 2)
+uniform float u_kernel_scale;
+uniform int u_kernel_min_px;
+uniform int u_kernel_max_px;
+uniform float u_range_sigma;       // bilateral: sigma of the depth difference, scene units
+uniform float u_nr_threshold;      // narrow range: lambda * r, scene units
+uniform float u_nr_clamp;          // narrow range: mu * r, scene units
+uniform float u_eq25_sigma_px;     // eq 25: sigma (pixels) up to the threshold distance
+uniform float u_eq25_threshold;    // eq 25: threshold eye depth, scene units
+uniform float u_eq25_decline;      // eq 25: k, kernel pixels lost per scene unit beyond it
+
+layout(location = 0) out vec4 out_packed_depth;
+
+// Four pixels at packed texel p, or 0 outside the image.
+vec4 fetch_packed(ivec2 p) {
+    ivec2 size = textureSize(u_packed_depth, 0);
+    if (any(lessThan(p, ivec2(0))) || any(greaterThanEqual(p, size))) {
+        return vec4(0.0);
+    }
+    return texelFetch(u_packed_depth, p, 0);
+}
+
+bvec4 both(bvec4 a, bvec4 b) {
+    return bvec4(ivec4(a) & ivec4(b));
+}
+
+// Per-pixel filter state; component i belongs to pixel 4x + i.
+vec4 g_center;
+vec4 g_reach;          // kernel radius in pixels; 0 for background pixels
+// Gaussian weights w_k = exp(-k^2 / (2 sigma^2)) = q^(k^2), q = exp(-1 / (2 sigma^2)), by
+// recurrence: w_k = w_{k-1} q^(2k-1), two multiplications per tap instead of an exp().
+vec4 g_weight;         // w_{k-1} before tap k, w_k after
+vec4 g_step;           // q^(2k-1) before tap k
+vec4 g_step_growth;    // q^2
+vec4 g_sum;
+vec4 g_weight_sum;
+#if FILTER == FILTER_NARROW_RANGE
+vec4 g_upper;
+vec4 g_lower;
+vec4 g_lower_clamp;
+#endif
+
+// The taps at offsets +k (za) and -k (zb) of the four pixels.
+void tap_pair(int k, vec4 za, vec4 zb) {
+    g_weight *= g_step;
+    g_step *= g_step_growth;
+    bvec4 in_reach = lessThanEqual(vec4(float(k)), g_reach);
+    vec4 w = g_weight;
+#if FILTER == FILTER_NARROW_RANGE
+    // Truong & Yuksel 2018: samples behind the centre by more than lambda*r are dropped, with
+    // their mirror sample (no one-sided bias); samples in front by more than lambda*r are
+    // clamped to z - mu*r; the accepted range grows around every accepted sample.
+    bvec4 valid_a = both(greaterThan(za, vec4(0.0)), lessThanEqual(za, g_upper));
+    bvec4 valid_b = both(greaterThan(zb, vec4(0.0)), lessThanEqual(zb, g_upper));
+    bvec4 accept = both(in_reach, both(valid_a, valid_b));
+    bvec4 a_in_front = lessThan(za, g_lower);
+    za = mix(za, g_lower_clamp, a_in_front);
+    bvec4 grow = both(accept, not(a_in_front));
+    g_upper = mix(g_upper, max(g_upper, za + u_nr_threshold), grow);
+    g_lower = mix(g_lower, min(g_lower, za - u_nr_threshold), grow);
+    bvec4 b_in_front = lessThan(zb, g_lower);
+    zb = mix(zb, g_lower_clamp, b_in_front);
+    grow = both(accept, not(b_in_front));
+    g_upper = mix(g_upper, max(g_upper, zb + u_nr_threshold), grow);
+    g_lower = mix(g_lower, min(g_lower, zb - u_nr_threshold), grow);
+    g_sum += mix(vec4(0.0), w * (za + zb), accept);
+    g_weight_sum += mix(vec4(0.0), 2.0 * w, accept);
+#else
+    bvec4 use_a = both(in_reach, greaterThan(za, vec4(0.0)));
+    bvec4 use_b = both(in_reach, greaterThan(zb, vec4(0.0)));
+    vec4 wa = w;
+    vec4 wb = w;
+#if FILTER == FILTER_BILATERAL
+    float inv_two_range2 = 1.0 / (2.0 * u_range_sigma * u_range_sigma);
+    vec4 da = za - g_center;
+    vec4 db = zb - g_center;
+    wa *= exp(-da * da * inv_two_range2);
+    wb *= exp(-db * db * inv_two_range2);
+#endif
+    g_sum += mix(vec4(0.0), wa * za, use_a) + mix(vec4(0.0), wb * zb, use_b);
+    g_weight_sum += mix(vec4(0.0), wa, use_a) + mix(vec4(0.0), wb, use_b);
+#endif
+}
+
+void main() {
+    ivec2 texel = ivec2(gl_FragCoord.xy);
+    vec4 zc = fetch_packed(texel);
+    bvec4 surface = greaterThan(zc, vec4(0.0));
+    if (!any(surface)) {
+        out_packed_depth = vec4(0.0);
+        return;
+    }
+    vec4 z = mix(vec4(1.0), zc, surface);  // background lanes get harmless values, reach 0
+#if KERNEL_SIZE == KERNEL_SIZE_PROJECTED_RADIUS
+    vec4 sigma = u_kernel_scale * (u_particle_radius * u_px_per_unit / z);
+#else
+    // Thesis eq 25, read as a continuous decline (see smooth_depth.frag.glsl).
+    vec4 sigma = u_eq25_sigma_px - max(z - u_eq25_threshold, 0.0) * u_eq25_decline / 3.0;
+#endif
+    vec4 reach = clamp(ceil(3.0 * sigma), float(u_kernel_min_px), float(u_kernel_max_px));
+    sigma = max(min(sigma, reach / 3.0), 1e-3);
+    g_center = zc;
+    g_reach = mix(vec4(0.0), reach, surface);
+    vec4 q = exp(-1.0 / (2.0 * sigma * sigma));
+    g_step_growth = q * q;
+    g_step = q;
+    g_weight = vec4(1.0);
+    g_sum = zc;
+    g_weight_sum = vec4(1.0);
+#if FILTER == FILTER_NARROW_RANGE
+    g_upper = zc + u_nr_threshold;
+    g_lower = zc - u_nr_threshold;
+    g_lower_clamp = zc - u_nr_clamp;
+#endif
+    int radius = int(max(max(g_reach.x, g_reach.y), max(g_reach.z, g_reach.w)));
+
+#if AXIS == 0
+    // Pixel 4x + i + k lies in texel x + ((i + k) >> 2), component (i + k) & 3. With
+    // k = 4s + j + 1 (j = 0..3) that is texel x + s or x + s + 1 (`ahead`, `ahead_next`), and
+    // for -k texel x - s or x - s - 1 (`behind`, `behind_next`).
+    vec4 ahead = zc;
+    vec4 ahead_next = fetch_packed(texel + ivec2(1, 0));
+    vec4 behind = zc;
+    vec4 behind_next = fetch_packed(texel - ivec2(1, 0));
+    for (int s = 0; 4 * s + 1 <= radius; ++s) {
+        int k = 4 * s;
+        tap_pair(k + 1, vec4(ahead.yzw, ahead_next.x), vec4(behind_next.w, behind.xyz));
+        tap_pair(k + 2, vec4(ahead.zw, ahead_next.xy), vec4(behind_next.zw, behind.xy));
+        tap_pair(k + 3, vec4(ahead.w, ahead_next.xyz), vec4(behind_next.yzw, behind.x));
+        tap_pair(k + 4, ahead_next, behind_next);
+        ahead = ahead_next;
+        behind = behind_next;
+        ahead_next = fetch_packed(texel + ivec2(s + 2, 0));
+        behind_next = fetch_packed(texel - ivec2(s + 2, 0));
+    }
+#else
+    for (int k = 1; k <= radius; ++k) {
+        tap_pair(k, fetch_packed(texel + ivec2(0, k)), fetch_packed(texel - ivec2(0, k)));
+    }
+#endif
+    out_packed_depth = mix(vec4(0.0), g_sum / g_weight_sum, surface);
+}

@@ -1,0 +1,192 @@
+"""Occlusion culling of the splat (`occlusion.py`): its two numpy building blocks against brute
+force, then whole renders with and without culling, which must give the same images.
+
+Why "the same" is exact up to one number: a culled particle's nearest point is behind the
+largest depth its silhouette could touch, so every fragment it would produce fails the depth
+test. The only way a single draw can differ is a tie in the 24-bit depth buffer (eye depth /
+far quantised to far / 2**24), where draw order picks the winner; we allow 4 such steps.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from sphrender.client.frame import make_frame
+from sphrender.client.readers import read_particles
+from sphrender.server.analytic_scenes import jittered_lattice_ball, lattice_slab
+from sphrender.server.engine import occlusion
+from sphrender.server.engine.camera import Camera
+from sphrender.server.engine.renderer import RenderStats, SurfaceRenderer
+from sphrender.server.scene import CameraConfig, scene_from_dict
+
+# -- building blocks ----------------------------------------------------------------------------
+
+
+def brute_force_hits(camera: Camera, center: np.ndarray, radius: float) -> np.ndarray:
+    """(H, W) pixels (GL window rows: bottom first) whose centre ray hits the view-space sphere."""
+    ys, xs = np.mgrid[0 : camera.height, 0 : camera.width].astype(np.float64)
+    ty = camera.tan_half_fov_y
+    dx = ((xs + 0.5) / camera.width * 2 - 1) * ty * camera.aspect
+    dy = ((ys + 0.5) / camera.height * 2 - 1) * ty
+    directions = np.stack([dx, dy, -np.ones_like(dx)], axis=-1)
+    directions /= np.linalg.norm(directions, axis=-1, keepdims=True)
+    along = directions @ center
+    perpendicular = center[None, None, :] - along[..., None] * directions
+    return (along > 0) & (np.einsum("ijk,ijk->ij", perpendicular, perpendicular) <= radius**2)
+
+
+def test_sphere_bounds_hold_every_hit_pixel_and_are_tight() -> None:
+    """Random spheres all over a 97x61 view (edges, off-screen parts, close to the eye): every
+    pixel a sphere can cover lies in its rectangle, and the rectangle is at most 2 px (the
+    margin) larger than the covered pixels on each side."""
+    camera = Camera.from_config(CameraConfig(eye=(0, 0, 0), target=(0, 0, -1), fov_y=50), 97, 61)
+    rng = np.random.default_rng(5)
+    count = 400
+    depth = rng.uniform(0.2, 5.0, count)
+    lateral = rng.uniform(-1.3, 1.3, (count, 2)) * depth[:, None] * np.array([0.7, 0.5])
+    radius = rng.uniform(0.005, 0.6, count) * depth
+    center_radius = np.column_stack([lateral, -depth, radius]).astype(np.float32)
+    bounds = occlusion.sphere_bounds(center_radius, camera)
+    checked = 0
+    for i in range(count):
+        center = center_radius[i, :3].astype(np.float64)
+        r = float(center_radius[i, 3])
+        hits = brute_force_hits(camera, center, r)
+        if not bounds.valid[i]:
+            assert -center[2] - r <= 1e-6 * -center[2] * 2
+            continue
+        ys, xs = np.nonzero(hits)
+        if xs.size == 0:
+            continue
+        checked += 1
+        assert bounds.x0[i] <= xs.min() and xs.max() <= bounds.x1[i], i
+        assert bounds.y0[i] <= ys.min() and ys.max() <= bounds.y1[i], i
+        inside_image = (
+            xs.min() > 0 and ys.min() > 0 and xs.max() < camera.width - 1
+        ) and ys.max() < camera.height - 1
+        if inside_image:
+            assert xs.min() - bounds.x0[i] <= 2 and bounds.x1[i] - xs.max() <= 2, i
+            assert ys.min() - bounds.y0[i] <= 2 and bounds.y1[i] - ys.max() <= 2, i
+        assert bounds.near_depth[i] == pytest.approx(-center[2] - r)
+    assert checked > 200
+
+
+def test_depth_max_table_matches_brute_force() -> None:
+    """Random depth image with background holes, random rectangles: where the table answers it
+    must agree exactly with the maximum over the rectangle; rectangles it cannot answer (outside
+    the table, too elongated, too large) count as visible."""
+    rng = np.random.default_rng(11)
+    height, width = 70, 90
+    depth = rng.uniform(1.0, 2.0, (height, width)).astype(np.float32)
+    depth[rng.random((height, width)) < 0.003] = 0.0  # background pixels: never occlude
+    origin = (13, 7)
+    table = occlusion.DepthMaxTable(depth, origin, max_side=32)
+    count = 3000
+    x0 = rng.integers(-5, width + 3, count)
+    y0 = rng.integers(-5, height + 3, count)
+    side_x = rng.integers(1, 45, count)
+    side_y = np.maximum(side_x + rng.integers(-4, 5, count), 1)
+    x1, y1 = x0 + side_x - 1, y0 + side_y - 1
+    near = rng.uniform(1.8, 2.4, count)
+    bounds = occlusion.SphereBounds(
+        x0 + origin[0], x1 + origin[0], y0 + origin[1], y1 + origin[1], near, np.ones(count, bool)
+    )
+    answer = table.occluded(bounds, np.arange(count))
+    as_inf = np.where(depth > 0, depth.astype(np.float64), np.inf)
+    answered = 0
+    for i in range(count):
+        inside = x0[i] >= 0 and y0[i] >= 0 and x1[i] < width and y1[i] < height
+        truth = inside and near[i] > as_inf[y0[i] : y1[i] + 1, x0[i] : x1[i] + 1].max()
+        if answer[i]:
+            assert truth, i  # never culls a visible sphere
+        shorter = min(side_x[i], side_y[i])
+        level = int(np.floor(np.log2(shorter)))
+        if inside and level <= 5 and max(side_x[i], side_y[i]) < 2 << level:
+            assert answer[i] == truth, i  # and is exact where it answers
+            answered += 1
+    assert answered > 500
+    assert answer.sum() > 100
+
+
+# -- whole renders ------------------------------------------------------------------------------
+
+
+def render_both(
+    renderer: SurfaceRenderer, positions: np.ndarray, sections: dict[str, Any], **arrays: Any
+) -> tuple[RenderStats, RenderStats]:
+    """Render with and without culling; assert the same coverage, depth and colour."""
+    outputs = []
+    for culling in (True, False):
+        base = {key: dict(value) for key, value in sections.items()}
+        base.setdefault("quality", {})["occlusion_culling"] = culling
+        scene = scene_from_dict(base)
+        frame, stats = renderer.render(
+            make_frame(positions, **arrays), scene, depth=True, normals=True
+        )
+        outputs.append((frame, stats))
+    (culled, culled_stats), (plain, plain_stats) = outputs
+    assert culled.depth is not None and plain.depth is not None
+    covered = np.isfinite(plain.depth)
+    assert np.array_equal(np.isfinite(culled.depth), covered)
+    tie = 4 * plain_stats.far / 2**24
+    assert np.abs(culled.depth[covered] - plain.depth[covered]).max(initial=0.0) <= tie
+    assert np.abs(culled.rgba - plain.rgba).max() <= 1e-3
+    assert plain_stats.particles_splatted == plain_stats.particles_drawn
+    return culled_stats, plain_stats
+
+
+def small_scene(eye: list[float], radius: float, **extra: Any) -> dict[str, Any]:
+    return {
+        "image": {"width": 240, "height": 160},
+        "camera": {"eye": eye, "target": [0.0, 0.0, 0.0], "fov_y": 40.0},
+        "particles": {"radius": radius},
+        **extra,
+    }
+
+
+def test_culled_ball_is_identical_and_culls_most_particles(renderer: SurfaceRenderer) -> None:
+    r = 0.01
+    positions = jittered_lattice_ball(0.3, r)  # ~14k particles
+    stats, _ = render_both(renderer, positions, small_scene([0.6, 0.5, 0.8], r))
+    assert stats.particles_drawn == len(positions)
+    assert stats.particles_splatted < 0.5 * stats.particles_drawn
+
+
+def test_culled_slab_seen_along_its_rows_is_identical(renderer: SurfaceRenderer) -> None:
+    """Rays slip between the lattice rows into lower layers: those particles are visible and
+    must not be culled."""
+    r = 0.01
+    positions = lattice_slab(1.0, 1.0, 4, r)  # 10.4k particles
+    stats, _ = render_both(renderer, positions, small_scene([0.0, 0.25, 0.9], r))
+    assert stats.particles_splatted < stats.particles_drawn
+
+
+def test_culled_real_frame_is_identical(renderer: SurfaceRenderer, dambreak: Any) -> None:
+    frame = read_particles(dambreak / "vtk" / "ParticleData_Fluid_11.vtk")
+    center = frame.positions.mean(axis=0)
+    sections = small_scene((center + np.array([1.2, 1.0, 1.6])).tolist(), 0.025)
+    sections["camera"]["target"] = center.tolist()
+    stats, _ = render_both(renderer, frame.positions, sections)
+    assert stats.particles_splatted < stats.particles_drawn
+
+
+def test_culling_with_near_plane_radii_and_temperatures(renderer: SurfaceRenderer) -> None:
+    """A ball crossing the near plane (spheres reaching the eye plane are always drawn), one
+    radius per particle from 0.2 r to 3 r, and temperatures (the front particle's kelvin must
+    be the same, so the colour is)."""
+    r = 0.01
+    positions = jittered_lattice_ball(0.35, r, seed=2)  # 22k particles
+    rng = np.random.default_rng(4)
+    radii = r * rng.uniform(0.2, 3.0, len(positions))
+    temperatures = rng.uniform(300.0, 2500.0, len(positions))
+    for eye in ([0.0, 0.0, 0.8], [0.0, 0.05, 0.37]):
+        sections = small_scene(eye, r)
+        sections["camera"]["near"] = 0.02
+        stats, _ = render_both(
+            renderer, positions, sections, radii=radii, temperatures=temperatures
+        )
+        print(eye, stats.particles_splatted, stats.particles_drawn)
+        assert stats.particles_splatted < stats.particles_drawn
