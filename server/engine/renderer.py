@@ -121,40 +121,23 @@ def prepare_particles(
 ScreenBox = tuple[int, int, int, int]  # x, y (GL window coordinates, bottom-left), width, height
 
 
-def screen_box(prepared: PreparedParticles, camera: Camera, margin_px: int = 2) -> ScreenBox | None:
-    """A conservative pixel rectangle holding every splatted fragment, or None (whole image)
-    when a sphere comes close to the eye plane.
+def screen_box(
+    bounds: occlusion.SphereBounds, camera: Camera, margin_px: int = 2
+) -> ScreenBox | None:
+    """A pixel rectangle holding every splatted fragment (the union of the spheres' silhouette
+    rectangles, see `occlusion.sphere_bounds`, plus `margin_px`), or None (whole image) when a
+    sphere reaches the eye plane.
 
-    Each quad corner lies within sqrt(2) s of its centre (s = the quad's half size) along
-    every view axis, so its projection lies between the extremes of (x +- k)/(z -+ k) with
-    k = 1.5 s. The passes after the splat touch only pixels with a surface (or their direct
-    neighbours), so running them inside this box, on targets cleared outside it, gives the
-    same image while skipping the background: with a ball filling a quarter of a 1280x720
-    image that is 3/4 of the fragments of every full-screen pass."""
-    data = prepared.center_radius
-    if data.shape[0] == 0:
+    The passes after the splat touch only pixels with a surface (or their direct neighbours),
+    so running them inside this box, on targets cleared outside it, gives the same image while
+    skipping the background: with a ball filling a quarter of a 1280x720 image that is 3/4 of
+    the fragments of every full-screen pass."""
+    if bounds.valid.size == 0 or not bounds.valid.all():
         return None
-    view = data[:, :3].astype(np.float64)
-    radius = data[:, 3].astype(np.float64)
-    distance = np.linalg.norm(view, axis=1)
-    z = -view[:, 2]
-    gap = np.maximum((distance - radius) * (distance + radius), 1e-30)
-    reach = 1.5 * radius * distance / np.sqrt(gap)
-    near_z = z - reach
-    if not np.all(near_z > 1e-3 * np.maximum(z, 1e-30)):
-        return None
-    far_z = z + reach
-    f = 1.0 / camera.tan_half_fov_y
-    extents = []
-    for axis, scale, size in ((0, f / camera.aspect, camera.width), (1, f, camera.height)):
-        low = np.minimum((view[:, axis] - reach) / near_z, (view[:, axis] - reach) / far_z)
-        high = np.maximum((view[:, axis] + reach) / near_z, (view[:, axis] + reach) / far_z)
-        lo_px = (float(np.min(low)) * scale + 1.0) * 0.5 * size
-        hi_px = (float(np.max(high)) * scale + 1.0) * 0.5 * size
-        lo = int(np.clip(np.floor(lo_px) - margin_px, 0, size))
-        hi = int(np.clip(np.ceil(hi_px) + margin_px, 0, size))
-        extents.append((lo, hi))
-    (x0, x1), (y0, y1) = extents
+    x0 = int(np.clip(bounds.x0.min() - margin_px, 0, camera.width))
+    x1 = int(np.clip(bounds.x1.max() + 1 + margin_px, 0, camera.width))
+    y0 = int(np.clip(bounds.y0.min() - margin_px, 0, camera.height))
+    y1 = int(np.clip(bounds.y1.max() + 1 + margin_px, 0, camera.height))
     if x1 <= x0 or y1 <= y0:
         return (0, 0, 1, 1)  # nothing on screen: a token box keeps the passes trivial
     return (x0, y0, x1 - x0, y1 - y0)
@@ -414,15 +397,16 @@ class SurfaceRenderer:
             prepared = prepare_particles(frame, camera, scene, reference_radius=reference_radius)
             stats.particles_drawn = int(prepared.center_radius.shape[0])
             stats.far = prepared.far
+            bounds = occlusion.sphere_bounds(prepared.center_radius, camera)
+            box = screen_box(bounds, camera)
 
-        box = screen_box(prepared, camera)
         with self._stage(stats, "splat"):
             temperature = self._splat(
                 ctx,
                 targets,
                 camera,
                 prepared,
-                cull=scene.quality.occlusion_culling,
+                bounds=bounds if scene.quality.occlusion_culling else None,
                 box=box,
                 stats=stats,
             )
@@ -475,14 +459,15 @@ class SurfaceRenderer:
         camera: Camera,
         prepared: PreparedParticles,
         *,
-        cull: bool,
+        bounds: occlusion.SphereBounds | None,
         box: ScreenBox | None,
         stats: RenderStats,
     ) -> moderngl.Texture | None:
         """Splat the spheres; returns the temperature target when the frame has temperatures.
 
-        With `cull` (and enough particles) the front layer is drawn first and only the
-        particles its depth image does not hide follow (see `occlusion.py`)."""
+        With the spheres' `bounds` (occlusion culling on) and enough particles, the front layer
+        is drawn first and only the particles its depth image does not hide follow (see
+        `occlusion.py`)."""
         temperature: moderngl.Texture | None = None
         fbo = targets.splat
         if prepared.temperatures is not None:
@@ -506,10 +491,9 @@ class SurfaceRenderer:
         program["u_far"] = prepared.far
         ctx.enable(moderngl.DEPTH_TEST)
         try:
-            if not cull or count < occlusion.MIN_PARTICLES:
+            if bounds is None or count < occlusion.MIN_PARTICLES:
                 self._draw_spheres(vao, prepared, None, first=0)
                 return temperature
-            bounds = occlusion.sphere_bounds(prepared.center_radius, camera)
             radius = prepared.center_radius[:, 3].astype(np.float64)
             in_front = occlusion.front_layer(bounds, radius, (camera.width, camera.height))
             front = np.flatnonzero(in_front)
