@@ -360,10 +360,11 @@ def _encode_and_write(
     stages = " ".join(f"{k}={v:.1f}ms" for k, v in stats.stage_ms.items())
     now = time.perf_counter()
     log.info(
-        "%s: %d particles (%d drawn), %s, total %.1f ms, written at %.3f s",
+        "%s: %d particles (%d visible, %d splatted), %s, total %.1f ms, written at %.3f s",
         path,
         stats.particles_in,
         stats.particles_drawn,
+        stats.particles_splatted,
         stages,
         (now - start) * 1e3,
         now - command_start,

@@ -145,10 +145,10 @@ class DepthMaxTable:
         self, depth: npt.NDArray[np.float32], origin: tuple[int, int], max_side: int = 64
     ) -> None:
         """`depth`: (H, W) rows bottom first, covering window pixels from `origin` (x, y)."""
-        image = np.where(depth > 0.0, depth.astype(np.float64), np.inf)
+        image = np.where(depth > 0.0, depth, np.float32(np.inf)).astype(np.float32)
         self.origin = origin
         self.shape = image.shape
-        self.levels: list[F64] = [image]
+        self.levels: list[npt.NDArray[np.float32]] = [image]
         step = 1
         while 2 * step <= min(max_side, *image.shape):
             previous = self.levels[-1]
