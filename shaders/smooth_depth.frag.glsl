@@ -18,19 +18,9 @@
 #define KERNEL_SIZE 0
 
 #include "common/depth_image.glsl"
+#include "common/depth_filter_params.glsl"
 
 uniform sampler2D u_depth;
-uniform float u_particle_radius;   // scene units
-uniform float u_px_per_unit;       // (H / 2) / tan(fov_y / 2)
-uniform float u_kernel_scale;
-uniform int u_kernel_min_px;
-uniform int u_kernel_max_px;
-uniform float u_range_sigma;       // bilateral: sigma of the depth difference, scene units
-uniform float u_nr_threshold;      // narrow range: lambda * r, scene units
-uniform float u_nr_clamp;          // narrow range: mu * r, scene units
-uniform float u_eq25_sigma_px;     // eq 25: sigma (pixels) up to the threshold distance
-uniform float u_eq25_threshold;    // eq 25: threshold eye depth, scene units
-uniform float u_eq25_decline;      // eq 25: k, kernel pixels lost per scene unit beyond it
 
 layout(location = 0) out float out_eye_depth;
 
