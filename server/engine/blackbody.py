@@ -56,9 +56,17 @@ def planck_spectral_radiance(wavelength_m: F64, kelvin: float) -> F64:
     return result
 
 
+@functools.lru_cache(maxsize=1)
+def _cmf_table() -> F64:
+    """CIE_1931_2DEG_5NM as an array (converting the literal costs more than a table row)."""
+    table = np.asarray(CIE_1931_2DEG_5NM, dtype=np.float64)
+    table.setflags(write=False)
+    return table
+
+
 def blackbody_xyz(kelvin: float) -> F64:
     """CIE XYZ of a blackbody, scaled so Y is the luminance in cd/m^2 (emissivity 1)."""
-    table = np.asarray(CIE_1931_2DEG_5NM, dtype=np.float64)
+    table = _cmf_table()
     wavelength = table[:, 0] * 1e-9
     radiance = planck_spectral_radiance(wavelength, kelvin)
     step = 5e-9
