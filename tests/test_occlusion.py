@@ -19,7 +19,12 @@ from sphrender.client.readers import read_particles
 from sphrender.server.analytic_scenes import jittered_lattice_ball, lattice_slab
 from sphrender.server.engine import occlusion
 from sphrender.server.engine.camera import Camera
-from sphrender.server.engine.renderer import RenderStats, SurfaceRenderer
+from sphrender.server.engine.renderer import (
+    RenderStats,
+    SurfaceRenderer,
+    prepare_particles,
+    screen_box,
+)
 from sphrender.server.scene import CameraConfig, scene_from_dict
 
 # -- building blocks ----------------------------------------------------------------------------
@@ -190,3 +195,30 @@ def test_culling_with_near_plane_radii_and_temperatures(renderer: SurfaceRendere
         )
         print(eye, stats.particles_splatted, stats.particles_drawn)
         assert stats.particles_splatted < stats.particles_drawn
+
+
+def test_screen_box_holds_every_covered_pixel(renderer: SurfaceRenderer) -> None:
+    """The passes after the splat run only inside `screen_box`: every pixel the GL splat covers,
+    with its direct neighbours (the normals read them), must lie inside it. Spheres of very
+    different sizes, some cut by the image border."""
+    rng = np.random.default_rng(8)
+    # The view is +-0.87 wide and +-0.58 high at the origin: spheres reach past the left border
+    # only, so the box is cut there and must stay tight on the other three sides.
+    positions = rng.uniform([-0.95, -0.25, -0.3], [0.3, 0.25, 0.3], (300, 3))
+    radii = rng.uniform(0.005, 0.08, len(positions))
+    scene = scene_from_dict(small_scene([0.0, 0.0, 1.6], 0.01))
+    frame, _ = renderer.render(make_frame(positions, radii=radii), scene, depth=True)
+    assert frame.depth is not None
+    camera = Camera.from_config(scene.camera, 240, 160)
+    prepared = prepare_particles(make_frame(positions, radii=radii), camera, scene)
+    box = screen_box(occlusion.sphere_bounds(prepared.center_radius, camera), camera)
+    assert box is not None
+    x, y, w, h = box
+    rows, columns = np.nonzero(np.isfinite(frame.depth))
+    window_y = camera.height - 1 - rows
+    assert columns.min() == 0 and x == 0  # some spheres are cut by the left border
+    assert np.all((columns - 1 >= x) | (columns == 0))
+    assert np.all((columns + 1 < x + w) | (columns == camera.width - 1))
+    assert np.all((window_y - 1 >= y) | (window_y == 0))
+    assert np.all((window_y + 1 < y + h) | (window_y == camera.height - 1))
+    assert w * h < camera.width * camera.height  # and it does skip some background

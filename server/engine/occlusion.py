@@ -78,8 +78,8 @@ def sphere_bounds(center_radius: npt.NDArray[np.float32], camera: Camera) -> Sph
     view = center_radius[:, :3].astype(np.float64)
     radius = center_radius[:, 3].astype(np.float64)
     depth = -view[:, 2]
-    # theta +- alpha must stay inside (-90, 90) degrees on both axes: true when the sphere lies
-    # in front of the eye plane with some room (depth - r > 1e-6 depth).
+    # Both tangent lines are finite and on the image side of the eye only when the sphere lies
+    # in front of the eye plane, with some room (depth - r > 1e-6 depth) for rounding.
     valid = (depth - radius) > 1e-6 * np.maximum(depth, 1e-300)
     safe_depth = np.where(valid, depth, 1.0)
     safe_radius = np.where(valid, radius, 0.0)
