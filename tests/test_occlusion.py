@@ -100,6 +100,14 @@ def test_depth_max_table_matches_brute_force() -> None:
         x0 + origin[0], x1 + origin[0], y0 + origin[1], y1 + origin[1], near, np.ones(count, bool)
     )
     answer = table.occluded(bounds, np.arange(count))
+    # A table that keeps only the level these rectangles need (shorter side 8..15: level 3)
+    # gives the same answers for them.
+    shorter = np.minimum(side_x, side_y)
+    some = np.flatnonzero((shorter >= 8) & (shorter <= 15))
+    lean = occlusion.DepthMaxTable(depth, origin, shorter[some], max_side=32)
+    assert list(lean.levels) == [3]
+    assert np.array_equal(lean.occluded(bounds, some), answer[some])
+    assert answer[some].any()
     as_inf = np.where(depth > 0, depth.astype(np.float64), np.inf)
     answered = 0
     for i in range(count):

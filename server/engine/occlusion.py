@@ -136,25 +136,40 @@ def front_layer(bounds: SphereBounds, radius: F64, image_size: tuple[int, int]) 
 class DepthMaxTable:
     """Range-maximum queries over an eye-depth image (0 = background, read as +inf).
 
-    `levels[k][y, x]` is the largest depth in the 2**k x 2**k block whose lower-left pixel is
-    (x, y) (a sparse table, not an aligned pyramid), so any rectangle of side >= 2**k is covered
-    exactly by a few overlapping blocks: the maximum is exact, not rounded up to a coarser tile.
-    Levels stop at `max_side`: larger rectangles are simply not culled."""
+    Level k holds, at [y, x], the largest depth in the 2**k x 2**k block whose lower-left pixel
+    is (x, y) (a sparse table, not an aligned pyramid), so a rectangle whose sides lie between
+    2**k and 2**(k+1) - 1 is covered exactly by four overlapping blocks: the maximum is exact,
+    not rounded up to a coarser tile. Only the levels the queries need are kept (each is as
+    large as the image), up to blocks of `max_side`; larger rectangles are simply not culled."""
 
     def __init__(
-        self, depth: npt.NDArray[np.float32], origin: tuple[int, int], max_side: int = 64
+        self,
+        depth: npt.NDArray[np.float32],
+        origin: tuple[int, int],
+        sides: npt.NDArray[np.integer] | None = None,
+        max_side: int = 64,
     ) -> None:
-        """`depth`: (H, W) rows bottom first, covering window pixels from `origin` (x, y)."""
+        """`depth`: (H, W) rows bottom first, covering window pixels from `origin` (x, y);
+        `sides`: the shorter sides of the rectangles that will be asked about (None: keep every
+        level)."""
         image = np.where(depth > 0.0, depth, np.float32(np.inf)).astype(np.float32)
         self.origin = origin
         self.shape = image.shape
-        self.levels: list[npt.NDArray[np.float32]] = [image]
-        step = 1
-        while 2 * step <= min(max_side, *image.shape):
-            previous = self.levels[-1]
-            rows = np.maximum(previous[:-step], previous[step:])
-            self.levels.append(np.maximum(rows[:, :-step], rows[:, step:]))
-            step *= 2
+        top = int(np.log2(max(1, min(max_side, *image.shape))))
+        if sides is None:
+            wanted = set(range(top + 1))
+        else:
+            levels = np.floor(np.log2(np.clip(sides, 1, None))).astype(np.int64)
+            wanted = {int(k) for k in np.unique(levels) if k <= top}
+        self.levels: dict[int, npt.NDArray[np.float32]] = {}
+        current = image
+        for k in range(max(wanted, default=-1) + 1):
+            if k:
+                step = 1 << (k - 1)
+                rows = np.maximum(current[:-step], current[step:])
+                current = np.maximum(rows[:, :-step], rows[:, step:])
+            if k in wanted:
+                self.levels[k] = current
 
     def occluded(self, bounds: SphereBounds, candidates: I64) -> Mask:
         """For each candidate particle (indices into `bounds`): True when its nearest eye depth
@@ -164,7 +179,7 @@ class DepthMaxTable:
         The level k = floor(log2(shorter side)) has blocks of side s = 2**k <= side < 2 s, so
         two blocks per axis (at the low and the high end) cover the rectangle exactly when its
         longer side is below 2 s too; longer rectangles (elongated silhouettes near the image
-        border, or sides beyond the last level) are counted as visible."""
+        border, or sides without a level) are counted as visible."""
         result = np.zeros(candidates.size, dtype=bool)
         if candidates.size == 0:
             return result
@@ -179,8 +194,8 @@ class DepthMaxTable:
         w = x1 - x0 + 1
         h = y1 - y0 + 1
         level = np.floor(np.log2(np.maximum(np.minimum(w, h), 1))).astype(np.int64)
-        inside &= level < len(self.levels)
-        block = np.left_shift(1, np.minimum(level, len(self.levels) - 1))
+        inside &= np.isin(level, list(self.levels))
+        block = np.left_shift(1, np.clip(level, 0, 62))
         inside &= (w < 2 * block) & (h < 2 * block)
         near = bounds.near_depth[candidates]
         for k in np.unique(level[inside]):

@@ -498,16 +498,22 @@ class SurfaceRenderer:
             in_front = occlusion.front_layer(bounds, radius, (camera.width, camera.height))
             front = np.flatnonzero(in_front)
             self._draw_spheres(vao, prepared, front, first=0)
-            read_box = box if box is not None else (0, 0, camera.width, camera.height)
-            x, y, w, h = read_box
-            depth = np.frombuffer(
-                fbo.read(viewport=read_box, components=1, attachment=0, dtype="f4"), np.float32
-            ).reshape(h, w)
-            table = occlusion.DepthMaxTable(depth, (x, y))
             rest = np.flatnonzero(~in_front)
-            survivors = rest[~table.occluded(bounds, rest)]
-            self._draw_spheres(vao, prepared, survivors, first=front.size)
-            stats.particles_splatted = int(front.size + survivors.size)
+            if rest.size:
+                read_box = box if box is not None else (0, 0, camera.width, camera.height)
+                x, y, w, h = read_box
+                depth = np.frombuffer(
+                    fbo.read(viewport=read_box, components=1, attachment=0, dtype="f4"),
+                    np.float32,
+                ).reshape(h, w)
+                sides = (
+                    np.minimum(bounds.x1[rest] - bounds.x0[rest], bounds.y1[rest] - bounds.y0[rest])
+                    + 1
+                )
+                table = occlusion.DepthMaxTable(depth, (x, y), sides)
+                rest = rest[~table.occluded(bounds, rest)]
+                self._draw_spheres(vao, prepared, rest, first=front.size)
+            stats.particles_splatted = int(front.size + rest.size)
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
         return temperature
