@@ -498,22 +498,20 @@ class SurfaceRenderer:
             in_front = occlusion.front_layer(bounds, radius, (camera.width, camera.height))
             front = np.flatnonzero(in_front)
             self._draw_spheres(vao, prepared, front, first=0)
-            rest = np.flatnonzero(~in_front)
-            if rest.size:
+            others = np.flatnonzero(~in_front)
+            if others.size:
                 read_box = box if box is not None else (0, 0, camera.width, camera.height)
                 x, y, w, h = read_box
                 depth = np.frombuffer(
                     fbo.read(viewport=read_box, components=1, attachment=0, dtype="f4"),
                     np.float32,
                 ).reshape(h, w)
-                sides = (
-                    np.minimum(bounds.x1[rest] - bounds.x0[rest], bounds.y1[rest] - bounds.y0[rest])
-                    + 1
-                )
-                table = occlusion.DepthMaxTable(depth, (x, y), sides)
-                rest = rest[~table.occluded(bounds, rest)]
-                self._draw_spheres(vao, prepared, rest, first=front.size)
-            stats.particles_splatted = int(front.size + rest.size)
+                width_px = bounds.x1[others] - bounds.x0[others] + 1
+                height_px = bounds.y1[others] - bounds.y0[others] + 1
+                table = occlusion.DepthMaxTable(depth, (x, y), np.minimum(width_px, height_px))
+                others = others[~table.occluded(bounds, others)]  # the ones that may show
+                self._draw_spheres(vao, prepared, others, first=front.size)
+            stats.particles_splatted = int(front.size + others.size)
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
         return temperature
