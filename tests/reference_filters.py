@@ -146,3 +146,50 @@ def filter_depth(
         else:
             image = _pass(image, None, radius, px_per_unit, q, box)
     return image
+
+
+def temperature_blur(
+    temperature: F32,
+    depth: F32,
+    radius_px_at_unit_depth: float,
+    sigma_radii: float,
+    max_reach_px: int,
+    depth_range: float,
+) -> F32:
+    """The depth-aware separable temperature blur (x pass, then y pass), pixel by pixel.
+
+    Per pixel with a surface: sigma = max(sigma_radii * r_px(z), 0.5) with r_px(z) =
+    radius_px_at_unit_depth / z, reach = min(ceil(3 sigma), max_reach_px), sigma shrunk to
+    reach / 3 when the cap bites; a tap counts when it has a surface within depth_range of the
+    centre's depth. Pixels without a surface give 0."""
+    h, w = depth.shape
+    image = temperature.astype(np.float64)
+    for dx, dy in ((1, 0), (0, 1)):
+        out = np.zeros((h, w))
+        for row in range(h):
+            for col in range(w):
+                zc = float(depth[row, col])
+                if zc <= 0.0:
+                    continue
+                sigma32 = max(
+                    np.float32(sigma_radii) * np.float32(radius_px_at_unit_depth) / np.float32(zc),
+                    np.float32(0.5),
+                )
+                reach = min(int(np.ceil(np.float32(3.0) * sigma32)), max_reach_px)
+                sigma = min(float(sigma32), max(reach, 1) / 3.0)
+                inv = 1.0 / (2.0 * sigma * sigma)
+                total, weights = image[row, col], 1.0
+                for k in range(-reach, reach + 1):
+                    if k == 0:
+                        continue
+                    # rows of these arrays are top first; the shader's +y is one row up
+                    r, c = row - k * dy, col + k * dx
+                    z = _fetch(depth, r, c)
+                    if z <= 0.0 or abs(z - zc) > depth_range:
+                        continue
+                    wgt = math.exp(-k * k * inv)
+                    total += wgt * image[r, c]
+                    weights += wgt
+                out[row, col] = total / weights
+        image = out
+    return image.astype(np.float32)

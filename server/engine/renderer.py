@@ -439,7 +439,10 @@ class SurfaceRenderer:
         with self._stage(stats, "shade"):
             if temperature is not None and stats.particles_drawn:
                 temperature = self._shade.smooth_temperature(
-                    temperature, surface, camera, prepared.reference_radius
+                    temperature,
+                    surface,
+                    camera.pixels_per_unit_at_unit_depth,
+                    prepared.reference_radius,
                 )
             # A transparent background is vec4(0) from the shader, so the box is exact; an
             # environment background covers every pixel.
@@ -580,6 +583,29 @@ class SurfaceRenderer:
         targets.splat_depth.write(np.ascontiguousarray(depth[::-1], dtype=np.float32).tobytes())
         result = self._smooth(
             targets, px_per_unit=px_per_unit, particle_radius=particle_radius, quality=quality
+        )
+        out = np.frombuffer(result.read(), dtype=np.float32).reshape(height, width)
+        return np.ascontiguousarray(out[::-1])
+
+    def blur_temperature_image(
+        self,
+        temperature: npt.NDArray[np.float32],
+        depth: npt.NDArray[np.float32],
+        *,
+        particle_radius: float,
+        px_per_unit: float,
+    ) -> npt.NDArray[np.float32]:
+        """Run only the temperature blur on a kelvin image guided by an eye-depth image (both
+        rows top first, depth 0 = background). The same code path as `render` uses; exposed so
+        the blur can be compared with a numpy reference."""
+        self._gl.check_owner()
+        height, width = depth.shape
+        targets = self._targets_for(width, height)
+        kelvin, _ = targets.temperature_targets()
+        kelvin.write(np.ascontiguousarray(temperature[::-1], dtype=np.float32).tobytes())
+        targets.ping[0].write(np.ascontiguousarray(depth[::-1], dtype=np.float32).tobytes())
+        result = self._shade.smooth_temperature(
+            kelvin, targets.ping[0], px_per_unit, particle_radius
         )
         out = np.frombuffer(result.read(), dtype=np.float32).reshape(height, width)
         return np.ascontiguousarray(out[::-1])

@@ -134,16 +134,15 @@ class ShadePass:
         self,
         temperature: moderngl.Texture,
         depth: moderngl.Texture,
-        camera: Camera,
+        px_per_unit: float,
         particle_radius: float,
     ) -> moderngl.Texture:
         """Depth-aware separable blur of the splatted temperature (`smooth_temperature.frag`);
-        sigma = TEMPERATURE_SIGMA_RADII projected particle radii."""
+        sigma = TEMPERATURE_SIGMA_RADII projected particle radii. `px_per_unit`: pixels per
+        scene unit at eye depth 1 (`Camera.pixels_per_unit_at_unit_depth`)."""
         fbos = self._blur_targets(temperature.size)
         program = self._programs.get("fullscreen.vert.glsl", "smooth_temperature.frag.glsl")
-        program["u_radius_px_at_unit_depth"] = (
-            particle_radius * camera.pixels_per_unit_at_unit_depth
-        )
+        program["u_radius_px_at_unit_depth"] = particle_radius * px_per_unit
         program["u_sigma_radii"] = TEMPERATURE_SIGMA_RADII
         program["u_max_reach_px"] = TEMPERATURE_MAX_REACH_PX
         program["u_depth_range"] = TEMPERATURE_DEPTH_RANGE_RADII * particle_radius
