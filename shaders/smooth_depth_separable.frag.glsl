@@ -2,11 +2,9 @@
 // Separable depth smoothing (thesis §3.3) on a packed eye-depth image: texel (x, y) holds pixels
 // 4x .. 4x+3 of row y in .xyzw (0 = background), so one fragment filters four horizontally
 // adjacent pixels, one per component. Same filters and kernel rule as smooth_depth.frag.glsl
-// (which does the 2-D kernels); packing only changes how often the image is read:
-//   AXIS 1 (columns): each fetch serves all four pixels, 4x fewer fetches;
-//   AXIS 0 (rows): the taps of the four pixels slide over the same texels, so a pair of
-//   texels per side serves four tap offsets of four pixels, 16x fewer fetches.
-// llvmpipe spends most of a 1-D pass on texel fetches, so this is where the time goes.
+// (which does the 2-D kernels); packing only changes how often the image is read: 4x fewer
+// fetches along columns, 16x fewer along rows (common/packed_taps.glsl). llvmpipe spends most
+// of a 1-D pass on texel fetches, so this is where the time goes.
 // Every tap is applied in the same order as in the unpacked filter (offset 1, 2, ... outwards,
 // the mirror pair together), which the narrow-range filter's growing range depends on.
 
@@ -20,24 +18,15 @@
 #define KERNEL_SIZE_EQ25 1
 #define KERNEL_SIZE 0
 
+// The depth is its own guide (common/packed_taps.glsl).
+#define PACKED_VALUE 0
+
 #include "common/depth_filter_params.glsl"
+#include "common/packed_image.glsl"
 
 uniform sampler2D u_packed_depth;
 
 layout(location = 0) out vec4 out_packed_depth;
-
-// Four pixels at packed texel p, or 0 outside the image.
-vec4 fetch_packed(ivec2 p) {
-    ivec2 size = textureSize(u_packed_depth, 0);
-    if (any(lessThan(p, ivec2(0))) || any(greaterThanEqual(p, size))) {
-        return vec4(0.0);
-    }
-    return texelFetch(u_packed_depth, p, 0);
-}
-
-bvec4 both(bvec4 a, bvec4 b) {
-    return bvec4(ivec4(a) & ivec4(b));
-}
 
 // Per-pixel filter state; component i belongs to pixel 4x + i.
 vec4 g_center;
@@ -55,8 +44,8 @@ vec4 g_lower;
 vec4 g_lower_clamp;
 #endif
 
-// The taps at offsets +k (za) and -k (zb) of the four pixels.
-void tap_pair(int k, vec4 za, vec4 zb) {
+// The taps at offsets +k (za) and -k (zb) of the four pixels (the value arguments repeat them).
+void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     g_weight *= g_step;
     g_step *= g_step_growth;
     bvec4 in_reach = lessThanEqual(vec4(float(k)), g_reach);
@@ -97,9 +86,11 @@ void tap_pair(int k, vec4 za, vec4 zb) {
 #endif
 }
 
+#include "common/packed_taps.glsl"
+
 void main() {
     ivec2 texel = ivec2(gl_FragCoord.xy);
-    vec4 zc = fetch_packed(texel);
+    vec4 zc = fetch_packed(u_packed_depth, texel);
     bvec4 surface = greaterThan(zc, vec4(0.0));
     if (!any(surface)) {
         out_packed_depth = vec4(0.0);
@@ -129,29 +120,6 @@ void main() {
 #endif
     int radius = int(max(max(g_reach.x, g_reach.y), max(g_reach.z, g_reach.w)));
 
-#if AXIS == 0
-    // Pixel 4x + i + k lies in texel x + ((i + k) >> 2), component (i + k) & 3. With
-    // k = 4s + j + 1 (j = 0..3) that is texel x + s or x + s + 1 (`ahead`, `ahead_next`), and
-    // for -k texel x - s or x - s - 1 (`behind`, `behind_next`).
-    vec4 ahead = zc;
-    vec4 ahead_next = fetch_packed(texel + ivec2(1, 0));
-    vec4 behind = zc;
-    vec4 behind_next = fetch_packed(texel - ivec2(1, 0));
-    for (int s = 0; 4 * s + 1 <= radius; ++s) {
-        int k = 4 * s;
-        tap_pair(k + 1, vec4(ahead.yzw, ahead_next.x), vec4(behind_next.w, behind.xyz));
-        tap_pair(k + 2, vec4(ahead.zw, ahead_next.xy), vec4(behind_next.zw, behind.xy));
-        tap_pair(k + 3, vec4(ahead.w, ahead_next.xyz), vec4(behind_next.yzw, behind.x));
-        tap_pair(k + 4, ahead_next, behind_next);
-        ahead = ahead_next;
-        behind = behind_next;
-        ahead_next = fetch_packed(texel + ivec2(s + 2, 0));
-        behind_next = fetch_packed(texel - ivec2(s + 2, 0));
-    }
-#else
-    for (int k = 1; k <= radius; ++k) {
-        tap_pair(k, fetch_packed(texel + ivec2(0, k)), fetch_packed(texel - ivec2(0, k)));
-    }
-#endif
+    walk_packed_taps(u_packed_depth, u_packed_depth, texel, zc, zc, radius);
     out_packed_depth = mix(vec4(0.0), g_sum / g_weight_sum, surface);
 }

@@ -1,49 +1,77 @@
 #version 330 core
-// Separable, depth-aware Gaussian blur of the splatted temperature image (run once along x, once
-// along y, inside the shade stage). The splat stores the temperature of the front-most sphere
-// per pixel, a mosaic of discs; the smoothed depth surface needs a field as smooth as itself.
-// Sigma follows the projected particle radius like the depth filter's; samples farther than
-// u_depth_range (scene units) from the centre's depth, or off the surface, are ignored, so a hot
-// bead does not bleed onto the plate behind it.
+// Depth-aware separable Gaussian blur of the splatted temperature, on packed images (four pixels
+// per texel, common/packed_image.glsl); run once along x (AXIS 0) and once along y (AXIS 1)
+// inside the shade stage. The splat stores the temperature of the front-most sphere per pixel, a
+// mosaic of discs; the smoothed depth surface needs a field as smooth as itself. Sigma follows
+// the projected particle radius like the depth filter's; samples farther than u_depth_range
+// (scene units) from the centre's depth, or off the surface, are ignored, so a hot bead does not
+// bleed onto the plate behind it.
 
-#include "common/depth_image.glsl"
+// 0: along rows (x), 1: along columns (y).
+#define AXIS 0
+// The smoothed depth guides, the temperature is filtered (common/packed_taps.glsl).
+#define PACKED_VALUE 1
 
-uniform sampler2D u_temperature;
-uniform sampler2D u_depth;          // smoothed eye depth (0 = no surface)
-uniform ivec2 u_direction;
-uniform float u_radius_px_at_unit_depth;  // particle radius * px_per_unit
-uniform float u_sigma_radii;        // sigma in projected particle radii
+#include "common/packed_image.glsl"
+
+uniform sampler2D u_packed_temperature;
+uniform sampler2D u_packed_depth;          // smoothed eye depth (0 = no surface)
+uniform float u_radius_px_at_unit_depth;   // particle radius * px_per_unit
+uniform float u_sigma_radii;               // sigma in projected particle radii
 uniform int u_max_reach_px;
 uniform float u_depth_range;
 
-layout(location = 0) out float out_temperature;
+layout(location = 0) out vec4 out_packed_temperature;
+
+vec4 g_center;
+vec4 g_reach;
+// Gaussian weights q^(k^2) by recurrence, as in smooth_depth_separable.frag.glsl.
+vec4 g_weight;
+vec4 g_step;
+vec4 g_step_growth;
+vec4 g_sum;
+vec4 g_weight_sum;
+
+void tap_pair(int k, vec4 za, vec4 zb, vec4 ta, vec4 tb) {
+    g_weight *= g_step;
+    g_step *= g_step_growth;
+    bvec4 in_reach = lessThanEqual(vec4(float(k)), g_reach);
+    bvec4 use_a = both(
+        in_reach,
+        both(greaterThan(za, vec4(0.0)), lessThanEqual(abs(za - g_center), vec4(u_depth_range)))
+    );
+    bvec4 use_b = both(
+        in_reach,
+        both(greaterThan(zb, vec4(0.0)), lessThanEqual(abs(zb - g_center), vec4(u_depth_range)))
+    );
+    g_sum += mix(vec4(0.0), g_weight * ta, use_a) + mix(vec4(0.0), g_weight * tb, use_b);
+    g_weight_sum += mix(vec4(0.0), g_weight, use_a) + mix(vec4(0.0), g_weight, use_b);
+}
+
+#include "common/packed_taps.glsl"
 
 void main() {
-    ivec2 center = ivec2(gl_FragCoord.xy);
-    float zc = fetch_depth(u_depth, center);
-    float tc = texelFetch(u_temperature, center, 0).r;
-    if (zc <= 0.0) {
-        out_temperature = 0.0;
+    ivec2 texel = ivec2(gl_FragCoord.xy);
+    vec4 zc = fetch_packed(u_packed_depth, texel);
+    bvec4 surface = greaterThan(zc, vec4(0.0));
+    if (!any(surface)) {
+        out_packed_temperature = vec4(0.0);
         return;
     }
-    float sigma = max(u_sigma_radii * u_radius_px_at_unit_depth / zc, 0.5);
-    int reach = min(int(ceil(3.0 * sigma)), u_max_reach_px);
-    sigma = min(sigma, max(float(reach), 1.0) / 3.0);
-    float inv_two_sigma2 = 1.0 / (2.0 * sigma * sigma);
-    float sum = tc;
-    float weight = 1.0;
-    for (int k = -reach; k <= reach; ++k) {
-        if (k == 0) {
-            continue;
-        }
-        ivec2 p = center + k * u_direction;
-        float z = fetch_depth(u_depth, p);
-        if (z <= 0.0 || abs(z - zc) > u_depth_range) {
-            continue;
-        }
-        float w = exp(-float(k * k) * inv_two_sigma2);
-        sum += w * texelFetch(u_temperature, p, 0).r;
-        weight += w;
-    }
-    out_temperature = sum / weight;
+    vec4 tc = fetch_packed(u_packed_temperature, texel);
+    vec4 z = mix(vec4(1.0), zc, surface);  // background lanes get harmless values, reach 0
+    vec4 sigma = max(u_sigma_radii * u_radius_px_at_unit_depth / z, vec4(0.5));
+    vec4 reach = min(ceil(3.0 * sigma), vec4(float(u_max_reach_px)));
+    sigma = min(sigma, max(reach, vec4(1.0)) / 3.0);
+    g_center = zc;
+    g_reach = mix(vec4(0.0), reach, surface);
+    vec4 q = exp(-1.0 / (2.0 * sigma * sigma));
+    g_step_growth = q * q;
+    g_step = q;
+    g_weight = vec4(1.0);
+    g_sum = tc;
+    g_weight_sum = vec4(1.0);
+    int radius = int(max(max(g_reach.x, g_reach.y), max(g_reach.z, g_reach.w)));
+    walk_packed_taps(u_packed_depth, u_packed_temperature, texel, zc, tc, radius);
+    out_packed_temperature = mix(vec4(0.0), g_sum / g_weight_sum, surface);
 }

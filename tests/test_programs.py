@@ -61,6 +61,8 @@ def test_every_shipped_program_compiles(gl_context: GLContext) -> None:
                     "smooth_depth_separable.frag.glsl",
                     {"FILTER": filter_id, "KERNEL_SIZE": kernel_size, "AXIS": axis},
                 )
-    cache.get("fullscreen.vert.glsl", "depth_pack.frag.glsl")
-    cache.get("fullscreen.vert.glsl", "depth_unpack.frag.glsl")
+    cache.get("fullscreen.vert.glsl", "image_pack.frag.glsl")
+    cache.get("fullscreen.vert.glsl", "image_unpack.frag.glsl")
+    for axis in (0, 1):
+        cache.get("fullscreen.vert.glsl", "smooth_temperature.frag.glsl", {"AXIS": axis})
     cache.release()

@@ -623,8 +623,8 @@ class SurfaceRenderer:
         (see `screen_box`) the passes run only inside it, on targets cleared outside it.
 
         Separable filters run on a packed image (four pixels per texel, see
-        `smooth_depth_separable.frag.glsl`): pack, the 1-D passes, unpack; the 2-D kernels on
-        the plain image (`smooth_depth.frag.glsl`)."""
+        `common/packed_image.glsl`): pack, the 1-D passes, unpack; the 2-D kernels on the plain
+        image (`smooth_depth.frag.glsl`)."""
         if quality.filter == "none":
             return targets.splat_depth
         filter_define = _FILTER_DEFINES[quality.filter]
@@ -655,8 +655,8 @@ class SurfaceRenderer:
         packed_box = None if box is None else _packed_box(box)
         for fbo in targets.packed_fbos:
             _scissored(fbo, packed_box)
-        pack = self._programs.get("fullscreen.vert.glsl", "depth_pack.frag.glsl")
-        pack["u_depth"] = 0
+        pack = self._programs.get("fullscreen.vert.glsl", "image_pack.frag.glsl")
+        pack["u_image"] = 0
         targets.splat_depth.use(0)
         targets.packed_fbos[0].use()
         self._fullscreen(pack).render(moderngl.TRIANGLES, vertices=3)
@@ -682,8 +682,8 @@ class SurfaceRenderer:
                 read_index = 1 - read_index
         for fbo in targets.packed_fbos:
             _set_scissor(fbo, None)
-        unpack = self._programs.get("fullscreen.vert.glsl", "depth_unpack.frag.glsl")
-        unpack["u_packed_depth"] = 0
+        unpack = self._programs.get("fullscreen.vert.glsl", "image_unpack.frag.glsl")
+        unpack["u_packed"] = 0
         targets.packed[read_index].use(0)
         _scissored(targets.ping_fbos[0], box)
         targets.ping_fbos[0].use()

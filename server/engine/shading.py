@@ -59,6 +59,33 @@ def _set(program: moderngl.Program, name: str, value: object) -> None:
         program[name] = value
 
 
+class _BlurTargets:
+    """Targets of the temperature blur for one image size: the packed depth guide, two packed
+    kelvin images (ping-pong) and the unpacked result."""
+
+    def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
+        self.size = size
+        packed_size = ((size[0] + 3) // 4, size[1])
+
+        def texture(texture_size: tuple[int, int], components: int) -> moderngl.Texture:
+            result = ctx.texture(texture_size, components, dtype="f4")
+            result.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            return result
+
+        self.packed_depth = texture(packed_size, 4)
+        self.packed_depth_fbo = ctx.framebuffer([self.packed_depth])
+        self.packed = [texture(packed_size, 4) for _ in range(2)]
+        self.packed_fbos = [ctx.framebuffer([t]) for t in self.packed]
+        self.result = texture(size, 1)
+        self.result_fbo = ctx.framebuffer([self.result])
+
+    def release(self) -> None:
+        for fbo in (self.packed_depth_fbo, *self.packed_fbos, self.result_fbo):
+            fbo.release()
+        for texture in (self.packed_depth, *self.packed, self.result):
+            texture.release()
+
+
 class ShadePass:
     def __init__(
         self,
@@ -72,10 +99,8 @@ class ShadePass:
         self.ibl = IblCache(gl, programs)
         self._blackbody: moderngl.Texture | None = None
         self._vaos: dict[int, moderngl.VertexArray] = {}
-        # Ping-pong targets of the temperature blur, rebuilt only when the image size changes.
-        self._blur_size: tuple[int, int] | None = None
-        self._blur_textures: list[moderngl.Texture] = []
-        self._blur_fbos: list[moderngl.Framebuffer] = []
+        # Targets of the temperature blur, rebuilt only when the image size changes.
+        self._blur: _BlurTargets | None = None
 
     def program_for(self, scene: Scene, has_temperature: bool) -> moderngl.Program:
         shading = scene.shading
@@ -109,26 +134,12 @@ class ShadePass:
             self._vaos[program.glo] = vao
         return vao
 
-    def _blur_targets(self, size: tuple[int, int]) -> list[moderngl.Framebuffer]:
-        if self._blur_size != size:
-            self._release_blur()
-            ctx = self._gl.ctx
-            for _ in range(2):
-                texture = ctx.texture(size, 1, dtype="f4")
-                texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
-                self._blur_textures.append(texture)
-                self._blur_fbos.append(ctx.framebuffer([texture]))
-            self._blur_size = size
-        return self._blur_fbos
-
-    def _release_blur(self) -> None:
-        for fbo in self._blur_fbos:
-            fbo.release()
-        for texture in self._blur_textures:
-            texture.release()
-        self._blur_fbos.clear()
-        self._blur_textures.clear()
-        self._blur_size = None
+    def _blur_targets(self, size: tuple[int, int]) -> _BlurTargets:
+        if self._blur is None or self._blur.size != size:
+            if self._blur is not None:
+                self._blur.release()
+            self._blur = _BlurTargets(self._gl.ctx, size)
+        return self._blur
 
     def smooth_temperature(
         self,
@@ -137,26 +148,38 @@ class ShadePass:
         px_per_unit: float,
         particle_radius: float,
     ) -> moderngl.Texture:
-        """Depth-aware separable blur of the splatted temperature (`smooth_temperature.frag`);
-        sigma = TEMPERATURE_SIGMA_RADII projected particle radii. `px_per_unit`: pixels per
-        scene unit at eye depth 1 (`Camera.pixels_per_unit_at_unit_depth`)."""
-        fbos = self._blur_targets(temperature.size)
-        program = self._programs.get("fullscreen.vert.glsl", "smooth_temperature.frag.glsl")
-        program["u_radius_px_at_unit_depth"] = particle_radius * px_per_unit
-        program["u_sigma_radii"] = TEMPERATURE_SIGMA_RADII
-        program["u_max_reach_px"] = TEMPERATURE_MAX_REACH_PX
-        program["u_depth_range"] = TEMPERATURE_DEPTH_RANGE_RADII * particle_radius
-        program["u_temperature"] = 0
-        program["u_depth"] = 1
-        depth.use(1)
-        source = temperature
-        for index, direction in enumerate(((1, 0), (0, 1))):
+        """Depth-aware separable blur of the splatted temperature (`smooth_temperature.frag`),
+        on packed images: pack depth and kelvin, blur along x then y, unpack; sigma =
+        TEMPERATURE_SIGMA_RADII projected particle radii. `px_per_unit`: pixels per scene unit
+        at eye depth 1 (`Camera.pixels_per_unit_at_unit_depth`)."""
+        blur = self._blur_targets(temperature.size)
+        programs = self._programs
+        pack = programs.get("fullscreen.vert.glsl", "image_pack.frag.glsl")
+        pack["u_image"] = 0
+        for source, target in ((depth, blur.packed_depth_fbo), (temperature, blur.packed_fbos[0])):
             source.use(0)
-            program["u_direction"] = direction
-            fbos[index].use()
+            target.use()
+            self._vao(pack).render(moderngl.TRIANGLES, vertices=3)
+        blur.packed_depth.use(1)
+        for axis in (0, 1):
+            program = programs.get(
+                "fullscreen.vert.glsl", "smooth_temperature.frag.glsl", {"AXIS": axis}
+            )
+            program["u_radius_px_at_unit_depth"] = particle_radius * px_per_unit
+            program["u_sigma_radii"] = TEMPERATURE_SIGMA_RADII
+            program["u_max_reach_px"] = TEMPERATURE_MAX_REACH_PX
+            program["u_depth_range"] = TEMPERATURE_DEPTH_RANGE_RADII * particle_radius
+            program["u_packed_temperature"] = 0
+            program["u_packed_depth"] = 1
+            blur.packed[axis].use(0)
+            blur.packed_fbos[1 - axis].use()
             self._vao(program).render(moderngl.TRIANGLES, vertices=3)
-            source = self._blur_textures[index]
-        return source
+        unpack = programs.get("fullscreen.vert.glsl", "image_unpack.frag.glsl")
+        unpack["u_packed"] = 0
+        blur.packed[0].use(0)
+        blur.result_fbo.use()
+        self._vao(unpack).render(moderngl.TRIANGLES, vertices=3)
+        return blur.result
 
     def run(
         self,
@@ -254,7 +277,9 @@ class ShadePass:
         for vao in self._vaos.values():
             vao.release()
         self._vaos.clear()
-        self._release_blur()
+        if self._blur is not None:
+            self._blur.release()
+            self._blur = None
         self.ibl.release()
         if self._blackbody is not None:
             self._blackbody.release()
