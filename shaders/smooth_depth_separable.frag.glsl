@@ -22,6 +22,7 @@
 #define PACKED_VALUE 0
 
 #include "common/depth_filter_params.glsl"
+#include "common/gaussian_steps.glsl"
 #include "common/packed_image.glsl"
 
 uniform sampler2D u_packed_depth;
@@ -31,11 +32,6 @@ layout(location = 0) out vec4 out_packed_depth;
 // Per-pixel filter state; component i belongs to pixel 4x + i.
 vec4 g_center;
 vec4 g_reach;          // kernel radius in pixels; 0 for background pixels
-// Gaussian weights w_k = exp(-k^2 / (2 sigma^2)) = q^(k^2), q = exp(-1 / (2 sigma^2)), by
-// recurrence: w_k = w_{k-1} q^(2k-1), two multiplications per tap instead of an exp().
-vec4 g_weight;         // w_{k-1} before tap k, w_k after
-vec4 g_step;           // q^(2k-1) before tap k
-vec4 g_step_growth;    // q^2
 vec4 g_sum;
 vec4 g_weight_sum;
 #if FILTER == FILTER_NARROW_RANGE
@@ -46,10 +42,8 @@ vec4 g_lower_clamp;
 
 // The taps at offsets +k (za) and -k (zb) of the four pixels (the value arguments repeat them).
 void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
-    g_weight *= g_step;
-    g_step *= g_step_growth;
+    vec4 w = gaussian_next();
     bvec4 in_reach = lessThanEqual(vec4(float(k)), g_reach);
-    vec4 w = g_weight;
 #if FILTER == FILTER_NARROW_RANGE
     // Truong & Yuksel 2018: samples behind the centre by more than lambda*r are dropped, with
     // their mirror sample (no one-sided bias); samples in front by more than lambda*r are
@@ -107,10 +101,7 @@ void main() {
     sigma = max(min(sigma, reach / 3.0), 1e-3);
     g_center = zc;
     g_reach = mix(vec4(0.0), reach, surface);
-    vec4 q = exp(-1.0 / (2.0 * sigma * sigma));
-    g_step_growth = q * q;
-    g_step = q;
-    g_weight = vec4(1.0);
+    gaussian_start(sigma);
     g_sum = zc;
     g_weight_sum = vec4(1.0);
 #if FILTER == FILTER_NARROW_RANGE

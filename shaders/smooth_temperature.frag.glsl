@@ -12,6 +12,7 @@
 // The smoothed depth guides, the temperature is filtered (common/packed_taps.glsl).
 #define PACKED_VALUE 1
 
+#include "common/gaussian_steps.glsl"
 #include "common/packed_image.glsl"
 
 uniform sampler2D u_packed_temperature;
@@ -25,16 +26,11 @@ layout(location = 0) out vec4 out_packed_temperature;
 
 vec4 g_center;
 vec4 g_reach;
-// Gaussian weights q^(k^2) by recurrence, as in smooth_depth_separable.frag.glsl.
-vec4 g_weight;
-vec4 g_step;
-vec4 g_step_growth;
 vec4 g_sum;
 vec4 g_weight_sum;
 
 void tap_pair(int k, vec4 za, vec4 zb, vec4 ta, vec4 tb) {
-    g_weight *= g_step;
-    g_step *= g_step_growth;
+    vec4 w = gaussian_next();
     bvec4 in_reach = lessThanEqual(vec4(float(k)), g_reach);
     bvec4 use_a = both(
         in_reach,
@@ -44,8 +40,8 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 ta, vec4 tb) {
         in_reach,
         both(greaterThan(zb, vec4(0.0)), lessThanEqual(abs(zb - g_center), vec4(u_depth_range)))
     );
-    g_sum += mix(vec4(0.0), g_weight * ta, use_a) + mix(vec4(0.0), g_weight * tb, use_b);
-    g_weight_sum += mix(vec4(0.0), g_weight, use_a) + mix(vec4(0.0), g_weight, use_b);
+    g_sum += mix(vec4(0.0), w * ta, use_a) + mix(vec4(0.0), w * tb, use_b);
+    g_weight_sum += mix(vec4(0.0), w, use_a) + mix(vec4(0.0), w, use_b);
 }
 
 #include "common/packed_taps.glsl"
@@ -65,10 +61,7 @@ void main() {
     sigma = min(sigma, max(reach, vec4(1.0)) / 3.0);
     g_center = zc;
     g_reach = mix(vec4(0.0), reach, surface);
-    vec4 q = exp(-1.0 / (2.0 * sigma * sigma));
-    g_step_growth = q * q;
-    g_step = q;
-    g_weight = vec4(1.0);
+    gaussian_start(sigma);
     g_sum = tc;
     g_weight_sum = vec4(1.0);
     int radius = int(max(max(g_reach.x, g_reach.y), max(g_reach.z, g_reach.w)));
