@@ -159,8 +159,9 @@ class DepthMaxTable:
         if sides is None:
             wanted = set(range(top + 1))
         else:
-            levels = np.floor(np.log2(np.clip(sides, 1, None))).astype(np.int64)
-            wanted = {int(k) for k in np.unique(levels) if k <= top}
+            levels = np.floor(np.log2(np.clip(sides, 1, 1 << (top + 1)))).astype(np.int64)
+            present = np.bincount(levels, minlength=top + 2)[: top + 1]
+            wanted = {int(k) for k in np.flatnonzero(present)}
         self.levels: dict[int, npt.NDArray[np.float32]] = {}
         current = image
         for k in range(max(wanted, default=-1) + 1):
@@ -198,11 +199,12 @@ class DepthMaxTable:
         block = np.left_shift(1, np.clip(level, 0, 62))
         inside &= (w < 2 * block) & (h < 2 * block)
         near = bounds.near_depth[candidates]
-        for k in np.unique(level[inside]):
+        for k, table in self.levels.items():
             rows = np.flatnonzero(inside & (level == k))
-            table = self.levels[int(k)]
+            if rows.size == 0:
+                continue
             flat = table.ravel()
-            size = 1 << int(k)
+            size = 1 << k
             stride = table.shape[1]
             low_x, high_x = x0[rows], x1[rows] - size + 1
             low_y, high_y = y0[rows] * stride, (y1[rows] - size + 1) * stride

@@ -163,6 +163,22 @@ def _packed_box(box: ScreenBox) -> ScreenBox:
     return (first, y, (x + width + 3) // 4 - first, height)
 
 
+def _read_region(
+    fbo: moderngl.Framebuffer, size: tuple[int, int], box: ScreenBox | None
+) -> npt.NDArray[np.float32]:
+    """The RGBA float target of `fbo` as (H, W, 4), rows top first, reading only `box` (the
+    rest is known to be zero) or everything (None)."""
+    width, height = size
+    if box is None:
+        data = np.frombuffer(fbo.read(components=4, dtype="f4"), dtype=np.float32)
+        return np.ascontiguousarray(data.reshape(height, width, 4)[::-1])
+    x, y, w, h = box
+    part = np.frombuffer(fbo.read(viewport=box, components=4, dtype="f4"), dtype=np.float32)
+    out = np.zeros((height, width, 4), dtype=np.float32)
+    out[height - y - h : height - y, x : x + w] = part.reshape(h, w, 4)[::-1]
+    return out
+
+
 def _write_matrix(program: moderngl.Program, name: str, matrix: npt.NDArray[np.floating]) -> None:
     """Upload a row-major numpy matrix to a GLSL matN uniform (GLSL is column-major)."""
     uniform = program[name]
@@ -452,7 +468,13 @@ class SurfaceRenderer:
             _set_scissor(targets.color_fbo, None)
 
         with self._stage(stats, "readback"):
-            rendered = self._read_back(targets, want_depth=depth, want_normals=normals)
+            rendered = self._read_back(
+                targets,
+                want_depth=depth,
+                want_normals=normals,
+                color_box=box if transparent else None,
+                surface_box=box,
+            )
         return rendered, stats
 
     def _splat(
@@ -716,15 +738,20 @@ class SurfaceRenderer:
                 program[name] = value
 
     def _read_back(
-        self, targets: _Targets, *, want_depth: bool, want_normals: bool
+        self,
+        targets: _Targets,
+        *,
+        want_depth: bool,
+        want_normals: bool,
+        color_box: ScreenBox | None,
+        surface_box: ScreenBox | None,
     ) -> RenderedFrame:
-        width, height = targets.size
-        rgba = np.frombuffer(targets.color.read(), dtype=np.float32).reshape(height, width, 4)
-        rgba = np.ascontiguousarray(rgba[::-1])
+        """Colour, and depth / normals when asked, rows top first. `color_box` / `surface_box`:
+        where those targets can be non-zero (None: anywhere); only that part is read."""
+        rgba = _read_region(targets.color_fbo, targets.size, color_box)
         depth_out = normals_out = None
         if want_depth or want_normals:
-            nd = np.frombuffer(targets.normal_depth.read(), dtype=np.float32)
-            nd = nd.reshape(height, width, 4)[::-1]
+            nd = _read_region(targets.normal_fbo, targets.size, surface_box)
             if want_depth:
                 z = nd[:, :, 3]
                 depth_out = np.where(z > 0.0, z, np.float32(np.inf)).astype(np.float32)
