@@ -354,6 +354,12 @@ class ShadingConfig:
         low=16,
         high=16384,
     )
+    multiple_scattering: bool = spec(
+        False,
+        "compensate the energy single-scattering GGX loses at high roughness: specular x "
+        "(1 + F0 (1 / E_ss - 1)), E_ss from the split-sum table (Fdez-Aguera 2019, as Filament); "
+        "off matches single-scatter references (Mitsuba roughconductor, validation-data.md)",
+    )
     combine: Literal["add", "eq55"] = spec(
         "add",
         "add: direct + indirect (physically correct); eq55: the thesis's blend "

@@ -4,6 +4,9 @@
 //   indirect diffuse (1 - (F0 A + B)) c_diff E_sh(n) / pi, E_sh from 9 SH coefficients
 //            + specular IBL: prefiltered mip chain x (F0 A + B) (split sum), or per-pixel GGX
 //            importance sampling with pdf-based source LOD (eq 50-53, corrected)
+//   multiple scattering (option): every specular term x (1 + F0 (1 / E_ss - 1)), E_ss = A + B
+//            the single-scatter albedo at F = 1 (Fdez-Aguera 2019; Filament's energy
+//            compensation), so rough metal keeps the energy GGX's single bounce loses
 //   combine  direct + indirect (default) or eq 55's k direct + (1 - k) indirect
 //   emission (1 - F(n.v)) B(T) for hot metal, from the splatted temperature (added after)
 // Output: straight scene-linear RGB, alpha = coverage (1 over the environment background).
@@ -16,6 +19,7 @@
 #define COMBINE_EQ55 1
 #define COMBINE 0
 #define HAS_TEMPERATURE 0
+#define MULTIPLE_SCATTERING 0
 #define BACKGROUND_ENVIRONMENT 0
 #define VIEW_BEAUTY 0
 #define VIEW_DIRECT 1
@@ -72,7 +76,8 @@ vec3 environment_radiance(vec3 world_direction, float lod) {
     return textureLod(u_env_source, equirect_uv(d), lod).rgb * u_env_intensity;
 }
 
-vec3 direct_light(vec3 n, vec3 v, vec3 position, float alpha) {
+// `specular_energy`: the multiple-scattering factor of the specular lobe (1 without it).
+vec3 direct_light(vec3 n, vec3 v, vec3 position, float alpha, vec3 specular_energy) {
     vec3 sum = vec3(0.0);
     for (int i = 0; i < MAX_LIGHTS; ++i) {
         if (i >= u_light_count) {
@@ -92,7 +97,10 @@ vec3 direct_light(vec3 n, vec3 v, vec3 position, float alpha) {
         }
         float nl = dot(n, l);
         if (nl > 0.0) {
-            sum += brdf(n, v, l, u_f0, u_diffuse_albedo, alpha) * irradiance * nl;
+            vec3 diffuse;
+            vec3 specular;
+            brdf_lobes(n, v, l, u_f0, u_diffuse_albedo, alpha, diffuse, specular);
+            sum += (diffuse + specular * specular_energy) * irradiance * nl;
         }
     }
     return sum;
@@ -160,13 +168,21 @@ void main() {
     float nv = max(dot(n, v), MIN_NV);
     float alpha = alpha_from_roughness(u_roughness);
 
-    vec3 direct = direct_light(n, v, position, alpha);
+#if IBL_MODE != IBL_NONE || MULTIPLE_SCATTERING
+    vec2 scale_bias = texture(u_brdf_lut, vec2(nv, u_roughness)).rg;
+#endif
+#if MULTIPLE_SCATTERING
+    // E_ss >= ~0.3 for GGX (alpha = 1, grazing); the floor only guards a broken table.
+    vec3 specular_energy = 1.0 + u_f0 * (1.0 / max(scale_bias.x + scale_bias.y, 0.05) - 1.0);
+#else
+    vec3 specular_energy = vec3(1.0);
+#endif
+    vec3 direct = direct_light(n, v, position, alpha, specular_energy);
 
     vec3 diffuse_ibl = vec3(0.0);
     vec3 specular_ibl = vec3(0.0);
     vec3 irradiance = vec3(0.0);
 #if IBL_MODE != IBL_NONE
-    vec2 scale_bias = texture(u_brdf_lut, vec2(nv, u_roughness)).rg;
     vec3 specular_albedo = u_f0 * scale_bias.x + scale_bias.y;
     irradiance = max(sh9_irradiance(u_sh, u_world_to_env * n), 0.0) * u_env_intensity;
     diffuse_ibl = (1.0 - specular_albedo) * u_diffuse_albedo * irradiance * (1.0 / PI);
@@ -178,6 +194,7 @@ void main() {
 #else
     specular_ibl = sampled_specular(n, v, nv, alpha);
 #endif
+    specular_ibl *= specular_energy;
 #endif
     vec3 indirect = diffuse_ibl + specular_ibl;
 

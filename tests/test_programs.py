@@ -45,6 +45,8 @@ def test_every_shipped_program_compiles(gl_context: GLContext) -> None:
         {"IBL_MODE": 0},
         {"IBL_MODE": 2, "G_TERM": 1},
         {"COMBINE": 1, "HAS_TEMPERATURE": True, "BACKGROUND_ENVIRONMENT": True},
+        {"IBL_MODE": 0, "MULTIPLE_SCATTERING": True},
+        {"IBL_MODE": 2, "MULTIPLE_SCATTERING": True},
         *({"DEBUG_VIEW": view} for view in range(1, 6)),
     ):
         cache.get("fullscreen.vert.glsl", "shade_pbr.frag.glsl", defines)

@@ -111,6 +111,7 @@ class ShadePass:
                 "IBL_MODE": _IBL_DEFINES[shading.ibl_mode],
                 "COMBINE": _COMBINE_DEFINES[shading.combine],
                 "HAS_TEMPERATURE": has_temperature,
+                "MULTIPLE_SCATTERING": shading.multiple_scattering,
                 "BACKGROUND_ENVIRONMENT": shading.background == "environment",
                 "DEBUG_VIEW": _VIEW_DEFINES[shading.debug_view],
                 "G_TERM": _G_TERM_DEFINES[shading.g_term],
@@ -228,12 +229,13 @@ class ShadePass:
             _set(program, "u_env_source_size", tuple(float(s) for s in entry.source_size))
             if "u_sh" in program:
                 program["u_sh"].write(entry.sh.astype(np.float32).tobytes())  # type: ignore[union-attr]
-            if shading.ibl_mode != "none":
-                bind("u_brdf_lut", self.ibl.brdf_lut(shading.g_term))
+
             if shading.ibl_mode == "prefiltered":
                 bind("u_env_prefiltered", self.ibl.prefiltered(entry, shading.prefilter_samples))
                 _set(program, "u_prefiltered_max_lod", float(PREFILTER_LEVELS - 1))
             _set(program, "u_ibl_samples", shading.ibl_samples)
+        if shading.ibl_mode != "none" or shading.multiple_scattering:
+            bind("u_brdf_lut", self.ibl.brdf_lut(shading.g_term))
         _set(program, "u_eq55_k", shading.eq55_k)
 
         if temperature is not None:

@@ -55,8 +55,11 @@ vec3 fresnel_schlick(vec3 f0, float cos_theta) {
     return f0 + (1.0 - f0) * pow5(clamp(1.0 - cos_theta, 0.0, 1.0));
 }
 
-// The whole BRDF times nothing (no cosine): returns f_r for unit n, v, l with n.l > 0.
-vec3 brdf(vec3 n, vec3 v, vec3 l, vec3 f0, vec3 diffuse_albedo, float alpha) {
+// The two lobes of f_r (no cosine) for unit n, v, l with n.l > 0: (1 - F) c_diff / pi and D V F.
+void brdf_lobes(
+    vec3 n, vec3 v, vec3 l, vec3 f0, vec3 diffuse_albedo, float alpha,
+    out vec3 diffuse, out vec3 specular
+) {
     vec3 h = normalize(v + l);
     float nl = max(dot(n, l), 0.0);
     float nv = max(dot(n, v), MIN_NV);
@@ -65,5 +68,14 @@ vec3 brdf(vec3 n, vec3 v, vec3 l, vec3 f0, vec3 diffuse_albedo, float alpha) {
     vec3 nxh = cross(n, h);
     float d = d_ggx(nh, dot(nxh, nxh), alpha);
     vec3 f = fresnel_schlick(f0, vh);
-    return (1.0 - f) * diffuse_albedo * (1.0 / PI) + d * visibility(nl, nv, nh, vh, alpha) * f;
+    diffuse = (1.0 - f) * diffuse_albedo * (1.0 / PI);
+    specular = d * visibility(nl, nv, nh, vh, alpha) * f;
+}
+
+// The whole BRDF times nothing (no cosine): returns f_r for unit n, v, l with n.l > 0.
+vec3 brdf(vec3 n, vec3 v, vec3 l, vec3 f0, vec3 diffuse_albedo, float alpha) {
+    vec3 diffuse;
+    vec3 specular;
+    brdf_lobes(n, v, l, f0, diffuse_albedo, alpha, diffuse, specular);
+    return diffuse + specular;
 }
