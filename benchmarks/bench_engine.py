@@ -18,9 +18,10 @@ from typing import Any
 import numpy as np
 
 from sphrender.client.frame import make_frame
-from sphrender.server.analytic_scenes import ball_errors, jittered_lattice_ball
-from sphrender.server.engine.camera import Camera
-from sphrender.server.engine.gl_context import GLContext
+from sphrender.server.bench.analytic import ball_errors
+from sphrender.server.content.lattice import jittered_lattice_ball
+from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import QualityConfig, scene_from_dict
 

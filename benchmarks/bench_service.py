@@ -44,7 +44,7 @@ from sphrender.client.protocol import (
     parse_header,
     parse_prefix,
 )
-from sphrender.server.analytic_scenes import jittered_lattice_ball
+from sphrender.server.content.lattice import jittered_lattice_ball
 
 SPHRENDER = str(Path(sys.executable).with_name("sphrender"))
 

@@ -36,9 +36,9 @@ from sph_reference import reference_sph  # noqa: E402
 
 from sphrender.client.frame import make_frame  # noqa: E402
 from sphrender.client.readers import read_particles  # noqa: E402
-from sphrender.server.analytic_scenes import jittered_lattice_ball  # noqa: E402
-from sphrender.server.engine.cl_context import CLContext  # noqa: E402
-from sphrender.server.engine.sph import SphEngine, SphParameters  # noqa: E402
+from sphrender.server.content.lattice import jittered_lattice_ball  # noqa: E402
+from sphrender.server.engine.gpu.cl_context import CLContext  # noqa: E402
+from sphrender.server.engine.sph.engine import SphEngine, SphParameters  # noqa: E402
 from sphrender.server.scene import Scene, scene_from_dict  # noqa: E402
 
 R = 0.015
@@ -106,7 +106,7 @@ def render_scene(radius: float, eye: list[float], target: list[float], **sph: An
 
 
 def bench_surface_only(name: str, positions: np.ndarray, scene: Scene) -> None:
-    from sphrender.server.engine.gl_context import GLContext
+    from sphrender.server.engine.gpu.gl_context import GLContext
     from sphrender.server.engine.renderer import SurfaceRenderer
 
     frame = make_frame(positions)

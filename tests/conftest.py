@@ -13,10 +13,10 @@ from typing import TYPE_CHECKING
 
 import pytest
 
-from sphrender.server.engine.cl_context import CLContext
-from sphrender.server.engine.gl_context import GLContext
+from sphrender.server.engine.gpu.cl_context import CLContext
+from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
-from sphrender.server.engine.sph import SphEngine
+from sphrender.server.engine.sph.engine import SphEngine
 
 if TYPE_CHECKING:
     from service_harness import ServerProcess

@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.server.analytic_scenes import pixel_rays
-from sphrender.server.engine.camera import Camera
+from sphrender.server.bench.analytic import pixel_rays
+from sphrender.server.engine.geometry.camera import Camera
 
 F64 = npt.NDArray[np.float64]
 MIN_ROUGHNESS = 0.045

@@ -32,7 +32,7 @@ from sphrender.client.protocol import (
     parse_prefix,
 )
 from sphrender.server.engine.renderer import SurfaceRenderer
-from sphrender.server.local_backend import encode_for_scene
+from sphrender.server.output.local import encode_for_scene
 from sphrender.server.scene import Scene, scene_from_dict
 
 HOST = "127.0.0.1"

@@ -1,6 +1,6 @@
 """Independent float64 reference of the SPH quantities: scipy cKDTree pairs + numpy sums.
 
-Shares no code with `sphrender.server.engine.sph` or the OpenCL kernels: the pair search is
+Shares no code with `sphrender.server.engine.sph.engine` or the OpenCL kernels: the pair search is
 scipy's k-d tree, the kernel is written out again from the issue's formula, and every sum is a
 float64 `np.bincount`. Used by the tests and by `benchmarks/bench_sph.py` (the "scipy
 reference" the OpenCL pass is timed against).

@@ -18,12 +18,12 @@ import numpy as np
 import pytest
 
 from sphrender.client.errors import InputError
-from sphrender.server.analytic_scenes import jittered_lattice_ball
 from sphrender.server.bench.run import CSV_COLUMNS
 from sphrender.server.bench.sweep import QUICK_SWEEP
-from sphrender.server.encoders import read_exr
-from sphrender.server.presets import PRESETS, load_scene_with_preset, preset_sections
+from sphrender.server.content.lattice import jittered_lattice_ball
+from sphrender.server.output.encoders import read_exr
 from sphrender.server.scene import Scene, scene_from_dict
+from sphrender.server.scene.presets import PRESETS, load_scene_with_preset, preset_sections
 
 CLI = (sys.executable, "-m", "sphrender.server.cli")
 

@@ -12,8 +12,8 @@ import pytest
 from cli_harness import run_sphrender
 
 from sphrender.client.frame import make_frame
-from sphrender.server.encoders import read_exr
 from sphrender.server.engine.renderer import SurfaceRenderer
+from sphrender.server.output.encoders import read_exr
 from sphrender.server.scene import load_scene
 
 SMALL_SCENE = """

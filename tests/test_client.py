@@ -17,8 +17,8 @@ from service_harness import MAIN_CONFIG, SMALL_SCENE, ServerProcess, ball, refer
 from sphrender.client.api import Client, ServerError, ServerUnavailable, decode_exr
 from sphrender.client.frame import make_frame
 from sphrender.client.image_check import is_complete_exr
-from sphrender.server.encoders import read_exr
 from sphrender.server.engine.renderer import SurfaceRenderer
+from sphrender.server.output.encoders import read_exr
 
 SCENE_TOML = DAMBREAK_SCENE_TOML
 

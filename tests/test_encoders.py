@@ -17,9 +17,9 @@ import OpenEXR
 import OpenImageIO as oiio
 import pytest
 
-from sphrender.server import encoders
-from sphrender.server.encoders import ExrOptions, PngOptions
 from sphrender.server.engine.frame_output import RenderedFrame
+from sphrender.server.output import encoders
+from sphrender.server.output.encoders import ExrOptions, PngOptions
 
 H, W = 24, 32
 RADIUS = 9.0

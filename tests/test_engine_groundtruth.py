@@ -25,15 +25,14 @@ import numpy as np
 import pytest
 
 from sphrender.client.frame import make_frame
-from sphrender.server.analytic_scenes import (
+from sphrender.server.bench.analytic import (
     angle_deg,
     ball_errors,
-    jittered_lattice_ball,
-    lattice_slab,
     reconstruct_world_positions,
     sphere_hits,
 )
-from sphrender.server.engine.camera import Camera
+from sphrender.server.content.lattice import jittered_lattice_ball, lattice_slab
+from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import Scene, scene_from_dict
 

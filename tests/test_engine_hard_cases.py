@@ -14,9 +14,9 @@ import pytest
 
 from sphrender.client.errors import InputError
 from sphrender.client.frame import make_frame
-from sphrender.server.analytic_scenes import sphere_hits
-from sphrender.server.engine.camera import Camera
+from sphrender.server.bench.analytic import sphere_hits
 from sphrender.server.engine.frame_output import RenderedFrame
+from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import MAX_IMAGE_SIDE, Scene, scene_from_dict
 

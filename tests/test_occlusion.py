@@ -16,9 +16,9 @@ import pytest
 
 from sphrender.client.frame import make_frame
 from sphrender.client.readers import read_particles
-from sphrender.server.analytic_scenes import jittered_lattice_ball, lattice_slab
-from sphrender.server.engine import occlusion
-from sphrender.server.engine.camera import Camera
+from sphrender.server.content.lattice import jittered_lattice_ball, lattice_slab
+from sphrender.server.engine.geometry import occlusion
+from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.renderer import (
     RenderStats,
     SurfaceRenderer,

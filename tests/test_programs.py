@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from sphrender.server.engine.gl_context import GLContext
-from sphrender.server.engine.programs import ProgramCache, ShaderCompileError
-from sphrender.server.engine.shader_loader import ShaderLoader
+from sphrender.server.engine.gpu.gl_context import GLContext
+from sphrender.server.engine.gpu.programs import ProgramCache, ShaderCompileError
+from sphrender.server.engine.gpu.shader_loader import ShaderLoader
 
 
 def test_compile_error_names_included_file_and_line(tmp_path: Path, gl_context: GLContext) -> None:
@@ -32,13 +32,15 @@ def test_compile_error_names_included_file_and_line(tmp_path: Path, gl_context: 
 
 def test_every_shipped_program_compiles(gl_context: GLContext) -> None:
     cache = ProgramCache(gl_context)
-    cache.get("splat_sphere.vert.glsl", "splat_sphere.frag.glsl")
-    cache.get("fullscreen.vert.glsl", "surface_normals.frag.glsl")
-    cache.get("splat_sphere.vert.glsl", "splat_sphere.frag.glsl", {"HAS_TEMPERATURE": True})
-    for fragment in ("prefilter_ggx.frag.glsl", "brdf_probe.frag.glsl"):
-        cache.get("fullscreen.vert.glsl", fragment)
+    cache.get("splat/splat_sphere.vert.glsl", "splat/splat_sphere.frag.glsl")
+    cache.get("common/fullscreen.vert.glsl", "normals/surface_normals.frag.glsl")
+    cache.get(
+        "splat/splat_sphere.vert.glsl", "splat/splat_sphere.frag.glsl", {"HAS_TEMPERATURE": True}
+    )
+    for fragment in ("lighting/prefilter_ggx.frag.glsl", "lighting/brdf_probe.frag.glsl"):
+        cache.get("common/fullscreen.vert.glsl", fragment)
     for g_term in (0, 1):
-        cache.get("fullscreen.vert.glsl", "brdf_lut.frag.glsl", {"G_TERM": g_term})
+        cache.get("common/fullscreen.vert.glsl", "lighting/brdf_lut.frag.glsl", {"G_TERM": g_term})
     # Every define of the shading shader on its own (the combinations share the code paths).
     for defines in (
         {},
@@ -49,22 +51,26 @@ def test_every_shipped_program_compiles(gl_context: GLContext) -> None:
         {"IBL_MODE": 2, "MULTIPLE_SCATTERING": True},
         *({"DEBUG_VIEW": view} for view in range(1, 6)),
     ):
-        cache.get("fullscreen.vert.glsl", "shade_pbr.frag.glsl", defines)
+        cache.get("common/fullscreen.vert.glsl", "shade/shade_pbr.frag.glsl", defines)
     for filter_id in (0, 1, 2):
         for kernel_size in (0, 1):
             cache.get(
-                "fullscreen.vert.glsl",
-                "smooth_depth.frag.glsl",
+                "common/fullscreen.vert.glsl",
+                "smooth/smooth_depth.frag.glsl",
                 {"FILTER": filter_id, "KERNEL_SIZE": kernel_size},
             )
             for axis in (0, 1):
                 cache.get(
-                    "fullscreen.vert.glsl",
-                    "smooth_depth_separable.frag.glsl",
+                    "common/fullscreen.vert.glsl",
+                    "smooth/smooth_depth_separable.frag.glsl",
                     {"FILTER": filter_id, "KERNEL_SIZE": kernel_size, "AXIS": axis},
                 )
-    cache.get("fullscreen.vert.glsl", "image_pack.frag.glsl")
-    cache.get("fullscreen.vert.glsl", "image_unpack.frag.glsl")
+    cache.get("common/fullscreen.vert.glsl", "common/image_pack.frag.glsl")
+    cache.get("common/fullscreen.vert.glsl", "common/image_unpack.frag.glsl")
     for axis in (0, 1):
-        cache.get("fullscreen.vert.glsl", "smooth_temperature.frag.glsl", {"AXIS": axis})
+        cache.get(
+            "common/fullscreen.vert.glsl",
+            "temperature/smooth_temperature.frag.glsl",
+            {"AXIS": axis},
+        )
     cache.release()

@@ -115,7 +115,7 @@ def test_bad_values_name_the_key_and_limit(data: dict[str, Any], field: str, wor
 
 
 def test_lights_round_trip_and_material_overrides() -> None:
-    from sphrender.server.engine.materials import METAL_F0, resolve_material
+    from sphrender.server.engine.lighting.materials import METAL_F0, resolve_material
 
     data = {
         "lights": [

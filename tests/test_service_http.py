@@ -31,8 +31,8 @@ from service_harness import (
 )
 
 from sphrender.client.protocol import encode_npz_frame
-from sphrender.server.encoders import read_exr
 from sphrender.server.engine.renderer import SurfaceRenderer
+from sphrender.server.output.encoders import read_exr
 
 
 def metric_values(text: str) -> dict[tuple[str, tuple[tuple[str, str], ...]], float]:

@@ -37,8 +37,8 @@ from sphrender.client.protocol import (
     encode_frame,
     encode_message,
 )
-from sphrender.server.encoders import read_exr
 from sphrender.server.engine.renderer import SurfaceRenderer
+from sphrender.server.output.encoders import read_exr
 
 
 def quiet_metrics(service: ServerProcess) -> dict[tuple[str, tuple[tuple[str, str], ...]], float]:

@@ -7,7 +7,7 @@ from typing import Any
 
 import pytest
 
-from sphrender.server.engine.shader_loader import (
+from sphrender.server.engine.gpu.shader_loader import (
     ComposedShader,
     ShaderDefineError,
     ShaderLoader,

@@ -31,10 +31,10 @@ import numpy as np
 import pytest
 import reference_shading as ref
 
-from sphrender.server.engine.camera import Camera
-from sphrender.server.engine.gl_context import GLContext
-from sphrender.server.engine.ibl import BRDF_LUT_NODES, BRDF_LUT_SIZE
-from sphrender.server.engine.programs import ProgramCache
+from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.gpu.gl_context import GLContext
+from sphrender.server.engine.gpu.programs import ProgramCache
+from sphrender.server.engine.lighting.ibl import BRDF_LUT_NODES, BRDF_LUT_SIZE
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import Scene, scene_from_dict
 
@@ -79,7 +79,9 @@ def evaluate_probe(
     target = ctx.texture((width, height), 4, dtype="f4")
     fbo = ctx.framebuffer([target])
     program = programs.get(
-        "fullscreen.vert.glsl", "brdf_probe.frag.glsl", {"G_TERM": G_DEFINES[g_term]}
+        "common/fullscreen.vert.glsl",
+        "lighting/brdf_probe.frag.glsl",
+        {"G_TERM": G_DEFINES[g_term]},
     )
     vao = ctx.vertex_array(program, [])
     try:
@@ -298,7 +300,7 @@ def test_done_when_ball_centre_under_white_furnace(renderer: SurfaceRenderer) ->
     of a particle ball (n.v ~ 1) renders within 4% of 0.916 (no multiple-scattering
     compensation), through the whole pipeline (splat, smoothing, normals, shading)."""
     from sphrender.client.frame import make_frame
-    from sphrender.server.analytic_scenes import jittered_lattice_ball
+    from sphrender.server.content.lattice import jittered_lattice_ball
 
     scene = scene_from_dict(
         {

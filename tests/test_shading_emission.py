@@ -8,15 +8,15 @@ import pytest
 import reference_shading as ref
 
 from sphrender.client.frame import make_frame
-from sphrender.server.analytic_scenes import jittered_lattice_ball
-from sphrender.server.engine.blackbody import (
+from sphrender.server.content.lattice import jittered_lattice_ball
+from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.lighting.blackbody import (
     REC709_LUMINANCE,
     blackbody_rgb,
     blackbody_table,
     to_gamut,
 )
-from sphrender.server.engine.camera import Camera
-from sphrender.server.engine.materials import METAL_F0
+from sphrender.server.engine.lighting.materials import METAL_F0
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import scene_from_dict
 
@@ -149,8 +149,8 @@ def test_direct_lights_and_eq55_combination(renderer: SurfaceRenderer) -> None:
         return renderer.shade_normal_depth(image, scene)[..., :3].astype(np.float64)
 
     direct = shade(debug_view="direct")
-    from sphrender.server.analytic_scenes import pixel_rays
-    from sphrender.server.engine.materials import resolve_material
+    from sphrender.server.bench.analytic import pixel_rays
+    from sphrender.server.engine.lighting.materials import resolve_material
 
     material = resolve_material(base.material)
     rays = pixel_rays(camera)

@@ -20,12 +20,12 @@ from test_shading_brdf import product_rule_albedo
 
 from sphrender.client.errors import InputError
 from sphrender.client.frame import make_frame
-from sphrender.server.analytic_scenes import jittered_lattice_ball
-from sphrender.server.engine import environment as env
-from sphrender.server.engine.camera import Camera
-from sphrender.server.engine.environment import EnvironmentImage
-from sphrender.server.engine.gl_context import GLContext
-from sphrender.server.engine.ibl import sh9_basis, sh9_coefficients, sh9_irradiance
+from sphrender.server.content.lattice import jittered_lattice_ball
+from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.gpu.gl_context import GLContext
+from sphrender.server.engine.lighting import environment as env
+from sphrender.server.engine.lighting.environment import EnvironmentImage
+from sphrender.server.engine.lighting.ibl import sh9_basis, sh9_coefficients, sh9_irradiance
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import Scene, scene_from_dict
 

@@ -34,9 +34,9 @@ import OpenImageIO as oiio
 import pytest
 import reference_shading as ref
 
-from sphrender.server.engine import environment as env
-from sphrender.server.engine.camera import Camera
-from sphrender.server.engine.materials import METAL_F0
+from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.lighting import environment as env
+from sphrender.server.engine.lighting.materials import METAL_F0
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import scene_from_dict
 

@@ -33,15 +33,15 @@ from sph_reference import ReferenceSph, cubic_spline, reference_pairs, reference
 from sphrender.client.errors import InputError
 from sphrender.client.frame import make_frame
 from sphrender.client.readers import read_particles
-from sphrender.server.analytic_scenes import jittered_lattice_ball
-from sphrender.server.engine.cl_context import (
+from sphrender.server.content.lattice import jittered_lattice_ball
+from sphrender.server.engine.gpu.cl_context import (
     CLContext,
     CLUnavailableError,
     kernel_source,
     list_devices,
     probe_device,
 )
-from sphrender.server.engine.sph import (
+from sphrender.server.engine.sph.engine import (
     SphEngine,
     SphParameters,
     SphResult,
@@ -383,13 +383,13 @@ def test_sph_scene_errors_name_the_key(data: dict[str, object], field: str) -> N
 
 
 def test_program_is_built_once_per_context(cl_context: CLContext) -> None:
-    first = cl_context.program("sph.cl")
-    assert cl_context.program("sph.cl") is first
+    first = cl_context.program("sph/sph.cl")
+    assert cl_context.program("sph/sph.cl") is first
     assert "density" in first.kernel_names.split(";")
 
 
 def test_kernel_file_is_package_data() -> None:
-    assert "__kernel void density" in kernel_source("sph.cl")
+    assert "__kernel void density" in kernel_source("sph/sph.cl")
 
 
 def test_context_refuses_other_threads(cl_context: CLContext, sph_engine: SphEngine) -> None:

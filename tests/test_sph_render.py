@@ -26,8 +26,9 @@ import pytest
 
 from sphrender.client.frame import make_frame
 from sphrender.client.readers import read_particles
-from sphrender.server.analytic_scenes import jittered_lattice_ball, sphere_hits
-from sphrender.server.engine.camera import Camera
+from sphrender.server.bench.analytic import sphere_hits
+from sphrender.server.content.lattice import jittered_lattice_ball
+from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import Scene, scene_from_dict
 

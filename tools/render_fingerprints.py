@@ -80,7 +80,9 @@ def _toml(scene: dict[str, Any]) -> str:
 
 
 CASES: dict[str, dict[str, Any]] = {
-    "ball_exr_aovs": _scene(output={"format": "exr", "aovs": ["Z", "N"], "exr_pixel_type": "float"}),
+    "ball_exr_aovs": _scene(
+        output={"format": "exr", "aovs": ["Z", "N"], "exr_pixel_type": "float"}
+    ),
     "ball_sampled_lights": _scene(
         shading={"ibl_mode": "sampled", "ibl_samples": 16},
         lights=[
@@ -139,8 +141,16 @@ def fingerprints(work: Path) -> dict[str, list[str]]:
             _run(["render", str(source), "--scene", str(scene_path), "-o", str(image)])
             out[name].append(_sha(image))
     sph_out = work / "sph.npz"
-    _run(["sph", str(plain), "--scene", str(work / "ball_sph_adaptive_surface_only.toml"),
-          "-o", str(sph_out)])
+    _run(
+        [
+            "sph",
+            str(plain),
+            "--scene",
+            str(work / "ball_sph_adaptive_surface_only.toml"),
+            "-o",
+            str(sph_out),
+        ]
+    )
     with np.load(sph_out) as data:
         out["sph_quantities_surface"] = [
             hashlib.sha256(np.asarray(data["surface"]).tobytes()).hexdigest()

@@ -18,9 +18,9 @@ import numpy as np
 import numpy.typing as npt
 
 from sphrender.server.bench.scenes import Truth
-from sphrender.server.engine.camera import Camera
-from sphrender.server.engine.gl_context import GLContext
-from sphrender.server.engine.programs import ProgramCache
+from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.gpu.gl_context import GLContext
+from sphrender.server.engine.gpu.programs import ProgramCache
 
 F64 = npt.NDArray[np.float64]
 
@@ -70,7 +70,7 @@ def rasterise(gl: GLContext, programs: ProgramCache, mesh: ReferenceMesh, camera
     ctx = gl.ctx
     view = camera.to_view(mesh.vertices)
     far = float(np.max(-view[:, 2])) * 1.01 + camera.near if len(view) else 1.0
-    program = programs.get("mesh_reference.vert.glsl", "mesh_reference.frag.glsl")
+    program = programs.get("bench/mesh_reference.vert.glsl", "bench/mesh_reference.frag.glsl")
     vertices = ctx.buffer(np.ascontiguousarray(view, dtype=np.float32).tobytes())
     normals = ctx.buffer(np.ascontiguousarray(mesh.normals, dtype=np.float32).tobytes())
     indices = ctx.buffer(np.ascontiguousarray(mesh.triangles, dtype=np.uint32).tobytes())
@@ -102,7 +102,7 @@ def rasterise(gl: GLContext, programs: ProgramCache, mesh: ReferenceMesh, camera
     n = pixels[:, :, :3]
     length = np.linalg.norm(n, axis=2, keepdims=True)
     n = np.where(length > 0, n / np.maximum(length, 1e-12), 0.0)
-    from sphrender.server.analytic_scenes import pixel_rays
+    from sphrender.server.bench.analytic import pixel_rays
 
     facing = np.einsum("ijk,ijk->ij", n, pixel_rays(camera).directions)
     n = np.where((facing > 0)[..., None], -n, n)

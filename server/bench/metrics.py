@@ -18,11 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.server import encoders
-from sphrender.server.analytic_scenes import angle_deg, iou, reconstruct_world_positions
+from sphrender.server.bench.analytic import angle_deg, iou, reconstruct_world_positions
 from sphrender.server.bench.scenes import Truth
-from sphrender.server.engine.camera import Camera
 from sphrender.server.engine.frame_output import RenderedFrame
+from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.output import encoders
 
 MIN_FACING = 0.3
 
@@ -64,7 +64,7 @@ def surface_metrics(
 
 
 def _directions(camera: Camera) -> npt.NDArray[np.float64]:
-    from sphrender.server.analytic_scenes import pixel_rays
+    from sphrender.server.bench.analytic import pixel_rays
 
     return pixel_rays(camera).directions
 

@@ -44,7 +44,7 @@ from sphrender.server.bench.sweep import (
     run_sweep,
     scene_for,
 )
-from sphrender.server.engine.gl_context import GLContext
+from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
 
 CSV_COLUMNS = (
@@ -242,8 +242,8 @@ def _run_peers(results: BenchResults, frames: int, log: Callable[[str], None]) -
     results.cpu_peers.append(("scipy_sph_density", scipy_ms, "cKDTree pairs + float64 sums"))
     log(f"  scipy SPH density: {scipy_ms:.0f} ms")
     try:
-        from sphrender.server.engine.cl_context import CLContext
-        from sphrender.server.engine.sph import SphEngine, SphParameters
+        from sphrender.server.engine.gpu.cl_context import CLContext
+        from sphrender.server.engine.sph.engine import SphEngine, SphParameters
 
         with CLContext() as cl:
             engine = SphEngine(cl)

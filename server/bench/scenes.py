@@ -18,12 +18,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.server.analytic_scenes import (
-    jittered_lattice_ball,
-    lattice_slab,
-    pixel_rays,
-)
-from sphrender.server.engine.camera import Camera
+from sphrender.server.bench.analytic import pixel_rays
+from sphrender.server.content.lattice import jittered_lattice_ball, lattice_slab
+from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.scene import CameraConfig
 
 F64 = npt.NDArray[np.float64]

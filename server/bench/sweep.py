@@ -24,10 +24,10 @@ from sphrender.server.bench.metrics import (
     surface_metrics,
 )
 from sphrender.server.bench.scenes import BenchScene
-from sphrender.server.engine.camera import Camera
+from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.renderer import SurfaceRenderer
-from sphrender.server.presets import preset_sections
 from sphrender.server.scene import Scene, merge_scene_dicts, scene_from_dict
+from sphrender.server.scene.presets import preset_sections
 
 STAGES = ("sph", "prepare", "splat", "smooth", "normals", "shade", "readback")
 

@@ -1,8 +1,8 @@
 """What the render engine hands back for one frame, before any encoding.
 
-Rendering and encoding are separate steps: the engine fills a `RenderedFrame` with float arrays and
-`sphrender.server.encoders` turns it into PNG or EXR bytes (or files) afterwards, so the service
-can render once and encode on demand.
+Rendering and encoding are separate steps: the engine fills a `RenderedFrame` with float arrays
+and `sphrender.server.output.encoders` turns it into PNG or EXR bytes (or files) afterwards, so
+the service can render once and encode on demand.
 
 Conventions every producer must follow (the encoders rely on them):
 

@@ -35,14 +35,14 @@ import numpy.typing as npt
 
 from sphrender.client.errors import InputError
 from sphrender.client.frame import ParticleFrame
-from sphrender.server.engine import occlusion
-from sphrender.server.engine.camera import Camera
-from sphrender.server.engine.cl_context import CLContext
 from sphrender.server.engine.frame_output import RenderedFrame
-from sphrender.server.engine.gl_context import GLContext
-from sphrender.server.engine.programs import ProgramCache
-from sphrender.server.engine.shading import ShadePass
-from sphrender.server.engine.sph import (
+from sphrender.server.engine.geometry import occlusion
+from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.gpu.cl_context import CLContext
+from sphrender.server.engine.gpu.gl_context import GLContext
+from sphrender.server.engine.gpu.programs import ProgramCache
+from sphrender.server.engine.passes.shade import ShadePass
+from sphrender.server.engine.sph.engine import (
     SphEngine,
     apply_to_frame,
     frame_particle_radius,
@@ -315,7 +315,7 @@ class SurfaceRenderer:
         return vao
 
     def _splat_vertex_array(self) -> tuple[moderngl.Program, moderngl.VertexArray]:
-        program = self._programs.get("splat_sphere.vert.glsl", "splat_sphere.frag.glsl")
+        program = self._programs.get("splat/splat_sphere.vert.glsl", "splat/splat_sphere.frag.glsl")
         if self._splat_vao is None:
             self._splat_vao = self._gl.ctx.vertex_array(
                 program,
@@ -330,7 +330,9 @@ class SurfaceRenderer:
 
     def _splat_temperature_vertex_array(self) -> tuple[moderngl.Program, moderngl.VertexArray]:
         program = self._programs.get(
-            "splat_sphere.vert.glsl", "splat_sphere.frag.glsl", {"HAS_TEMPERATURE": True}
+            "splat/splat_sphere.vert.glsl",
+            "splat/splat_sphere.frag.glsl",
+            {"HAS_TEMPERATURE": True},
         )
         if self._splat_temperature_vao is None:
             self._splat_temperature_vao = self._gl.ctx.vertex_array(
@@ -439,7 +441,9 @@ class SurfaceRenderer:
                 )
 
         with self._stage(stats, "normals"):
-            program = self._programs.get("fullscreen.vert.glsl", "surface_normals.frag.glsl")
+            program = self._programs.get(
+                "common/fullscreen.vert.glsl", "normals/surface_normals.frag.glsl"
+            )
             surface.use(0)
             program["u_depth"] = 0
             program["u_tan_half_fov"] = (
@@ -653,8 +657,8 @@ class SurfaceRenderer:
         kernel_define = _KERNEL_SIZE_DEFINES[quality.kernel_size]
         if not quality.separable:
             program = self._programs.get(
-                "fullscreen.vert.glsl",
-                "smooth_depth.frag.glsl",
+                "common/fullscreen.vert.glsl",
+                "smooth/smooth_depth.frag.glsl",
                 {"FILTER": filter_define, "KERNEL_SIZE": kernel_define},
             )
             self._set_filter_uniforms(program, px_per_unit, particle_radius, quality)
@@ -677,15 +681,15 @@ class SurfaceRenderer:
         packed_box = None if box is None else _packed_box(box)
         for fbo in targets.packed_fbos:
             _scissored(fbo, packed_box)
-        pack = self._programs.get("fullscreen.vert.glsl", "image_pack.frag.glsl")
+        pack = self._programs.get("common/fullscreen.vert.glsl", "common/image_pack.frag.glsl")
         pack["u_image"] = 0
         targets.splat_depth.use(0)
         targets.packed_fbos[0].use()
         self._fullscreen(pack).render(moderngl.TRIANGLES, vertices=3)
         passes = {
             axis: self._programs.get(
-                "fullscreen.vert.glsl",
-                "smooth_depth_separable.frag.glsl",
+                "common/fullscreen.vert.glsl",
+                "smooth/smooth_depth_separable.frag.glsl",
                 {"FILTER": filter_define, "KERNEL_SIZE": kernel_define, "AXIS": axis},
             )
             for axis in (0, 1)
@@ -704,7 +708,7 @@ class SurfaceRenderer:
                 read_index = 1 - read_index
         for fbo in targets.packed_fbos:
             _set_scissor(fbo, None)
-        unpack = self._programs.get("fullscreen.vert.glsl", "image_unpack.frag.glsl")
+        unpack = self._programs.get("common/fullscreen.vert.glsl", "common/image_unpack.frag.glsl")
         unpack["u_packed"] = 0
         targets.packed[read_index].use(0)
         _scissored(targets.ping_fbos[0], box)

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from sphrender.client.protocol import LimitError, parse_json_object
-from sphrender.server.engine.environment import EnvironmentLibrary
+from sphrender.server.engine.lighting.environment import EnvironmentLibrary
 from sphrender.server.scene import Scene, scene_from_dict
 
 

@@ -37,9 +37,9 @@ from sphrender.client.errors import InputError
 from sphrender.client.frame import make_frame
 from sphrender.client.protocol import ErrorCode
 from sphrender.server.engine.frame_output import RenderedFrame
-from sphrender.server.engine.gl_context import GLContext
+from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import RenderStats, SurfaceRenderer
-from sphrender.server.local_backend import encode_for_scene, render_for_output
+from sphrender.server.output.local import encode_for_scene, render_for_output
 from sphrender.server.scene import Scene
 from sphrender.server.service.jobs import (
     ErrorOutcome,

@@ -20,7 +20,7 @@ import functools
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.server.engine.cie_cmf import CIE_1931_2DEG_5NM
+from sphrender.server.engine.lighting.cie_cmf import CIE_1931_2DEG_5NM
 
 F64 = npt.NDArray[np.float64]
 

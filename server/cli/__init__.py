@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
 from sphrender.client.errors import InputError
-from sphrender.server.presets import PRESETS
+from sphrender.server.scene.presets import PRESETS
 
 if TYPE_CHECKING:
     from sphrender.client.frame import ParticleFrame
@@ -76,7 +76,7 @@ def _add_quality(parser: argparse.ArgumentParser) -> None:
 
 
 def _load_scene(args: argparse.Namespace) -> Scene:
-    from sphrender.server.presets import load_scene_with_preset
+    from sphrender.server.scene.presets import load_scene_with_preset
 
     return load_scene_with_preset(args.scene, args.quality)
 
@@ -273,9 +273,9 @@ def _choose_format(explicit: str | None, output: Path, scene_format: ImageFormat
 
 def _run_render(args: argparse.Namespace) -> int:
     from sphrender.client.readers import read_particles
-    from sphrender.server import encoders
-    from sphrender.server.engine.gl_context import GLContext
+    from sphrender.server.engine.gpu.gl_context import GLContext
     from sphrender.server.engine.renderer import SurfaceRenderer
+    from sphrender.server.output import encoders
 
     scene = _load_scene(args)
     fmt = _choose_format(args.format, args.output, scene.output.format)
@@ -333,7 +333,7 @@ def _collect(name: str, job: Future[None], failures: list[str]) -> None:
 def _render_for_output(
     renderer: SurfaceRenderer, particles: ParticleFrame, scene: Scene, fmt: ImageFormat
 ) -> tuple[RenderedFrame, RenderStats]:
-    from sphrender.server.local_backend import render_for_output
+    from sphrender.server.output.local import render_for_output
 
     return render_for_output(renderer, particles, scene, fmt)
 
@@ -351,7 +351,7 @@ def _encode_and_write(
     from render start to written file, and when it was written (seconds since the command
     started: the spacing of those is the steady per-frame time `sphrender bench` reports)."""
     from sphrender.client.submit import write_atomically
-    from sphrender.server.local_backend import encode_for_scene
+    from sphrender.server.output.local import encode_for_scene
 
     try:
         write_atomically(path, encode_for_scene(frame, scene, fmt))
@@ -386,8 +386,8 @@ def _run_sph(args: argparse.Namespace) -> int:
 
     from sphrender.client.readers import read_particles
     from sphrender.client.submit import write_atomically
-    from sphrender.server.engine.cl_context import CLContext
-    from sphrender.server.engine.sph import (
+    from sphrender.server.engine.gpu.cl_context import CLContext
+    from sphrender.server.engine.sph.engine import (
         SphEngine,
         SphParameters,
         eq29_radii,
@@ -450,8 +450,8 @@ def _run_sph(args: argparse.Namespace) -> int:
 
 
 def _run_demo(args: argparse.Namespace) -> int:
-    from sphrender.server.demo import demo_frame, demo_scene
-    from sphrender.server.engine.gl_context import GLContext
+    from sphrender.server.content.demo import demo_frame, demo_scene
+    from sphrender.server.engine.gpu.gl_context import GLContext
     from sphrender.server.engine.renderer import SurfaceRenderer
 
     scene = demo_scene()
@@ -479,7 +479,7 @@ def _parse_attribute_map(pairs: Sequence[str]) -> dict[str, str]:
 def _run_submit(args: argparse.Namespace) -> int:
     from sphrender.client.sequences import expand_inputs, plan_jobs
     from sphrender.client.submit import FrameRenderer, RemoteFrameRenderer, run_submission
-    from sphrender.server import encoders
+    from sphrender.server.output import encoders
     from sphrender.server.scene import scene_to_dict
 
     if args.jobs < 1:
@@ -502,7 +502,7 @@ def _run_submit(args: argparse.Namespace) -> int:
         close = None
         concurrency = args.jobs
     else:
-        from sphrender.server.local_backend import LocalFrameRenderer
+        from sphrender.server.output.local import LocalFrameRenderer
 
         local = LocalFrameRenderer(scene, fmt, _environment_dirs(args))
         log.info("GL renderer: %s", local.gl_renderer)
@@ -540,8 +540,8 @@ def _run_bench(args: argparse.Namespace) -> int:
 
 
 def _run_info(_args: argparse.Namespace) -> int:
-    from sphrender.server.engine.cl_context import CLUnavailableError, list_devices
-    from sphrender.server.engine.gl_context import GLContext
+    from sphrender.server.engine.gpu.cl_context import CLUnavailableError, list_devices
+    from sphrender.server.engine.gpu.gl_context import GLContext
 
     with GLContext() as gl:
         info: dict[str, object] = {
@@ -588,8 +588,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         format="%(name)s: %(message)s",
         stream=sys.stderr,
     )
-    from sphrender.server.engine.cl_context import CLUnavailableError
-    from sphrender.server.engine.gl_context import GLUnavailableError
+    from sphrender.server.engine.gpu.cl_context import CLUnavailableError
+    from sphrender.server.engine.gpu.gl_context import GLUnavailableError
 
     runners = {
         "render": _run_render,

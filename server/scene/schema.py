@@ -7,22 +7,15 @@ same schema). Validation is strict: unknown keys, wrong types and out-of-range v
 
 Each section is a frozen dataclass; each field carries its documentation and range in
 ``metadata`` (see `spec`), which is what the validator reads and what ``sphrender render --help``
-could list. Adding a field means adding one line here.
+could list. Adding a field means adding one line here. Validation lives in `validate.py`
+(dict -> dataclasses, cross-field rules), files and merging in `files.py`; the package's
+`__init__` is the public surface (`from sphrender.server.scene import Scene, scene_from_dict`).
 """
 
 from __future__ import annotations
 
-import copy
-import math
-import tomllib
-import types
-import typing
-from collections.abc import Mapping
-from dataclasses import MISSING, dataclass, field, fields, replace
-from pathlib import Path
-from typing import Any, Literal, TypeVar, get_args, get_origin
-
-from sphrender.client.errors import InputError
+from dataclasses import MISSING, dataclass, field, replace
+from typing import Any, Literal
 
 #: Largest image side accepted by the configuration; the GL context may lower it further.
 MAX_IMAGE_SIDE = 16384
@@ -240,8 +233,8 @@ MaterialPreset = Literal[
 @dataclass(frozen=True)
 class MaterialConfig:
     """The surface material. A preset supplies measured F0 (linear sRGB, see
-    `sphrender.server.engine.materials`), metallic = 1 and a default roughness; explicit keys
-    override the preset's values one by one."""
+    `sphrender.server.engine.lighting.materials`), metallic = 1 and a default roughness; explicit
+    keys override the preset's values one by one."""
 
     preset: MaterialPreset = spec(
         "stainless_steel",
@@ -426,225 +419,3 @@ class Scene:
 
     def with_overrides(self, **sections: Any) -> Scene:
         return replace(self, **sections)
-
-
-T = TypeVar("T")
-
-
-def _describe_range(meta: Mapping[str, Any]) -> str:
-    low, high = meta["low"], meta["high"]
-    lo = "(" if meta["low_open"] else "["
-    hi = ")" if meta["high_open"] else "]"
-    return (
-        f"{lo}{'-inf' if low is None else _fmt(low)}, {'inf' if high is None else _fmt(high)}{hi}"
-    )
-
-
-def _fmt(x: float) -> str:
-    return str(int(x)) if float(x).is_integer() else str(x)
-
-
-def _check_range(key: str, value: float, meta: Mapping[str, Any]) -> None:
-    low, high = meta["low"], meta["high"]
-    bad = (low is not None and (value <= low if meta["low_open"] else value < low)) or (
-        high is not None and (value >= high if meta["high_open"] else value > high)
-    )
-    if bad:
-        raise InputError(key, f"must be in {_describe_range(meta)}, got {value!r}")
-
-
-def _convert(key: str, value: Any, annotation: Any, meta: Mapping[str, Any]) -> Any:
-    origin = get_origin(annotation)
-    if origin is types.UnionType or origin is typing.Union:
-        options = [a for a in get_args(annotation) if a is not type(None)]
-        if value is None:
-            return None
-        return _convert(key, value, options[0], meta)
-    if origin is Literal:
-        allowed = get_args(annotation)
-        if value not in allowed or isinstance(value, bool) != isinstance(allowed[0], bool):
-            raise InputError(key, f"must be one of {', '.join(map(repr, allowed))}, got {value!r}")
-        return value
-    if annotation is str:
-        if not isinstance(value, str):
-            raise InputError(key, f"must be a string, got {value!r}")
-        if len(value) > 4096 or "\x00" in value:
-            raise InputError(key, "must be at most 4096 characters without NUL")
-        return value
-    if annotation is bool:
-        if not isinstance(value, bool):
-            raise InputError(key, f"must be true or false, got {value!r}")
-        return value
-    if annotation is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise InputError(key, f"must be an integer, got {value!r}")
-        _check_range(key, value, meta)
-        return value
-    if annotation is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise InputError(key, f"must be a number, got {value!r}")
-        if not math.isfinite(value):
-            raise InputError(key, f"must be finite, got {value!r}")
-        _check_range(key, float(value), meta)
-        return float(value)
-    if annotation == Vec3:
-        if not isinstance(value, list | tuple) or len(value) != 3:
-            raise InputError(key, f"must be a list of 3 numbers, got {value!r}")
-        return tuple(_convert(f"{key}[{i}]", v, float, meta) for i, v in enumerate(value))
-    if origin is tuple:
-        (item_type, _ellipsis) = get_args(annotation)
-        if not isinstance(value, list | tuple):
-            raise InputError(key, f"must be a list, got {value!r}")
-        items = tuple(_convert(f"{key}[{i}]", v, item_type, meta) for i, v in enumerate(value))
-        if len(set(items)) != len(items):
-            raise InputError(key, f"must not repeat entries, got {list(value)!r}")
-        return items
-    raise TypeError(f"unsupported annotation {annotation!r} for {key}")  # programming error
-
-
-def section_from_dict(cls: type[T], data: Any, prefix: str) -> T:
-    """Validate one table into the frozen dataclass `cls` whose fields are declared with `spec`
-    (also used for the server settings): unknown keys, wrong types and values outside a field's
-    range raise `InputError` named `prefix.key`."""
-    if not isinstance(data, Mapping):
-        raise InputError(prefix, f"must be a table, got {type(data).__name__}")
-    hints = typing.get_type_hints(cls)
-    known = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]
-    for key in data:
-        if key not in known:
-            raise InputError(f"{prefix}.{key}", f"unknown key; allowed: {', '.join(sorted(known))}")
-    kwargs = {
-        name: _convert(f"{prefix}.{name}", data[name], hints[name], f.metadata)
-        for name, f in known.items()
-        if name in data
-    }
-    return cls(**kwargs)
-
-
-def _sections_from_list(cls: type[T], data: Any, prefix: str, section: Any) -> tuple[T, ...]:
-    """An array of tables (TOML ``[[lights]]``): each entry validated as a section, errors
-    named ``prefix[i].key``; the scene field's metadata may cap the count (``max_items``)."""
-    if not isinstance(data, list | tuple):
-        raise InputError(prefix, f"must be an array of tables, got {type(data).__name__}")
-    limit = section.metadata.get("max_items")
-    if limit is not None and len(data) > limit:
-        raise InputError(prefix, f"at most {limit} entries, got {len(data)}")
-    return tuple(section_from_dict(cls, item, f"{prefix}[{i}]") for i, item in enumerate(data))
-
-
-def scene_from_dict(data: Mapping[str, Any]) -> Scene:
-    """Build and validate a `Scene` from a TOML/JSON-like mapping (missing keys keep defaults)."""
-    if not isinstance(data, Mapping):
-        raise InputError("scene", f"must be a table, got {type(data).__name__}")
-    sections: dict[str, Any] = {}
-    known = {f.name: f for f in fields(Scene)}
-    hints = typing.get_type_hints(Scene)
-    for key, value in data.items():
-        if key not in known:
-            raise InputError(key, f"unknown section; allowed: {', '.join(sorted(known))}")
-        hint = hints[key]
-        if get_origin(hint) is tuple:
-            sections[key] = _sections_from_list(get_args(hint)[0], value, key, known[key])
-        else:
-            sections[key] = section_from_dict(hint, value, key)
-    scene = Scene(**sections)
-    _check_cross_field(scene)
-    return scene
-
-
-def _check_cross_field(scene: Scene) -> None:
-    cam = scene.camera
-    if cam.far is not None and cam.far <= cam.near:
-        raise InputError(
-            "camera.far", f"must be greater than camera.near ({cam.near}), got {cam.far}"
-        )
-    view = [t - e for t, e in zip(cam.target, cam.eye, strict=True)]
-    length = math.sqrt(sum(v * v for v in view))
-    if length == 0.0 or length < 1e-12 * max(1.0, *(abs(e) for e in cam.eye)):
-        raise InputError("camera.target", "must differ from camera.eye (no view direction)")
-    up_len = math.sqrt(sum(u * u for u in cam.up))
-    if up_len == 0.0:
-        raise InputError("camera.up", "must not be the zero vector")
-    cos = abs(sum(v * u for v, u in zip(view, cam.up, strict=True))) / (length * up_len)
-    if cos > 1.0 - 1e-9:
-        raise InputError("camera.up", "must not be parallel to the view direction (target - eye)")
-    _check_lights(scene.lights)
-    env = scene.environment
-    given = [k for k in ("preset", "uniform", "file") if getattr(env, k) is not None]
-    if len(given) > 1:
-        raise InputError(
-            f"environment.{given[1]}", f"give only one of preset, uniform, file (got {given})"
-        )
-    if env.file is not None and not env.file.strip():
-        raise InputError("environment.file", "must not be empty")
-    w, h = scene.image.width, scene.image.height
-    if w * h > MAX_IMAGE_PIXELS:
-        raise InputError("image", f"{w}x{h} exceeds the limit of {MAX_IMAGE_PIXELS} pixels")
-
-
-def _check_lights(lights: tuple[LightConfig, ...]) -> None:
-    for i, light in enumerate(lights):
-        key = f"lights[{i}]"
-        if light.type == "directional":
-            if light.direction is None:
-                raise InputError(f"{key}.direction", "a directional light needs a direction")
-            if math.sqrt(sum(c * c for c in light.direction)) == 0.0:
-                raise InputError(f"{key}.direction", "must not be the zero vector")
-            if light.position is not None:
-                raise InputError(f"{key}.position", "only point lights have a position")
-        else:
-            if light.position is None:
-                raise InputError(f"{key}.position", "a point light needs a position")
-            if light.direction is not None:
-                raise InputError(f"{key}.direction", "only directional lights have a direction")
-
-
-def read_scene_toml(path: str | Path) -> dict[str, Any]:
-    """A scene TOML file as a mapping, unvalidated; unreadable or malformed files raise
-    `InputError('scene', ...)`."""
-    try:
-        with open(path, "rb") as handle:
-            return tomllib.load(handle)
-    except OSError as exc:
-        raise InputError("scene", f"cannot read {path}: {exc.strerror or exc}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError("scene", f"{path} is not valid TOML: {exc}") from None
-
-
-def load_scene(path: str | Path) -> Scene:
-    """Load and validate a scene TOML file (see `read_scene_toml` for file errors)."""
-    return scene_from_dict(read_scene_toml(path))
-
-
-def merge_scene_dicts(base: Mapping[str, Any], top: Mapping[str, Any]) -> dict[str, Any]:
-    """`top` laid over `base` (neither is modified): tables merge key by key, anything else
-    (values, the ``lights`` array) replaces the base's value. Used for quality presets under a
-    scene file and for per-frame partial scenes over a session's scene."""
-    merged = copy.deepcopy(dict(base))
-    for key, value in top.items():
-        current = merged.get(key)
-        if isinstance(value, Mapping) and isinstance(current, Mapping):
-            merged[key] = merge_scene_dicts(current, value)
-        else:
-            merged[key] = copy.deepcopy(value)
-    return merged
-
-
-def scene_to_dict(scene: Scene) -> dict[str, Any]:
-    """The scene as a plain mapping (for JSON over the wire and for `scene_from_dict`)."""
-
-    def table(value: Any) -> dict[str, Any]:
-        return {
-            f.name: list(v) if isinstance(v := getattr(value, f.name), tuple) else v
-            for f in fields(value)
-            if getattr(value, f.name) is not None
-        }
-
-    out: dict[str, Any] = {}
-    for section in fields(Scene):
-        value = getattr(scene, section.name)
-        if isinstance(value, tuple):
-            out[section.name] = [table(item) for item in value]
-        else:
-            out[section.name] = table(value)
-    return out

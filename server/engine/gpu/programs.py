@@ -10,8 +10,8 @@ from collections.abc import Mapping
 
 import moderngl
 
-from sphrender.server.engine.gl_context import GLContext
-from sphrender.server.engine.shader_loader import DefineValue, ShaderLoader
+from sphrender.server.engine.gpu.gl_context import GLContext
+from sphrender.server.engine.gpu.shader_loader import DefineValue, ShaderLoader
 
 
 class ShaderCompileError(RuntimeError):

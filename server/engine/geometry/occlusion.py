@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.server.engine.camera import Camera
+from sphrender.server.engine.geometry.camera import Camera
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]

@@ -78,7 +78,7 @@ _LOG_PATTERNS: tuple[re.Pattern[str], ...] = (
 class SourceLine:
     """Where one line of a composed source came from."""
 
-    file: str  # path relative to the shader root, e.g. "smooth_depth.frag.glsl"
+    file: str  # path relative to the shader root, e.g. "smooth/smooth_depth.frag.glsl"
     line: int  # 1-based line number in that file
 
     def __str__(self) -> str:

@@ -36,7 +36,7 @@ import numpy.typing as npt
 
 from sphrender.client.errors import InputError
 from sphrender.client.frame import ParticleFrame
-from sphrender.server.engine.cl_context import CLContext
+from sphrender.server.engine.gpu.cl_context import CLContext
 
 if TYPE_CHECKING:
     from sphrender.server.scene import Scene
@@ -46,7 +46,7 @@ F64 = npt.NDArray[np.float64]
 Bools = npt.NDArray[np.bool_]
 
 #: Kernel file (package data in `sphrender.shaders`).
-SPH_KERNELS = "sph.cl"
+SPH_KERNELS = "sph/sph.cl"
 #: Work-group size for every 1-D launch (global sizes are padded to a multiple of it).
 WORK_GROUP = 64
 #: Largest cell coordinate accepted (cells are int32 on the device, with room for +-1).

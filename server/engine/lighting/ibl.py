@@ -24,13 +24,13 @@ import moderngl
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.server.engine.environment import (
+from sphrender.server.engine.gpu.gl_context import GLContext
+from sphrender.server.engine.gpu.programs import ProgramCache
+from sphrender.server.engine.lighting.environment import (
     EnvironmentImage,
     pixel_directions,
     pixel_solid_angles,
 )
-from sphrender.server.engine.gl_context import GLContext
-from sphrender.server.engine.programs import ProgramCache
 
 F64 = npt.NDArray[np.float64]
 
@@ -178,7 +178,9 @@ class IblCache:
         height = width // 2
         result = _equirect_texture(ctx, width, height)
         result.build_mipmaps(0, PREFILTER_LEVELS - 1)  # allocates levels 1..; overwritten below
-        program = self._programs.get("fullscreen.vert.glsl", "prefilter_ggx.frag.glsl")
+        program = self._programs.get(
+            "common/fullscreen.vert.glsl", "lighting/prefilter_ggx.frag.glsl"
+        )
         vao = ctx.vertex_array(program, [])
         entry.source.use(0)
         program["u_source"] = 0
@@ -218,8 +220,8 @@ class IblCache:
         lut.filter = (moderngl.LINEAR, moderngl.LINEAR)
         lut.repeat_x = lut.repeat_y = False
         program = self._programs.get(
-            "fullscreen.vert.glsl",
-            "brdf_lut.frag.glsl",
+            "common/fullscreen.vert.glsl",
+            "lighting/brdf_lut.frag.glsl",
             {"G_TERM": _G_TERM_DEFINES[g_term], "NODES": BRDF_LUT_NODES},
         )
         fbo = ctx.framebuffer([lut])

@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from sphrender.client.frame import ParticleFrame, make_frame
-from sphrender.server.analytic_scenes import lattice_slab
+from sphrender.server.content.lattice import lattice_slab
 from sphrender.server.scene import Scene, scene_from_dict
 
 PARTICLE_RADIUS = 0.4

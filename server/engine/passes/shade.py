@@ -19,13 +19,13 @@ import moderngl
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.server.engine.blackbody import TABLE_MAX_K, TABLE_MIN_K, blackbody_table
-from sphrender.server.engine.camera import Camera
-from sphrender.server.engine.environment import EnvironmentLibrary, rotation_about_y
-from sphrender.server.engine.gl_context import GLContext
-from sphrender.server.engine.ibl import PREFILTER_LEVELS, IblCache
-from sphrender.server.engine.materials import resolve_material
-from sphrender.server.engine.programs import ProgramCache
+from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.gpu.gl_context import GLContext
+from sphrender.server.engine.gpu.programs import ProgramCache
+from sphrender.server.engine.lighting.blackbody import TABLE_MAX_K, TABLE_MIN_K, blackbody_table
+from sphrender.server.engine.lighting.environment import EnvironmentLibrary, rotation_about_y
+from sphrender.server.engine.lighting.ibl import PREFILTER_LEVELS, IblCache
+from sphrender.server.engine.lighting.materials import resolve_material
 from sphrender.server.scene import MAX_LIGHTS, Scene
 
 _IBL_DEFINES = {"none": 0, "prefiltered": 1, "sampled": 2}
@@ -105,8 +105,8 @@ class ShadePass:
     def program_for(self, scene: Scene, has_temperature: bool) -> moderngl.Program:
         shading = scene.shading
         return self._programs.get(
-            "fullscreen.vert.glsl",
-            "shade_pbr.frag.glsl",
+            "common/fullscreen.vert.glsl",
+            "shade/shade_pbr.frag.glsl",
             {
                 "IBL_MODE": _IBL_DEFINES[shading.ibl_mode],
                 "COMBINE": _COMBINE_DEFINES[shading.combine],
@@ -155,7 +155,7 @@ class ShadePass:
         at eye depth 1 (`Camera.pixels_per_unit_at_unit_depth`)."""
         blur = self._blur_targets(temperature.size)
         programs = self._programs
-        pack = programs.get("fullscreen.vert.glsl", "image_pack.frag.glsl")
+        pack = programs.get("common/fullscreen.vert.glsl", "common/image_pack.frag.glsl")
         pack["u_image"] = 0
         for source, target in ((depth, blur.packed_depth_fbo), (temperature, blur.packed_fbos[0])):
             source.use(0)
@@ -164,7 +164,9 @@ class ShadePass:
         blur.packed_depth.use(1)
         for axis in (0, 1):
             program = programs.get(
-                "fullscreen.vert.glsl", "smooth_temperature.frag.glsl", {"AXIS": axis}
+                "common/fullscreen.vert.glsl",
+                "temperature/smooth_temperature.frag.glsl",
+                {"AXIS": axis},
             )
             program["u_radius_px_at_unit_depth"] = particle_radius * px_per_unit
             program["u_sigma_radii"] = TEMPERATURE_SIGMA_RADII
@@ -175,7 +177,7 @@ class ShadePass:
             blur.packed[axis].use(0)
             blur.packed_fbos[1 - axis].use()
             self._vao(program).render(moderngl.TRIANGLES, vertices=3)
-        unpack = programs.get("fullscreen.vert.glsl", "image_unpack.frag.glsl")
+        unpack = programs.get("common/fullscreen.vert.glsl", "common/image_unpack.frag.glsl")
         unpack["u_packed"] = 0
         blur.packed[0].use(0)
         blur.result_fbo.use()
