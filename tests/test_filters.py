@@ -138,7 +138,7 @@ def test_temperature_blur_matches_numpy_reference(renderer: SurfaceRenderer) -> 
     temperature_blur`, on the synthetic depth image (steps, hole) with a temperature ramp plus
     per-particle noise. Kelvin values ~1e3 and float32 sums of <= 50 terms: 1e-5 relative
     (measured below 2e-6). A blur that ignored the depth guide differs by far more (asserted)."""
-    from sphrender.server.engine.passes.shade import (
+    from sphrender.server.engine.passes.temperature import (
         TEMPERATURE_DEPTH_RANGE_RADII,
         TEMPERATURE_MAX_REACH_PX,
         TEMPERATURE_SIGMA_RADII,

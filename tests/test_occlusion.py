@@ -17,14 +17,12 @@ import pytest
 from sphrender.client.frame import make_frame
 from sphrender.client.readers import read_particles
 from sphrender.server.content.lattice import jittered_lattice_ball, lattice_slab
+from sphrender.server.engine.frame_output import RenderStats
 from sphrender.server.engine.geometry import occlusion
 from sphrender.server.engine.geometry.camera import Camera
-from sphrender.server.engine.renderer import (
-    RenderStats,
-    SurfaceRenderer,
-    prepare_particles,
-    screen_box,
-)
+from sphrender.server.engine.geometry.prepare import prepare_particles
+from sphrender.server.engine.geometry.screen_box import screen_box
+from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import CameraConfig, scene_from_dict
 
 # -- building blocks ----------------------------------------------------------------------------

@@ -45,10 +45,9 @@ from sphrender.server.engine.sph.engine import (
     SphEngine,
     SphParameters,
     SphResult,
-    adaptive_radii,
     check_densities,
-    surface_density,
 )
+from sphrender.server.engine.sph.radii import adaptive_radii, surface_density
 from sphrender.server.scene import Scene, scene_from_dict
 
 TIE_BAND = 1e-5

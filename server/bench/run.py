@@ -159,7 +159,7 @@ def run_bench(
                     results.cpu_peers.append((label, result.ms, result.note))
                     if mesh is None:
                         raise ImportError(result.note)
-                    return rasterise(gl, renderer._programs, mesh, camera)
+                    return rasterise(gl, renderer.programs, mesh, camera)
 
                 scenes.append(dambreak_scene(dam, mesh_truth, DAMBREAK_RADIUS))
             elif not quick:

@@ -24,8 +24,8 @@ from sphrender.server.scene.presets import PRESETS
 
 if TYPE_CHECKING:
     from sphrender.client.frame import ParticleFrame
-    from sphrender.server.engine.frame_output import RenderedFrame
-    from sphrender.server.engine.renderer import RenderStats, SurfaceRenderer
+    from sphrender.server.engine.frame_output import RenderedFrame, RenderStats
+    from sphrender.server.engine.renderer import SurfaceRenderer
     from sphrender.server.scene import Scene
 
 ImageFormat = Literal["png", "exr"]
@@ -387,13 +387,9 @@ def _run_sph(args: argparse.Namespace) -> int:
     from sphrender.client.readers import read_particles
     from sphrender.client.submit import write_atomically
     from sphrender.server.engine.gpu.cl_context import CLContext
-    from sphrender.server.engine.sph.engine import (
-        SphEngine,
-        SphParameters,
-        eq29_radii,
-        frame_particle_radius,
-        surface_density,
-    )
+    from sphrender.server.engine.sph.engine import SphEngine, SphParameters
+    from sphrender.server.engine.sph.frame import eq29_radii, frame_particle_radius
+    from sphrender.server.engine.sph.radii import surface_density
     from sphrender.server.scene import Scene, load_scene
 
     scene = load_scene(args.scene) if args.scene else Scene()

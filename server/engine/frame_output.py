@@ -13,11 +13,13 @@ Conventions every producer must follow (the encoders rely on them):
 * ``depth`` is (H, W) float32 eye-space depth along the view axis, positive, ``+inf`` where no
   surface was hit.
 * ``normals`` is (H, W, 3) float32 world-space unit normals, 0 where no surface was hit.
+
+`RenderStats` says what the frame cost (milliseconds per stage that ran) and did (counts).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -71,3 +73,18 @@ class RenderedFrame:
     @property
     def height(self) -> int:
         return int(self.rgba.shape[0])
+
+
+@dataclass
+class RenderStats:
+    """What one frame cost and did: milliseconds per stage (only stages that ran), counts."""
+
+    stage_ms: dict[str, float] = field(default_factory=dict)
+    particles_in: int = 0
+    particles_drawn: int = 0  # visible: in front of the camera and inside the image
+    particles_splatted: int = 0  # rasterised: the visible ones less those found hidden
+    far: float = 0.0
+
+    @property
+    def total_ms(self) -> float:
+        return sum(self.stage_ms.values())

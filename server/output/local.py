@@ -11,9 +11,9 @@ from pathlib import Path
 from typing import Literal
 
 from sphrender.client.frame import ParticleFrame
-from sphrender.server.engine.frame_output import RenderedFrame
+from sphrender.server.engine.frame_output import RenderedFrame, RenderStats
 from sphrender.server.engine.gpu.gl_context import GLContext
-from sphrender.server.engine.renderer import RenderStats, SurfaceRenderer
+from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.output import encoders
 from sphrender.server.scene import Scene
 

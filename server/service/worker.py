@@ -36,9 +36,9 @@ import numpy as np
 from sphrender.client.errors import InputError
 from sphrender.client.frame import make_frame
 from sphrender.client.protocol import ErrorCode
-from sphrender.server.engine.frame_output import RenderedFrame
+from sphrender.server.engine.frame_output import RenderedFrame, RenderStats
 from sphrender.server.engine.gpu.gl_context import GLContext
-from sphrender.server.engine.renderer import RenderStats, SurfaceRenderer
+from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.output.local import encode_for_scene, render_for_output
 from sphrender.server.scene import Scene
 from sphrender.server.service.jobs import (

@@ -1,4 +1,4 @@
-"""SPH quantities on OpenCL: neighbour grid, density, colour field, surface flags, eq 29 radii.
+"""SPH quantities on OpenCL: neighbour grid, density, colour field, surface flags.
 
 Why the renderer needs SPH at all (thesis section 3.3.4): the adaptive particle radius shrinks
 splash particles, which needs each particle's density and the average density of the surface
@@ -18,9 +18,10 @@ steps, which are O(N) numpy:
    2 N..4 N buckets (sparse or unbounded domains: a lone droplet far away costs one bucket).
 3. density (only when the client sent none), then colour field + gradient + surface flag, then
    (surface-only splatting) the dilated splat mask. The three read the same sorted arrays.
-4. host: surface density (mean density of surface particles) and the eq 29 radii, vectorised.
+4. host: surface density (mean density of surface particles) and the eq 29 radii, vectorised
+   (`radii.py`); `frame.py` applies the result to a frame for the renderer.
 
-The kernel file is ``shaders/sph.cl``; its header documents the kernel function and grid modes.
+The kernel file is ``shaders/sph/sph.cl``; its header documents the kernel function and grid modes.
 `SphEngine` owns its device buffers (grown geometrically, reused across frames) and releases
 them in `release`; the program itself is cached by the `CLContext`.
 """
@@ -28,14 +29,13 @@ them in `release`; the program itself is cached by the `CLContext`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 
 from sphrender.client.errors import InputError
-from sphrender.client.frame import ParticleFrame
 from sphrender.server.engine.gpu.cl_context import CLContext
 
 if TYPE_CHECKING:
@@ -102,13 +102,6 @@ class SphResult:
     splat_keep: Bools | None
 
 
-def frame_particle_radius(frame: ParticleFrame, scene: Scene) -> float:
-    """The radius that defines h and m: the median client radius, else the scene's."""
-    if frame.radii is not None and frame.count:
-        return float(np.median(frame.radii))
-    return scene.particles.radius
-
-
 def check_densities(densities: object, count: int, name: str = "densities") -> F32:
     """Client densities as float32; `InputError` naming `name[i]` for <= 0, NaN or Inf."""
     array = np.asarray(densities)
@@ -122,40 +115,6 @@ def check_densities(densities: object, count: int, name: str = "densities") -> F
         i = int(np.flatnonzero(bad)[0])
         raise InputError(f"{name}[{i}]", f"must be finite and > 0, got {array[i]!r}")
     return np.ascontiguousarray(values)
-
-
-def surface_density(density: npt.NDArray[np.floating], surface: Bools) -> float | None:
-    """Eq 29's d_surface: mean density of the surface particles; None when there are none."""
-    if not surface.any():
-        return None
-    return float(np.mean(density[surface], dtype=np.float64))
-
-
-def adaptive_radii(
-    density: npt.NDArray[np.floating],
-    body_radius: float | npt.NDArray[np.floating],
-    d_surface: float | None,
-    *,
-    min_fraction: float,
-    decline: float,
-) -> F32:
-    """Eq 29 with a dimensionless decline k (see `SphConfig.radius_decline`)::
-
-        r = r_body                                        d >= d_surface
-        r = r_body (1 - ((d_surface - d) / d_surface)^2 / k)   d < d_surface
-        r = max(r, min_fraction r_body)
-
-    The thesis writes ``r_body - (d_surface - d)^2 / k_thesis``; with k_thesis = k d_surface^2 /
-    r_body both agree, and k no longer depends on the scene's units. Without surface particles
-    there is no d_surface and every particle keeps r_body.
-    """
-    density64 = np.asarray(density, dtype=np.float64)
-    body = np.broadcast_to(np.asarray(body_radius, dtype=np.float64), density64.shape)
-    if d_surface is None or d_surface <= 0.0:
-        return np.ascontiguousarray(body, dtype=np.float32)
-    deficit = np.clip((d_surface - density64) / d_surface, 0.0, None)
-    radius = body * (1.0 - deficit**2 / decline)
-    return np.maximum(radius, min_fraction * body).astype(np.float32)
 
 
 @dataclass
@@ -433,51 +392,3 @@ class SphEngine:
 
 
 # -- renderer glue ---------------------------------------------------------------------------
-
-
-def needs_sph(scene: Scene) -> bool:
-    """Whether a frame of this scene needs the SPH pass at all (compute only what is needed).
-
-    Densities alone are needed by no feature yet, so a client that sends none costs nothing
-    unless adaptive radii or surface-only splatting are on."""
-    return scene.sph.adaptive_radius or scene.sph.surface_only
-
-
-def eq29_radii(result: SphResult, frame: ParticleFrame, scene: Scene) -> F32:
-    """Eq 29's adaptive radii for this frame: the body radius (the frame's radii, else the
-    scene's) shrunk for particles less dense than the surface average."""
-    body: float | F32 = frame.radii if frame.radii is not None else scene.particles.radius
-    return adaptive_radii(
-        result.density,
-        body,
-        surface_density(result.density, result.surface),
-        min_fraction=scene.sph.min_radius,
-        decline=scene.sph.radius_decline,
-    )
-
-
-def apply_to_frame(
-    engine: SphEngine, frame: ParticleFrame, scene: Scene
-) -> tuple[ParticleFrame, SphResult]:
-    """The frame the splat pass should draw: eq 29 radii and/or only the particles to splat."""
-    particle_radius = frame_particle_radius(frame, scene)
-    params = SphParameters.from_scene(scene, particle_radius)
-    sph = scene.sph
-    result = engine.compute(
-        frame.positions,
-        params,
-        frame.densities,
-        gradient=False,
-        splat_mask=sph.surface_only,
-    )
-    radii = eq29_radii(result, frame, scene) if sph.adaptive_radius else frame.radii
-    out = replace(frame, radii=radii)
-    if result.splat_keep is not None:
-        keep = result.splat_keep
-        out = ParticleFrame(
-            positions=out.positions[keep],
-            densities=None if out.densities is None else out.densities[keep],
-            radii=None if out.radii is None else out.radii[keep],
-            temperatures=None if out.temperatures is None else out.temperatures[keep],
-        )
-    return out, result

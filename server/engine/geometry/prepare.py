@@ -1,0 +1,66 @@
+"""Prepare: particles to the float32, view-space, culled array the splat uploads.
+
+Float64 until the eye is subtracted and the positions are rotated to view space, so coordinates
+of 1e5 render like coordinates near the origin; then the visible particles (in front of the
+near plane, inside the side planes, before `far`) become one (N, 4) centre + radius array.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from sphrender.client.frame import ParticleFrame
+from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.scene import Scene
+
+
+@dataclass(frozen=True)
+class PreparedParticles:
+    """Visible particles in view space, float32, ready to upload: (N, 4) centre xyz + radius."""
+
+    center_radius: npt.NDArray[np.float32]
+    far: float
+    reference_radius: float
+    temperatures: npt.NDArray[np.float32] | None = None  # (N,) kelvin of the kept particles
+
+
+def prepare_particles(
+    frame: ParticleFrame, camera: Camera, scene: Scene, *, reference_radius: float | None = None
+) -> PreparedParticles:
+    """Float64 eye-relative view-space positions, culled, then float32 (see module docstring).
+
+    `reference_radius` (the radius the smoothing kernel follows) defaults to the frame's median
+    radius; the SPH stage passes the radius from before eq 29 so adaptive radii do not resize
+    the filter."""
+    radius = scene.particles.radius
+    radii: npt.NDArray[np.floating] = (
+        frame.radii if frame.radii is not None else np.full(frame.count, radius, np.float32)
+    )
+    view = camera.to_view(frame.positions)
+    far_config = scene.camera.far
+    keep = camera.visible_mask(view, radii, far_config)
+    view = view[keep]
+    kept_radii = np.asarray(radii, dtype=np.float64)[keep]
+    if far_config is not None:
+        far = far_config
+    elif view.shape[0]:
+        far = float(np.max(-view[:, 2] + kept_radii)) * 1.001
+    else:
+        far = camera.near * 2.0
+    far = max(far, camera.near * 1.001)
+    center_radius = np.empty((view.shape[0], 4), dtype=np.float32)
+    center_radius[:, :3] = view
+    center_radius[:, 3] = kept_radii
+    if reference_radius is None:
+        reference_radius = (
+            float(np.median(frame.radii)) if frame.radii is not None and frame.count else radius
+        )
+    temperatures = (
+        np.ascontiguousarray(frame.temperatures[keep], dtype=np.float32)
+        if frame.temperatures is not None
+        else None
+    )
+    return PreparedParticles(center_radius, far, reference_radius, temperatures)

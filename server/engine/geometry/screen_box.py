@@ -1,0 +1,40 @@
+"""The screen rectangle that holds every splatted fragment.
+
+The passes after the splat touch only pixels with a surface (or their direct neighbours), so
+running them inside this box, on targets cleared outside it, gives the same image while
+skipping the background: with a ball filling a quarter of a 1280x720 image that is 3/4 of the
+fragments of every full-screen pass.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sphrender.server.engine.geometry import occlusion
+from sphrender.server.engine.geometry.camera import Camera
+
+ScreenBox = tuple[int, int, int, int]  # x, y (GL window coordinates, bottom-left), width, height
+
+
+def screen_box(
+    bounds: occlusion.SphereBounds, camera: Camera, margin_px: int = 2
+) -> ScreenBox | None:
+    """A pixel rectangle holding every splatted fragment (the union of the spheres' silhouette
+    rectangles, see `occlusion.sphere_bounds`, plus `margin_px`), or None (whole image) when a
+    sphere reaches the eye plane."""
+    if bounds.valid.size == 0 or not bounds.valid.all():
+        return None
+    x0 = int(np.clip(bounds.x0.min() - margin_px, 0, camera.width))
+    x1 = int(np.clip(bounds.x1.max() + 1 + margin_px, 0, camera.width))
+    y0 = int(np.clip(bounds.y0.min() - margin_px, 0, camera.height))
+    y1 = int(np.clip(bounds.y1.max() + 1 + margin_px, 0, camera.height))
+    if x1 <= x0 or y1 <= y0:
+        return (0, 0, 1, 1)  # nothing on screen: a token box keeps the passes trivial
+    return (x0, y0, x1 - x0, y1 - y0)
+
+
+def packed_box(box: ScreenBox) -> ScreenBox:
+    """`box` in the texels of a packed image (four pixels per texel along x)."""
+    x, y, width, height = box
+    first = x // 4
+    return (first, y, (x + width + 3) // 4 - first, height)

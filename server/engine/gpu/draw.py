@@ -1,0 +1,96 @@
+"""Small GL building blocks every pass uses: float render targets, the attribute-less
+full-screen triangle, scissor rectangles, uniform uploads.
+
+Everything here runs on the GL owner thread; each object is released by whoever created it
+(see ARCHITECTURE.md, "Threads and GPU objects").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import moderngl
+import numpy as np
+import numpy.typing as npt
+
+from sphrender.server.engine.geometry.screen_box import ScreenBox
+from sphrender.server.engine.gpu.gl_context import GLContext
+
+
+def float_texture(
+    ctx: moderngl.Context, size: tuple[int, int], components: int, *, clamp: bool = True
+) -> moderngl.Texture:
+    """An RGBA32F-family texture (`components` channels) with nearest filtering; `clamp` turns
+    off wrapping (reads outside stay at the edge)."""
+    texture = ctx.texture(size, components, dtype="f4")
+    texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+    if clamp:
+        texture.repeat_x = texture.repeat_y = False
+    return texture
+
+
+@dataclass(frozen=True)
+class Target:
+    """A texture and the framebuffer that renders into it."""
+
+    texture: moderngl.Texture
+    fbo: moderngl.Framebuffer
+
+    @classmethod
+    def float(
+        cls, ctx: moderngl.Context, size: tuple[int, int], components: int, *, clamp: bool = True
+    ) -> Target:
+        texture = float_texture(ctx, size, components, clamp=clamp)
+        return cls(texture, ctx.framebuffer([texture]))
+
+    def release(self) -> None:
+        self.fbo.release()
+        self.texture.release()
+
+
+class FullscreenTriangle:
+    """One vertex array per program for the attribute-less full-screen triangle
+    (`shaders/common/fullscreen.vert.glsl`), shared by the passes that draw one."""
+
+    def __init__(self, gl: GLContext) -> None:
+        self._gl = gl
+        self._vaos: dict[int, moderngl.VertexArray] = {}
+
+    def draw(self, program: moderngl.Program) -> None:
+        """Draw the triangle with `program` into the bound framebuffer."""
+        vao = self._vaos.get(program.glo)
+        if vao is None:
+            vao = self._gl.ctx.vertex_array(program, [])
+            self._vaos[program.glo] = vao
+        vao.render(moderngl.TRIANGLES, vertices=3)
+
+    def release(self) -> None:
+        for vao in self._vaos.values():
+            vao.release()
+        self._vaos.clear()
+
+
+def set_scissor(fbo: moderngl.Framebuffer, box: ScreenBox | None) -> None:
+    """Restrict passes into `fbo` to `box`; None lifts the restriction (moderngl accepts None
+    at run time, its type stub only lists the tuple)."""
+    fbo.scissor = box  # type: ignore[assignment]
+
+
+def clear_and_scissor(fbo: moderngl.Framebuffer, box: ScreenBox | None) -> None:
+    """Clear the whole target, then restrict the next passes into it to `box` (None: all)."""
+    set_scissor(fbo, None)
+    fbo.clear(0.0, 0.0, 0.0, 0.0)
+    set_scissor(fbo, box)
+
+
+def write_matrix(program: moderngl.Program, name: str, matrix: npt.NDArray[np.floating]) -> None:
+    """Upload a row-major numpy matrix to a GLSL matN uniform (GLSL is column-major)."""
+    uniform = program[name]
+    assert isinstance(uniform, moderngl.Uniform), name
+    uniform.write(np.ascontiguousarray(matrix.T, dtype=np.float32).tobytes())
+
+
+def set_if_used(program: moderngl.Program, name: str, value: object) -> None:
+    """Set a uniform if the compiled variant uses it (the GLSL compiler drops unused ones)."""
+    if name in program:
+        program[name] = value

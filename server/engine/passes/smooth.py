@@ -1,0 +1,183 @@
+"""Smooth pass: the splatted eye depth, filtered into a smooth surface.
+
+Filters (`[quality] filter`): gaussian | bilateral | narrow_range (Truong & Yuksel 2018), iterated.
+Kernel sigma = kernel_scale x the projected particle radius (or the thesis's eq 25), reach
+3 sigma, capped. Separable filters (x y, then y x on the next iteration, so the nonlinear
+filters' streaks do not pile up on one axis) run on a packed copy of the image, four pixels of
+a row per RGBA32F texel: pack, the 1-D passes, unpack; one fetch serves four pixels.
+
+Shaders: `shaders/smooth/smooth_depth_separable.frag.glsl` (1-D, packed; taps walked by
+`common/packed_taps.glsl`), `shaders/smooth/smooth_depth.frag.glsl` (2-D), `common/image_pack`
+and `common/image_unpack`; uniforms shared by both in `common/depth_filter_params.glsl`.
+Owns: two plain ping-pong targets and two packed ones, per image size.
+"""
+
+from __future__ import annotations
+
+import moderngl
+
+from sphrender.server.engine.geometry.screen_box import ScreenBox, packed_box
+from sphrender.server.engine.gpu.draw import Target, clear_and_scissor, set_scissor
+from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
+from sphrender.server.scene import QualityConfig
+
+SEPARABLE_SHADER = "smooth/smooth_depth_separable.frag.glsl"
+TWO_D_SHADER = "smooth/smooth_depth.frag.glsl"
+PACK_SHADER = "common/image_pack.frag.glsl"
+UNPACK_SHADER = "common/image_unpack.frag.glsl"
+_FILTER_DEFINES = {"gaussian": 0, "bilateral": 1, "narrow_range": 2}
+_KERNEL_SIZE_DEFINES = {"projected_radius": 0, "eq25": 1}
+
+
+class _SmoothTargets:
+    def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
+        self.size = size
+        self.ping = [Target.float(ctx, size, 1) for _ in range(2)]
+        packed_size = ((size[0] + 3) // 4, size[1])
+        self.packed = [Target.float(ctx, packed_size, 4) for _ in range(2)]
+
+    def release(self) -> None:
+        for target in (*self.ping, *self.packed):
+            target.release()
+
+
+class SmoothPass:
+    def __init__(self, context: PassContext) -> None:
+        self._context = context
+        self._targets: _SmoothTargets | None = None
+
+    def _targets_for(self, size: tuple[int, int]) -> _SmoothTargets:
+        if self._targets is None or self._targets.size != size:
+            if self._targets is not None:
+                self._targets.release()
+            self._targets = _SmoothTargets(self._context.gl.ctx, size)
+        return self._targets
+
+    def run(
+        self,
+        depth: moderngl.Texture,
+        *,
+        px_per_unit: float,
+        particle_radius: float,
+        quality: QualityConfig,
+        box: ScreenBox | None = None,
+    ) -> moderngl.Texture:
+        """Smooth the eye-depth image `depth`; returns the texture holding the result (`depth`
+        itself for ``filter = "none"``). `px_per_unit`: pixels per scene unit at eye depth 1.
+        With a `box` (see `screen_box`) the passes run only inside it, on targets cleared
+        outside it."""
+        if quality.filter == "none":
+            return depth
+        targets = self._targets_for(depth.size)
+        defines = {
+            "FILTER": _FILTER_DEFINES[quality.filter],
+            "KERNEL_SIZE": _KERNEL_SIZE_DEFINES[quality.kernel_size],
+        }
+        uniforms = _filter_uniforms(px_per_unit, particle_radius, quality)
+        if quality.separable:
+            return self._separable(targets, depth, defines, uniforms, quality.iterations, box)
+        return self._two_d(targets, depth, defines, uniforms, quality.iterations, box)
+
+    def _two_d(
+        self,
+        targets: _SmoothTargets,
+        depth: moderngl.Texture,
+        defines: dict[str, int],
+        uniforms: dict[str, float],
+        iterations: int,
+        box: ScreenBox | None,
+    ) -> moderngl.Texture:
+        program = self._context.programs.get(FULLSCREEN_VERT, TWO_D_SHADER, defines)
+        _set_uniforms(program, uniforms)
+        program["u_depth"] = 0
+        for target in targets.ping:
+            clear_and_scissor(target.fbo, box)
+        source = depth
+        write_index = 0
+        for _ in range(iterations):
+            source.use(0)
+            targets.ping[write_index].fbo.use()
+            self._context.fullscreen.draw(program)
+            source = targets.ping[write_index].texture
+            write_index = 1 - write_index
+        for target in targets.ping:
+            set_scissor(target.fbo, None)
+        return source
+
+    def _separable(
+        self,
+        targets: _SmoothTargets,
+        depth: moderngl.Texture,
+        defines: dict[str, int],
+        uniforms: dict[str, float],
+        iterations: int,
+        box: ScreenBox | None,
+    ) -> moderngl.Texture:
+        programs, draw = self._context.programs, self._context.fullscreen.draw
+        packed = targets.packed
+        packed_scissor = None if box is None else packed_box(box)
+        for target in packed:
+            clear_and_scissor(target.fbo, packed_scissor)
+        pack = programs.get(FULLSCREEN_VERT, PACK_SHADER)
+        pack["u_image"] = 0
+        depth.use(0)
+        packed[0].fbo.use()
+        draw(pack)
+        passes = {
+            axis: programs.get(FULLSCREEN_VERT, SEPARABLE_SHADER, {**defines, "AXIS": axis})
+            for axis in (0, 1)
+        }
+        for program in passes.values():
+            _set_uniforms(program, uniforms)
+            program["u_packed_depth"] = 0
+        read_index = 0
+        for iteration in range(iterations):
+            # The passes alternate their order (x y, y x, ...): the nonlinear filters leave
+            # streaks along the axis filtered last, and alternating keeps them from piling up.
+            for axis in (0, 1) if iteration % 2 == 0 else (1, 0):
+                packed[read_index].texture.use(0)
+                packed[1 - read_index].fbo.use()
+                draw(passes[axis])
+                read_index = 1 - read_index
+        for target in packed:
+            set_scissor(target.fbo, None)
+        unpack = programs.get(FULLSCREEN_VERT, UNPACK_SHADER)
+        unpack["u_packed"] = 0
+        packed[read_index].texture.use(0)
+        result = targets.ping[0]
+        clear_and_scissor(result.fbo, box)
+        result.fbo.use()
+        draw(unpack)
+        set_scissor(result.fbo, None)
+        return result.texture
+
+    def release(self) -> None:
+        if self._targets is not None:
+            self._targets.release()
+            self._targets = None
+
+
+def _filter_uniforms(
+    px_per_unit: float, particle_radius: float, quality: QualityConfig
+) -> dict[str, float]:
+    """The uniforms of `common/depth_filter_params.glsl`, lengths in particle radii resolved."""
+    r = particle_radius
+    return {
+        "u_kernel_min_px": quality.kernel_min_px,
+        "u_kernel_max_px": quality.kernel_max_px,
+        "u_particle_radius": r,
+        "u_px_per_unit": px_per_unit,
+        "u_kernel_scale": quality.kernel_scale,
+        "u_eq25_sigma_px": quality.eq25_sigma_px,
+        "u_eq25_threshold": quality.eq25_threshold,
+        "u_eq25_decline": quality.eq25_decline,
+        "u_range_sigma": quality.bilateral_depth_sigma * r,
+        "u_nr_threshold": quality.narrow_range_threshold * r,
+        "u_nr_clamp": quality.narrow_range_clamp * r,
+    }
+
+
+def _set_uniforms(program: moderngl.Program, uniforms: dict[str, float]) -> None:
+    for name, value in uniforms.items():
+        if name in program:  # the GLSL compiler drops uniforms the chosen filter never reads
+            program[name] = value

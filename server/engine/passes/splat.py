@@ -1,0 +1,240 @@
+"""Splat pass: sphere impostors -> eye depth (and the front sphere's temperature).
+
+Shaders: `shaders/splat/splat_sphere.{vert,frag}.glsl`. Per particle one quad perpendicular to
+the eye ray, sized to the silhouette cone; per fragment a ray-sphere hit writes the eye depth to
+an R32F target (0 = background) and a linear `gl_FragDepth` for the depth test. Frames with
+temperatures also write the front sphere's kelvin to a second R32F target.
+
+With the spheres' screen bounds (occlusion culling on) and enough particles, the front layer is
+drawn first and only the particles its depth image does not hide follow
+(`geometry/occlusion.py`, exact): the same image from a fraction of the quads.
+
+Owns: the corner, index, instance and temperature buffers, both vertex arrays, and the splat
+targets (depth texture, depth renderbuffer, temperature texture, their framebuffers).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import moderngl
+import numpy as np
+import numpy.typing as npt
+
+from sphrender.server.engine.geometry import occlusion
+from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.geometry.prepare import PreparedParticles
+from sphrender.server.engine.geometry.screen_box import ScreenBox
+from sphrender.server.engine.gpu.draw import float_texture, write_matrix
+from sphrender.server.engine.passes.context import PassContext
+
+VERTEX_SHADER = "splat/splat_sphere.vert.glsl"
+FRAGMENT_SHADER = "splat/splat_sphere.frag.glsl"
+
+
+@dataclass(frozen=True)
+class SplatOutput:
+    depth: moderngl.Texture  # eye depth, R32F, 0 = background
+    temperature: moderngl.Texture | None  # kelvin of the front sphere, when the frame has them
+    splatted: int  # particles rasterised (visible less those found hidden)
+
+
+class SplatTargets:
+    """The splat's render targets for one image size; the temperature target is built on the
+    first frame that carries temperatures (most frames never need it)."""
+
+    def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
+        self.size = size
+        self._ctx = ctx
+        self.depth = float_texture(ctx, size, 1)
+        self.depth_buffer = ctx.depth_renderbuffer(size)
+        self.fbo = ctx.framebuffer([self.depth], self.depth_buffer)
+        self.temperature: moderngl.Texture | None = None
+        self.fbo_with_temperature: moderngl.Framebuffer | None = None
+
+    def temperature_targets(self) -> tuple[moderngl.Texture, moderngl.Framebuffer]:
+        if self.temperature is None or self.fbo_with_temperature is None:
+            self.temperature = float_texture(self._ctx, self.size, 1)
+            self.fbo_with_temperature = self._ctx.framebuffer(
+                [self.depth, self.temperature], self.depth_buffer
+            )
+        return self.temperature, self.fbo_with_temperature
+
+    def release(self) -> None:
+        for fbo in (self.fbo, self.fbo_with_temperature):
+            if fbo is not None:
+                fbo.release()
+        for texture in (self.depth, self.temperature):
+            if texture is not None:
+                texture.release()
+        self.depth_buffer.release()
+
+
+class SplatPass:
+    def __init__(self, context: PassContext) -> None:
+        self._context = context
+        ctx = context.gl.ctx
+        # Sphere quads are drawn as plain indexed triangles, 4 vertices per particle, not as
+        # instances: llvmpipe's draw module runs its vertex pipeline once per instance, which
+        # made the splat of 90k particles cost ~70 ms of pure per-instance overhead. The corner
+        # and index buffers depend only on the particle count and grow geometrically.
+        self._quad_capacity = 0
+        self._corner_buffer = ctx.buffer(reserve=4)
+        self._index_buffer = ctx.buffer(reserve=4)
+        self._instance_buffer = ctx.buffer(reserve=16 * 1024)
+        self._temperature_buffer = ctx.buffer(reserve=4 * 1024)
+        self._vaos: dict[bool, moderngl.VertexArray] = {}  # keyed by "has temperature"
+        self._targets: SplatTargets | None = None
+
+    def targets(self, size: tuple[int, int]) -> SplatTargets:
+        """The targets for `size` (rebuilt only when the size changes)."""
+        if self._targets is None or self._targets.size != size:
+            if self._targets is not None:
+                self._targets.release()
+            self._targets = SplatTargets(self._context.gl.ctx, size)
+        return self._targets
+
+    def run(
+        self,
+        camera: Camera,
+        prepared: PreparedParticles,
+        *,
+        bounds: occlusion.SphereBounds | None,
+        box: ScreenBox | None,
+    ) -> SplatOutput:
+        """Splat `prepared`; `bounds` (None: no occlusion culling) are the spheres' screen
+        rectangles, `box` the screen box holding them (where the front layer is read back)."""
+        targets = self.targets((camera.width, camera.height))
+        temperature: moderngl.Texture | None = None
+        fbo = targets.fbo
+        if prepared.temperatures is not None:
+            temperature, fbo = targets.temperature_targets()
+        fbo.use()
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        count = int(prepared.center_radius.shape[0])
+        if count == 0:
+            return SplatOutput(targets.depth, temperature, 0)
+        program, vao = self._vertex_array(prepared.temperatures is not None)
+        self._ensure_quads(count)
+        self._reserve(self._instance_buffer, count * 64)  # 4 corners x vec4
+        if prepared.temperatures is not None:
+            self._reserve(self._temperature_buffer, count * 16)  # 4 corners x float
+        write_matrix(program, "u_projection", camera.projection_matrix(prepared.far))
+        program["u_near"] = camera.near
+        program["u_far"] = prepared.far
+        ctx = self._context.gl.ctx
+        ctx.enable(moderngl.DEPTH_TEST)
+        try:
+            if bounds is None or count < occlusion.MIN_PARTICLES:
+                self._draw_spheres(vao, prepared, None, first=0)
+                splatted = count
+            else:
+                splatted = self._draw_culled(fbo, vao, camera, prepared, bounds, box)
+        finally:
+            ctx.disable(moderngl.DEPTH_TEST)
+        return SplatOutput(targets.depth, temperature, splatted)
+
+    def _draw_culled(
+        self,
+        fbo: moderngl.Framebuffer,
+        vao: moderngl.VertexArray,
+        camera: Camera,
+        prepared: PreparedParticles,
+        bounds: occlusion.SphereBounds,
+        box: ScreenBox | None,
+    ) -> int:
+        """Front layer, read its depth back, then only the particles it does not hide; returns
+        how many were drawn."""
+        radius = prepared.center_radius[:, 3].astype(np.float64)
+        in_front = occlusion.front_layer(bounds, radius, (camera.width, camera.height))
+        front = np.flatnonzero(in_front)
+        self._draw_spheres(vao, prepared, front, first=0)
+        others = np.flatnonzero(~in_front)
+        if others.size:
+            read_box = box if box is not None else (0, 0, camera.width, camera.height)
+            x, y, w, h = read_box
+            depth = np.frombuffer(
+                fbo.read(viewport=read_box, components=1, attachment=0, dtype="f4"),
+                np.float32,
+            ).reshape(h, w)
+            width_px = bounds.x1[others] - bounds.x0[others] + 1
+            height_px = bounds.y1[others] - bounds.y0[others] + 1
+            table = occlusion.DepthMaxTable(depth, (x, y), np.minimum(width_px, height_px))
+            others = others[~table.occluded(bounds, others)]  # the ones that may show
+            self._draw_spheres(vao, prepared, others, first=front.size)
+        return int(front.size + others.size)
+
+    def _vertex_array(self, has_temperature: bool) -> tuple[moderngl.Program, moderngl.VertexArray]:
+        defines = {"HAS_TEMPERATURE": True} if has_temperature else None
+        program = self._context.programs.get(VERTEX_SHADER, FRAGMENT_SHADER, defines)
+        vao = self._vaos.get(has_temperature)
+        if vao is None:
+            attributes = [
+                (self._corner_buffer, "2f", "in_corner"),
+                (self._instance_buffer, "4f", "in_center_radius"),
+            ]
+            if has_temperature:
+                attributes.append((self._temperature_buffer, "1f", "in_temperature"))
+            vao = self._context.gl.ctx.vertex_array(
+                program, attributes, index_buffer=self._index_buffer, index_element_size=4
+            )
+            self._vaos[has_temperature] = vao
+        return program, vao
+
+    @staticmethod
+    def _reserve(buffer: moderngl.Buffer, nbytes: int) -> None:
+        """Grow `buffer` geometrically to at least `nbytes`; orphan keeps the buffer object, so
+        the VAOs stay valid (the contents are lost)."""
+        if nbytes > buffer.size:
+            buffer.orphan(max(nbytes, buffer.size * 2))
+
+    def _ensure_quads(self, count: int) -> None:
+        """Corner (+-1, +-1 per vertex) and index (two triangles per quad) buffers for at least
+        `count` quads."""
+        if count <= self._quad_capacity:
+            return
+        capacity = max(count, 2 * self._quad_capacity, 1024)
+        corners = np.tile(np.array([-1, -1, 1, -1, -1, 1, 1, 1], np.float32), capacity)
+        first = np.arange(capacity, dtype=np.uint32)[:, None] * 4
+        indices = first + np.array([0, 1, 2, 2, 1, 3], dtype=np.uint32)
+        # orphan keeps the buffer objects, so the vertex arrays that use them stay valid
+        self._corner_buffer.orphan(corners.nbytes)
+        self._corner_buffer.write(corners.tobytes())
+        self._index_buffer.orphan(indices.nbytes)
+        self._index_buffer.write(indices.tobytes())
+        self._quad_capacity = capacity
+
+    def _draw_spheres(
+        self,
+        vao: moderngl.VertexArray,
+        prepared: PreparedParticles,
+        rows: npt.NDArray[np.intp] | None,
+        *,
+        first: int,
+    ) -> None:
+        """Upload particles `rows` (None: all) as quads number `first`, `first + 1`, ... and
+        draw them. Quads already uploaded below `first` stay in the buffers untouched; the
+        buffers must already hold every particle (`_reserve`)."""
+        data = prepared.center_radius if rows is None else prepared.center_radius[rows]
+        if data.shape[0] == 0:
+            return
+        self._instance_buffer.write(np.repeat(data, 4, axis=0).tobytes(), offset=first * 64)
+        if prepared.temperatures is not None:
+            kelvin = prepared.temperatures if rows is None else prepared.temperatures[rows]
+            self._temperature_buffer.write(np.repeat(kelvin, 4).tobytes(), offset=first * 16)
+        vao.render(moderngl.TRIANGLES, vertices=6 * data.shape[0], first=6 * first)
+
+    def release(self) -> None:
+        for vao in self._vaos.values():
+            vao.release()
+        self._vaos.clear()
+        if self._targets is not None:
+            self._targets.release()
+            self._targets = None
+        for buffer in (
+            self._corner_buffer,
+            self._index_buffer,
+            self._instance_buffer,
+            self._temperature_buffer,
+        ):
+            buffer.release()

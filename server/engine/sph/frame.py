@@ -1,0 +1,96 @@
+"""The SPH stage of a frame: whether a scene needs it, and what it changes in the frame the splat
+draws (eq 29 radii, surface-only splatting). `SphStage` owns the OpenCL context and engine,
+created on the first frame that needs them, on the GL owner thread."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from sphrender.client.frame import ParticleFrame
+from sphrender.server.engine.gpu.cl_context import CLContext
+from sphrender.server.engine.sph.engine import SphEngine, SphParameters, SphResult
+from sphrender.server.engine.sph.radii import F32, adaptive_radii, surface_density
+from sphrender.server.scene import Scene
+
+
+def frame_particle_radius(frame: ParticleFrame, scene: Scene) -> float:
+    """The radius that defines h and m: the median client radius, else the scene's."""
+    if frame.radii is not None and frame.count:
+        return float(np.median(frame.radii))
+    return scene.particles.radius
+
+
+def needs_sph(scene: Scene) -> bool:
+    """Whether a frame of this scene needs the SPH pass at all (compute only what is needed).
+
+    Densities alone are needed by no feature yet, so a client that sends none costs nothing
+    unless adaptive radii or surface-only splatting are on."""
+    return scene.sph.adaptive_radius or scene.sph.surface_only
+
+
+def eq29_radii(result: SphResult, frame: ParticleFrame, scene: Scene) -> F32:
+    """Eq 29's adaptive radii for this frame: the body radius (the frame's radii, else the
+    scene's) shrunk for particles less dense than the surface average."""
+    body: float | F32 = frame.radii if frame.radii is not None else scene.particles.radius
+    return adaptive_radii(
+        result.density,
+        body,
+        surface_density(result.density, result.surface),
+        min_fraction=scene.sph.min_radius,
+        decline=scene.sph.radius_decline,
+    )
+
+
+def apply_to_frame(
+    engine: SphEngine, frame: ParticleFrame, scene: Scene
+) -> tuple[ParticleFrame, SphResult]:
+    """The frame the splat pass should draw: eq 29 radii and/or only the particles to splat."""
+    particle_radius = frame_particle_radius(frame, scene)
+    params = SphParameters.from_scene(scene, particle_radius)
+    sph = scene.sph
+    result = engine.compute(
+        frame.positions,
+        params,
+        frame.densities,
+        gradient=False,
+        splat_mask=sph.surface_only,
+    )
+    radii = eq29_radii(result, frame, scene) if sph.adaptive_radius else frame.radii
+    out = replace(frame, radii=radii)
+    if result.splat_keep is not None:
+        keep = result.splat_keep
+        out = ParticleFrame(
+            positions=out.positions[keep],
+            densities=None if out.densities is None else out.densities[keep],
+            radii=None if out.radii is None else out.radii[keep],
+            temperatures=None if out.temperatures is None else out.temperatures[keep],
+        )
+    return out, result
+
+
+class SphStage:
+    """The renderer's SPH stage: a lazily created `CLContext` + `SphEngine` (device from
+    `cl_device`, None = probe), released with the renderer."""
+
+    def __init__(self, cl_device: str | None = None) -> None:
+        self._cl_device = cl_device
+        self._cl: CLContext | None = None
+        self._engine: SphEngine | None = None
+
+    def engine(self) -> SphEngine:
+        """The engine and its CL context, created on first use (the caller's thread owns it)."""
+        if self._engine is None:
+            if self._cl is None:
+                self._cl = CLContext(self._cl_device)
+            self._engine = SphEngine(self._cl)
+        return self._engine
+
+    def release(self) -> None:
+        if self._engine is not None:
+            self._engine.release()
+            self._engine = None
+        if self._cl is not None:
+            self._cl.release()
+            self._cl = None
