@@ -1,0 +1,39 @@
+"""`sphrender info`: the OpenGL renderer, its limits and the OpenCL devices, as JSON."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from sphrender.server.cli.options import Subcommands
+
+
+def add_parser(commands: Subcommands, common: argparse.ArgumentParser) -> None:
+    """Add this subcommand (its options and `run`) to `sphrender`'s parser."""
+    info = commands.add_parser(
+        "info",
+        parents=[common],
+        help="print the OpenGL renderer and limits as JSON",
+        description="Create the headless GL context and report renderer, version and limits.",
+    )
+    info.set_defaults(run=run)
+
+
+def run(_args: argparse.Namespace) -> int:
+    from sphrender.server.engine.gpu.cl_context import CLUnavailableError, list_devices
+    from sphrender.server.engine.gpu.gl_context import GLContext
+
+    with GLContext() as gl:
+        info: dict[str, object] = {
+            "gl_renderer": gl.renderer,
+            "gl_version": gl.version,
+            "software": gl.is_software,
+            "max_image_side": gl.limits.max_image_side,
+        }
+    try:
+        info["opencl_devices"] = [device.label for device, _ in list_devices()]
+    except CLUnavailableError as exc:
+        info["opencl_devices"] = []
+        info["opencl_error"] = str(exc)
+    print(json.dumps(info, indent=2))
+    return 0
