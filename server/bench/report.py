@@ -5,12 +5,9 @@ from __future__ import annotations
 import math
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
 
+from sphrender.server.bench.results import BenchResults, growth_exponent, ratio
 from sphrender.server.bench.sweep import STAGES, SweepRow
-
-if TYPE_CHECKING:
-    from sphrender.server.bench.run import BenchResults
 
 
 def pareto_front(rows: list[SweepRow]) -> list[SweepRow]:
@@ -100,7 +97,6 @@ def markdown_table(rows: list[SweepRow]) -> list[str]:
 
 
 def write_report(results: BenchResults, path: Path, *, plot_name: str) -> None:
-    from sphrender.server.bench.run import growth_exponent, ratio
 
     lines = [
         "# Benchmark report: speed against error, peers side by side",

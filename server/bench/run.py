@@ -12,12 +12,10 @@ particle count and resolution.
 from __future__ import annotations
 
 import csv
-import math
 import os
 import platform
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +23,8 @@ import numpy as np
 
 from sphrender.client.frame import make_frame
 from sphrender.server.bench import peers
+from sphrender.server.bench.report import write_plot, write_report
+from sphrender.server.bench.results import BenchResults
 from sphrender.server.bench.scenes import (
     DAMBREAK_RADIUS,
     BenchScene,
@@ -63,17 +63,6 @@ CSV_COLUMNS = (
 )
 
 
-@dataclass
-class BenchResults:
-    machine: list[str] = field(default_factory=list)
-    rows: list[SweepRow] = field(default_factory=list)
-    headline: list[peers.PeerResult] = field(default_factory=list)
-    headline_scene: str = ""
-    cpu_peers: list[tuple[str, float | None, str]] = field(default_factory=list)
-    scaling_particles: list[tuple[int, float]] = field(default_factory=list)
-    scaling_resolution: list[tuple[int, int, float]] = field(default_factory=list)
-
-
 def _load() -> str:
     try:
         one, five, _ = os.getloadavg()
@@ -104,13 +93,6 @@ def write_csv(rows: list[SweepRow], path: Path) -> None:
                     f"{row.psnr_db:.2f}",
                 ]
             )
-
-
-def growth_exponent(xs: list[float], ys: list[float]) -> float:
-    """Least-squares slope of log y against log x (time ~ x^slope)."""
-    if len(xs) < 2:
-        return float("nan")
-    return float(np.polyfit(np.log(xs), np.log(ys), 1)[0])
 
 
 def _median_frame_ms(renderer: SurfaceRenderer, scene: BenchScene, w: int, h: int) -> float:
@@ -198,7 +180,6 @@ def run_bench(
         _run_peers(results, frames, log)
     results.machine.append(f"at end: {_load()}")
     write_csv(results.rows, out / "bench-table.csv")
-    from sphrender.server.bench.report import write_plot, write_report
 
     plot = write_plot(results.rows, out / "pareto.png")
     if plot is not None:
@@ -265,9 +246,3 @@ def _run_peers(results: BenchResults, frames: int, log: Callable[[str], None]) -
     result, _ = peers.run_pysplashsurf(ball.positions, ball.radius)
     results.cpu_peers.append((f"{result.name} (ball)", result.ms, result.note))
     log(f"  pysplashsurf reconstruction: {result.ms} ms  {result.note}")
-
-
-def ratio(slow: float | None, fast: float | None) -> str:
-    if slow is None or fast is None or fast <= 0 or not math.isfinite(slow):
-        return "-"
-    return f"{slow / fast:.1f}x"

@@ -33,6 +33,7 @@ from sphrender.server.service.config import (
     check_bind_policy,
     public_limits,
 )
+from sphrender.server.service.http_api import make_http_server
 from sphrender.server.service.jobs import (
     DroppedOutcome,
     ErrorOutcome,
@@ -49,6 +50,7 @@ from sphrender.server.service.sessions import (
     Session,
     SessionRegistry,
 )
+from sphrender.server.service.stream import make_stream_server
 from sphrender.server.service.worker import RenderWorker
 
 log = logging.getLogger("sphrender.service")
@@ -103,9 +105,6 @@ class RenderService:
 
     def start(self) -> None:
         """Start the render thread (waits until GL is up and warm), then the listeners."""
-        from sphrender.server.service.http_api import make_http_server
-        from sphrender.server.service.stream import make_stream_server
-
         self.worker.start()
         self.worker.ready.wait()
         if self.worker.startup_error is not None:

@@ -15,7 +15,7 @@ Images come back as ``image/png`` or ``image/x-exr`` (the scene's ``[output] for
 limit; the body is not read and the connection closes), 500 (GL failure) or 503 with
 ``Retry-After`` (queue full, too many sessions or connections, draining).
 
-The handler class gets the `RenderService` bound by `make_handler` (a subclass with the service
+The handler class gets the `ServiceFacade` bound by `make_handler` (a subclass with the service
 as a class attribute, as prometheus_client builds its exposition handler), so there is no global
 state and two services can run in one process. The handler thread only reads, decodes and
 validates; rendering happens on the render thread.
@@ -28,12 +28,10 @@ import hmac
 import json
 import logging
 import re
-import socket
-import threading
 import time
 from concurrent.futures import TimeoutError as FutureTimeout
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from typing import TYPE_CHECKING, Any, ClassVar
+from http.server import BaseHTTPRequestHandler
+from typing import Any, ClassVar
 from urllib.parse import parse_qs, urlsplit
 
 from sphrender.client.errors import InputError
@@ -44,6 +42,9 @@ from sphrender.client.protocol import (
     parse_json_object,
 )
 from sphrender.server.scene import Scene, merge_scene_dicts
+from sphrender.server.service.facade import ServiceFacade
+from sphrender.server.service.http_errors import HttpError
+from sphrender.server.service.http_server import SphrenderHttpServer
 from sphrender.server.service.jobs import (
     CONTENT_TYPES,
     DroppedOutcome,
@@ -56,9 +57,6 @@ from sphrender.server.service.metrics import CONTENT_TYPE as METRICS_CONTENT_TYP
 from sphrender.server.service.scheduler import QueueFull, SchedulerClosed
 from sphrender.server.service.sessions import Session, SessionLimitReached
 
-if TYPE_CHECKING:  # a runtime import would be circular
-    from sphrender.server.service.app import RenderService
-
 log = logging.getLogger("sphrender.service.http")
 
 _SESSION = re.compile(r"^/v1/sessions/([0-9a-f]{32})$")
@@ -67,36 +65,6 @@ _SESSION_FRAMES = re.compile(r"^/v1/sessions/([0-9a-f]{32})/frames$")
 MAX_SCENE_BYTES = 1 << 20
 #: Fixed routes; anything else is reported as "other" so metric labels stay bounded.
 _ROUTES = ("/healthz", "/readyz", "/v1/info", "/metrics", "/v1/render", "/v1/sessions")
-
-
-class HttpError(Exception):
-    """An error answer: status, error code, message and the offending field."""
-
-    def __init__(
-        self,
-        status: int,
-        code: str,
-        message: str,
-        field: str | None = None,
-        *,
-        close: bool = False,
-        retry_after_s: int | None = None,
-        headers: dict[str, str] | None = None,
-    ) -> None:
-        super().__init__(message)
-        self.status = status
-        self.code = code
-        self.message = message
-        self.field = field
-        self.close = close
-        self.retry_after_s = retry_after_s
-        self.headers = headers or {}
-
-    @classmethod
-    def from_input(cls, exc: InputError, *, close: bool = False) -> HttpError:
-        if isinstance(exc, LimitError):
-            return cls(413, ErrorCode.TOO_LARGE, exc.message, exc.field, close=close)
-        return cls(400, ErrorCode.BAD_INPUT, exc.message, exc.field, close=close)
 
 
 def _route_label(path: str) -> str:
@@ -110,7 +78,7 @@ def _route_label(path: str) -> str:
 class ApiHandler(BaseHTTPRequestHandler):
     """Request handler; `service` is bound by `make_handler`."""
 
-    service: ClassVar[RenderService]
+    service: ClassVar[ServiceFacade]
     protocol_version = "HTTP/1.1"  # keep-alive; every answer carries Content-Length
     server_version = "sphrender"
 
@@ -585,43 +553,14 @@ def _code(exc: InputError) -> str:
     return ErrorCode.TOO_LARGE if isinstance(exc, LimitError) else ErrorCode.BAD_INPUT
 
 
-class SphrenderHttpServer(ThreadingHTTPServer):
-    """Threading server with a connection cap; handler threads are daemons (see `serve`)."""
-
-    daemon_threads = True
-    allow_reuse_address = True
-    request_queue_size = 128
-
-    def __init__(
-        self, address: tuple[str, int], handler: type[ApiHandler], max_connections: int
-    ) -> None:
-        if ":" in address[0]:
-            self.address_family = socket.AF_INET6
-        super().__init__(address, handler)
-        self._max_connections = max_connections
-        self._connections = 0
-        self._lock = threading.Lock()
-
-    def enter_connection(self) -> bool:
-        with self._lock:
-            if self._connections >= self._max_connections:
-                return False
-            self._connections += 1
-            return True
-
-    def leave_connection(self) -> None:
-        with self._lock:
-            self._connections -= 1
-
-
-def make_handler(service: RenderService) -> type[ApiHandler]:
+def make_handler(service: ServiceFacade) -> type[ApiHandler]:
     """A handler class with `service` bound (no module-level state)."""
     # `timeout` is StreamRequestHandler's per-read socket timeout.
     attributes = {"service": service, "timeout": service.config.http.read_timeout_s}
     return type("BoundApiHandler", (ApiHandler,), attributes)
 
 
-def make_http_server(service: RenderService) -> SphrenderHttpServer:
+def make_http_server(service: ServiceFacade) -> SphrenderHttpServer:
     config = service.config.http
     try:
         return SphrenderHttpServer(

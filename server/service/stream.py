@@ -33,7 +33,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
 from sphrender.client.errors import InputError
 from sphrender.client.protocol import (
@@ -50,6 +50,7 @@ from sphrender.client.protocol import (
 )
 from sphrender.server.scene import merge_scene_dicts
 from sphrender.server.service.config import public_limits
+from sphrender.server.service.facade import ServiceFacade
 from sphrender.server.service.jobs import (
     DroppedOutcome,
     ErrorOutcome,
@@ -59,9 +60,6 @@ from sphrender.server.service.jobs import (
 )
 from sphrender.server.service.scheduler import QueueFull, SchedulerClosed
 from sphrender.server.service.sessions import Session, SessionLimitReached
-
-if TYPE_CHECKING:  # a runtime import would be circular
-    from sphrender.server.service.app import RenderService
 
 log = logging.getLogger("sphrender.service.stream")
 
@@ -119,7 +117,7 @@ class StreamConnection:
     """Both halves of one client connection (see the module docstring)."""
 
     def __init__(
-        self, sock: socket.socket, peer: Any, service: RenderService, server: StreamServer
+        self, sock: socket.socket, peer: Any, service: ServiceFacade, server: StreamServer
     ) -> None:
         self.sock = sock
         self.peer = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else str(peer)
@@ -514,7 +512,7 @@ class StreamConnection:
 
 
 class StreamHandler(socketserver.BaseRequestHandler):
-    service: ClassVar[RenderService]
+    service: ClassVar[ServiceFacade]
 
     def handle(self) -> None:
         server: StreamServer = self.server  # type: ignore[assignment]
@@ -526,7 +524,7 @@ class StreamServer(socketserver.ThreadingTCPServer):
     allow_reuse_address = True
     request_queue_size = 128
 
-    def __init__(self, address: tuple[str, int], service: RenderService) -> None:
+    def __init__(self, address: tuple[str, int], service: ServiceFacade) -> None:
         if ":" in address[0]:
             self.address_family = socket.AF_INET6
         handler = type("BoundStreamHandler", (StreamHandler,), {"service": service})
@@ -557,7 +555,7 @@ class StreamServer(socketserver.ThreadingTCPServer):
             connection.begin_drain()
 
 
-def make_stream_server(service: RenderService) -> StreamServer:
+def make_stream_server(service: ServiceFacade) -> StreamServer:
     host, port = service.config.http.host, service.config.stream.port
     try:
         return StreamServer((host, port), service)

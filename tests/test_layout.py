@@ -1,0 +1,152 @@
+"""The house rules of the source tree, checked: no import circles among the product's modules,
+no module over 600 lines, the engine's passes each in their own module, and every shader a pass
+names present where its module says.
+
+Imports are read with `ast` (nothing is imported), counting every import of a `sphrender`
+module: module level, under ``TYPE_CHECKING`` and inside functions alike, since a circle that
+only a lazy import keeps from failing is still a circle in the design.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+#: Source folders of the product and the import package each becomes (pyproject's package-dir).
+PACKAGES = {"server": "sphrender.server", "client": "sphrender.client"}
+MAX_MODULE_LINES = 600
+
+
+def product_modules() -> dict[str, Path]:
+    """Import name -> file, for every module under server/ and client/."""
+    modules: dict[str, Path] = {}
+    for folder, package in PACKAGES.items():
+        for path in sorted((REPO / folder).rglob("*.py")):
+            parts = path.relative_to(REPO / folder).with_suffix("").parts
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            modules[".".join((package, *parts))] = path
+    return modules
+
+
+def imports_of(path: Path, name: str, known: set[str]) -> set[str]:
+    """The product modules `path` (module `name`) imports, anywhere in the file."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                base = f"{anchor}.{base}" if base else anchor
+            # `from pkg import mod` imports the module pkg.mod when there is one
+            targets = [base, *(f"{base}.{alias.name}" for alias in node.names)]
+        else:
+            continue
+        found.update(target for target in targets if target in known and target != name)
+    return found
+
+
+def import_graph() -> dict[str, set[str]]:
+    modules = product_modules()
+    known = set(modules)
+    return {name: imports_of(path, name, known) for name, path in modules.items()}
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One import circle as a path [a, b, ..., a], or None (iterative depth-first search)."""
+    state: dict[str, int] = {}  # 1 = on the current path, 2 = finished
+    for root in sorted(graph):
+        if state.get(root):
+            continue
+        path = [root]
+        stack = [iter(sorted(graph[root]))]
+        state[root] = 1
+        while stack:
+            child = next(stack[-1], None)
+            if child is None:
+                state[path.pop()] = 2
+                stack.pop()
+                continue
+            if state.get(child) == 1:
+                return [*path[path.index(child) :], child]
+            if not state.get(child):
+                state[child] = 1
+                path.append(child)
+                stack.append(iter(sorted(graph[child])))
+    return None
+
+
+def test_cycle_finder_finds_a_planted_circle() -> None:
+    """The checker itself: a graph with a circle is reported, one without is not."""
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": set()}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"b", "c"}, "b": {"c"}, "c": set()}) is None
+
+
+def test_no_import_circles_among_product_modules() -> None:
+    cycle = find_cycle(import_graph())
+    assert cycle is None, "import circle: " + " -> ".join(cycle or [])
+
+
+def test_client_never_imports_the_server_or_gpu_libraries() -> None:
+    """The client side needs only numpy (DESIGN.md): no moderngl, pyopencl or server module."""
+    for name, path in product_modules().items():
+        if not name.startswith("sphrender.client"):
+            continue
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import | ast.ImportFrom):
+                names = (
+                    [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module]
+                )
+                for imported in names:
+                    assert not (imported or "").startswith(
+                        ("sphrender.server", "moderngl", "pyopencl")
+                    ), f"{name} imports {imported}"
+
+
+@pytest.mark.parametrize("name", sorted(product_modules()))
+def test_module_is_readable_in_one_sitting(name: str) -> None:
+    lines = product_modules()[name].read_text().count("\n")
+    assert lines <= MAX_MODULE_LINES, f"{name}: {lines} lines (limit {MAX_MODULE_LINES})"
+
+
+def test_product_never_imports_bench_truth() -> None:
+    """Ground truth for tests and benchmarks (`bench/analytic.py`) stays out of the product:
+    only `sphrender.server.bench` itself may import it."""
+    graph = import_graph()
+    for name, imported in graph.items():
+        if name.startswith("sphrender.server.bench"):
+            continue
+        assert "sphrender.server.bench.analytic" not in imported, name
+
+
+def test_each_pass_has_its_module_and_its_shaders_exist() -> None:
+    """`server/engine/passes/` holds one module per pass; every shader file a pass module names
+    (a string constant ending in .glsl) exists under shaders/."""
+    passes = REPO / "server" / "engine" / "passes"
+    expected = {"splat", "smooth", "normals", "temperature", "shade", "readback"}
+    assert expected <= {p.stem for p in passes.glob("*.py")}
+    named = 0
+    for path in passes.glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            value = node.value if isinstance(node, ast.Constant) else None
+            if isinstance(value, str) and value.endswith(".glsl") and "/" in value:
+                assert (REPO / "shaders" / value).is_file(), f"{path.name}: {value}"
+                named += 1
+    assert named >= 8
+
+
+def test_renderer_orchestrates_only() -> None:
+    """`renderer.py` runs the passes in order and draws nothing itself: no GL draw calls,
+    framebuffers or shader names of its own."""
+    source = (REPO / "server" / "engine" / "renderer.py").read_text()
+    for forbidden in (".render(", ".framebuffer(", ".vertex_array(", ".glsl", "moderngl."):
+        assert forbidden not in source, forbidden
+    assert source.count("\n") < 300
