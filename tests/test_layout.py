@@ -94,6 +94,44 @@ def test_no_import_circles_among_product_modules() -> None:
     assert cycle is None, "import circle: " + " -> ".join(cycle or [])
 
 
+#: The import direction, lowest first: a module imports only from its own layer or below.
+LAYERS = (
+    ("sphrender.client",),
+    ("sphrender.server.scene", "sphrender.server.content"),
+    ("sphrender.server.engine.frame_output", "sphrender.server.engine.geometry"),
+    ("sphrender.server.engine.gpu",),
+    ("sphrender.server.engine.lighting", "sphrender.server.engine.sph"),
+    ("sphrender.server.engine.passes",),
+    ("sphrender.server.engine.renderer",),
+    ("sphrender.server.output",),
+    ("sphrender.server.service", "sphrender.server.bench"),
+    ("sphrender.server.cli",),
+)
+
+
+def layer_of(name: str) -> int:
+    for index, prefixes in enumerate(LAYERS):
+        if any(name == p or name.startswith(p + ".") for p in prefixes):
+            return index
+    raise AssertionError(f"{name} is in no layer of tests/test_layout.py LAYERS")
+
+
+def test_imports_point_down_the_layers() -> None:
+    """ARCHITECTURE.md's import direction: cli -> service | bench -> output -> renderer ->
+    passes -> lighting | sph -> gpu -> geometry -> scene -> client."""
+    for name, imported in import_graph().items():
+        if name in ("sphrender.server", "sphrender.server.engine", "sphrender.client"):
+            continue  # the empty package modules
+        for target in imported:
+            if target in ("sphrender.server", "sphrender.server.engine"):
+                continue
+            assert layer_of(target) <= layer_of(name), f"{name} imports {target} (upwards)"
+    for name, imported in import_graph().items():
+        for a, b in (("service", "bench"), ("bench", "service")):
+            if name.startswith(f"sphrender.server.{a}"):
+                assert not any(t.startswith(f"sphrender.server.{b}") for t in imported), name
+
+
 def test_client_never_imports_the_server_or_gpu_libraries() -> None:
     """The client side needs only numpy (DESIGN.md): no moderngl, pyopencl or server module."""
     for name, path in product_modules().items():

@@ -3,7 +3,7 @@
 * normal error (degrees, mean and p95) over pixels that both the render and the truth cover and
   where the true surface faces the camera (n . v >= 0.3; grazing pixels measure the silhouette,
   which IoU covers); for a single ball, against the radial direction at the rendered point (the
-  engine's bound, `analytic_scenes.ball_errors`), else against the true normal at the pixel;
+  engine's bound, `analytic.ball_errors`), else against the true normal at the pixel;
 * depth error in particle radii: mean |z_render - z_true| / r over the same pixels;
 * silhouette IoU of the coverage masks;
 * image error against a high-quality render of the same scene: PSNR (dB) of the display-referred

@@ -1,4 +1,4 @@
-// Parameters of the depth filters (smooth_depth*.frag.glsl), set by renderer.py from
+// Parameters of the depth filters (smooth/smooth_depth*.frag.glsl), set by passes/smooth.py from
 // [quality]; which of them a filter reads depends on its FILTER and KERNEL_SIZE defines.
 
 uniform float u_particle_radius;   // scene units
