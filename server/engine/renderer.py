@@ -37,7 +37,7 @@ from sphrender.server.engine.geometry import occlusion
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.prepare import prepare_particles
 from sphrender.server.engine.geometry.screen_box import screen_box
-from sphrender.server.engine.gpu.draw import FullscreenTriangle
+from sphrender.server.engine.gpu.draw import FullscreenTriangle, image_bytes, read_image
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.programs import ProgramCache
 from sphrender.server.engine.passes.context import PassContext
@@ -51,8 +51,10 @@ from sphrender.server.engine.sph.engine import SphEngine
 from sphrender.server.engine.sph.frame import (
     SphStage,
     apply_to_frame,
+    droplet_mask,
     frame_particle_radius,
     needs_sph,
+    wants_exact_droplets,
 )
 from sphrender.server.scene import QualityConfig, Scene
 
@@ -134,23 +136,27 @@ class SurfaceRenderer:
         camera = Camera.from_config(scene.camera, scene.image.width, scene.image.height)
         stats = RenderStats(particles_in=frame.count)
 
-        reference_radius = None
-        if needs_sph(scene):
-            reference_radius = frame_particle_radius(frame, scene)
-            engine = self.sph_engine()  # outside the stage: first use builds the CL program
-            with self._stage(stats, "sph"):
-                frame, _ = apply_to_frame(engine, frame, scene)
+        frame, reference_radius, droplets = self._sph_stage(frame, scene, stats)
 
         with self._stage(stats, "prepare"):
-            prepared = prepare_particles(frame, camera, scene, reference_radius=reference_radius)
+            prepared = prepare_particles(
+                frame, camera, scene, reference_radius=reference_radius, droplets=droplets
+            )
             stats.particles_drawn = int(prepared.center_radius.shape[0])
             stats.far = prepared.far
             bounds = occlusion.sphere_bounds(prepared.center_radius, camera)
             box = screen_box(bounds, camera)
+            bulk, drops = prepared, None
+            if prepared.droplets is not None and prepared.droplets.any():
+                bulk, drops = (
+                    prepared.subset(~prepared.droplets),
+                    prepared.subset(prepared.droplets),
+                )
+                bounds = bounds.subset(~prepared.droplets)
 
         with self._stage(stats, "splat"):
             culling = bounds if scene.quality.occlusion_culling else None
-            splat = self._splat.run(camera, prepared, bounds=culling, box=box)
+            splat = self._splat.run(camera, bulk, bounds=culling, box=box)
             stats.particles_splatted = splat.splatted
 
         px_per_unit = camera.pixels_per_unit_at_unit_depth
@@ -164,6 +170,11 @@ class SurfaceRenderer:
                     quality=scene.quality,
                     box=box,
                 )
+        if drops is not None:
+            with self._stage(stats, "droplets"):
+                splat = self._splat.run_droplets(camera, drops, surface, splat.temperature)
+                surface = splat.depth
+                stats.particles_splatted += splat.splatted
 
         with self._stage(stats, "normals"):
             normal_depth = self._normals.run(surface, camera, box)
@@ -188,6 +199,24 @@ class SurfaceRenderer:
             )
         return rendered, stats
 
+    def _sph_stage(
+        self, frame: ParticleFrame, scene: Scene, stats: RenderStats
+    ) -> tuple[ParticleFrame, float | None, npt.NDArray[np.bool_] | None]:
+        """What SPH changes: the frame (eq 29 radii, surface-only), the radius the smoothing
+        follows (None: the frame's), and which particles are droplets (None: no split)."""
+        if not needs_sph(scene) and not wants_exact_droplets(scene):
+            return frame, None, None
+        reference_radius = frame_particle_radius(frame, scene)
+        if needs_sph(scene) or frame.densities is None:
+            self.sph_engine()  # outside the stage: first use builds the CL program
+        with self._stage(stats, "sph"):
+            if needs_sph(scene):
+                frame, _ = apply_to_frame(self.sph_engine(), frame, scene)
+            droplets = None
+            if wants_exact_droplets(scene):
+                droplets = droplet_mask(frame, scene, self.sph_engine)
+        return frame, reference_radius, droplets
+
     # -- single passes on given images (the same code paths, for tests against references) --
 
     def shade_normal_depth(
@@ -204,11 +233,11 @@ class SurfaceRenderer:
         if (width, height) != (scene.image.width, scene.image.height):
             raise ValueError("normal_depth must have the scene's image size")
         target = self._normals.target((width, height))
-        target.texture.write(_rows_bottom_first(normal_depth))
+        target.texture.write(image_bytes(normal_depth))
         temperature = None
         if temperatures is not None:
             temperature, _ = self._splat.targets((width, height)).temperature_targets()
-            temperature.write(_rows_bottom_first(temperatures))
+            temperature.write(image_bytes(temperatures))
         camera = Camera.from_config(scene.camera, width, height)
         color = self._shade.run(scene, camera, target.texture, temperature)
         rgba = np.frombuffer(color.texture.read(), dtype=np.float32).reshape(height, width, 4)
@@ -227,11 +256,11 @@ class SurfaceRenderer:
         self._gl.check_owner()
         height, width = depth.shape
         source = self._splat.targets((width, height)).depth
-        source.write(_rows_bottom_first(depth))
+        source.write(image_bytes(depth))
         result = self._smooth.run(
             source, px_per_unit=px_per_unit, particle_radius=particle_radius, quality=quality
         )
-        return _read_single_channel(result.read(), width, height)
+        return read_image(result.read(), width, height)
 
     def blur_temperature_image(
         self,
@@ -247,10 +276,10 @@ class SurfaceRenderer:
         height, width = depth.shape
         targets = self._splat.targets((width, height))
         kelvin, _ = targets.temperature_targets()
-        kelvin.write(_rows_bottom_first(temperature))
-        targets.depth.write(_rows_bottom_first(depth))
+        kelvin.write(image_bytes(temperature))
+        targets.depth.write(image_bytes(depth))
         result = self._temperature.run(kelvin, targets.depth, px_per_unit, particle_radius)
-        return _read_single_channel(result.read(), width, height)
+        return read_image(result.read(), width, height)
 
     def release(self) -> None:
         """Release every GPU object this renderer owns (on the owner thread)."""
@@ -260,13 +289,3 @@ class SurfaceRenderer:
         self._context.fullscreen.release()
         self._context.programs.release()
         self._sph.release()
-
-
-def _rows_bottom_first(image: npt.NDArray[np.floating]) -> bytes:
-    """A top-first numpy image as the bytes of a GL texture (rows bottom first, float32)."""
-    return np.ascontiguousarray(image[::-1], dtype=np.float32).tobytes()
-
-
-def _read_single_channel(data: bytes, width: int, height: int) -> npt.NDArray[np.float32]:
-    out = np.frombuffer(data, dtype=np.float32).reshape(height, width)
-    return np.ascontiguousarray(out[::-1])

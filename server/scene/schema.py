@@ -140,6 +140,29 @@ class QualityConfig:
     narrow_range_clamp: float = spec(
         1.0, "narrow-range mu: nearer samples are clamped to z - mu*r", low=0.0, low_open=True
     )
+    keep_features: Literal["none", "truncate", "blend", "both"] = spec(
+        "none",
+        "keep features smaller than the kernel (droplets, thin edges; separable narrow_range "
+        "only): truncate (the kernel ends at the first sample pair it rejects, so it never "
+        "reaches across a discontinuity), blend (the result moves back towards the unfiltered "
+        "depth by the weight share of rejected samples, as NVIDIA FleX does), both, or none",
+    )
+    exact_droplets: bool = spec(
+        False,
+        "droplets (particles whose kernel density is below droplet_density * sph.rest_density: "
+        "isolated particles and clusters of two or three) are not smoothed: they are splatted "
+        "as exact spheres over the smoothed surface, so a kernel wider than a droplet neither "
+        "flattens it nor blends it into the pool behind. Uses the frame's densities, else an "
+        "SPH density pass (OpenCL)",
+    )
+    droplet_density: float = spec(
+        0.5,
+        "exact_droplets: the density, as a fraction of sph.rest_density, below which a "
+        "particle is a droplet (cubic spline, support 4 r: a lone particle has 0.32, a pair "
+        "0.40, a particle in a one-layer sheet 0.70, inside the fluid 1.0)",
+        low=0.0,
+        high=1.0,
+    )
     occlusion_culling: bool = spec(
         True,
         "splat the front layer first and skip particles hidden behind it (exact: the depth "

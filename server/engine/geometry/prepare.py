@@ -25,16 +25,32 @@ class PreparedParticles:
     far: float
     reference_radius: float
     temperatures: npt.NDArray[np.float32] | None = None  # (N,) kelvin of the kept particles
+    droplets: npt.NDArray[np.bool_] | None = None  # (N,) which kept particles are droplets
+
+    def subset(self, rows: npt.NDArray[np.bool_]) -> PreparedParticles:
+        """The particles where `rows` is true (same far and reference radius)."""
+        return PreparedParticles(
+            np.ascontiguousarray(self.center_radius[rows]),
+            self.far,
+            self.reference_radius,
+            None if self.temperatures is None else np.ascontiguousarray(self.temperatures[rows]),
+            None if self.droplets is None else self.droplets[rows],
+        )
 
 
 def prepare_particles(
-    frame: ParticleFrame, camera: Camera, scene: Scene, *, reference_radius: float | None = None
+    frame: ParticleFrame,
+    camera: Camera,
+    scene: Scene,
+    *,
+    reference_radius: float | None = None,
+    droplets: npt.NDArray[np.bool_] | None = None,
 ) -> PreparedParticles:
     """Float64 eye-relative view-space positions, culled, then float32 (see module docstring).
 
     `reference_radius` (the radius the smoothing kernel follows) defaults to the frame's median
     radius; the SPH stage passes the radius from before eq 29 so adaptive radii do not resize
-    the filter."""
+    the filter. `droplets` (per input particle) follows the culling like the temperatures."""
     radius = scene.particles.radius
     radii: npt.NDArray[np.floating] = (
         frame.radii if frame.radii is not None else np.full(frame.count, radius, np.float32)
@@ -63,4 +79,5 @@ def prepare_particles(
         if frame.temperatures is not None
         else None
     )
-    return PreparedParticles(center_radius, far, reference_radius, temperatures)
+    kept_droplets = None if droplets is None else droplets[keep]
+    return PreparedParticles(center_radius, far, reference_radius, temperatures, kept_droplets)

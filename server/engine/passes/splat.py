@@ -26,10 +26,11 @@ from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.prepare import PreparedParticles
 from sphrender.server.engine.geometry.screen_box import ScreenBox
 from sphrender.server.engine.gpu.draw import float_texture, write_matrix
-from sphrender.server.engine.passes.context import PassContext
+from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
 VERTEX_SHADER = "splat/splat_sphere.vert.glsl"
 FRAGMENT_SHADER = "splat/splat_sphere.frag.glsl"
+SEED_SHADER = "splat/depth_seed.frag.glsl"
 
 
 @dataclass(frozen=True)
@@ -51,6 +52,27 @@ class SplatTargets:
         self.fbo = ctx.framebuffer([self.depth], self.depth_buffer)
         self.temperature: moderngl.Texture | None = None
         self.fbo_with_temperature: moderngl.Framebuffer | None = None
+        # The smoothed surface with the exact droplets drawn over it (built on first use).
+        self.composite: moderngl.Texture | None = None
+        self.composite_fbo: moderngl.Framebuffer | None = None
+        self.composite_with_temperature: moderngl.Framebuffer | None = None
+
+    def composite_targets(
+        self, with_temperature: bool
+    ) -> tuple[moderngl.Texture, moderngl.Framebuffer, moderngl.Framebuffer]:
+        """(composite texture, its seed framebuffer, the framebuffer the droplets draw into:
+        composite + temperature when `with_temperature`), all on the splat's depth buffer."""
+        if self.composite is None or self.composite_fbo is None:
+            self.composite = float_texture(self._ctx, self.size, 1)
+            self.composite_fbo = self._ctx.framebuffer([self.composite], self.depth_buffer)
+        if not with_temperature:
+            return self.composite, self.composite_fbo, self.composite_fbo
+        temperature, _ = self.temperature_targets()
+        if self.composite_with_temperature is None:
+            self.composite_with_temperature = self._ctx.framebuffer(
+                [self.composite, temperature], self.depth_buffer
+            )
+        return self.composite, self.composite_fbo, self.composite_with_temperature
 
     def temperature_targets(self) -> tuple[moderngl.Texture, moderngl.Framebuffer]:
         if self.temperature is None or self.fbo_with_temperature is None:
@@ -61,10 +83,11 @@ class SplatTargets:
         return self.temperature, self.fbo_with_temperature
 
     def release(self) -> None:
-        for fbo in (self.fbo, self.fbo_with_temperature):
+        fbos = (self.fbo, self.fbo_with_temperature, self.composite_fbo)
+        for fbo in (*fbos, self.composite_with_temperature):
             if fbo is not None:
                 fbo.release()
-        for texture in (self.depth, self.temperature):
+        for texture in (self.depth, self.temperature, self.composite):
             if texture is not None:
                 texture.release()
         self.depth_buffer.release()
@@ -133,6 +156,46 @@ class SplatPass:
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
         return SplatOutput(targets.depth, temperature, splatted)
+
+    def run_droplets(
+        self,
+        camera: Camera,
+        droplets: PreparedParticles,
+        surface: moderngl.Texture,
+        temperature: moderngl.Texture | None,
+    ) -> SplatOutput:
+        """Draw `droplets` as exact spheres over the (smoothed) eye depth `surface`: the depth
+        is copied into the composite target with its depth-buffer value, then the droplets are
+        depth-tested against it. Returns the composite (and the temperature target, into which
+        the droplets that show write their kelvin)."""
+        targets = self.targets((camera.width, camera.height))
+        with_temperature = temperature is not None and droplets.temperatures is not None
+        composite, seed_fbo, draw_fbo = targets.composite_targets(with_temperature)
+        ctx = self._context.gl.ctx
+        seed_fbo.use()
+        seed_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        seed = self._context.programs.get(FULLSCREEN_VERT, SEED_SHADER)
+        seed["u_depth"] = 0
+        seed["u_far"] = droplets.far
+        surface.use(0)
+        count = int(droplets.center_radius.shape[0])
+        ctx.enable(moderngl.DEPTH_TEST)
+        try:
+            self._context.fullscreen.draw(seed)
+            if count:
+                program, vao = self._vertex_array(with_temperature)
+                self._ensure_quads(count)
+                self._reserve(self._instance_buffer, count * 64)
+                if with_temperature:
+                    self._reserve(self._temperature_buffer, count * 16)
+                write_matrix(program, "u_projection", camera.projection_matrix(droplets.far))
+                program["u_near"] = camera.near
+                program["u_far"] = droplets.far
+                draw_fbo.use()
+                self._draw_spheres(vao, droplets, None, first=0)
+        finally:
+            ctx.disable(moderngl.DEPTH_TEST)
+        return SplatOutput(composite, temperature, count)
 
     def _draw_culled(
         self,

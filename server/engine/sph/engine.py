@@ -390,5 +390,25 @@ class SphEngine:
             keep = self._download(keep_out, np.empty(n, np.uint8)).astype(bool)
         return SphResult(density, client_densities is None, color, gradient_xyz, surface, keep)
 
+    def density(self, positions: npt.ArrayLike, params: SphParameters) -> F32:
+        """Eq 2 only (no colour field): the kernel density of every particle, in input order."""
+        self._cl.check_owner()
+        points = np.ascontiguousarray(positions, dtype=np.float64)
+        n = points.shape[0]
+        if n == 0:
+            return np.zeros(0, np.float32)
+        grid = self._build_grid(points, params.support_radius)
+        sorted_volume = self._buffer("sorted_volume", 4 * n)
+        density_out = self._buffer("density", 4 * n)
+        self._run(
+            "density",
+            n,
+            *self._grid_args(grid),
+            np.float32(params.mass),
+            sorted_volume,
+            density_out,
+        )
+        return self._download(density_out, np.empty(n, np.float32))
+
 
 # -- renderer glue ---------------------------------------------------------------------------

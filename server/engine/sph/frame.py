@@ -4,9 +4,11 @@ created on the first frame that needs them, on the GL owner thread."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
+import numpy.typing as npt
 
 from sphrender.client.frame import ParticleFrame
 from sphrender.server.engine.gpu.cl_context import CLContext
@@ -58,7 +60,7 @@ def apply_to_frame(
         splat_mask=sph.surface_only,
     )
     radii = eq29_radii(result, frame, scene) if sph.adaptive_radius else frame.radii
-    out = replace(frame, radii=radii)
+    out = replace(frame, radii=radii, densities=result.density)
     if result.splat_keep is not None:
         keep = result.splat_keep
         out = ParticleFrame(
@@ -68,6 +70,26 @@ def apply_to_frame(
             temperatures=None if out.temperatures is None else out.temperatures[keep],
         )
     return out, result
+
+
+def wants_exact_droplets(scene: Scene) -> bool:
+    """Whether droplets are split off the smoothed surface (`quality.exact_droplets`; only
+    when there is smoothing to keep them out of)."""
+    return scene.quality.exact_droplets and scene.quality.filter != "none"
+
+
+def droplet_mask(
+    frame: ParticleFrame, scene: Scene, engine: Callable[[], SphEngine]
+) -> npt.NDArray[np.bool_]:
+    """Which particles are droplets: kernel density below `quality.droplet_density` x
+    `sph.rest_density`. The frame's densities when it has them (the client's, or those the SPH
+    stage computed), else an eq 2 density pass on `engine()`."""
+    densities = frame.densities
+    if densities is None:
+        params = SphParameters.from_scene(scene, frame_particle_radius(frame, scene))
+        densities = engine().density(frame.positions, params)
+    threshold = scene.quality.droplet_density * scene.sph.rest_density
+    return np.asarray(densities) < threshold
 
 
 class SphStage:
