@@ -14,7 +14,7 @@ import numpy as np
 
 from sphrender.client.frame import make_frame
 from sphrender.server.bench.metrics import surface_metrics
-from sphrender.server.bench.scenes import ball_scene
+from sphrender.server.bench.scenes import ball_scene, spheres_truth
 from sphrender.server.bench.surface_quality import (
     SpatterTruth,
     droplet_error_deg,
@@ -35,6 +35,11 @@ SETTINGS = {
     "balanced": Setting("balanced", preset="balanced"),
     "best": Setting("best", preset="best"),
 }
+SETTINGS["balanced_aa"] = Setting(
+    "balanced_aa",
+    preset="balanced",
+    overrides={"quality": {"exact_droplets": True, "antialias": True}},
+)
 SETTINGS["balanced_droplets"] = Setting(
     "balanced_droplets", preset="balanced", overrides={"quality": {"exact_droplets": True}}
 )
@@ -70,7 +75,12 @@ def measure(renderer: SurfaceRenderer, setting: Setting, width: int, height: int
     rendered, _ = renderer.render(frame, scene, depth=True, normals=True)
     out["spatter_ms"] = (time.perf_counter() - start) * 1e3
     out["droplet_deg"] = droplet_error_deg(rendered, truth)
-    coverage = supersampled_coverage(spatter.truth, spatter.camera_config(), width, height)
+    coverage = supersampled_coverage(
+        lambda cam: spheres_truth(cam, spatter.positions, spatter.radius),
+        spatter.camera_config(),
+        width,
+        height,
+    )
     out["edge_alpha_err"] = edge_alpha_error(rendered.rgba[..., 3].astype(np.float64), coverage)
     moved = make_frame(jittered(spatter.positions, spatter.radius, 0.02))
     other, _ = renderer.render(moved, scene, depth=True, normals=True)

@@ -5,7 +5,8 @@
   whose true surface is a droplet, compared with the same figure of the unfiltered splat;
 * **edge alpha error**: |alpha - true sub-pixel coverage| over the pixels the true silhouette
   crosses, coverage from a 4 x 4 supersampled ray cast (the analytic truth at 4x resolution,
-  box-filtered);
+  box-filtered) of the union of the particle spheres (the impostor geometry: this measures the
+  anti-aliasing, not the reconstruction);
 * **flicker**: the same frame with every particle moved by a small random offset (a fraction of
   r): the mean normal change over pixels covered in both renders (a live stream shows it as
   shimmer).

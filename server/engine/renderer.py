@@ -156,7 +156,8 @@ class SurfaceRenderer:
 
         with self._stage(stats, "splat"):
             culling = bounds if scene.quality.occlusion_culling else None
-            splat = self._splat.run(camera, bulk, bounds=culling, box=box)
+            antialias = scene.quality.antialias
+            splat = self._splat.run(camera, bulk, bounds=culling, box=box, antialias=antialias)
             stats.particles_splatted = splat.splatted
 
         px_per_unit = camera.pixels_per_unit_at_unit_depth
@@ -172,7 +173,9 @@ class SurfaceRenderer:
                 )
         if drops is not None:
             with self._stage(stats, "droplets"):
-                splat = self._splat.run_droplets(camera, drops, surface, splat.temperature)
+                splat = self._splat.run_droplets(
+                    camera, drops, surface, splat.temperature, splat.coverage
+                )
                 surface = splat.depth
                 stats.particles_splatted += splat.splatted
 
@@ -185,7 +188,9 @@ class SurfaceRenderer:
                 temperature = self._temperature.run(
                     temperature, surface, px_per_unit, prepared.reference_radius
                 )
-            color = self._shade.run(scene, camera, normal_depth.texture, temperature, box)
+            color = self._shade.run(
+                scene, camera, normal_depth.texture, temperature, box, splat.coverage
+            )
 
         with self._stage(stats, "readback"):
             transparent = scene.shading.background == "transparent"

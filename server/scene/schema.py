@@ -147,6 +147,12 @@ class QualityConfig:
         "reaches across a discontinuity), blend (the result moves back towards the unfiltered "
         "depth by the weight share of rejected samples, as NVIDIA FleX does), both, or none",
     )
+    antialias: bool = spec(
+        False,
+        "silhouette anti-aliasing: alpha is each edge pixel's sub-pixel coverage (analytic, from "
+        "the ray's angular distance to the sphere's silhouette) and the pixels just outside a "
+        "silhouette show the surface next to them; off: alpha is 1 where a pixel centre hits",
+    )
     exact_droplets: bool = spec(
         False,
         "droplets (particles whose kernel density is below droplet_density * sph.rest_density: "

@@ -25,12 +25,16 @@ from sphrender.server.engine.geometry import occlusion
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.prepare import PreparedParticles
 from sphrender.server.engine.geometry.screen_box import ScreenBox
-from sphrender.server.engine.gpu.draw import float_texture, write_matrix
+from sphrender.server.engine.gpu.draw import Target, float_texture, write_matrix
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
 VERTEX_SHADER = "splat/splat_sphere.vert.glsl"
 FRAGMENT_SHADER = "splat/splat_sphere.frag.glsl"
 SEED_SHADER = "splat/depth_seed.frag.glsl"
+COVERAGE_VERTEX_SHADER = "splat/splat_coverage.vert.glsl"
+COVERAGE_FRAGMENT_SHADER = "splat/splat_coverage.frag.glsl"
+#: How far past a silhouette the coverage quads reach, in pixels.
+COVERAGE_MARGIN_PX = 1.5
 
 
 @dataclass(frozen=True)
@@ -38,6 +42,7 @@ class SplatOutput:
     depth: moderngl.Texture  # eye depth, R32F, 0 = background
     temperature: moderngl.Texture | None  # kelvin of the front sphere, when the frame has them
     splatted: int  # particles rasterised (visible less those found hidden)
+    coverage: moderngl.Texture | None = None  # sub-pixel coverage (R32F), when anti-aliasing
 
 
 class SplatTargets:
@@ -52,6 +57,7 @@ class SplatTargets:
         self.fbo = ctx.framebuffer([self.depth], self.depth_buffer)
         self.temperature: moderngl.Texture | None = None
         self.fbo_with_temperature: moderngl.Framebuffer | None = None
+        self.coverage: Target | None = None  # built on the first anti-aliased frame
         # The smoothed surface with the exact droplets drawn over it (built on first use).
         self.composite: moderngl.Texture | None = None
         self.composite_fbo: moderngl.Framebuffer | None = None
@@ -74,6 +80,11 @@ class SplatTargets:
             )
         return self.composite, self.composite_fbo, self.composite_with_temperature
 
+    def coverage_target(self) -> Target:
+        if self.coverage is None:
+            self.coverage = Target.float(self._ctx, self.size, 1)
+        return self.coverage
+
     def temperature_targets(self) -> tuple[moderngl.Texture, moderngl.Framebuffer]:
         if self.temperature is None or self.fbo_with_temperature is None:
             self.temperature = float_texture(self._ctx, self.size, 1)
@@ -90,6 +101,8 @@ class SplatTargets:
         for texture in (self.depth, self.temperature, self.composite):
             if texture is not None:
                 texture.release()
+        if self.coverage is not None:
+            self.coverage.release()
         self.depth_buffer.release()
 
 
@@ -107,6 +120,7 @@ class SplatPass:
         self._instance_buffer = ctx.buffer(reserve=16 * 1024)
         self._temperature_buffer = ctx.buffer(reserve=4 * 1024)
         self._vaos: dict[bool, moderngl.VertexArray] = {}  # keyed by "has temperature"
+        self._coverage_vao: moderngl.VertexArray | None = None
         self._targets: SplatTargets | None = None
 
     def targets(self, size: tuple[int, int]) -> SplatTargets:
@@ -124,9 +138,11 @@ class SplatPass:
         *,
         bounds: occlusion.SphereBounds | None,
         box: ScreenBox | None,
+        antialias: bool = False,
     ) -> SplatOutput:
         """Splat `prepared`; `bounds` (None: no occlusion culling) are the spheres' screen
-        rectangles, `box` the screen box holding them (where the front layer is read back)."""
+        rectangles, `box` the screen box holding them (where the front layer is read back).
+        `antialias`: also draw the splatted spheres' sub-pixel coverage (`coverage`)."""
         targets = self.targets((camera.width, camera.height))
         temperature: moderngl.Texture | None = None
         fbo = targets.fbo
@@ -135,8 +151,13 @@ class SplatPass:
         fbo.use()
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         count = int(prepared.center_radius.shape[0])
+        coverage = None
+        if antialias:
+            coverage = targets.coverage_target()
+            coverage.fbo.clear(0.0, 0.0, 0.0, 0.0)
+            fbo.use()
         if count == 0:
-            return SplatOutput(targets.depth, temperature, 0)
+            return SplatOutput(targets.depth, temperature, 0, _texture(coverage))
         program, vao = self._vertex_array(prepared.temperatures is not None)
         self._ensure_quads(count)
         self._reserve(self._instance_buffer, count * 64)  # 4 corners x vec4
@@ -155,7 +176,9 @@ class SplatPass:
                 splatted = self._draw_culled(fbo, vao, camera, prepared, bounds, box)
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
-        return SplatOutput(targets.depth, temperature, splatted)
+        if coverage is not None:
+            self._draw_coverage(coverage, camera, prepared.far, splatted)
+        return SplatOutput(targets.depth, temperature, splatted, _texture(coverage))
 
     def run_droplets(
         self,
@@ -163,11 +186,13 @@ class SplatPass:
         droplets: PreparedParticles,
         surface: moderngl.Texture,
         temperature: moderngl.Texture | None,
+        coverage: moderngl.Texture | None = None,
     ) -> SplatOutput:
         """Draw `droplets` as exact spheres over the (smoothed) eye depth `surface`: the depth
         is copied into the composite target with its depth-buffer value, then the droplets are
         depth-tested against it. Returns the composite (and the temperature target, into which
-        the droplets that show write their kelvin)."""
+        the droplets that show write their kelvin); with `coverage` (the bulk splat's) the
+        droplets' coverage is added to it."""
         targets = self.targets((camera.width, camera.height))
         with_temperature = temperature is not None and droplets.temperatures is not None
         composite, seed_fbo, draw_fbo = targets.composite_targets(with_temperature)
@@ -195,7 +220,40 @@ class SplatPass:
                 self._draw_spheres(vao, droplets, None, first=0)
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
-        return SplatOutput(composite, temperature, count)
+        if coverage is not None and count:
+            self._draw_coverage(targets.coverage_target(), camera, droplets.far, count)
+        return SplatOutput(composite, temperature, count, coverage)
+
+    def _draw_coverage(self, target: Target, camera: Camera, far: float, count: int) -> None:
+        """Coverage of the first `count` quads in the buffers (those the splat just drew), into
+        `target` with blending MAX and no depth test (see splat_coverage.frag.glsl)."""
+        if count == 0:
+            return
+        ctx = self._context.gl.ctx
+        program = self._context.programs.get(COVERAGE_VERTEX_SHADER, COVERAGE_FRAGMENT_SHADER)
+        if self._coverage_vao is None:
+            self._coverage_vao = ctx.vertex_array(
+                program,
+                [
+                    (self._corner_buffer, "2f", "in_corner"),
+                    (self._instance_buffer, "4f", "in_center_radius"),
+                ],
+                index_buffer=self._index_buffer,
+                index_element_size=4,
+            )
+        focal_px = camera.pixels_per_unit_at_unit_depth
+        write_matrix(program, "u_projection", camera.projection_matrix(far))
+        program["u_margin"] = COVERAGE_MARGIN_PX / focal_px
+        program["u_near"] = camera.near
+        program["u_focal_px"] = focal_px
+        target.fbo.use()
+        ctx.enable(moderngl.BLEND)
+        ctx.blend_equation = moderngl.MAX
+        try:
+            self._coverage_vao.render(moderngl.TRIANGLES, vertices=6 * count)
+        finally:
+            ctx.blend_equation = moderngl.FUNC_ADD
+            ctx.disable(moderngl.BLEND)
 
     def _draw_culled(
         self,
@@ -291,6 +349,9 @@ class SplatPass:
         for vao in self._vaos.values():
             vao.release()
         self._vaos.clear()
+        if self._coverage_vao is not None:
+            self._coverage_vao.release()
+            self._coverage_vao = None
         if self._targets is not None:
             self._targets.release()
             self._targets = None
@@ -301,3 +362,7 @@ class SplatPass:
             self._temperature_buffer,
         ):
             buffer.release()
+
+
+def _texture(target: Target | None) -> moderngl.Texture | None:
+    return None if target is None else target.texture
