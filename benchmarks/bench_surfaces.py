@@ -13,14 +13,25 @@ from typing import Any
 import numpy as np
 
 from sphrender.client.frame import make_frame
+from sphrender.client.readers import read_particles
+from sphrender.server.bench.mesh_reference import rasterise
 from sphrender.server.bench.metrics import surface_metrics
-from sphrender.server.bench.scenes import ball_scene, spheres_truth
+from sphrender.server.bench.peers import run_pysplashsurf
+from sphrender.server.bench.scenes import (
+    DAMBREAK_RADIUS,
+    ball_scene,
+    dambreak_frame,
+    dambreak_scene,
+    spheres_truth,
+)
 from sphrender.server.bench.surface_quality import (
     SpatterTruth,
+    band_error_deg,
     droplet_error_deg,
     edge_alpha_error,
     flicker_deg,
     jittered,
+    silhouette_band,
     spatter_scene,
     supersampled_coverage,
 )
@@ -85,6 +96,27 @@ def measure(renderer: SurfaceRenderer, setting: Setting, width: int, height: int
     moved = make_frame(jittered(spatter.positions, spatter.radius, 0.02))
     other, _ = renderer.render(moved, scene, depth=True, normals=True)
     out["flicker_mean_deg"], out["flicker_p99_deg"] = flicker_deg(rendered, other)
+    out["spatter_band_deg"] = band_error_deg(
+        rendered, truth, silhouette_band(truth, spatter.radius)
+    )
+    if DAMBREAK is not None:
+        dam, dam_truth = DAMBREAK
+        dam_camera = Camera.from_config(dam.camera_config(), width, height)
+        dam_scene = scene_for(setting, bench_scene_dict(dam, width, height))
+        dam_frame = make_frame(dam.positions)
+        dam_render, _ = renderer.render(dam_frame, dam_scene, depth=True, normals=True)
+        m = surface_metrics(dam_render, dam_camera, dam_truth, dam.radius)
+        out["dam_mean_deg"], out["dam_p95_deg"] = m.normal_mean_deg, m.normal_p95_deg
+        out["dam_band_deg"] = band_error_deg(
+            dam_render, dam_truth, silhouette_band(dam_truth, dam.radius)
+        )
+        moved, _ = renderer.render(
+            make_frame(jittered(dam.positions, dam.radius, 0.02)),
+            dam_scene,
+            depth=True,
+            normals=True,
+        )
+        out["dam_flicker_deg"], _ = flicker_deg(dam_render, moved)
     ball = ball_scene(30_000)
     ball_base = bench_scene_dict(ball, width // 2, height // 2)
     ball_camera = Camera.from_config(ball.camera_config(), width // 2, height // 2)
@@ -94,6 +126,28 @@ def measure(renderer: SurfaceRenderer, setting: Setting, width: int, height: int
     metrics = surface_metrics(ball_frame, ball_camera, ball.truth(ball_camera), ball.radius)
     out["ball_mean_deg"], out["ball_p95_deg"] = metrics.normal_mean_deg, metrics.normal_p95_deg
     return out
+
+
+DAMBREAK: tuple[Any, Any] | None = None
+
+
+def load_dambreak(gl: GLContext, renderer: SurfaceRenderer, width: int, height: int) -> None:
+    """The dam-break frame and its pysplashsurf truth at this size (needs ../shared/data and
+    pysplashsurf; skipped otherwise)."""
+    global DAMBREAK
+    path = dambreak_frame()
+    if path is None:
+        print("dam break skipped: ../shared/data not found")
+        return
+    result, mesh = run_pysplashsurf(read_particles(path).positions, DAMBREAK_RADIUS)
+    if mesh is None:
+        print(f"dam break skipped: {result.note}")
+        return
+    scene = dambreak_scene(
+        path, lambda p, r, c: rasterise(gl, renderer.programs, mesh, c), DAMBREAK_RADIUS
+    )
+    camera = Camera.from_config(scene.camera_config(), width, height)
+    DAMBREAK = (scene, scene.truth(camera))
 
 
 def main() -> None:
@@ -106,6 +160,7 @@ def main() -> None:
     with GLContext() as gl:
         renderer = SurfaceRenderer(gl)
         try:
+            load_dambreak(gl, renderer, args.width, args.height)
             for name in names:
                 row = measure(renderer, SETTINGS[name], args.width, args.height)
                 print(

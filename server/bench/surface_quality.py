@@ -7,6 +7,9 @@
   crosses, coverage from a 4 x 4 supersampled ray cast (the analytic truth at 4x resolution,
   box-filtered) of the union of the particle spheres (the impostor geometry: this measures the
   anti-aliasing, not the reconstruction);
+* **silhouette band error**: the mean normal error over pixels within BAND_PX pixels of the
+  reference's silhouette (where its coverage or depth jumps), which the interior figure hides:
+  normals that flip at a beaded edge;
 * **flicker**: the same frame with every particle moved by a small random offset (a fraction of
   r): the mean normal change over pixels covered in both renders (a live stream shows it as
   shimmer).
@@ -32,6 +35,7 @@ from sphrender.server.scene import CameraConfig
 F64 = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]
 SUPERSAMPLE = 4
+BAND_PX = 3
 
 
 @dataclass(frozen=True)
@@ -127,3 +131,37 @@ def flicker_deg(a: RenderedFrame, b: RenderedFrame) -> tuple[float, float]:
         return float("nan"), float("nan")
     change = angle_deg(a.normals.astype(np.float64)[mask], b.normals.astype(np.float64)[mask])
     return float(change.mean()), float(np.percentile(change, 99))
+
+
+def silhouette_band(truth: Truth, radius: float, width_px: int = BAND_PX) -> Mask:
+    """Pixels within `width_px` of the truth's silhouettes: where the hit mask changes, or the
+    depth between neighbours jumps by more than 4 particle radii (an edge in front of a
+    farther surface)."""
+    hit = truth.hit
+    depth = np.where(hit, truth.depth, 0.0)
+    edge = np.zeros_like(hit)
+    for axis in (0, 1):
+        a = np.moveaxis(hit, axis, 0)
+        d = np.moveaxis(depth, axis, 0)
+        jump = (a[1:] != a[:-1]) | (a[1:] & a[:-1] & (np.abs(d[1:] - d[:-1]) > 4.0 * radius))
+        e = np.moveaxis(edge, axis, 0)
+        e[1:] |= jump
+        e[:-1] |= jump
+    band = edge.copy()
+    for _ in range(width_px - 1):
+        grown = band.copy()
+        grown[1:] |= band[:-1]
+        grown[:-1] |= band[1:]
+        grown[:, 1:] |= band[:, :-1]
+        grown[:, :-1] |= band[:, 1:]
+        band = grown
+    return band & hit
+
+
+def band_error_deg(frame: RenderedFrame, truth: Truth, band: Mask) -> float:
+    """Mean normal error over the band pixels the render covers."""
+    assert frame.normals is not None and frame.depth is not None
+    mask = band & np.isfinite(frame.depth)
+    if not mask.any():
+        return float("nan")
+    return float(angle_deg(frame.normals.astype(np.float64)[mask], truth.normals[mask]).mean())

@@ -180,7 +180,7 @@ class SurfaceRenderer:
                 stats.particles_splatted += splat.splatted
 
         with self._stage(stats, "normals"):
-            normal_depth = self._normals.run(surface, camera, box)
+            normal_depth = self._normals.run(surface, camera, box, prepared.reference_radius)
 
         with self._stage(stats, "shade"):
             temperature = splat.temperature
