@@ -224,8 +224,8 @@ class SphConfig:
     anisotropy_radius: float = spec(
         1.5,
         "anisotropy: neighbourhood radius R as a multiple of support_radius (weights 1 - "
-        "(d/R)^3); 1.5 = 6 r gives ~110 neighbours inside a lattice of spacing 2 r and ~55 on "
-        "its flat faces (1.0 gives only 26 inside and 17 on a face: below min_neighbours)",
+        "(d/R)^3); 1.5 = 6 r gives ~107 neighbours inside a jittered lattice of spacing 2 r "
+        "and ~63 on its surface (1.0 gives ~29 and ~19: at or below min_neighbours)",
         low=0.25,
         high=4.0,
     )
@@ -248,7 +248,7 @@ class SphConfig:
         0.5,
         "anisotropy: lambda, centres move to (1 - lambda) x + lambda (weighted neighbourhood "
         "mean), ramped like the shape; Yu & Turk use 0.9-1, which also pulls the surface "
-        "inwards by up to ~0.3 R",
+        "inwards by lambda * ~0.25 R (up to 0.4 R)",
         low=0.0,
         high=1.0,
     )
