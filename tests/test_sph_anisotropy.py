@@ -35,9 +35,11 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from sphrender.client.errors import InputError
+from sphrender.client.frame import make_frame
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.sph.anisotropy import AnisotropyParameters, AnisotropyResult
 from sphrender.server.engine.sph.engine import SphEngine
+from sphrender.server.engine.sph.frame import apply_sph, apply_to_frame, eq29_radii, needs_sph
 from sphrender.server.scene import Scene, scene_from_dict
 
 U = 2.0**-24
@@ -351,3 +353,59 @@ def test_parameters_from_scene() -> None:
 def test_scene_errors_name_the_key(key: str, value: object) -> None:
     with pytest.raises(InputError, match=f"sph.{key}"):
         scene_from_dict({"sph": {key: value}})
+
+
+# -- the frame glue --------------------------------------------------------------------------
+
+
+def aniso_scene(**sph: object) -> Scene:
+    return scene_from_dict({"particles": {"radius": R}, "sph": {"anisotropy": True, **sph}})
+
+
+def test_needs_sph_includes_anisotropy() -> None:
+    assert needs_sph(aniso_scene())
+    assert not needs_sph(Scene())
+
+
+def test_apply_sph_anisotropy_only(sph_engine: SphEngine) -> None:
+    """Only anisotropy: no density pass, the frame unchanged, ellipsoids for every particle at
+    the scene's radius with R = anisotropy_radius * h (h = 4 r)."""
+    positions = jittered_lattice_ball(0.1, R, seed=3)
+    frame = make_frame(positions)
+    scene = aniso_scene()
+    out = apply_sph(sph_engine, frame, scene)
+    assert out.sph is None and out.frame.radii is None
+    assert out.frame.positions is frame.positions
+    assert out.anisotropy is not None and out.anisotropy.count == frame.count
+    direct = sph_engine.anisotropy(positions, params(1.5 * H), R)
+    assert (out.anisotropy.axes == direct.axes).all()
+    assert (out.anisotropy.centers == direct.centers).all()
+    # the sphere path never computes anisotropy (nor, here, anything else)
+    drawn, result = apply_to_frame(sph_engine, frame, scene)
+    assert result is None and drawn.positions is frame.positions
+
+
+def test_apply_sph_scales_axes_by_eq29_radii_and_follows_the_splat_subset(
+    sph_engine: SphEngine,
+) -> None:
+    ball = jittered_lattice_ball(0.1, R, seed=4)
+    droplets = np.array([[0.5, 0.0, 0.0], [0.0, 0.6, 0.0], [0.02, 0.0, 0.15]])
+    positions = np.concatenate([ball, droplets])
+    frame = make_frame(positions, temperatures=np.full(len(positions), 1800.0))
+    scene = aniso_scene(adaptive_radius=True, surface_only=True)
+    out = apply_sph(sph_engine, frame, scene)
+    assert out.sph is not None and out.sph.splat_keep is not None and out.anisotropy is not None
+    keep = out.sph.splat_keep
+    assert 0 < keep.sum() < len(positions) and keep[-3:].all()
+    assert out.anisotropy.count == out.frame.count == keep.sum()
+    radii = eq29_radii(out.sph, frame, scene)
+    full = sph_engine.anisotropy(positions, params(1.5 * H), radii)
+    assert (out.anisotropy.axes == full.axes[keep]).all()
+    assert out.frame.radii is not None
+    np.testing.assert_array_equal(out.frame.radii, radii[keep])
+    # droplets: exact spheres of their (shrunk) eq 29 radius, at their own position
+    drop = out.anisotropy.subset(np.arange(out.frame.count) >= out.frame.count - 3)
+    assert drop.is_sphere.all()
+    assert (drop.axes == np.eye(3, dtype=np.float32) * radii[-3:, None, None]).all()
+    assert (drop.centers == droplets).all()
+    assert (radii[-3:] < R).all()  # eq 29 shrank them: the axes follow
