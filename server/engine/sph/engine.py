@@ -22,6 +22,8 @@ steps, which are O(N) numpy:
    (`radii.py`); `frame.py` applies the result to a frame for the renderer.
 
 The kernel file is ``shaders/sph/sph.cl``; its header documents the kernel function and grid modes.
+`SphEngine.anisotropy` (issue 12, Yu & Turk ellipsoids) builds its own grid with cell side R and
+runs ``shaders/sph/anisotropy.cl`` (launched by `anisotropy.py`, which documents the output).
 `SphEngine` owns its device buffers (grown geometrically, reused across frames) and releases
 them in `release`; the program itself is cached by the `CLContext`.
 """
