@@ -37,6 +37,7 @@ from scipy.spatial.transform import Rotation
 from sphrender.client.errors import InputError
 from sphrender.client.frame import make_frame
 from sphrender.server.content.lattice import jittered_lattice_ball
+from sphrender.server.engine.gpu.cl_context import kernel_source
 from sphrender.server.engine.sph.anisotropy import AnisotropyParameters, AnisotropyResult
 from sphrender.server.engine.sph.engine import SphEngine
 from sphrender.server.engine.sph.frame import apply_sph, apply_to_frame, eq29_radii, needs_sph
@@ -186,6 +187,22 @@ def test_random_cloud_matches_reference(sph_engine: SphEngine) -> None:
     assert ((ref.ramp > 0) & (ref.ramp < 1)).any() and (ref.ramp == 1).any()
     assert_matches_reference(result, ref, ok, p.radius, 0.02)
     assert_spheres_exact(result, positions, 0.02)
+
+
+def test_hashed_grid_matches_reference(sph_engine: SphEngine) -> None:
+    """A far droplet makes the domain sparse, so the grid is hashed (sph.cl's second mode)."""
+    cloud = np.random.default_rng(6).uniform(0.0, 1.0, (2000, 3))
+    positions = np.concatenate([cloud, [[1e3, 1e3, 1e3]]])
+    p = params(0.15)
+    result, ref, ok = run_both(sph_engine, positions, p, 0.02)
+    assert_matches_reference(result, ref, ok, p.radius, 0.02)
+    assert result.is_sphere[-1] and result.neighbour_count[-1] == 0
+
+
+def test_kernel_file_includes_the_grid_walk_once() -> None:
+    source = kernel_source("sph/anisotropy.cl")
+    assert source.count("__kernel void density") == 1  # sph.cl, included
+    assert "__kernel void anisotropy" in source and "#include" not in source
 
 
 @pytest.mark.parametrize("shift", [0.0, 1e5])
