@@ -243,6 +243,44 @@ class SphConfig:
         low=0.0,
         high=1.0,
     )
+    anisotropy: bool = spec(
+        False,
+        "anisotropic particles (Yu & Turk 2013): each particle becomes an ellipsoid of its "
+        "sphere's volume, stretched along its neighbourhood's principal axes (flat on flat "
+        "surfaces, long along filaments), at a smoothed centre; particles with few neighbours "
+        "stay spheres of their radius at their position",
+    )
+    anisotropy_radius: float = spec(
+        1.5,
+        "anisotropy: neighbourhood radius R as a multiple of support_radius (weights 1 - "
+        "(d/R)^3); 1.5 = 6 r gives ~107 neighbours inside a jittered lattice of spacing 2 r "
+        "and ~63 on its surface (1.0 gives ~29 and ~19: at or below min_neighbours)",
+        low=0.25,
+        high=4.0,
+    )
+    anisotropy_max_ratio: float = spec(
+        4.0,
+        "anisotropy: k_r, largest ratio of the longest to the shortest axis (the covariance's "
+        "eigenvalues are clamped to >= largest / k_r; axes follow the eigenvalues, as Yu & Turk)",
+        low=1.0,
+        high=32.0,
+    )
+    anisotropy_min_neighbours: int = spec(
+        25,
+        "anisotropy: N_eps, particles with fewer neighbours within R stay exact spheres "
+        "(droplets do not shrink or move); above it anisotropy and smoothing ramp in over "
+        "N_eps / 2 more neighbours, so shapes change continuously between frames",
+        low=1,
+        high=10000,
+    )
+    anisotropy_smoothing: float = spec(
+        0.5,
+        "anisotropy: lambda, centres move to (1 - lambda) x + lambda (weighted neighbourhood "
+        "mean), ramped like the shape; Yu & Turk use 0.9-1, which also pulls the surface "
+        "inwards by lambda * ~0.25 R (up to 0.4 R)",
+        low=0.0,
+        high=1.0,
+    )
 
 
 MaterialPreset = Literal[
