@@ -51,6 +51,14 @@ SETTINGS["balanced_aa"] = Setting(
     preset="balanced",
     overrides={"quality": {"exact_droplets": True, "antialias": True}},
 )
+SETTINGS["balanced_aniso"] = Setting(
+    "balanced_aniso",
+    preset="balanced",
+    overrides={
+        "quality": {"exact_droplets": True, "antialias": True},
+        "sph": {"anisotropy": True},
+    },
+)
 SETTINGS["balanced_droplets"] = Setting(
     "balanced_droplets", preset="balanced", overrides={"quality": {"exact_droplets": True}}
 )

@@ -48,14 +48,7 @@ from sphrender.server.engine.passes.smooth import SmoothPass
 from sphrender.server.engine.passes.splat import SplatPass
 from sphrender.server.engine.passes.temperature import TemperaturePass
 from sphrender.server.engine.sph.engine import SphEngine
-from sphrender.server.engine.sph.frame import (
-    SphStage,
-    apply_to_frame,
-    droplet_mask,
-    frame_particle_radius,
-    needs_sph,
-    wants_exact_droplets,
-)
+from sphrender.server.engine.sph.frame import SphOutcome, SphStage
 from sphrender.server.scene import QualityConfig, Scene
 
 
@@ -136,11 +129,21 @@ class SurfaceRenderer:
         camera = Camera.from_config(scene.camera, scene.image.width, scene.image.height)
         stats = RenderStats(particles_in=frame.count)
 
-        frame, reference_radius, droplets = self._sph_stage(frame, scene, stats)
+        sph = SphOutcome(frame)
+        if self._sph.wanted(scene, frame):
+            self._sph.warm(frame, scene)  # outside the stage: first use builds the CL program
+            with self._stage(stats, "sph"):
+                sph = self._sph.run(frame, scene)
+        frame = sph.frame
 
         with self._stage(stats, "prepare"):
             prepared = prepare_particles(
-                frame, camera, scene, reference_radius=reference_radius, droplets=droplets
+                frame,
+                camera,
+                scene,
+                reference_radius=sph.reference_radius,
+                droplets=sph.droplets,
+                ellipsoids=sph.ellipsoids,
             )
             stats.particles_drawn = int(prepared.center_radius.shape[0])
             stats.far = prepared.far
@@ -203,24 +206,6 @@ class SurfaceRenderer:
                 surface_box=box,
             )
         return rendered, stats
-
-    def _sph_stage(
-        self, frame: ParticleFrame, scene: Scene, stats: RenderStats
-    ) -> tuple[ParticleFrame, float | None, npt.NDArray[np.bool_] | None]:
-        """What SPH changes: the frame (eq 29 radii, surface-only), the radius the smoothing
-        follows (None: the frame's), and which particles are droplets (None: no split)."""
-        if not needs_sph(scene) and not wants_exact_droplets(scene):
-            return frame, None, None
-        reference_radius = frame_particle_radius(frame, scene)
-        if needs_sph(scene) or frame.densities is None:
-            self.sph_engine()  # outside the stage: first use builds the CL program
-        with self._stage(stats, "sph"):
-            if needs_sph(scene):
-                frame, _ = apply_to_frame(self.sph_engine(), frame, scene)
-            droplets = None
-            if wants_exact_droplets(scene):
-                droplets = droplet_mask(frame, scene, self.sph_engine)
-        return frame, reference_radius, droplets
 
     # -- single passes on given images (the same code paths, for tests against references) --
 

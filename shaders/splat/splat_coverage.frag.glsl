@@ -1,11 +1,12 @@
 #version 330 core
 // Sub-pixel coverage of a pixel by a sphere's silhouette (silhouette anti-aliasing): the
 // angular distance of the pixel's centre ray from the silhouette cone, in pixels (s > 0 inside),
-// and the share of a square pixel on the inner side of an edge at that distance, whose normal
-// in the image runs towards the projected centre: clamp(0.5 + s / (|n.x| + |n.y|), 0, 1)
-// (exact for straight edges whose ramp stays inside the pixel). The pass draws every splatted
+// and the share of a square pixel on the inner side of a straight edge at that distance whose
+// normal in the image runs towards the projected centre (common/edge_coverage.glsl). The pass draws every splatted
 // sphere with blending MAX and no depth test, so a pixel gets the coverage of the sphere that
 // covers it most: the union's coverage wherever one sphere forms the edge.
+
+#include "common/edge_coverage.glsl"
 
 in vec3 v_view_position;
 flat in vec4 v_sphere;
@@ -30,8 +31,8 @@ void main() {
     float silhouette = asin(min(radius / distance, 1.0));
     // A step of one pixel turns the ray by about cos(a) / focal at angle a off the view axis.
     float s = (silhouette - angle) * u_focal_px / max(-direction.z, 1e-3);
-    vec2 edge_normal = miss > 0.0 ? abs(normalize(perpendicular.xy + vec2(1e-30))) : vec2(1.0, 0.0);
-    float coverage = clamp(0.5 + s / (edge_normal.x + edge_normal.y), 0.0, 1.0);
+    vec2 edge_normal = length(perpendicular.xy) > 0.0 ? normalize(perpendicular.xy) : vec2(1.0, 0.0);
+    float coverage = edge_coverage(s, edge_normal);
     if (coverage <= 0.0) {
         discard;
     }

@@ -25,12 +25,14 @@ from sphrender.server.engine.geometry import occlusion
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.prepare import PreparedParticles
 from sphrender.server.engine.geometry.screen_box import ScreenBox
-from sphrender.server.engine.gpu.draw import Target, float_texture, write_matrix
+from sphrender.server.engine.gpu.draw import Target, float_texture, set_if_used, write_matrix
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
 VERTEX_SHADER = "splat/splat_sphere.vert.glsl"
 FRAGMENT_SHADER = "splat/splat_sphere.frag.glsl"
 SEED_SHADER = "splat/depth_seed.frag.glsl"
+ELLIPSOID_VERTEX_SHADER = "splat/splat_ellipsoid.vert.glsl"
+ELLIPSOID_FRAGMENT_SHADER = "splat/splat_ellipsoid.frag.glsl"
 COVERAGE_VERTEX_SHADER = "splat/splat_coverage.vert.glsl"
 COVERAGE_FRAGMENT_SHADER = "splat/splat_coverage.frag.glsl"
 #: How far past a silhouette the coverage quads reach, in pixels.
@@ -119,8 +121,9 @@ class SplatPass:
         self._index_buffer = ctx.buffer(reserve=4)
         self._instance_buffer = ctx.buffer(reserve=16 * 1024)
         self._temperature_buffer = ctx.buffer(reserve=4 * 1024)
-        self._vaos: dict[bool, moderngl.VertexArray] = {}  # keyed by "has temperature"
-        self._coverage_vao: moderngl.VertexArray | None = None
+        self._axes_buffer = ctx.buffer(reserve=36 * 1024)  # ellipsoids: 3 semi-axes per vertex
+        # Keyed by (ellipsoid, has temperature, coverage).
+        self._vaos: dict[tuple[bool, bool, bool], moderngl.VertexArray] = {}
         self._targets: SplatTargets | None = None
 
     def targets(self, size: tuple[int, int]) -> SplatTargets:
@@ -158,14 +161,11 @@ class SplatPass:
             fbo.use()
         if count == 0:
             return SplatOutput(targets.depth, temperature, 0, _texture(coverage))
-        program, vao = self._vertex_array(prepared.temperatures is not None)
-        self._ensure_quads(count)
-        self._reserve(self._instance_buffer, count * 64)  # 4 corners x vec4
-        if prepared.temperatures is not None:
-            self._reserve(self._temperature_buffer, count * 16)  # 4 corners x float
-        write_matrix(program, "u_projection", camera.projection_matrix(prepared.far))
-        program["u_near"] = camera.near
-        program["u_far"] = prepared.far
+        program, vao = self._vertex_array(
+            prepared.axes is not None, prepared.temperatures is not None
+        )
+        self._reserve_for(prepared, count)
+        self._set_depth_uniforms(program, camera, prepared.far)
         ctx = self._context.gl.ctx
         ctx.enable(moderngl.DEPTH_TEST)
         try:
@@ -177,7 +177,7 @@ class SplatPass:
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
         if coverage is not None:
-            self._draw_coverage(coverage, camera, prepared.far, splatted)
+            self._draw_coverage(coverage, camera, prepared, splatted)
         return SplatOutput(targets.depth, temperature, splatted, _texture(coverage))
 
     def run_droplets(
@@ -208,52 +208,55 @@ class SplatPass:
         try:
             self._context.fullscreen.draw(seed)
             if count:
-                program, vao = self._vertex_array(with_temperature)
-                self._ensure_quads(count)
-                self._reserve(self._instance_buffer, count * 64)
-                if with_temperature:
-                    self._reserve(self._temperature_buffer, count * 16)
-                write_matrix(program, "u_projection", camera.projection_matrix(droplets.far))
-                program["u_near"] = camera.near
-                program["u_far"] = droplets.far
+                program, vao = self._vertex_array(droplets.axes is not None, with_temperature)
+                self._reserve_for(droplets, count)
+                self._set_depth_uniforms(program, camera, droplets.far)
                 draw_fbo.use()
                 self._draw_spheres(vao, droplets, None, first=0)
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
         if coverage is not None and count:
-            self._draw_coverage(targets.coverage_target(), camera, droplets.far, count)
+            self._draw_coverage(targets.coverage_target(), camera, droplets, count)
         return SplatOutput(composite, temperature, count, coverage)
 
-    def _draw_coverage(self, target: Target, camera: Camera, far: float, count: int) -> None:
+    def _draw_coverage(
+        self, target: Target, camera: Camera, prepared: PreparedParticles, count: int
+    ) -> None:
         """Coverage of the first `count` quads in the buffers (those the splat just drew), into
         `target` with blending MAX and no depth test (see splat_coverage.frag.glsl)."""
         if count == 0:
             return
         ctx = self._context.gl.ctx
-        program = self._context.programs.get(COVERAGE_VERTEX_SHADER, COVERAGE_FRAGMENT_SHADER)
-        if self._coverage_vao is None:
-            self._coverage_vao = ctx.vertex_array(
-                program,
-                [
-                    (self._corner_buffer, "2f", "in_corner"),
-                    (self._instance_buffer, "4f", "in_center_radius"),
-                ],
-                index_buffer=self._index_buffer,
-                index_element_size=4,
-            )
+        program, vao = self._vertex_array(prepared.axes is not None, False, coverage=True)
         focal_px = camera.pixels_per_unit_at_unit_depth
-        write_matrix(program, "u_projection", camera.projection_matrix(far))
+        write_matrix(program, "u_projection", camera.projection_matrix(prepared.far))
         program["u_margin"] = COVERAGE_MARGIN_PX / focal_px
         program["u_near"] = camera.near
-        program["u_focal_px"] = focal_px
+        set_if_used(program, "u_focal_px", focal_px)
+        set_if_used(program, "u_far", prepared.far)
         target.fbo.use()
         ctx.enable(moderngl.BLEND)
         ctx.blend_equation = moderngl.MAX
         try:
-            self._coverage_vao.render(moderngl.TRIANGLES, vertices=6 * count)
+            vao.render(moderngl.TRIANGLES, vertices=6 * count)
         finally:
             ctx.blend_equation = moderngl.FUNC_ADD
             ctx.disable(moderngl.BLEND)
+
+    def _set_depth_uniforms(self, program: moderngl.Program, camera: Camera, far: float) -> None:
+        write_matrix(program, "u_projection", camera.projection_matrix(far))
+        program["u_near"] = camera.near
+        program["u_far"] = far
+        set_if_used(program, "u_margin", 0.0)
+
+    def _reserve_for(self, prepared: PreparedParticles, count: int) -> None:
+        """Quads and per-vertex buffers for `count` particles of `prepared`'s kind."""
+        self._ensure_quads(count)
+        self._reserve(self._instance_buffer, count * 64)  # 4 corners x vec4
+        if prepared.temperatures is not None:
+            self._reserve(self._temperature_buffer, count * 16)  # 4 corners x float
+        if prepared.axes is not None:
+            self._reserve(self._axes_buffer, count * 144)  # 4 corners x 3 x vec3
 
     def _draw_culled(
         self,
@@ -285,21 +288,37 @@ class SplatPass:
             self._draw_spheres(vao, prepared, others, first=front.size)
         return int(front.size + others.size)
 
-    def _vertex_array(self, has_temperature: bool) -> tuple[moderngl.Program, moderngl.VertexArray]:
-        defines = {"HAS_TEMPERATURE": True} if has_temperature else None
-        program = self._context.programs.get(VERTEX_SHADER, FRAGMENT_SHADER, defines)
-        vao = self._vaos.get(has_temperature)
+    def _vertex_array(
+        self, ellipsoid: bool, has_temperature: bool, *, coverage: bool = False
+    ) -> tuple[moderngl.Program, moderngl.VertexArray]:
+        """The program and vertex array of one kind of splat draw (spheres or ellipsoids,
+        with or without temperatures, depth or coverage)."""
+        programs = self._context.programs
+        if ellipsoid:
+            defines = {"HAS_TEMPERATURE": has_temperature, "COVERAGE": coverage}
+            program = programs.get(ELLIPSOID_VERTEX_SHADER, ELLIPSOID_FRAGMENT_SHADER, defines)
+        elif coverage:
+            program = programs.get(COVERAGE_VERTEX_SHADER, COVERAGE_FRAGMENT_SHADER)
+        else:
+            defines = {"HAS_TEMPERATURE": True} if has_temperature else None
+            program = programs.get(VERTEX_SHADER, FRAGMENT_SHADER, defines)
+        key = (ellipsoid, has_temperature, coverage)
+        vao = self._vaos.get(key)
         if vao is None:
             attributes = [
                 (self._corner_buffer, "2f", "in_corner"),
                 (self._instance_buffer, "4f", "in_center_radius"),
             ]
+            if ellipsoid:
+                attributes.append(
+                    (self._axes_buffer, "3f 3f 3f", "in_axis0", "in_axis1", "in_axis2")
+                )
             if has_temperature:
                 attributes.append((self._temperature_buffer, "1f", "in_temperature"))
             vao = self._context.gl.ctx.vertex_array(
                 program, attributes, index_buffer=self._index_buffer, index_element_size=4
             )
-            self._vaos[has_temperature] = vao
+            self._vaos[key] = vao
         return program, vao
 
     @staticmethod
@@ -340,6 +359,10 @@ class SplatPass:
         if data.shape[0] == 0:
             return
         self._instance_buffer.write(np.repeat(data, 4, axis=0).tobytes(), offset=first * 64)
+        if prepared.axes is not None:
+            axes = prepared.axes if rows is None else prepared.axes[rows]
+            columns = np.ascontiguousarray(axes.transpose(0, 2, 1)).reshape(-1, 9)
+            self._axes_buffer.write(np.repeat(columns, 4, axis=0).tobytes(), offset=first * 144)
         if prepared.temperatures is not None:
             kelvin = prepared.temperatures if rows is None else prepared.temperatures[rows]
             self._temperature_buffer.write(np.repeat(kelvin, 4).tobytes(), offset=first * 16)
@@ -349,9 +372,6 @@ class SplatPass:
         for vao in self._vaos.values():
             vao.release()
         self._vaos.clear()
-        if self._coverage_vao is not None:
-            self._coverage_vao.release()
-            self._coverage_vao = None
         if self._targets is not None:
             self._targets.release()
             self._targets = None
@@ -360,6 +380,7 @@ class SplatPass:
             self._index_buffer,
             self._instance_buffer,
             self._temperature_buffer,
+            self._axes_buffer,
         ):
             buffer.release()
 

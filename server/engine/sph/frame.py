@@ -4,6 +4,7 @@ context and engine, created on the first frame that needs them, on the GL owner 
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
@@ -11,11 +12,13 @@ import numpy as np
 import numpy.typing as npt
 
 from sphrender.client.frame import ParticleFrame
-from sphrender.server.engine.gpu.cl_context import CLContext
+from sphrender.server.engine.gpu.cl_context import CLContext, CLUnavailableError
 from sphrender.server.engine.sph.anisotropy import AnisotropyParameters, AnisotropyResult
 from sphrender.server.engine.sph.engine import SphEngine, SphParameters, SphResult
 from sphrender.server.engine.sph.radii import F32, adaptive_radii, surface_density
 from sphrender.server.scene import Scene
+
+log = logging.getLogger("sphrender.sph")
 
 
 def frame_particle_radius(frame: ParticleFrame, scene: Scene) -> float:
@@ -134,12 +137,23 @@ def droplet_mask(
     return np.asarray(densities) < threshold
 
 
+@dataclass(frozen=True)
+class SphOutcome:
+    """What the SPH stage changes in a frame, for the renderer."""
+
+    frame: ParticleFrame  # eq 29 radii, surface-only subset (or the frame as it came)
+    reference_radius: float | None = None  # the radius the smoothing follows (None: frame's)
+    droplets: npt.NDArray[np.bool_] | None = None  # which particles skip smoothing
+    ellipsoids: tuple[npt.NDArray[np.float64], F32] | None = None  # (centres, semi-axes)
+
+
 class SphStage:
     """The renderer's SPH stage: a lazily created `CLContext` + `SphEngine` (device from
     `cl_device`, None = probe), released with the renderer."""
 
     def __init__(self, cl_device: str | None = None) -> None:
         self._cl_device = cl_device
+        self._warned = False
         self._cl: CLContext | None = None
         self._engine: SphEngine | None = None
 
@@ -150,6 +164,43 @@ class SphStage:
                 self._cl = CLContext(self._cl_device)
             self._engine = SphEngine(self._cl)
         return self._engine
+
+    @staticmethod
+    def wanted(scene: Scene, frame: ParticleFrame) -> bool:
+        """Whether this frame needs the stage (an [sph] feature, or exact droplets)."""
+        return needs_sph(scene) or wants_exact_droplets(scene)
+
+    def warm(self, frame: ParticleFrame, scene: Scene) -> None:
+        """Build the CL context and program now if this frame will need them (so the first
+        frame's stage time is the pass's, not LLVM's)."""
+        if needs_sph(scene) or frame.densities is None:
+            try:
+                self.engine()
+            except CLUnavailableError:
+                if needs_sph(scene):
+                    raise
+
+    def run(self, frame: ParticleFrame, scene: Scene) -> SphOutcome:
+        """Everything the scene asks of SPH for this frame (on the owner thread). Exact droplets
+        without OpenCL (and without client densities) are skipped with one warning: the frame
+        still renders, its droplets smoothed as without the option."""
+        reference_radius = frame_particle_radius(frame, scene)
+        ellipsoids = droplets = None
+        if needs_sph(scene):
+            result = apply_sph(self.engine(), frame, scene)
+            frame = result.frame
+            if result.anisotropy is not None:
+                ellipsoids = (result.anisotropy.centers, result.anisotropy.axes)
+        if wants_exact_droplets(scene):
+            try:
+                droplets = droplet_mask(frame, scene, self.engine)
+            except CLUnavailableError as exc:
+                if not self._warned:
+                    log.warning(
+                        "exact droplets need densities or OpenCL, rendering without: %s", exc
+                    )
+                    self._warned = True
+        return SphOutcome(frame, reference_radius, droplets, ellipsoids)
 
     def release(self) -> None:
         if self._engine is not None:
