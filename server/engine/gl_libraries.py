@@ -23,6 +23,7 @@ from __future__ import annotations
 import ctypes
 import json
 import os
+import platform
 import sys
 import sysconfig
 from dataclasses import dataclass
@@ -116,9 +117,9 @@ def dri_driver_dirs() -> list[Path]:
     """Where Mesa looks for DRI drivers: ``LIBGL_DRIVERS_PATH``, else the distribution's."""
     if paths := os.environ.get("LIBGL_DRIVERS_PATH"):
         return [Path(p) for p in paths.split(":") if p]
-    multiarch = sysconfig.get_config_var("MULTIARCH")
-    dirs = [Path("/usr/lib") / multiarch / "dri"] if multiarch else []
-    return [*dirs, Path("/usr/lib64/dri"), Path("/usr/lib/dri")]
+    # Debian's multiarch folder; a Python built elsewhere (pyenv, uv) may not know it.
+    multiarch = sysconfig.get_config_var("MULTIARCH") or f"{platform.machine()}-linux-gnu"
+    return [Path("/usr/lib") / multiarch / "dri", Path("/usr/lib64/dri"), Path("/usr/lib/dri")]
 
 
 def has_llvmpipe_driver() -> bool:
