@@ -205,6 +205,25 @@ def test_missing_libgl_names_the_library_and_its_package(tmp_path: Path, ball_np
     assert "libegl" not in result.stderr  # EGL loads: nothing else to install
 
 
+@pytest.mark.parametrize(
+    ("variable", "words"),
+    [
+        ("__EGL_VENDOR_LIBRARY_DIRS", ("no EGL vendor loads", "apt-get install libegl-mesa0")),
+        ("LIBGL_DRIVERS_PATH", ("swrast_dri.so is in none of", "apt-get install libgl1-mesa-dri")),
+    ],
+)
+def test_missing_mesa_parts_name_their_package(
+    tmp_path: Path, ball_npz: Path, variable: str, words: tuple[str, ...]
+) -> None:
+    """GLVND finds no vendor file / Mesa finds no driver in an empty folder (real loaders; Mesa
+    may warn on stderr before our line)."""
+    env = {variable: str(tmp_path / "empty")}
+    result = run_sphrender("render", str(ball_npz), "-o", str(tmp_path / "o.png"), env=env)
+    assert result.returncode == 3 and "Traceback" not in result.stderr
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith("sphrender: error:") and all(word in last for word in words), last
+
+
 def test_info_without_gl_still_reports_opencl(tmp_path: Path) -> None:
     env = {"GLCONTEXT_LINUX_LIBGL": str(tmp_path / "libGL.so.1")}
     result = run_sphrender("info", env=env)

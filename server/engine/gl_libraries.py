@@ -178,7 +178,7 @@ def failure_message(error: str, egl: str, gl: str) -> str:
     head = f"cannot create a headless OpenGL context through EGL ({error})"
     if not problems:
         return (
-            f"{head}; {egl} and {gl} load and an EGL vendor answers, so the driver refused "
+            f"{head}; {egl} and {gl} load and an EGL vendor loads, so the driver refused "
             f"(for Mesa's CPU renderer on Debian/Ubuntu: apt-get install {' '.join(MESA_PACKAGES)})"
         )
     packages = list(dict.fromkeys(p.package for p in problems if p.package is not None))
