@@ -141,6 +141,28 @@ def _select_explicit(
     )
 
 
+def icd_load_errors() -> list[str]:
+    """The OpenCL ICD files (``OCL_ICD_VENDORS``, else /etc/OpenCL/vendors) whose library does
+    not load, as "file: library does not load"; the ICD loader skips them without a word, which is
+    how an NVIDIA image without a GPU looks (nvidia.icd names the host driver's library)."""
+    import ctypes
+    from pathlib import Path
+
+    vendors = Path(os.environ.get("OCL_ICD_VENDORS") or "/etc/OpenCL/vendors")
+    files = sorted(vendors.glob("*.icd")) if vendors.is_dir() else [vendors]
+    errors = []
+    for icd in files:
+        try:
+            library = icd.read_text().strip()
+        except OSError:
+            continue
+        try:
+            ctypes.CDLL(library)
+        except OSError:
+            errors.append(f"{icd}: {library} does not load")
+    return errors
+
+
 def probe_device(cl_module: Any, device: Any) -> tuple[Any, str | None]:
     """Build and run a one-line kernel: (the context, None) when it works, else (None, why)."""
     import numpy as np
