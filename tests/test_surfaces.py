@@ -12,7 +12,7 @@ import pytest
 
 from sphrender.client.frame import make_frame
 from sphrender.server.bench.analytic import pixel_rays
-from sphrender.server.bench.scenes import spheres_truth
+from sphrender.server.bench.scenes import Truth, spheres_truth
 from sphrender.server.bench.surface_quality import edge_alpha_error, supersampled_coverage
 from sphrender.server.content.lattice import jittered_lattice_ball, lattice_slab
 from sphrender.server.engine.frame_output import RenderedFrame
@@ -140,13 +140,13 @@ def test_alpha_is_sub_pixel_coverage_on_every_edge(renderer: SurfaceRenderer) ->
     alpha = frame.rgba[..., 3].astype(np.float64)
     # Where two silhouettes meet inside one pixel the pass keeps the larger coverage, not the
     # union's (blend MAX): those junction pixels are checked only through the mean.
-    touched = sum(
-        supersampled_coverage(
-            lambda cam, c=c: spheres_truth(cam, c[None], R), scene.camera, 160, 120
-        )
-        > 0.0
-        for c in droplets
-    )
+    touched = np.zeros((120, 160), np.int64)
+    for center in droplets:
+
+        def one_sphere(cam: Camera, c: np.ndarray = center) -> Truth:
+            return spheres_truth(cam, c[None], R)
+
+        touched += supersampled_coverage(one_sphere, scene.camera, 160, 120) > 0.0
     junction = touched >= 2
     assert edge_alpha_error(alpha, coverage) < 0.06
     binary = render(renderer, droplets, make_scene(quality={"filter": "none"}))
@@ -211,8 +211,11 @@ def test_antialiasing_keeps_the_aovs_of_the_front_surface(renderer: SurfaceRende
 # -- ellipsoid impostors ----------------------------------------------------------------------
 
 
-def ray_ellipsoid_depth(camera: Camera, center: np.ndarray, axes: np.ndarray) -> np.ndarray:
-    """Eye depth of the front hit per pixel (rows top first, inf = miss), float64."""
+def ray_ellipsoid_depth(
+    camera: Camera, center: np.ndarray, axes: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Eye depth of the front hit per pixel (rows top first, inf = miss) and the squared miss
+    distance in unit-sphere coordinates, float64."""
     rays = pixel_rays(camera)
     inverse = np.linalg.inv(axes.astype(np.float64))
     d = rays.directions @ inverse.T

@@ -16,6 +16,7 @@ targets (depth texture, depth renderbuffer, temperature texture, their framebuff
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import moderngl
 import numpy as np
@@ -236,11 +237,11 @@ class SplatPass:
         set_if_used(program, "u_far", prepared.far)
         target.fbo.use()
         ctx.enable(moderngl.BLEND)
-        ctx.blend_equation = moderngl.MAX
+        ctx.blend_equation = moderngl.MAX  # type: ignore[assignment]  # the stub wants a pair
         try:
             vao.render(moderngl.TRIANGLES, vertices=6 * count)
         finally:
-            ctx.blend_equation = moderngl.FUNC_ADD
+            ctx.blend_equation = moderngl.FUNC_ADD  # type: ignore[assignment]
             ctx.disable(moderngl.BLEND)
 
     def _set_depth_uniforms(self, program: moderngl.Program, camera: Camera, far: float) -> None:
@@ -295,17 +296,20 @@ class SplatPass:
         with or without temperatures, depth or coverage)."""
         programs = self._context.programs
         if ellipsoid:
-            defines = {"HAS_TEMPERATURE": has_temperature, "COVERAGE": coverage}
-            program = programs.get(ELLIPSOID_VERTEX_SHADER, ELLIPSOID_FRAGMENT_SHADER, defines)
+            program = programs.get(
+                ELLIPSOID_VERTEX_SHADER,
+                ELLIPSOID_FRAGMENT_SHADER,
+                {"HAS_TEMPERATURE": has_temperature, "COVERAGE": coverage},
+            )
         elif coverage:
             program = programs.get(COVERAGE_VERTEX_SHADER, COVERAGE_FRAGMENT_SHADER)
         else:
-            defines = {"HAS_TEMPERATURE": True} if has_temperature else None
-            program = programs.get(VERTEX_SHADER, FRAGMENT_SHADER, defines)
+            sphere_defines = {"HAS_TEMPERATURE": True} if has_temperature else None
+            program = programs.get(VERTEX_SHADER, FRAGMENT_SHADER, sphere_defines)
         key = (ellipsoid, has_temperature, coverage)
         vao = self._vaos.get(key)
         if vao is None:
-            attributes = [
+            attributes: list[tuple[Any, ...]] = [
                 (self._corner_buffer, "2f", "in_corner"),
                 (self._instance_buffer, "4f", "in_center_radius"),
             ]
