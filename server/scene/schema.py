@@ -148,13 +148,13 @@ class QualityConfig:
         "depth by the weight share of rejected samples, as NVIDIA FleX does), both, or none",
     )
     antialias: bool = spec(
-        False,
+        True,
         "silhouette anti-aliasing: alpha is each edge pixel's sub-pixel coverage (analytic, from "
         "the ray's angular distance to the sphere's silhouette) and the pixels just outside a "
         "silhouette show the surface next to them; off: alpha is 1 where a pixel centre hits",
     )
     exact_droplets: bool = spec(
-        False,
+        True,
         "droplets (particles whose kernel density is below droplet_density * sph.rest_density: "
         "isolated particles and clusters of two or three) are not smoothed: they are splatted "
         "as exact spheres over the smoothed surface, so a kernel wider than a droplet neither "

@@ -175,6 +175,19 @@ vec4 nearest_neighbour_surface(ivec2 pixel, ivec2 size, out ivec2 source) {
     return best;
 }
 
+// Whether any of the 8 neighbours of `pixel` has no surface at its centre (a silhouette is near).
+bool next_to_background(ivec2 pixel, ivec2 size) {
+    for (int dy = -1; dy <= 1; ++dy) {
+        for (int dx = -1; dx <= 1; ++dx) {
+            ivec2 q = clamp(pixel + ivec2(dx, dy), ivec2(0), size - 1);
+            if (texelFetch(u_normal_depth, q, 0).w <= 0.0) {
+                return true;
+            }
+        }
+    }
+    return false;
+}
+
 void main() {
     ivec2 pixel = ivec2(gl_FragCoord.xy);
     vec4 normal_depth = texelFetch(u_normal_depth, pixel, 0);
@@ -184,8 +197,10 @@ void main() {
     float coverage = texelFetch(u_coverage, pixel, 0).r;
     if (normal_depth.w <= 0.0 && coverage > 0.0) {
         normal_depth = nearest_neighbour_surface(pixel, size, source);
-    } else if (normal_depth.w > 0.0 && coverage <= 0.0) {
-        coverage = 1.0;  // a surface the coverage pass did not see: opaque, as without AA
+    } else if (normal_depth.w > 0.0 && coverage < 1.0 && !next_to_background(pixel, size)) {
+        // Inside a surface: where the silhouettes of two front spheres meet, the pass keeps
+        // only the larger single coverage, but the union (with the layers behind) covers it.
+        coverage = 1.0;
     }
 #endif
     if (normal_depth.w <= 0.0) {

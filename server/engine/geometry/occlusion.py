@@ -53,6 +53,18 @@ class SphereBounds:
     near_depth: F64
     valid: Mask
 
+    def grown(self, pixels: int) -> SphereBounds:
+        """The rectangles grown by `pixels` on every side (for passes that reach past the
+        silhouettes, such as the anti-aliasing coverage)."""
+        return SphereBounds(
+            self.x0 - pixels,
+            self.x1 + pixels,
+            self.y0 - pixels,
+            self.y1 + pixels,
+            self.near_depth,
+            self.valid,
+        )
+
     def subset(self, rows: Mask) -> SphereBounds:
         """The bounds of the particles where `rows` is true."""
         return SphereBounds(

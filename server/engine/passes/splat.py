@@ -38,6 +38,8 @@ COVERAGE_VERTEX_SHADER = "splat/splat_coverage.vert.glsl"
 COVERAGE_FRAGMENT_SHADER = "splat/splat_coverage.frag.glsl"
 #: How far past a silhouette the coverage quads reach, in pixels.
 COVERAGE_MARGIN_PX = 1.5
+#: Whole pixels a coverage quad reaches past its sphere's bounds rectangle.
+COVERAGE_REACH_PX = 2
 
 
 @dataclass(frozen=True)
@@ -174,7 +176,10 @@ class SplatPass:
                 self._draw_spheres(vao, prepared, None, first=0)
                 splatted = count
             else:
-                splatted = self._draw_culled(fbo, vao, camera, prepared, bounds, box)
+                # With anti-aliasing a hidden particle's silhouette still counts within the
+                # coverage margin: it is culled only when hidden there too.
+                test_bounds = bounds.grown(COVERAGE_REACH_PX) if antialias else bounds
+                splatted = self._draw_culled(fbo, vao, camera, prepared, test_bounds, box)
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
         if coverage is not None:
