@@ -103,8 +103,10 @@ def test_render_exr_matches_in_process_render(
     assert np.array_equal(channels["N.Y"], frame.normals[:, :, 1])
     assert np.array_equal(channels["A"], frame.rgba[:, :, 3])
     assert np.allclose(channels["R"], frame.rgba[:, :, 0] * frame.rgba[:, :, 3])
-    covered = channels["A"] > 0
-    assert np.all(np.isfinite(channels["Z"][covered])) and np.all(np.isinf(channels["Z"][~covered]))
+    # Z is finite exactly where a surface is at the pixel centre; alpha (sub-pixel coverage)
+    # is positive there, and may be positive just outside a silhouette too.
+    surface = np.isfinite(channels["Z"])
+    assert np.all(channels["A"][surface] > 0) and np.all(channels["A"][~surface] < 1)
 
 
 def test_render_several_inputs_into_a_directory(

@@ -76,10 +76,11 @@ def test_adaptive_radius_thins_isolated_droplets(renderer: SurfaceRenderer) -> N
     frame = make_frame(ball_with_droplets())
     scene_off = droplet_scene()
     scene_on = droplet_scene(adaptive_radius=True, min_radius=0.5)
-    off, _ = renderer.render(frame, scene_off)
-    on, _ = renderer.render(frame, scene_on)
-    covered_off = off.rgba[:, :, 3] > 0
-    covered_on = on.rgba[:, :, 3] > 0
+    off, _ = renderer.render(frame, scene_off, depth=True)
+    on, _ = renderer.render(frame, scene_on, depth=True)
+    assert off.depth is not None and on.depth is not None
+    covered_off = np.isfinite(off.depth)  # a surface at the pixel centre (alpha is sub-pixel)
+    covered_on = np.isfinite(on.depth)
     full = droplet_disc_mask(scene_off, RADIUS)
     shrunk = droplet_disc_mask(scene_off, 0.5 * RADIUS)
     # The droplets lie right of the ball's silhouette: compare only that part of the image.

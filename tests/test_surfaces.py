@@ -69,7 +69,7 @@ def test_exact_droplets_are_the_unfiltered_spheres_over_the_smoothed_pool(
     """With exact droplets the depth image is exactly the nearer of (the pool smoothed on its
     own, the droplets splatted unfiltered on their own), pixel by pixel: the smoothing never
     sees a droplet and a droplet is never smoothed. Exact equality, since both halves run the
-    same shaders on the same inputs (droplets = isolated particles: density 0.32 rest < 0.5)."""
+    same shaders on the same inputs (droplets = isolated particles: density 0.32 rest < 0.45)."""
     pool, droplets = pool_and_droplets()
     quality = {"exact_droplets": True, "antialias": False}
     both = render(renderer, np.concatenate([pool, droplets]), make_scene(quality=quality))

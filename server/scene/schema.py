@@ -156,16 +156,17 @@ class QualityConfig:
     exact_droplets: bool = spec(
         True,
         "droplets (particles whose kernel density is below droplet_density * sph.rest_density: "
-        "isolated particles and clusters of two or three) are not smoothed: they are splatted "
+        "isolated particles and pairs) are not smoothed: they are splatted "
         "as exact spheres over the smoothed surface, so a kernel wider than a droplet neither "
         "flattens it nor blends it into the pool behind. Uses the frame's densities, else an "
         "SPH density pass (OpenCL)",
     )
     droplet_density: float = spec(
-        0.5,
+        0.45,
         "exact_droplets: the density, as a fraction of sph.rest_density, below which a "
-        "particle is a droplet (cubic spline, support 4 r: a lone particle has 0.32, a pair "
-        "0.40, a particle in a one-layer sheet 0.70, inside the fluid 1.0)",
+        "particle is a droplet (cubic spline, support 4 r, measured: a lone particle 0.32, a "
+        "pair 0.40, the inside of a one-particle filament 0.48, the outer particles of a "
+        "jittered lattice ball >= 0.47, a slab's corner 0.61, edge 0.72, face 0.85)",
         low=0.0,
         high=1.0,
     )

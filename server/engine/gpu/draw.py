@@ -7,7 +7,9 @@ Everything here runs on the GL owner thread; each object is released by whoever 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Generic, Protocol, TypeVar
 
 import moderngl
 import numpy as np
@@ -46,6 +48,36 @@ class Target:
     def release(self) -> None:
         self.fbo.release()
         self.texture.release()
+
+
+class Releasable(Protocol):
+    def release(self) -> None: ...
+
+
+R = TypeVar("R", bound=Releasable)
+
+
+class PerSize(Generic[R]):
+    """One GPU resource (a target, a set of targets) for the current image size: built on first
+    use, released and rebuilt only when the size changes, released with its owner."""
+
+    def __init__(self, build: Callable[[tuple[int, int]], R]) -> None:
+        self._build = build
+        self._size: tuple[int, int] | None = None
+        self._resource: R | None = None
+
+    def get(self, size: tuple[int, int]) -> R:
+        if self._resource is None or self._size != size:
+            self.release()
+            self._resource = self._build(size)
+            self._size = size
+        return self._resource
+
+    def release(self) -> None:
+        if self._resource is not None:
+            self._resource.release()
+            self._resource = None
+            self._size = None
 
 
 class FullscreenTriangle:

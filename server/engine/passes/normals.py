@@ -13,7 +13,13 @@ import moderngl
 
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.screen_box import ScreenBox
-from sphrender.server.engine.gpu.draw import Target, clear_and_scissor, set_scissor, write_matrix
+from sphrender.server.engine.gpu.draw import (
+    PerSize,
+    Target,
+    clear_and_scissor,
+    set_scissor,
+    write_matrix,
+)
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
 SHADER = "normals/surface_normals.frag.glsl"
@@ -26,15 +32,11 @@ EDGE_JUMP_FOOTPRINTS = 8.0
 class NormalsPass:
     def __init__(self, context: PassContext) -> None:
         self._context = context
-        self._target: Target | None = None
+        self._target = PerSize(lambda size: Target.float(context.gl.ctx, size, 4))
 
     def target(self, size: tuple[int, int]) -> Target:
         """The normal + depth target for `size` (rebuilt only when the size changes)."""
-        if self._target is None or self._target.texture.size != size:
-            if self._target is not None:
-                self._target.release()
-            self._target = Target.float(self._context.gl.ctx, size, 4)
-        return self._target
+        return self._target.get(size)
 
     def run(
         self,
@@ -61,6 +63,4 @@ class NormalsPass:
         return target
 
     def release(self) -> None:
-        if self._target is not None:
-            self._target.release()
-            self._target = None
+        self._target.release()

@@ -23,6 +23,7 @@ import numpy as np
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.screen_box import ScreenBox
 from sphrender.server.engine.gpu.draw import (
+    PerSize,
     Target,
     clear_and_scissor,
     set_if_used,
@@ -56,7 +57,7 @@ class ShadePass:
         self.environments = EnvironmentLibrary(environment_dirs)
         self.ibl = IblCache(context.gl, context.programs)
         self._blackbody: moderngl.Texture | None = None
-        self._target: Target | None = None  # the colour target, rebuilt when the size changes
+        self._target = PerSize(lambda size: Target.float(context.gl.ctx, size, 4))
 
     def program_for(
         self, scene: Scene, has_temperature: bool, antialias: bool = False
@@ -91,11 +92,7 @@ class ShadePass:
 
     def target(self, size: tuple[int, int]) -> Target:
         """The RGBA32F colour target for `size` (straight alpha = coverage)."""
-        if self._target is None or self._target.texture.size != size:
-            if self._target is not None:
-                self._target.release()
-            self._target = Target.float(self._context.gl.ctx, size, 4)
-        return self._target
+        return self._target.get(size)
 
     def run(
         self,
@@ -202,9 +199,7 @@ class ShadePass:
         program["u_light_radiance"].write(radiance.tobytes())  # type: ignore[union-attr]
 
     def release(self) -> None:
-        if self._target is not None:
-            self._target.release()
-            self._target = None
+        self._target.release()
         self.ibl.release()
         if self._blackbody is not None:
             self._blackbody.release()

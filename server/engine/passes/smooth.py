@@ -17,7 +17,7 @@ from __future__ import annotations
 import moderngl
 
 from sphrender.server.engine.geometry.screen_box import ScreenBox, packed_box
-from sphrender.server.engine.gpu.draw import Target, clear_and_scissor, set_scissor
+from sphrender.server.engine.gpu.draw import PerSize, Target, clear_and_scissor, set_scissor
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 from sphrender.server.scene import QualityConfig
 
@@ -45,14 +45,7 @@ class _SmoothTargets:
 class SmoothPass:
     def __init__(self, context: PassContext) -> None:
         self._context = context
-        self._targets: _SmoothTargets | None = None
-
-    def _targets_for(self, size: tuple[int, int]) -> _SmoothTargets:
-        if self._targets is None or self._targets.size != size:
-            if self._targets is not None:
-                self._targets.release()
-            self._targets = _SmoothTargets(self._context.gl.ctx, size)
-        return self._targets
+        self._targets = PerSize(lambda size: _SmoothTargets(context.gl.ctx, size))
 
     def run(
         self,
@@ -69,7 +62,7 @@ class SmoothPass:
         outside it."""
         if quality.filter == "none":
             return depth
-        targets = self._targets_for(depth.size)
+        targets = self._targets.get(depth.size)
         defines = {
             "FILTER": _FILTER_DEFINES[quality.filter],
             "KERNEL_SIZE": _KERNEL_SIZE_DEFINES[quality.kernel_size],
@@ -160,9 +153,7 @@ class SmoothPass:
         return result.texture
 
     def release(self) -> None:
-        if self._targets is not None:
-            self._targets.release()
-            self._targets = None
+        self._targets.release()
 
 
 def _filter_uniforms(

@@ -26,7 +26,13 @@ from sphrender.server.engine.geometry import occlusion
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.prepare import PreparedParticles
 from sphrender.server.engine.geometry.screen_box import ScreenBox
-from sphrender.server.engine.gpu.draw import Target, float_texture, set_if_used, write_matrix
+from sphrender.server.engine.gpu.draw import (
+    PerSize,
+    Target,
+    float_texture,
+    set_if_used,
+    write_matrix,
+)
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
 VERTEX_SHADER = "splat/splat_sphere.vert.glsl"
@@ -127,15 +133,11 @@ class SplatPass:
         self._axes_buffer = ctx.buffer(reserve=36 * 1024)  # ellipsoids: 3 semi-axes per vertex
         # Keyed by (ellipsoid, has temperature, coverage).
         self._vaos: dict[tuple[bool, bool, bool], moderngl.VertexArray] = {}
-        self._targets: SplatTargets | None = None
+        self._targets = PerSize(lambda size: SplatTargets(context.gl.ctx, size))
 
     def targets(self, size: tuple[int, int]) -> SplatTargets:
         """The targets for `size` (rebuilt only when the size changes)."""
-        if self._targets is None or self._targets.size != size:
-            if self._targets is not None:
-                self._targets.release()
-            self._targets = SplatTargets(self._context.gl.ctx, size)
-        return self._targets
+        return self._targets.get(size)
 
     def run(
         self,
@@ -381,9 +383,7 @@ class SplatPass:
         for vao in self._vaos.values():
             vao.release()
         self._vaos.clear()
-        if self._targets is not None:
-            self._targets.release()
-            self._targets = None
+        self._targets.release()
         for buffer in (
             self._corner_buffer,
             self._index_buffer,

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import moderngl
 
-from sphrender.server.engine.gpu.draw import Target
+from sphrender.server.engine.gpu.draw import PerSize, Target
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
 SHADER = "temperature/smooth_temperature.frag.glsl"
@@ -42,14 +42,7 @@ class _BlurTargets:
 class TemperaturePass:
     def __init__(self, context: PassContext) -> None:
         self._context = context
-        self._targets: _BlurTargets | None = None
-
-    def _targets_for(self, size: tuple[int, int]) -> _BlurTargets:
-        if self._targets is None or self._targets.size != size:
-            if self._targets is not None:
-                self._targets.release()
-            self._targets = _BlurTargets(self._context.gl.ctx, size)
-        return self._targets
+        self._targets = PerSize(lambda size: _BlurTargets(context.gl.ctx, size))
 
     def run(
         self,
@@ -61,7 +54,7 @@ class TemperaturePass:
         """Blur the kelvin image `temperature` guided by the eye depth `depth`: pack both, blur
         along x then y, unpack. `px_per_unit`: pixels per scene unit at eye depth 1
         (`Camera.pixels_per_unit_at_unit_depth`)."""
-        blur = self._targets_for(temperature.size)
+        blur = self._targets.get(temperature.size)
         programs, draw = self._context.programs, self._context.fullscreen.draw
         pack = programs.get(FULLSCREEN_VERT, PACK_SHADER)
         pack["u_image"] = 0
@@ -89,6 +82,4 @@ class TemperaturePass:
         return blur.result.texture
 
     def release(self) -> None:
-        if self._targets is not None:
-            self._targets.release()
-            self._targets = None
+        self._targets.release()
