@@ -41,7 +41,14 @@ from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
 
 SETTINGS = {
-    "unfiltered": Setting("unfiltered", overrides={"quality": {"filter": "none"}}),
+    "unfiltered": Setting(
+        "unfiltered", overrides={"quality": {"filter": "none", "exact_droplets": False}}
+    ),
+    "previous_default": Setting(
+        "previous_default",
+        preset="balanced",
+        overrides={"quality": {"exact_droplets": False, "antialias": False}},
+    ),
     "fast": Setting("fast", preset="fast"),
     "balanced": Setting("balanced", preset="balanced"),
     "best": Setting("best", preset="best"),
