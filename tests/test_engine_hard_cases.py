@@ -75,8 +75,8 @@ def test_zero_particles_is_an_empty_image(renderer: SurfaceRenderer, filter_name
 
 @pytest.mark.parametrize("filter_name", FILTERS)
 def test_coincident_particles_render_like_one(renderer: SurfaceRenderer, filter_name: str) -> None:
-    # Without exact droplets: one particle alone is a droplet (density m W(0) = 0.32 rest < 0.45) and
-    # skips the smoothing, 500 coincident ones are not; the splat and filters are what is tested.
+    # Without exact droplets: one particle alone is a droplet (density m W(0) = 0.32 rest < 0.45)
+    # and skips the smoothing, 500 coincident ones are not; the splat and filters are tested.
     sc = scene(quality={"filter": filter_name, "exact_droplets": False})
     one = render(renderer, np.zeros((1, 3)), sc)
     many = render(renderer, np.zeros((500, 3)), sc)

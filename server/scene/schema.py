@@ -145,7 +145,9 @@ class QualityConfig:
         "keep features smaller than the kernel (droplets, thin edges; separable narrow_range "
         "only): truncate (the kernel ends at the first sample pair it rejects, so it never "
         "reaches across a discontinuity), blend (the result moves back towards the unfiltered "
-        "depth by the weight share of rejected samples, as NVIDIA FleX does), both, or none",
+        "depth by the weight share of rejected samples, as NVIDIA FleX does), both, or none. "
+        "Experimental: on the reference scenes neither beat none (exact_droplets is what keeps "
+        "droplets round)",
     )
     antialias: bool = spec(
         True,

@@ -71,11 +71,6 @@ class SmoothPass:
         if quality.separable:
             if quality.keep_features != "none":
                 defines["KEEP_FEATURES"] = _KEEP_FEATURES_DEFINES[quality.keep_features]
-                import os
-
-                defines["KEEP_SHARE_LOW"] = float(os.environ.get("KEEP_LOW", "0.4"))  # type: ignore[assignment]
-                defines["KEEP_SHARE_HIGH"] = float(os.environ.get("KEEP_HIGH", "0.8"))  # type: ignore[assignment]
-                defines["KEEP_JUMP_RADII"] = float(os.environ.get("KEEP_JUMP", "2.0"))  # type: ignore[assignment]
             return self._separable(targets, depth, defines, uniforms, quality.iterations, box)
         return self._two_d(targets, depth, defines, uniforms, quality.iterations, box)
 
