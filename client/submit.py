@@ -38,10 +38,16 @@ class TransientError(RuntimeError):
     """A failure worth retrying (connection refused or reset, server busy)."""
 
 
+class FrameFailed(RuntimeError):
+    """This frame cannot be rendered and retrying it here would not help (a backend already
+    retried it, e.g. on several cluster workers); reported like bad input."""
+
+
 class FrameRenderer(Protocol):
     def render(self, frame: ParticleFrame) -> bytes:
         """Encoded image bytes for one frame; raises InputError for bad input,
-        TransientError for failures worth retrying."""
+        TransientError for failures worth retrying, FrameFailed for a frame that failed
+        after the backend's own retries."""
         ...
 
 
@@ -253,6 +259,10 @@ def _finish(
     except InputError as exc:
         summary.failed.append((job, str(exc)))
         progress.update(job, f"failed: {exc}")
+        return
+    except FrameFailed as exc:
+        summary.failed.append((job, str(exc)))
+        progress.update(job, "failed")
         return
     except TransientError as exc:
         summary.failed.append((job, f"gave up after {retry_attempts} attempts: {exc}"))
