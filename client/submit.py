@@ -222,8 +222,13 @@ def run_submission(
             _finish((job, loaded), renderer, summary, progress, retry_attempts, retry_delay)
 
         with ThreadPoolExecutor(max_workers=concurrency) as pool:
-            for future in [pool.submit(process, job) for job in todo]:
-                future.result()
+            futures = [pool.submit(process, job) for job in todo]
+            try:
+                for future in futures:
+                    future.result()
+            except BaseException:  # Ctrl-C: finish the frames in flight, start no other
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
         summary.seconds = time.monotonic() - start
         return summary
 

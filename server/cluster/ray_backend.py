@@ -189,10 +189,18 @@ def connect(address: str | None) -> None:
         except OSError as exc:
             reason = exc.strerror or type(exc).__name__
             raise InputError("--ray", f"no Ray cluster reachable at {target} ({reason})") from None
+    # Ray's C++ client logs every failed attempt to stderr; the error below says it once.
+    os.environ.setdefault("RAY_BACKEND_LOG_LEVEL", "error")
     try:
         ray.init(address=target, **quiet)
     except (ConnectionError, ValueError, RuntimeError, SystemExit) as exc:
-        raise InputError("--ray", f"cannot connect to {target}: {one_line(exc)}") from None
+        hint = ""
+        if os.environ.get("RAY_AUTH_MODE") != "token":
+            hint = (
+                " (a cluster with token authentication needs RAY_AUTH_MODE=token and its "
+                "token in RAY_AUTH_TOKEN or ~/.ray/auth_token)"
+            )
+        raise InputError("--ray", f"cannot connect to {target}: {one_line(exc)}{hint}") from None
 
 
 def plan_placements(nodes: Sequence[dict[str, Any]], actors_per_node: int) -> list[_Placement]:
