@@ -252,7 +252,7 @@ class RayFrameRenderer:
 
     def _spawn(self, placement: _Placement) -> _Actor:
         self._started += 1
-        remote = ray.remote(RenderActor).options(  # type: ignore[attr-defined]
+        remote = ray.remote(RenderActor).options(
             num_cpus=placement.num_cpus,
             num_gpus=placement.num_gpus,
             max_restarts=0,
