@@ -296,3 +296,18 @@ def test_bad_ray_options_get_one_line_naming_the_option(
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0], result.stderr
     assert time.monotonic() - started < 30
+
+
+def test_placements_one_actor_per_gpu_else_n_per_node_sharing_its_cpus() -> None:
+    from sphrender.server.cluster.ray_backend import plan_placements
+
+    nodes = [
+        {"NodeID": "gpu", "Alive": True, "Resources": {"CPU": 16.0, "GPU": 4.0}},
+        {"NodeID": "cpu", "Alive": True, "Resources": {"CPU": 2.0}},
+        {"NodeID": "gone", "Alive": False, "Resources": {"CPU": 64.0}},
+    ]
+    placements = plan_placements(nodes, actors_per_node=3)
+    assert [(p.node_id, p.num_gpus, p.num_cpus) for p in placements] == [
+        *[("gpu", 1, 1.0)] * 4,
+        *[("cpu", 0, 0.6667)] * 3,
+    ]

@@ -51,6 +51,7 @@ from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 from sphrender.client.errors import InputError
 from sphrender.client.frame import ParticleFrame
 from sphrender.client.submit import FrameFailed, TransientError
+from sphrender.server.engine.gpu.gl_context import GLUnavailableError
 from sphrender.server.output.local import ImageFormat, LocalFrameRenderer
 from sphrender.server.scene import Scene
 
@@ -90,12 +91,28 @@ class RenderActor:
         self, scene: Scene, fmt: ImageFormat, environment_dirs: Sequence[str], gpu: bool
     ) -> None:
         self._args = (scene, fmt, [Path(d) for d in environment_dirs])
-        self._device = _egl_device(gpu)
-        self._renderer = self._open()
+        self._gpu = gpu
+        self._device = 0
+        self._renderer = self._open(egl_devices(gpu))
 
-    def _open(self) -> LocalFrameRenderer:
+    def _open(self, devices: Sequence[int]) -> LocalFrameRenderer:
+        """The first EGL device that gives a hardware renderer (on a GPU actor), else the last
+        one tried: which index is this actor's GPU depends on the driver (see egl_devices)."""
         scene, fmt, dirs = self._args
-        return LocalFrameRenderer(scene, fmt, dirs, device_index=self._device)
+        for index, device in enumerate(devices):
+            last = index == len(devices) - 1
+            try:
+                renderer = LocalFrameRenderer(scene, fmt, dirs, device_index=device)
+            except GLUnavailableError:
+                if last:
+                    raise
+                continue
+            self._device = device
+            software = any(n in renderer.gl_renderer for n in ("llvmpipe", "softpipe"))
+            if not (self._gpu and software) or last:
+                return renderer
+            renderer.close()
+        raise AssertionError("no EGL device to try")
 
     def ready(self) -> dict[str, Any]:
         return {
@@ -116,20 +133,21 @@ class RenderActor:
             try:
                 self._renderer.close()
             finally:
-                self._renderer = self._open()
+                self._renderer = self._open([self._device])
             return "failed", message.encode(), ""
 
 
-def _egl_device(gpu: bool) -> int:
-    """EGL device for this actor: $SPHRENDER_EGL_DEVICE, else the Ray GPU id (EGL enumerates
-    NVIDIA GPUs in PCI order, as CUDA does with CUDA_DEVICE_ORDER=PCI_BUS_ID), else 0."""
+def egl_devices(gpu: bool) -> list[int]:
+    """EGL device indices for this actor to try, best first: $SPHRENDER_EGL_DEVICE alone when
+    set; for a GPU actor its Ray GPU id (the physical index, which is the EGL index when EGL
+    lists the GPUs in PCI order and ignores CUDA_VISIBLE_DEVICES), then 0 (where the driver
+    shows only the visible GPU); otherwise 0."""
     explicit = os.environ.get("SPHRENDER_EGL_DEVICE")
     if explicit:
-        return int(explicit)
-    if not gpu:
-        return 0
-    ids = ray.get_gpu_ids()
-    return int(ids[0]) if ids else 0
+        return [int(explicit)]
+    ids = ray.get_gpu_ids() if gpu else []
+    first = int(ids[0]) if ids else 0
+    return [first, 0] if first else [0]
 
 
 @dataclass(frozen=True)
