@@ -142,7 +142,7 @@ def cluster(tmp_path: Path) -> Iterator[tuple[list[ServerProcess], HaproxyProces
 
         def all_up() -> bool:
             try:
-                states = proxy.server_states()  # type: ignore[union-attr]
+                states = proxy.server_states()
             except OSError:
                 return False
             return len(states) == 4 and set(states.values()) == {"UP"}

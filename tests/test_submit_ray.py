@@ -13,7 +13,7 @@ import signal
 import subprocess
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -199,9 +199,9 @@ def test_ray_equals_local_byte_for_byte(
     assert sorted(written(result.stderr)) == sorted(p.name for p in reference.iterdir())
 
 
-def wait_until(condition: object, timeout: float, what: str) -> None:
+def wait_until(condition: Callable[[], bool], timeout: float, what: str) -> None:
     deadline = time.monotonic() + timeout
-    while not condition():  # type: ignore[operator]
+    while not condition():
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out waiting for {what}")
         time.sleep(0.01)
@@ -221,11 +221,12 @@ def test_actor_killed_mid_frame_every_frame_written_once(
     try:
         wait_until(lambda: out.is_dir() and any(out.glob("*.png")), 120, "a first frame")
         busy: list[int] = []
-        wait_until(
-            lambda: bool(busy.extend(ray_head.actor_workers(busy=True)) or busy),
-            30,
-            "an actor rendering",
-        )
+
+        def an_actor_renders() -> bool:
+            busy[:] = ray_head.actor_workers(busy=True)
+            return bool(busy)
+
+        wait_until(an_actor_renders, 30, "an actor rendering")
         os.kill(busy[0], signal.SIGKILL)
         killed_at = len(list(out.glob("*.png")))
         _stdout, stderr = driver.communicate(timeout=180)
