@@ -306,9 +306,10 @@ def test_placements_one_actor_per_gpu_else_n_per_node_sharing_its_cpus() -> None
         {"NodeID": "gpu", "Alive": True, "Resources": {"CPU": 16.0, "GPU": 4.0}},
         {"NodeID": "cpu", "Alive": True, "Resources": {"CPU": 2.0}},
         {"NodeID": "gone", "Alive": False, "Resources": {"CPU": 64.0}},
+        {"NodeID": "head", "Alive": True, "Resources": {"CPU": 0.0}},
     ]
     placements = plan_placements(nodes, actors_per_node=3)
     assert [(p.node_id, p.num_gpus, p.num_cpus) for p in placements] == [
         *[("gpu", 1, 1.0)] * 4,
-        *[("cpu", 0, 0.6667)] * 3,
+        *[("cpu", 0, 0.6666)] * 3,
     ]

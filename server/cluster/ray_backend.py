@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import os
 import queue
 import re
@@ -231,8 +232,11 @@ def plan_placements(nodes: Sequence[dict[str, Any]], actors_per_node: int) -> li
         resources = node.get("Resources", {})
         gpus = int(resources.get("GPU", 0))
         cpus = float(resources.get("CPU", 0))
+        if not gpus and not cpus:
+            continue  # e.g. a head started with --num-cpus=0 to keep work off it
         count = gpus if gpus else actors_per_node
-        share = round(min(1.0, cpus / count) if gpus else cpus / count, 4)
+        # rounded down to Ray's resource precision, so the shares never add up to more
+        share = math.floor((min(1.0, cpus / count) if gpus else cpus / count) * 1e4) / 1e4
         placements += [_Placement(node["NodeID"], share, 1 if gpus else 0)] * count
     return placements
 
