@@ -279,6 +279,23 @@ def test_interrupted_ray_run_resumes_with_only_the_missing_frames(
     assert_same_outputs(out, reference)
 
 
+def test_actors_that_cannot_render_the_scene_fail_at_start_in_one_line(
+    ray_head: RayHead, sequence: Path, tmp_path: Path
+) -> None:
+    """Each actor warms up on the scene; a node missing the environment file says so."""
+    scene = tmp_path / "scene.toml"
+    scene.write_text(SCENE + '[environment]\nfile = "missing.exr"\n')
+    command = ray_submit(sequence, tmp_path / "out", "--ray", ray_head.address)
+    command[command.index("--scene") + 1] = str(scene)
+    result = subprocess.run(
+        command, capture_output=True, text=True, timeout=120, check=False, env=ray_head.env
+    )
+    assert result.returncode == 2, result.stderr
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith("sphrender: error: --ray: no render actor could start: InputError")
+    assert "environment.file: 'missing.exr' not found" in last
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [

@@ -45,12 +45,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import ray
 import ray.exceptions
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
 from sphrender.client.errors import InputError
-from sphrender.client.frame import ParticleFrame
+from sphrender.client.frame import ParticleFrame, make_frame
 from sphrender.client.submit import FrameFailed, TransientError
 from sphrender.server.engine.gpu.gl_context import GLUnavailableError
 from sphrender.server.output.local import ImageFormat, LocalFrameRenderer
@@ -95,6 +96,15 @@ class RenderActor:
         self._gpu = gpu
         self._device = 0
         self._renderer = self._open(egl_devices(gpu))
+        # Warm up as the service does: one particle at the camera target compiles every program
+        # and builds every target and lighting table the scene uses, so the first frame is not
+        # slow, and a node that cannot render the scene (an environment file missing there)
+        # fails here, at start, with the reason.
+        camera, radius = scene.camera.target, scene.particles.radius
+        warm = make_frame(
+            np.array([camera], dtype=np.float64), radii=np.array([radius], np.float32)
+        )
+        self._renderer.render(warm)
 
     def _open(self, devices: Sequence[int]) -> LocalFrameRenderer:
         """The first EGL device that gives a hardware renderer (on a GPU actor), else the last
@@ -166,12 +176,15 @@ class _Actor:
     alive: bool = True
 
 
+_ERROR_LINE = re.compile(r"^\s*(?:\w+\.)*(\w+(?:Error|Exception)\b.*)$")
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+
 def one_line(exc: BaseException) -> str:
-    """Ray's errors carry whole tracebacks; the line that says what went wrong."""
-    text = str(exc).strip()
-    errors = [
-        line.strip() for line in text.splitlines() if re.match(r"\s*\w+(Error|Exception)", line)
-    ]
+    """Ray's errors carry whole tracebacks; the line that says what went wrong (the last
+    ``SomeError: ...`` line, without its module path), else the first line."""
+    text = _ANSI.sub("", str(exc)).strip()
+    errors = [m.group(1) for line in text.splitlines() if (m := _ERROR_LINE.match(line))]
     line = errors[-1] if errors else (text.splitlines() or [type(exc).__name__])[0]
     return line if len(line) <= 300 else line[:297] + "..."
 
