@@ -10,11 +10,16 @@ Part 1, for 100k and 500k particles (a jittered lattice ball, r = 0.015, h = 4 r
     if it is installed (`pip install '.[bench]'`).
 Ratios are printed as "x faster" of the OpenCL pass.
 
+Part 3 (`--anisotropy`, instead of parts 1 and 2): `SphEngine.anisotropy` (Yu & Turk ellipsoids,
+R = 1.0 h and the default 1.5 h, N_eps = 25, k_r = 4) against the density + colour field pass
+(`SphEngine.compute`, no gradient read-back, as the renderer calls it) on the same balls, median
+of 3 warm runs each, host work and read-back included.
+
 Part 2: the renderer at 1280x720 with and without `[sph] surface_only`, on the 500k ball and a
 dam-break frame: stage times, particles drawn, and the error (coverage must be identical; share
 of covered pixels whose depth moves by more than 1%).
 
-    .venv/bin/python benchmarks/bench_sph.py [--sizes 100000 500000] [--no-render]
+    .venv/bin/python benchmarks/bench_sph.py [--sizes 100000 500000] [--no-render] [--anisotropy]
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ from sphrender.client.frame import make_frame  # noqa: E402
 from sphrender.client.readers import read_particles  # noqa: E402
 from sphrender.server.content.lattice import jittered_lattice_ball  # noqa: E402
 from sphrender.server.engine.gpu.cl_context import CLContext  # noqa: E402
+from sphrender.server.engine.sph.anisotropy import AnisotropyParameters  # noqa: E402
 from sphrender.server.engine.sph.engine import SphEngine, SphParameters  # noqa: E402
 from sphrender.server.scene import Scene, scene_from_dict  # noqa: E402
 
@@ -94,6 +100,24 @@ def bench_pass(engine: SphEngine, count: int) -> None:
     )
 
 
+def bench_anisotropy(engine: SphEngine, count: int) -> None:
+    positions = ball(count)
+    params = SphParameters(H, MASS, 1000.0, 0.5 / H, 750.0, 0.9 * H)
+    engine.compute(positions, params, gradient=False)  # warm-up: buffers
+    t_sph, _ = timed(lambda: engine.compute(positions, params, gradient=False), 3)
+    print(f"\n{len(positions)} particles (ball), h = {H}")
+    print(f"  density + colour field pass (compute):       {t_sph * 1e3:8.1f} ms")
+    for factor in (1.0, 1.5):
+        aniso = AnisotropyParameters(factor * H, 4.0, 25, 0.5)
+        engine.anisotropy(positions, aniso, R)  # warm-up: program, buffers
+        t_an, result = timed(lambda a=aniso: engine.anisotropy(positions, a, R), 3)
+        print(
+            f"  anisotropy, R = {factor:.1f} h (median {np.median(result.neighbour_count):5.0f} "
+            f"neighbours, {result.is_sphere.mean():5.1%} spheres): {t_an * 1e3:8.1f} ms"
+            f"   = {t_an / t_sph:4.2f}x the density + colour pass"
+        )
+
+
 def render_scene(radius: float, eye: list[float], target: list[float], **sph: Any) -> Scene:
     return scene_from_dict(
         {
@@ -148,16 +172,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[100_000, 500_000])
     parser.add_argument("--no-render", action="store_true", help="skip part 2")
+    parser.add_argument("--anisotropy", action="store_true", help="part 3 only")
     args = parser.parse_args()
     with CLContext() as cl:
         print(f"OpenCL device: {cl.device_info.label}")
         engine = SphEngine(cl)
         try:
             for count in args.sizes:
-                bench_pass(engine, count)
+                (bench_anisotropy if args.anisotropy else bench_pass)(engine, count)
         finally:
             engine.release()
-    if args.no_render:
+    if args.no_render or args.anisotropy:
         return
     big = ball(max(args.sizes))
     extent = float(np.abs(big).max())

@@ -2,15 +2,18 @@
 # Build from the repository root:
 #   docker build -f docker/cpu.Dockerfile -t sphrender-cpu .
 #   docker run --rm -p 127.0.0.1:8080:8080 -e SPHRENDER_TOKEN=... sphrender-cpu
-# The same packages and install steps as .ci/run, which CI exercises on Debian 12; this file itself
-# is not built by CI (the CI machines have no Docker engine).
+# The packages are the README's (the smallest set that renders, found on a clean Debian 12 root)
+# plus Debian's PoCL. Not built by CI (its machines have no Docker engine); docker/check-images.sh
+# runs these steps in a chroot instead and renders in it (docker/README.md).
 FROM debian:bookworm-slim
 
+# libopengl0 is the GL library glcontext resolves GL calls from (libgl1 would do too, with GLX);
+# pyopencl's wheel brings its own OpenCL ICD loader, which reads /etc/OpenCL/vendors/pocl.icd.
 RUN apt-get update \
     && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
         python3 python3-venv \
-        libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 \
-        pocl-opencl-icd ocl-icd-libopencl1 \
+        libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0 \
+        pocl-opencl-icd \
     && rm -rf /var/lib/apt/lists/*
 
 WORKDIR /opt/sphrender

@@ -12,6 +12,7 @@ import pytest
 from cli_harness import run_sphrender
 
 from sphrender.client.frame import make_frame
+from sphrender.server.engine.gpu.gl_libraries import load_error
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.output.encoders import read_exr
 from sphrender.server.scene import load_scene
@@ -187,12 +188,63 @@ def test_unreadable_input_gives_a_one_line_error(tmp_path: Path) -> None:
     assert_one_line_error(result, 2, "file", "missing.npz")
 
 
-def test_missing_egl_names_the_packages(tmp_path: Path, ball_npz: Path) -> None:
+def test_missing_egl_names_the_library_and_its_package(tmp_path: Path, ball_npz: Path) -> None:
     """glcontext honours GLCONTEXT_LINUX_LIBEGL: point it at a library that does not exist, as
-    on a machine without Mesa's EGL."""
+    on a machine without GLVND's EGL."""
     env = {"GLCONTEXT_LINUX_LIBEGL": str(tmp_path / "libEGL.so.1")}
     result = run_sphrender("render", str(ball_npz), "-o", str(tmp_path / "o.png"), env=env)
-    assert_one_line_error(result, 3, "apt-get install", "libegl-mesa0", "libgl1-mesa-dri")
+    assert_one_line_error(result, 3, "libEGL.so.1 does not load", "apt-get install libegl1")
+
+
+def test_missing_libgl_names_the_library_and_its_package(tmp_path: Path, ball_npz: Path) -> None:
+    """The same for the GL library (GLCONTEXT_LINUX_LIBGL), as on a minimal Debian with EGL but
+    neither libgl1 nor libopengl0 (glcontext then said only "libGL.so not loaded")."""
+    env = {"GLCONTEXT_LINUX_LIBGL": str(tmp_path / "libGL.so.1")}
+    result = run_sphrender("render", str(ball_npz), "-o", str(tmp_path / "o.png"), env=env)
+    assert_one_line_error(result, 3, "libGL.so.1 does not load", "apt-get install libgl1")
+    assert "libegl" not in result.stderr  # EGL loads: nothing else to install
+
+
+@pytest.mark.parametrize(
+    ("variable", "words"),
+    [
+        ("__EGL_VENDOR_LIBRARY_DIRS", ("no EGL vendor loads", "apt-get install libegl-mesa0")),
+        ("LIBGL_DRIVERS_PATH", ("swrast_dri.so is in none of", "apt-get install libgl1-mesa-dri")),
+    ],
+)
+def test_missing_mesa_parts_name_their_package(
+    tmp_path: Path, ball_npz: Path, variable: str, words: tuple[str, ...]
+) -> None:
+    """GLVND finds no vendor file / Mesa finds no driver in an empty folder (real loaders; Mesa
+    may warn on stderr before our line)."""
+    env = {variable: str(tmp_path / "empty")}
+    result = run_sphrender("render", str(ball_npz), "-o", str(tmp_path / "o.png"), env=env)
+    assert result.returncode == 3 and "Traceback" not in result.stderr
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith("sphrender: error:") and all(word in last for word in words), last
+
+
+def test_info_without_gl_still_reports_opencl(tmp_path: Path) -> None:
+    env = {"GLCONTEXT_LINUX_LIBGL": str(tmp_path / "libGL.so.1")}
+    result = run_sphrender("info", env=env)
+    assert_one_line_error(result, 3, "libGL.so.1 does not load")
+    info = json.loads(result.stdout)
+    assert "libgl1" in info["gl_error"] and "gl_renderer" not in info
+    assert isinstance(info["opencl_devices"], list)
+
+
+@pytest.mark.skipif(
+    load_error("libEGL_nvidia.so.0") is None, reason="an NVIDIA driver is installed here"
+)
+def test_nvidia_vendor_without_a_driver_says_there_is_no_gpu(tmp_path: Path) -> None:
+    """What the NVIDIA image reports on a machine without a GPU: GLVND reads only the vendor
+    file given in __EGL_VENDOR_LIBRARY_FILENAMES, which names NVIDIA's library (not there)."""
+    vendor = tmp_path / "10_nvidia.json"
+    vendor.write_text(
+        json.dumps({"file_format_version": "1.0.0", "ICD": {"library_path": "libEGL_nvidia.so.0"}})
+    )
+    result = run_sphrender("info", env={"__EGL_VENDOR_LIBRARY_FILENAMES": str(vendor)})
+    assert_one_line_error(result, 3, "libEGL_nvidia.so.0", "no NVIDIA GPU", "--gpus all")
 
 
 def test_a_corrupt_frame_does_not_stop_the_others(tmp_path: Path, ball_npz: Path) -> None:

@@ -37,7 +37,7 @@ from sphrender.server.engine.geometry import occlusion
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.prepare import prepare_particles
 from sphrender.server.engine.geometry.screen_box import screen_box
-from sphrender.server.engine.gpu.draw import FullscreenTriangle
+from sphrender.server.engine.gpu.draw import FullscreenTriangle, image_bytes, read_image
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.programs import ProgramCache
 from sphrender.server.engine.passes.context import PassContext
@@ -48,12 +48,7 @@ from sphrender.server.engine.passes.smooth import SmoothPass
 from sphrender.server.engine.passes.splat import SplatPass
 from sphrender.server.engine.passes.temperature import TemperaturePass
 from sphrender.server.engine.sph.engine import SphEngine
-from sphrender.server.engine.sph.frame import (
-    SphStage,
-    apply_to_frame,
-    frame_particle_radius,
-    needs_sph,
-)
+from sphrender.server.engine.sph.frame import SphOutcome, SphStage
 from sphrender.server.scene import QualityConfig, Scene
 
 
@@ -134,23 +129,38 @@ class SurfaceRenderer:
         camera = Camera.from_config(scene.camera, scene.image.width, scene.image.height)
         stats = RenderStats(particles_in=frame.count)
 
-        reference_radius = None
-        if needs_sph(scene):
-            reference_radius = frame_particle_radius(frame, scene)
-            engine = self.sph_engine()  # outside the stage: first use builds the CL program
+        sph = SphOutcome(frame)
+        if self._sph.wanted(scene, frame):
+            self._sph.warm(frame, scene)  # outside the stage: first use builds the CL program
             with self._stage(stats, "sph"):
-                frame, _ = apply_to_frame(engine, frame, scene)
+                sph = self._sph.run(frame, scene)
+        frame = sph.frame
 
         with self._stage(stats, "prepare"):
-            prepared = prepare_particles(frame, camera, scene, reference_radius=reference_radius)
+            prepared = prepare_particles(
+                frame,
+                camera,
+                scene,
+                reference_radius=sph.reference_radius,
+                droplets=sph.droplets,
+                ellipsoids=sph.ellipsoids,
+            )
             stats.particles_drawn = int(prepared.center_radius.shape[0])
             stats.far = prepared.far
             bounds = occlusion.sphere_bounds(prepared.center_radius, camera)
             box = screen_box(bounds, camera)
+            bulk, drops = prepared, None
+            if prepared.droplets is not None and prepared.droplets.any():
+                bulk, drops = (
+                    prepared.subset(~prepared.droplets),
+                    prepared.subset(prepared.droplets),
+                )
+                bounds = bounds.subset(~prepared.droplets)
 
         with self._stage(stats, "splat"):
             culling = bounds if scene.quality.occlusion_culling else None
-            splat = self._splat.run(camera, prepared, bounds=culling, box=box)
+            antialias = scene.quality.antialias
+            splat = self._splat.run(camera, bulk, bounds=culling, box=box, antialias=antialias)
             stats.particles_splatted = splat.splatted
 
         px_per_unit = camera.pixels_per_unit_at_unit_depth
@@ -164,9 +174,16 @@ class SurfaceRenderer:
                     quality=scene.quality,
                     box=box,
                 )
+        if drops is not None:
+            with self._stage(stats, "droplets"):
+                splat = self._splat.run_droplets(
+                    camera, drops, surface, splat.temperature, splat.coverage
+                )
+                surface = splat.depth
+                stats.particles_splatted += splat.splatted
 
         with self._stage(stats, "normals"):
-            normal_depth = self._normals.run(surface, camera, box)
+            normal_depth = self._normals.run(surface, camera, box, prepared.reference_radius)
 
         with self._stage(stats, "shade"):
             temperature = splat.temperature
@@ -174,7 +191,9 @@ class SurfaceRenderer:
                 temperature = self._temperature.run(
                     temperature, surface, px_per_unit, prepared.reference_radius
                 )
-            color = self._shade.run(scene, camera, normal_depth.texture, temperature, box)
+            color = self._shade.run(
+                scene, camera, normal_depth.texture, temperature, box, splat.coverage
+            )
 
         with self._stage(stats, "readback"):
             transparent = scene.shading.background == "transparent"
@@ -204,11 +223,11 @@ class SurfaceRenderer:
         if (width, height) != (scene.image.width, scene.image.height):
             raise ValueError("normal_depth must have the scene's image size")
         target = self._normals.target((width, height))
-        target.texture.write(_rows_bottom_first(normal_depth))
+        target.texture.write(image_bytes(normal_depth))
         temperature = None
         if temperatures is not None:
             temperature, _ = self._splat.targets((width, height)).temperature_targets()
-            temperature.write(_rows_bottom_first(temperatures))
+            temperature.write(image_bytes(temperatures))
         camera = Camera.from_config(scene.camera, width, height)
         color = self._shade.run(scene, camera, target.texture, temperature)
         rgba = np.frombuffer(color.texture.read(), dtype=np.float32).reshape(height, width, 4)
@@ -227,11 +246,11 @@ class SurfaceRenderer:
         self._gl.check_owner()
         height, width = depth.shape
         source = self._splat.targets((width, height)).depth
-        source.write(_rows_bottom_first(depth))
+        source.write(image_bytes(depth))
         result = self._smooth.run(
             source, px_per_unit=px_per_unit, particle_radius=particle_radius, quality=quality
         )
-        return _read_single_channel(result.read(), width, height)
+        return read_image(result.read(), width, height)
 
     def blur_temperature_image(
         self,
@@ -247,10 +266,10 @@ class SurfaceRenderer:
         height, width = depth.shape
         targets = self._splat.targets((width, height))
         kelvin, _ = targets.temperature_targets()
-        kelvin.write(_rows_bottom_first(temperature))
-        targets.depth.write(_rows_bottom_first(depth))
+        kelvin.write(image_bytes(temperature))
+        targets.depth.write(image_bytes(depth))
         result = self._temperature.run(kelvin, targets.depth, px_per_unit, particle_radius)
-        return _read_single_channel(result.read(), width, height)
+        return read_image(result.read(), width, height)
 
     def release(self) -> None:
         """Release every GPU object this renderer owns (on the owner thread)."""
@@ -260,13 +279,3 @@ class SurfaceRenderer:
         self._context.fullscreen.release()
         self._context.programs.release()
         self._sph.release()
-
-
-def _rows_bottom_first(image: npt.NDArray[np.floating]) -> bytes:
-    """A top-first numpy image as the bytes of a GL texture (rows bottom first, float32)."""
-    return np.ascontiguousarray(image[::-1], dtype=np.float32).tobytes()
-
-
-def _read_single_channel(data: bytes, width: int, height: int) -> npt.NDArray[np.float32]:
-    out = np.frombuffer(data, dtype=np.float32).reshape(height, width)
-    return np.ascontiguousarray(out[::-1])

@@ -140,6 +140,35 @@ class QualityConfig:
     narrow_range_clamp: float = spec(
         1.0, "narrow-range mu: nearer samples are clamped to z - mu*r", low=0.0, low_open=True
     )
+    keep_features: Literal["none", "truncate", "blend", "both"] = spec(
+        "none",
+        "keep features smaller than the kernel (droplets, thin edges; separable narrow_range "
+        "only): truncate (the kernel ends at the first sample pair it rejects, so it never "
+        "reaches across a discontinuity), blend (the result moves back towards the unfiltered "
+        "depth by the weight share of rejected samples, as NVIDIA FleX does), both, or none",
+    )
+    antialias: bool = spec(
+        False,
+        "silhouette anti-aliasing: alpha is each edge pixel's sub-pixel coverage (analytic, from "
+        "the ray's angular distance to the sphere's silhouette) and the pixels just outside a "
+        "silhouette show the surface next to them; off: alpha is 1 where a pixel centre hits",
+    )
+    exact_droplets: bool = spec(
+        False,
+        "droplets (particles whose kernel density is below droplet_density * sph.rest_density: "
+        "isolated particles and clusters of two or three) are not smoothed: they are splatted "
+        "as exact spheres over the smoothed surface, so a kernel wider than a droplet neither "
+        "flattens it nor blends it into the pool behind. Uses the frame's densities, else an "
+        "SPH density pass (OpenCL)",
+    )
+    droplet_density: float = spec(
+        0.5,
+        "exact_droplets: the density, as a fraction of sph.rest_density, below which a "
+        "particle is a droplet (cubic spline, support 4 r: a lone particle has 0.32, a pair "
+        "0.40, a particle in a one-layer sheet 0.70, inside the fluid 1.0)",
+        low=0.0,
+        high=1.0,
+    )
     occlusion_culling: bool = spec(
         True,
         "splat the front layer first and skip particles hidden behind it (exact: the depth "
@@ -211,6 +240,44 @@ class SphConfig:
         0.75,
         "surface_only: a particle whose kernel density (eq 2 from positions) is below "
         "sparse_density * rest_density is sparse (droplet, thin sheet) and always splatted",
+        low=0.0,
+        high=1.0,
+    )
+    anisotropy: bool = spec(
+        False,
+        "anisotropic particles (Yu & Turk 2013): each particle becomes an ellipsoid of its "
+        "sphere's volume, stretched along its neighbourhood's principal axes (flat on flat "
+        "surfaces, long along filaments), at a smoothed centre; particles with few neighbours "
+        "stay spheres of their radius at their position",
+    )
+    anisotropy_radius: float = spec(
+        1.5,
+        "anisotropy: neighbourhood radius R as a multiple of support_radius (weights 1 - "
+        "(d/R)^3); 1.5 = 6 r gives ~107 neighbours inside a jittered lattice of spacing 2 r "
+        "and ~63 on its surface (1.0 gives ~29 and ~19: at or below min_neighbours)",
+        low=0.25,
+        high=4.0,
+    )
+    anisotropy_max_ratio: float = spec(
+        4.0,
+        "anisotropy: k_r, largest ratio of the longest to the shortest axis (the covariance's "
+        "eigenvalues are clamped to >= largest / k_r; axes follow the eigenvalues, as Yu & Turk)",
+        low=1.0,
+        high=32.0,
+    )
+    anisotropy_min_neighbours: int = spec(
+        25,
+        "anisotropy: N_eps, particles with fewer neighbours within R stay exact spheres "
+        "(droplets do not shrink or move); above it anisotropy and smoothing ramp in over "
+        "N_eps / 2 more neighbours, so shapes change continuously between frames",
+        low=1,
+        high=10000,
+    )
+    anisotropy_smoothing: float = spec(
+        0.5,
+        "anisotropy: lambda, centres move to (1 - lambda) x + lambda (weighted neighbourhood "
+        "mean), ramped like the shape; Yu & Turk use 0.9-1, which also pulls the surface "
+        "inwards by lambda * ~0.25 R (up to 0.4 R)",
         low=0.0,
         high=1.0,
     )

@@ -10,6 +10,10 @@
 //   combine  direct + indirect (default) or eq 55's k direct + (1 - k) indirect
 //   emission (1 - F(n.v)) B(T) for hot metal, from the splatted temperature (added after)
 // Output: straight scene-linear RGB, alpha = coverage (1 over the environment background).
+// ANTIALIAS: coverage is the splat's sub-pixel coverage (splat/splat_coverage.frag.glsl); a
+// pixel just outside a silhouette (coverage > 0, no surface at its centre) shows the nearest of
+// its 8 neighbours' surfaces, seen along its own ray; over the environment the surface is
+// blended with the background by coverage.
 
 #define IBL_NONE 0
 #define IBL_PREFILTERED 1
@@ -29,6 +33,7 @@
 #define VIEW_IRRADIANCE 5
 #define DEBUG_VIEW 0
 #define MAX_LIGHTS 8
+#define ANTIALIAS 0
 #define LIGHT_DIRECTIONAL 0
 #define LIGHT_POINT 1
 
@@ -63,6 +68,7 @@ uniform sampler2D u_brdf_lut;       // (n.v, roughness) -> (A, B)
 uniform int u_ibl_samples;
 uniform float u_eq55_k;
 
+uniform sampler2D u_coverage;       // sub-pixel coverage of the silhouettes (ANTIALIAS)
 uniform sampler2D u_temperature;    // kelvin, nearest particle (0 = none)
 uniform sampler2D u_blackbody;      // 1 x N: rgb at luminance 1, log2(luminance) in alpha
 uniform vec2 u_blackbody_range;     // kelvin at the first and last texel centres
@@ -149,10 +155,39 @@ vec3 blackbody_radiance(float kelvin) {
     return entry.rgb * exp2(entry.a);
 }
 
+// The nearest surface among the 8 neighbours of `pixel` (w = 0: none), and where it is.
+vec4 nearest_neighbour_surface(ivec2 pixel, ivec2 size, out ivec2 source) {
+    vec4 best = vec4(0.0);
+    source = pixel;
+    for (int dy = -1; dy <= 1; ++dy) {
+        for (int dx = -1; dx <= 1; ++dx) {
+            ivec2 q = pixel + ivec2(dx, dy);
+            if (any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, size))) {
+                continue;
+            }
+            vec4 candidate = texelFetch(u_normal_depth, q, 0);
+            if (candidate.w > 0.0 && (best.w <= 0.0 || candidate.w < best.w)) {
+                best = candidate;
+                source = q;
+            }
+        }
+    }
+    return best;
+}
+
 void main() {
     ivec2 pixel = ivec2(gl_FragCoord.xy);
     vec4 normal_depth = texelFetch(u_normal_depth, pixel, 0);
     ivec2 size = textureSize(u_normal_depth, 0);
+    ivec2 source = pixel;  // the pixel whose surface this one shows
+#if ANTIALIAS
+    float coverage = texelFetch(u_coverage, pixel, 0).r;
+    if (normal_depth.w <= 0.0 && coverage > 0.0) {
+        normal_depth = nearest_neighbour_surface(pixel, size, source);
+    } else if (normal_depth.w > 0.0 && coverage <= 0.0) {
+        coverage = 1.0;  // a surface the coverage pass did not see: opaque, as without AA
+    }
+#endif
     if (normal_depth.w <= 0.0) {
 #if BACKGROUND_ENVIRONMENT
         vec3 ray = u_view_to_world * view_position(pixel, size, u_tan_half_fov, 1.0);
@@ -200,7 +235,7 @@ void main() {
 
     vec3 emission = vec3(0.0);
 #if HAS_TEMPERATURE
-    float kelvin = texelFetch(u_temperature, pixel, 0).r;
+    float kelvin = texelFetch(u_temperature, source, 0).r;
     // Kirchhoff: emissivity = 1 - reflectance; its angular shape follows Schlick with
     // F0_e = 1 - emissivity, so (1 - F) = emissivity (1 - (1 - n.v)^5).
     vec3 emissivity = u_emissivity * (1.0 - pow5(1.0 - nv));
@@ -225,5 +260,13 @@ void main() {
 #endif
     // Radiance is non-negative and finite; clamp keeps absurd inputs (1e12 lights on mirrors)
     // inside fp32 instead of letting them reach +inf.
-    out_color = vec4(clamp(color, vec3(0.0), vec3(1e30)), 1.0);
+    color = clamp(color, vec3(0.0), vec3(1e30));
+#if ANTIALIAS && BACKGROUND_ENVIRONMENT
+    vec3 ray = u_view_to_world * view_position(pixel, size, u_tan_half_fov, 1.0);
+    out_color = vec4(mix(environment_radiance(normalize(ray), 0.0), color, coverage), 1.0);
+#elif ANTIALIAS
+    out_color = vec4(color, coverage);
+#else
+    out_color = vec4(color, 1.0);
+#endif
 }

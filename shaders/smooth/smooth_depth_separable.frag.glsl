@@ -17,6 +17,15 @@
 #define KERNEL_SIZE_PROJECTED_RADIUS 0
 #define KERNEL_SIZE_EQ25 1
 #define KERNEL_SIZE 0
+// Small features (quality.keep_features): 0 none; bit 1: the kernel ends at the first tap pair
+// it rejects, so it never reaches past the nearest discontinuity (a droplet is smoothed only
+// by itself, a silhouette is not dragged); bit 2: the result is blended back towards the
+// centre by the weight share of accepted taps (FleX's blend), so features narrower than the
+// kernel keep their shape.
+#define KEEP_FEATURES 0
+#define KEEP_SHARE_LOW 0.4
+#define KEEP_SHARE_HIGH 0.8
+#define KEEP_JUMP_RADII 2.0
 
 // The depth is its own guide (common/packed_taps.glsl).
 #define PACKED_VALUE 0
@@ -34,6 +43,10 @@ vec4 g_center;
 vec4 g_reach;          // kernel radius in pixels; 0 for background pixels
 vec4 g_sum;
 vec4 g_weight_sum;
+vec4 g_all_weight_sum;  // every tap in reach, accepted or not (KEEP_FEATURES bit 2)
+bvec4 g_open;           // no pair rejected yet (KEEP_FEATURES bit 1)
+vec4 g_previous_a;      // the last taps on either side (KEEP_FEATURES bit 1)
+vec4 g_previous_b;
 #if FILTER == FILTER_NARROW_RANGE
 vec4 g_upper;
 vec4 g_lower;
@@ -51,6 +64,20 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     bvec4 valid_a = both(greaterThan(za, vec4(0.0)), lessThanEqual(za, g_upper));
     bvec4 valid_b = both(greaterThan(zb, vec4(0.0)), lessThanEqual(zb, g_upper));
     bvec4 accept = both(in_reach, both(valid_a, valid_b));
+#if (KEEP_FEATURES & 1) != 0
+    // A jump between consecutive taps of more than KEEP_JUMP_RADII r is a discontinuity (a
+    // droplet's edge over the pool behind it), even where the narrow range would accept it.
+    float jump = KEEP_JUMP_RADII * u_particle_radius;
+    accept = both(accept, both(lessThanEqual(abs(za - g_previous_a), vec4(jump)),
+                               lessThanEqual(abs(zb - g_previous_b), vec4(jump))));
+    g_previous_a = za;
+    g_previous_b = zb;
+    accept = both(accept, g_open);
+    g_open = both(g_open, not(both(in_reach, not(accept))));
+#endif
+#if (KEEP_FEATURES & 2) != 0
+    g_all_weight_sum += mix(vec4(0.0), 2.0 * w, in_reach);
+#endif
     bvec4 a_in_front = lessThan(za, g_lower);
     za = mix(za, g_lower_clamp, a_in_front);
     bvec4 grow = both(accept, not(a_in_front));
@@ -104,6 +131,10 @@ void main() {
     gaussian_start(sigma);
     g_sum = zc;
     g_weight_sum = vec4(1.0);
+    g_all_weight_sum = vec4(1.0);
+    g_open = bvec4(true);
+    g_previous_a = zc;
+    g_previous_b = zc;
 #if FILTER == FILTER_NARROW_RANGE
     g_upper = zc + u_nr_threshold;
     g_lower = zc - u_nr_threshold;
@@ -112,5 +143,9 @@ void main() {
     int radius = int(max(max(g_reach.x, g_reach.y), max(g_reach.z, g_reach.w)));
 
     walk_packed_taps(u_packed_depth, u_packed_depth, texel, zc, zc, radius);
-    out_packed_depth = mix(vec4(0.0), g_sum / g_weight_sum, surface);
+    vec4 smoothed = g_sum / g_weight_sum;
+#if (KEEP_FEATURES & 2) != 0
+    smoothed = mix(zc, smoothed, smoothstep(KEEP_SHARE_LOW, KEEP_SHARE_HIGH, g_weight_sum / g_all_weight_sum));
+#endif
+    out_packed_depth = mix(vec4(0.0), smoothed, surface);
 }

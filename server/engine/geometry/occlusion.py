@@ -53,6 +53,17 @@ class SphereBounds:
     near_depth: F64
     valid: Mask
 
+    def subset(self, rows: Mask) -> SphereBounds:
+        """The bounds of the particles where `rows` is true."""
+        return SphereBounds(
+            self.x0[rows],
+            self.x1[rows],
+            self.y0[rows],
+            self.y1[rows],
+            self.near_depth[rows],
+            self.valid[rows],
+        )
+
 
 def _tangent_extent(
     lateral: F64, depth: F64, radius: F64, tan_half_fov: float, size: int

@@ -25,21 +25,48 @@ class PreparedParticles:
     far: float
     reference_radius: float
     temperatures: npt.NDArray[np.float32] | None = None  # (N,) kelvin of the kept particles
+    droplets: npt.NDArray[np.bool_] | None = None  # (N,) which kept particles are droplets
+    #: (N, 3, 3) view-space ellipsoid semi-axes (columns) when the particles are anisotropic;
+    #: `center_radius[:, 3]` is then each ellipsoid's bounding radius (its longest semi-axis).
+    axes: npt.NDArray[np.float32] | None = None
+
+    def subset(self, rows: npt.NDArray[np.bool_]) -> PreparedParticles:
+        """The particles where `rows` is true (same far and reference radius)."""
+        return PreparedParticles(
+            np.ascontiguousarray(self.center_radius[rows]),
+            self.far,
+            self.reference_radius,
+            None if self.temperatures is None else np.ascontiguousarray(self.temperatures[rows]),
+            None if self.droplets is None else self.droplets[rows],
+            None if self.axes is None else np.ascontiguousarray(self.axes[rows]),
+        )
 
 
 def prepare_particles(
-    frame: ParticleFrame, camera: Camera, scene: Scene, *, reference_radius: float | None = None
+    frame: ParticleFrame,
+    camera: Camera,
+    scene: Scene,
+    *,
+    reference_radius: float | None = None,
+    droplets: npt.NDArray[np.bool_] | None = None,
+    ellipsoids: tuple[npt.NDArray[np.float64], npt.NDArray[np.float32]] | None = None,
 ) -> PreparedParticles:
     """Float64 eye-relative view-space positions, culled, then float32 (see module docstring).
 
     `reference_radius` (the radius the smoothing kernel follows) defaults to the frame's median
     radius; the SPH stage passes the radius from before eq 29 so adaptive radii do not resize
-    the filter."""
+    the filter. `droplets` (per input particle) follows the culling like the temperatures.
+    `ellipsoids` = (centres float64 (N, 3), world semi-axes float32 (N, 3, 3), columns): the
+    particles are drawn as those ellipsoids, culled by their bounding spheres."""
     radius = scene.particles.radius
     radii: npt.NDArray[np.floating] = (
         frame.radii if frame.radii is not None else np.full(frame.count, radius, np.float32)
     )
-    view = camera.to_view(frame.positions)
+    positions = frame.positions
+    if ellipsoids is not None:
+        positions = ellipsoids[0]
+        radii = np.linalg.norm(ellipsoids[1], axis=1).max(axis=1)  # longest column
+    view = camera.to_view(positions)
     far_config = scene.camera.far
     keep = camera.visible_mask(view, radii, far_config)
     view = view[keep]
@@ -63,4 +90,12 @@ def prepare_particles(
         if frame.temperatures is not None
         else None
     )
-    return PreparedParticles(center_radius, far, reference_radius, temperatures)
+    kept_droplets = None if droplets is None else droplets[keep]
+    axes = None
+    if ellipsoids is not None:
+        # view = R (world - eye): the columns rotate with R.
+        rotation = camera.rotation.astype(np.float32)
+        axes = np.ascontiguousarray(np.einsum("ij,njk->nik", rotation, ellipsoids[1][keep]))
+    return PreparedParticles(
+        center_radius, far, reference_radius, temperatures, kept_droplets, axes
+    )

@@ -28,6 +28,8 @@ from __future__ import annotations
 
 import importlib.resources
 import os
+import posixpath
+import re
 import threading
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -45,6 +47,8 @@ POCL_INSTALL_HINT = (
 
 _PROBE_SOURCE = "__kernel void probe(__global float *a) { a[get_global_id(0)] *= 2.0f; }"
 _KERNEL_PACKAGE = "sphrender.shaders"
+#: ``#include "relative/path.cl"`` on a line of its own (see `kernel_source`).
+_INCLUDE_RE = re.compile(r'^\s*#\s*include\s+"(?P<path>[^"]+)"\s*$')
 
 
 class CLUnavailableError(RuntimeError):
@@ -137,6 +141,28 @@ def _select_explicit(
     )
 
 
+def icd_load_errors() -> list[str]:
+    """The OpenCL ICD files (``OCL_ICD_VENDORS``, else /etc/OpenCL/vendors) whose library does
+    not load, as "file: library does not load"; the ICD loader skips them without a word, which is
+    how an NVIDIA image without a GPU looks (nvidia.icd names the host driver's library)."""
+    import ctypes
+    from pathlib import Path
+
+    vendors = Path(os.environ.get("OCL_ICD_VENDORS") or "/etc/OpenCL/vendors")
+    files = sorted(vendors.glob("*.icd")) if vendors.is_dir() else [vendors]
+    errors = []
+    for icd in files:
+        try:
+            library = icd.read_text().strip()
+        except OSError:
+            continue
+        try:
+            ctypes.CDLL(library)
+        except OSError:
+            errors.append(f"{icd}: {library} does not load")
+    return errors
+
+
 def probe_device(cl_module: Any, device: Any) -> tuple[Any, str | None]:
     """Build and run a one-line kernel: (the context, None) when it works, else (None, why)."""
     import numpy as np
@@ -196,13 +222,31 @@ def choose_device(device: str | None = None) -> tuple[CLDeviceInfo, Any]:
     )
 
 
-def kernel_source(name: str) -> str:
-    """The text of ``shaders/<name>`` (package data)."""
+def kernel_source(name: str, _included: set[str] | None = None) -> str:
+    """The text of ``shaders/<name>`` (package data), with ``#include "file.cl"`` lines replaced
+    by that file's text (resolved relative to the including file's folder, each file at most
+    once per program, so a kernel file can share another's helpers without a build path)."""
+    included = set() if _included is None else _included
+    included.add(name)
     resource = importlib.resources.files(_KERNEL_PACKAGE).joinpath(name)
     try:
-        return resource.read_text(encoding="utf-8")
+        text = resource.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise CLBuildError(f"OpenCL kernel file {name} is not in {_KERNEL_PACKAGE}") from None
+    lines = []
+    for line in text.splitlines(keepends=True):
+        match = _INCLUDE_RE.match(line)
+        if match is None:
+            lines.append(line)
+            continue
+        target = posixpath.normpath(posixpath.join(posixpath.dirname(name), match["path"]))
+        if target.startswith("../"):
+            raise CLBuildError(f"{name}: #include {match['path']} leaves {_KERNEL_PACKAGE}")
+        if target in included:
+            lines.append(f"/* {line.strip()}: already included */\n")
+        else:
+            lines.append(kernel_source(target, included).rstrip("\n") + "\n")
+    return "".join(lines)
 
 
 class CLContext:

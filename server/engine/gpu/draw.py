@@ -94,3 +94,14 @@ def set_if_used(program: moderngl.Program, name: str, value: object) -> None:
     """Set a uniform if the compiled variant uses it (the GLSL compiler drops unused ones)."""
     if name in program:
         program[name] = value
+
+
+def image_bytes(image: npt.NDArray[np.floating]) -> bytes:
+    """A numpy image (rows top first) as the bytes of a float32 GL texture (rows bottom first)."""
+    return np.ascontiguousarray(image[::-1], dtype=np.float32).tobytes()
+
+
+def read_image(data: bytes, width: int, height: int) -> npt.NDArray[np.float32]:
+    """A single-channel float32 texture's bytes as a numpy image, rows top first."""
+    out = np.frombuffer(data, dtype=np.float32).reshape(height, width)
+    return np.ascontiguousarray(out[::-1])

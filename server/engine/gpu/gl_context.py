@@ -16,8 +16,7 @@ from typing import Any
 
 import moderngl
 
-#: What to install on Debian/Ubuntu when EGL or Mesa's software renderer is missing.
-MESA_PACKAGES = "libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1"
+from sphrender.server.engine.gpu.gl_libraries import failure_message, resolve_libraries
 
 
 class GLUnavailableError(RuntimeError):
@@ -41,6 +40,7 @@ class GLContext:
     REQUIRED_VERSION = 330
 
     def __init__(self, device_index: int = 0) -> None:
+        libegl, libgl = resolve_libraries()
         try:
             # moderngl's stub types every **setting as a dict; the call takes plain values.
             create: Callable[..., moderngl.Context] = moderngl.create_context
@@ -49,13 +49,11 @@ class GLContext:
                 backend="egl",
                 require=self.REQUIRED_VERSION,
                 device_index=device_index,
+                libegl=libegl,
+                libgl=libgl,
             )
         except Exception as exc:  # moderngl raises plain Exceptions for every EGL failure
-            raise GLUnavailableError(
-                f"cannot create a headless OpenGL context through EGL ({exc}). "
-                f"On Debian/Ubuntu install Mesa's EGL and software renderer: "
-                f"apt-get install {MESA_PACKAGES}"
-            ) from None
+            raise GLUnavailableError(failure_message(str(exc), libegl, libgl)) from None
         self._ctx: moderngl.Context | None = ctx
         self._owner = threading.get_ident()
         info: dict[str, Any] = ctx.info

@@ -17,6 +17,10 @@ from sphrender.server.engine.gpu.draw import Target, clear_and_scissor, set_scis
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
 SHADER = "normals/surface_normals.frag.glsl"
+#: A depth step between neighbouring pixels larger than this many particle radii, or than
+#: EDGE_JUMP_FOOTPRINTS pixel footprints (grazing surfaces far away), is an edge, not a slope.
+EDGE_JUMP_RADII = 4.0
+EDGE_JUMP_FOOTPRINTS = 8.0
 
 
 class NormalsPass:
@@ -32,14 +36,24 @@ class NormalsPass:
             self._target = Target.float(self._context.gl.ctx, size, 4)
         return self._target
 
-    def run(self, surface: moderngl.Texture, camera: Camera, box: ScreenBox | None) -> Target:
-        """Normals of the eye-depth image `surface`, inside `box` (None: everywhere)."""
+    def run(
+        self,
+        surface: moderngl.Texture,
+        camera: Camera,
+        box: ScreenBox | None,
+        particle_radius: float = 0.0,
+    ) -> Target:
+        """Normals of the eye-depth image `surface`, inside `box` (None: everywhere);
+        `particle_radius` sizes the largest depth step that still counts as one surface."""
         target = self.target(surface.size)
         program = self._context.programs.get(FULLSCREEN_VERT, SHADER)
         surface.use(0)
         program["u_depth"] = 0
         program["u_tan_half_fov"] = (camera.tan_half_fov_y * camera.aspect, camera.tan_half_fov_y)
         write_matrix(program, "u_view_to_world", camera.rotation.T)
+        program["u_edge_jump"] = EDGE_JUMP_RADII * particle_radius
+        program["u_edge_jump_px"] = EDGE_JUMP_FOOTPRINTS
+        program["u_focal_px"] = camera.pixels_per_unit_at_unit_depth
         clear_and_scissor(target.fbo, box)
         target.fbo.use()
         self._context.fullscreen.draw(program)

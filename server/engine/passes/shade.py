@@ -58,7 +58,9 @@ class ShadePass:
         self._blackbody: moderngl.Texture | None = None
         self._target: Target | None = None  # the colour target, rebuilt when the size changes
 
-    def program_for(self, scene: Scene, has_temperature: bool) -> moderngl.Program:
+    def program_for(
+        self, scene: Scene, has_temperature: bool, antialias: bool = False
+    ) -> moderngl.Program:
         shading = scene.shading
         return self._context.programs.get(
             FULLSCREEN_VERT,
@@ -72,6 +74,7 @@ class ShadePass:
                 "DEBUG_VIEW": _VIEW_DEFINES[shading.debug_view],
                 "G_TERM": _G_TERM_DEFINES[shading.g_term],
                 "MAX_LIGHTS": MAX_LIGHTS,
+                "ANTIALIAS": antialias,
             },
         )
 
@@ -101,13 +104,15 @@ class ShadePass:
         normal_depth: moderngl.Texture,
         temperature: moderngl.Texture | None,
         box: ScreenBox | None = None,
+        coverage: moderngl.Texture | None = None,
     ) -> Target:
         """Shade `normal_depth` (world normal xyz, eye depth w) into the colour target;
         `temperature` (kelvin per pixel, already smoothed) adds the hot-metal glow. With a
         transparent background only `box` can be non-zero (the shader writes vec4(0) where
         there is no surface), so only `box` is shaded; an environment background covers every
-        pixel."""
-        program = self.program_for(scene, temperature is not None)
+        pixel. `coverage` (the splat's sub-pixel coverage) anti-aliases the silhouettes: alpha
+        = coverage, and the pixels just outside show their neighbours' surface."""
+        program = self.program_for(scene, temperature is not None, coverage is not None)
         shading = scene.shading
         # Textures are bound only after every resource exists: building one (prefiltering, the
         # BRDF table) runs passes of its own that rebind texture units.
@@ -118,6 +123,8 @@ class ShadePass:
                 textures.append((name, texture))
 
         bind("u_normal_depth", normal_depth)
+        if coverage is not None:
+            bind("u_coverage", coverage)
         set_if_used(
             program,
             "u_tan_half_fov",

@@ -27,6 +27,7 @@ PACK_SHADER = "common/image_pack.frag.glsl"
 UNPACK_SHADER = "common/image_unpack.frag.glsl"
 _FILTER_DEFINES = {"gaussian": 0, "bilateral": 1, "narrow_range": 2}
 _KERNEL_SIZE_DEFINES = {"projected_radius": 0, "eq25": 1}
+_KEEP_FEATURES_DEFINES = {"none": 0, "truncate": 1, "blend": 2, "both": 3}
 
 
 class _SmoothTargets:
@@ -75,6 +76,13 @@ class SmoothPass:
         }
         uniforms = _filter_uniforms(px_per_unit, particle_radius, quality)
         if quality.separable:
+            if quality.keep_features != "none":
+                defines["KEEP_FEATURES"] = _KEEP_FEATURES_DEFINES[quality.keep_features]
+                import os
+
+                defines["KEEP_SHARE_LOW"] = float(os.environ.get("KEEP_LOW", "0.4"))  # type: ignore[assignment]
+                defines["KEEP_SHARE_HIGH"] = float(os.environ.get("KEEP_HIGH", "0.8"))  # type: ignore[assignment]
+                defines["KEEP_JUMP_RADII"] = float(os.environ.get("KEEP_JUMP", "2.0"))  # type: ignore[assignment]
             return self._separable(targets, depth, defines, uniforms, quality.iterations, box)
         return self._two_d(targets, depth, defines, uniforms, quality.iterations, box)
 

@@ -25,11 +25,18 @@ from sphrender.server.engine.geometry import occlusion
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.prepare import PreparedParticles
 from sphrender.server.engine.geometry.screen_box import ScreenBox
-from sphrender.server.engine.gpu.draw import float_texture, write_matrix
-from sphrender.server.engine.passes.context import PassContext
+from sphrender.server.engine.gpu.draw import Target, float_texture, set_if_used, write_matrix
+from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
 VERTEX_SHADER = "splat/splat_sphere.vert.glsl"
 FRAGMENT_SHADER = "splat/splat_sphere.frag.glsl"
+SEED_SHADER = "splat/depth_seed.frag.glsl"
+ELLIPSOID_VERTEX_SHADER = "splat/splat_ellipsoid.vert.glsl"
+ELLIPSOID_FRAGMENT_SHADER = "splat/splat_ellipsoid.frag.glsl"
+COVERAGE_VERTEX_SHADER = "splat/splat_coverage.vert.glsl"
+COVERAGE_FRAGMENT_SHADER = "splat/splat_coverage.frag.glsl"
+#: How far past a silhouette the coverage quads reach, in pixels.
+COVERAGE_MARGIN_PX = 1.5
 
 
 @dataclass(frozen=True)
@@ -37,6 +44,7 @@ class SplatOutput:
     depth: moderngl.Texture  # eye depth, R32F, 0 = background
     temperature: moderngl.Texture | None  # kelvin of the front sphere, when the frame has them
     splatted: int  # particles rasterised (visible less those found hidden)
+    coverage: moderngl.Texture | None = None  # sub-pixel coverage (R32F), when anti-aliasing
 
 
 class SplatTargets:
@@ -51,6 +59,33 @@ class SplatTargets:
         self.fbo = ctx.framebuffer([self.depth], self.depth_buffer)
         self.temperature: moderngl.Texture | None = None
         self.fbo_with_temperature: moderngl.Framebuffer | None = None
+        self.coverage: Target | None = None  # built on the first anti-aliased frame
+        # The smoothed surface with the exact droplets drawn over it (built on first use).
+        self.composite: moderngl.Texture | None = None
+        self.composite_fbo: moderngl.Framebuffer | None = None
+        self.composite_with_temperature: moderngl.Framebuffer | None = None
+
+    def composite_targets(
+        self, with_temperature: bool
+    ) -> tuple[moderngl.Texture, moderngl.Framebuffer, moderngl.Framebuffer]:
+        """(composite texture, its seed framebuffer, the framebuffer the droplets draw into:
+        composite + temperature when `with_temperature`), all on the splat's depth buffer."""
+        if self.composite is None or self.composite_fbo is None:
+            self.composite = float_texture(self._ctx, self.size, 1)
+            self.composite_fbo = self._ctx.framebuffer([self.composite], self.depth_buffer)
+        if not with_temperature:
+            return self.composite, self.composite_fbo, self.composite_fbo
+        temperature, _ = self.temperature_targets()
+        if self.composite_with_temperature is None:
+            self.composite_with_temperature = self._ctx.framebuffer(
+                [self.composite, temperature], self.depth_buffer
+            )
+        return self.composite, self.composite_fbo, self.composite_with_temperature
+
+    def coverage_target(self) -> Target:
+        if self.coverage is None:
+            self.coverage = Target.float(self._ctx, self.size, 1)
+        return self.coverage
 
     def temperature_targets(self) -> tuple[moderngl.Texture, moderngl.Framebuffer]:
         if self.temperature is None or self.fbo_with_temperature is None:
@@ -61,12 +96,15 @@ class SplatTargets:
         return self.temperature, self.fbo_with_temperature
 
     def release(self) -> None:
-        for fbo in (self.fbo, self.fbo_with_temperature):
+        fbos = (self.fbo, self.fbo_with_temperature, self.composite_fbo)
+        for fbo in (*fbos, self.composite_with_temperature):
             if fbo is not None:
                 fbo.release()
-        for texture in (self.depth, self.temperature):
+        for texture in (self.depth, self.temperature, self.composite):
             if texture is not None:
                 texture.release()
+        if self.coverage is not None:
+            self.coverage.release()
         self.depth_buffer.release()
 
 
@@ -83,7 +121,9 @@ class SplatPass:
         self._index_buffer = ctx.buffer(reserve=4)
         self._instance_buffer = ctx.buffer(reserve=16 * 1024)
         self._temperature_buffer = ctx.buffer(reserve=4 * 1024)
-        self._vaos: dict[bool, moderngl.VertexArray] = {}  # keyed by "has temperature"
+        self._axes_buffer = ctx.buffer(reserve=36 * 1024)  # ellipsoids: 3 semi-axes per vertex
+        # Keyed by (ellipsoid, has temperature, coverage).
+        self._vaos: dict[tuple[bool, bool, bool], moderngl.VertexArray] = {}
         self._targets: SplatTargets | None = None
 
     def targets(self, size: tuple[int, int]) -> SplatTargets:
@@ -101,9 +141,11 @@ class SplatPass:
         *,
         bounds: occlusion.SphereBounds | None,
         box: ScreenBox | None,
+        antialias: bool = False,
     ) -> SplatOutput:
         """Splat `prepared`; `bounds` (None: no occlusion culling) are the spheres' screen
-        rectangles, `box` the screen box holding them (where the front layer is read back)."""
+        rectangles, `box` the screen box holding them (where the front layer is read back).
+        `antialias`: also draw the splatted spheres' sub-pixel coverage (`coverage`)."""
         targets = self.targets((camera.width, camera.height))
         temperature: moderngl.Texture | None = None
         fbo = targets.fbo
@@ -112,16 +154,18 @@ class SplatPass:
         fbo.use()
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         count = int(prepared.center_radius.shape[0])
+        coverage = None
+        if antialias:
+            coverage = targets.coverage_target()
+            coverage.fbo.clear(0.0, 0.0, 0.0, 0.0)
+            fbo.use()
         if count == 0:
-            return SplatOutput(targets.depth, temperature, 0)
-        program, vao = self._vertex_array(prepared.temperatures is not None)
-        self._ensure_quads(count)
-        self._reserve(self._instance_buffer, count * 64)  # 4 corners x vec4
-        if prepared.temperatures is not None:
-            self._reserve(self._temperature_buffer, count * 16)  # 4 corners x float
-        write_matrix(program, "u_projection", camera.projection_matrix(prepared.far))
-        program["u_near"] = camera.near
-        program["u_far"] = prepared.far
+            return SplatOutput(targets.depth, temperature, 0, _texture(coverage))
+        program, vao = self._vertex_array(
+            prepared.axes is not None, prepared.temperatures is not None
+        )
+        self._reserve_for(prepared, count)
+        self._set_depth_uniforms(program, camera, prepared.far)
         ctx = self._context.gl.ctx
         ctx.enable(moderngl.DEPTH_TEST)
         try:
@@ -132,7 +176,87 @@ class SplatPass:
                 splatted = self._draw_culled(fbo, vao, camera, prepared, bounds, box)
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
-        return SplatOutput(targets.depth, temperature, splatted)
+        if coverage is not None:
+            self._draw_coverage(coverage, camera, prepared, splatted)
+        return SplatOutput(targets.depth, temperature, splatted, _texture(coverage))
+
+    def run_droplets(
+        self,
+        camera: Camera,
+        droplets: PreparedParticles,
+        surface: moderngl.Texture,
+        temperature: moderngl.Texture | None,
+        coverage: moderngl.Texture | None = None,
+    ) -> SplatOutput:
+        """Draw `droplets` as exact spheres over the (smoothed) eye depth `surface`: the depth
+        is copied into the composite target with its depth-buffer value, then the droplets are
+        depth-tested against it. Returns the composite (and the temperature target, into which
+        the droplets that show write their kelvin); with `coverage` (the bulk splat's) the
+        droplets' coverage is added to it."""
+        targets = self.targets((camera.width, camera.height))
+        with_temperature = temperature is not None and droplets.temperatures is not None
+        composite, seed_fbo, draw_fbo = targets.composite_targets(with_temperature)
+        ctx = self._context.gl.ctx
+        seed_fbo.use()
+        seed_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        seed = self._context.programs.get(FULLSCREEN_VERT, SEED_SHADER)
+        seed["u_depth"] = 0
+        seed["u_far"] = droplets.far
+        surface.use(0)
+        count = int(droplets.center_radius.shape[0])
+        ctx.enable(moderngl.DEPTH_TEST)
+        try:
+            self._context.fullscreen.draw(seed)
+            if count:
+                program, vao = self._vertex_array(droplets.axes is not None, with_temperature)
+                self._reserve_for(droplets, count)
+                self._set_depth_uniforms(program, camera, droplets.far)
+                draw_fbo.use()
+                self._draw_spheres(vao, droplets, None, first=0)
+        finally:
+            ctx.disable(moderngl.DEPTH_TEST)
+        if coverage is not None and count:
+            self._draw_coverage(targets.coverage_target(), camera, droplets, count)
+        return SplatOutput(composite, temperature, count, coverage)
+
+    def _draw_coverage(
+        self, target: Target, camera: Camera, prepared: PreparedParticles, count: int
+    ) -> None:
+        """Coverage of the first `count` quads in the buffers (those the splat just drew), into
+        `target` with blending MAX and no depth test (see splat_coverage.frag.glsl)."""
+        if count == 0:
+            return
+        ctx = self._context.gl.ctx
+        program, vao = self._vertex_array(prepared.axes is not None, False, coverage=True)
+        focal_px = camera.pixels_per_unit_at_unit_depth
+        write_matrix(program, "u_projection", camera.projection_matrix(prepared.far))
+        program["u_margin"] = COVERAGE_MARGIN_PX / focal_px
+        program["u_near"] = camera.near
+        set_if_used(program, "u_focal_px", focal_px)
+        set_if_used(program, "u_far", prepared.far)
+        target.fbo.use()
+        ctx.enable(moderngl.BLEND)
+        ctx.blend_equation = moderngl.MAX
+        try:
+            vao.render(moderngl.TRIANGLES, vertices=6 * count)
+        finally:
+            ctx.blend_equation = moderngl.FUNC_ADD
+            ctx.disable(moderngl.BLEND)
+
+    def _set_depth_uniforms(self, program: moderngl.Program, camera: Camera, far: float) -> None:
+        write_matrix(program, "u_projection", camera.projection_matrix(far))
+        program["u_near"] = camera.near
+        program["u_far"] = far
+        set_if_used(program, "u_margin", 0.0)
+
+    def _reserve_for(self, prepared: PreparedParticles, count: int) -> None:
+        """Quads and per-vertex buffers for `count` particles of `prepared`'s kind."""
+        self._ensure_quads(count)
+        self._reserve(self._instance_buffer, count * 64)  # 4 corners x vec4
+        if prepared.temperatures is not None:
+            self._reserve(self._temperature_buffer, count * 16)  # 4 corners x float
+        if prepared.axes is not None:
+            self._reserve(self._axes_buffer, count * 144)  # 4 corners x 3 x vec3
 
     def _draw_culled(
         self,
@@ -164,21 +288,37 @@ class SplatPass:
             self._draw_spheres(vao, prepared, others, first=front.size)
         return int(front.size + others.size)
 
-    def _vertex_array(self, has_temperature: bool) -> tuple[moderngl.Program, moderngl.VertexArray]:
-        defines = {"HAS_TEMPERATURE": True} if has_temperature else None
-        program = self._context.programs.get(VERTEX_SHADER, FRAGMENT_SHADER, defines)
-        vao = self._vaos.get(has_temperature)
+    def _vertex_array(
+        self, ellipsoid: bool, has_temperature: bool, *, coverage: bool = False
+    ) -> tuple[moderngl.Program, moderngl.VertexArray]:
+        """The program and vertex array of one kind of splat draw (spheres or ellipsoids,
+        with or without temperatures, depth or coverage)."""
+        programs = self._context.programs
+        if ellipsoid:
+            defines = {"HAS_TEMPERATURE": has_temperature, "COVERAGE": coverage}
+            program = programs.get(ELLIPSOID_VERTEX_SHADER, ELLIPSOID_FRAGMENT_SHADER, defines)
+        elif coverage:
+            program = programs.get(COVERAGE_VERTEX_SHADER, COVERAGE_FRAGMENT_SHADER)
+        else:
+            defines = {"HAS_TEMPERATURE": True} if has_temperature else None
+            program = programs.get(VERTEX_SHADER, FRAGMENT_SHADER, defines)
+        key = (ellipsoid, has_temperature, coverage)
+        vao = self._vaos.get(key)
         if vao is None:
             attributes = [
                 (self._corner_buffer, "2f", "in_corner"),
                 (self._instance_buffer, "4f", "in_center_radius"),
             ]
+            if ellipsoid:
+                attributes.append(
+                    (self._axes_buffer, "3f 3f 3f", "in_axis0", "in_axis1", "in_axis2")
+                )
             if has_temperature:
                 attributes.append((self._temperature_buffer, "1f", "in_temperature"))
             vao = self._context.gl.ctx.vertex_array(
                 program, attributes, index_buffer=self._index_buffer, index_element_size=4
             )
-            self._vaos[has_temperature] = vao
+            self._vaos[key] = vao
         return program, vao
 
     @staticmethod
@@ -219,6 +359,10 @@ class SplatPass:
         if data.shape[0] == 0:
             return
         self._instance_buffer.write(np.repeat(data, 4, axis=0).tobytes(), offset=first * 64)
+        if prepared.axes is not None:
+            axes = prepared.axes if rows is None else prepared.axes[rows]
+            columns = np.ascontiguousarray(axes.transpose(0, 2, 1)).reshape(-1, 9)
+            self._axes_buffer.write(np.repeat(columns, 4, axis=0).tobytes(), offset=first * 144)
         if prepared.temperatures is not None:
             kelvin = prepared.temperatures if rows is None else prepared.temperatures[rows]
             self._temperature_buffer.write(np.repeat(kelvin, 4).tobytes(), offset=first * 16)
@@ -236,5 +380,10 @@ class SplatPass:
             self._index_buffer,
             self._instance_buffer,
             self._temperature_buffer,
+            self._axes_buffer,
         ):
             buffer.release()
+
+
+def _texture(target: Target | None) -> moderngl.Texture | None:
+    return None if target is None else target.texture

@@ -22,6 +22,8 @@ steps, which are O(N) numpy:
    (`radii.py`); `frame.py` applies the result to a frame for the renderer.
 
 The kernel file is ``shaders/sph/sph.cl``; its header documents the kernel function and grid modes.
+`SphEngine.anisotropy` (issue 12, Yu & Turk ellipsoids) builds its own grid with cell side R and
+runs ``shaders/sph/anisotropy.cl`` (launched by `anisotropy.py`, which documents the output).
 `SphEngine` owns its device buffers (grown geometrically, reused across frames) and releases
 them in `release`; the program itself is cached by the `CLContext`.
 """
@@ -37,6 +39,12 @@ import numpy.typing as npt
 
 from sphrender.client.errors import InputError
 from sphrender.server.engine.gpu.cl_context import CLContext
+from sphrender.server.engine.sph.anisotropy import (
+    AnisotropyKernels,
+    AnisotropyParameters,
+    AnisotropyResult,
+    check_radii,
+)
 
 if TYPE_CHECKING:
     from sphrender.server.scene import Scene
@@ -129,6 +137,17 @@ class _Grid:
     h: float
 
 
+def checked_positions(positions: npt.ArrayLike) -> F64:
+    """Positions as contiguous float64 (N, 3); `InputError` for another shape, NaN or Inf."""
+    points = np.ascontiguousarray(positions, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise InputError("positions", f"must have shape (N, 3), got {points.shape}")
+    if not np.isfinite(points).all():
+        bad = int(np.flatnonzero(~np.isfinite(points).all(axis=1))[0])
+        raise InputError(f"positions[{bad}]", "must be finite (found NaN or Inf)")
+    return points
+
+
 def _round_up(n: int, multiple: int) -> int:
     return max(multiple, -(-n // multiple) * multiple)
 
@@ -159,6 +178,7 @@ class SphEngine:
             )
         }
         self._buffers: dict[str, Any] = {}
+        self._anisotropy: AnisotropyKernels | None = None  # built on first use
 
     # -- buffers ---------------------------------------------------------------------------
 
@@ -198,6 +218,7 @@ class SphEngine:
             buffer.release()
         self._buffers.clear()
         self._kernels.clear()
+        self._anisotropy = None
 
     # -- grid ------------------------------------------------------------------------------
 
@@ -316,13 +337,8 @@ class SphEngine:
         """Density (unless `densities` are given), colour field, surface flags; the gradient and
         the surface-only splat mask only when asked for (their read-back costs time)."""
         self._cl.check_owner()
-        points = np.ascontiguousarray(positions, dtype=np.float64)
-        if points.ndim != 2 or points.shape[1] != 3:
-            raise InputError("positions", f"must have shape (N, 3), got {points.shape}")
+        points = checked_positions(positions)
         n = points.shape[0]
-        if not np.isfinite(points).all():
-            bad = int(np.flatnonzero(~np.isfinite(points).all(axis=1))[0])
-            raise InputError(f"positions[{bad}]", "must be finite (found NaN or Inf)")
         client_densities = None if densities is None else check_densities(densities, n)
         if n == 0:
             empty = np.zeros(0, np.float32)
@@ -389,6 +405,53 @@ class SphEngine:
         if keep_out is not None:
             keep = self._download(keep_out, np.empty(n, np.uint8)).astype(bool)
         return SphResult(density, client_densities is None, color, gradient_xyz, surface, keep)
+
+    def density(self, positions: npt.ArrayLike, params: SphParameters) -> F32:
+        """Eq 2 only (no colour field): the kernel density of every particle, in input order."""
+        self._cl.check_owner()
+        points = np.ascontiguousarray(positions, dtype=np.float64)
+        n = points.shape[0]
+        if n == 0:
+            return np.zeros(0, np.float32)
+        grid = self._build_grid(points, params.support_radius)
+        sorted_volume = self._buffer("sorted_volume", 4 * n)
+        density_out = self._buffer("density", 4 * n)
+        self._run(
+            "density",
+            n,
+            *self._grid_args(grid),
+            np.float32(params.mass),
+            sorted_volume,
+            density_out,
+        )
+        return self._download(density_out, np.empty(n, np.float32))
+
+    def anisotropy_kernels(self) -> AnisotropyKernels:
+        """The anisotropy program (built on first use; `eigen_sym3` is the tests' way in)."""
+        self._cl.check_owner()
+        if self._anisotropy is None:
+            self._anisotropy = AnisotropyKernels(self._cl)
+        return self._anisotropy
+
+    def anisotropy(
+        self,
+        positions: npt.ArrayLike,
+        params: AnisotropyParameters,
+        radii: float | npt.ArrayLike,
+    ) -> AnisotropyResult:
+        """Yu & Turk ellipsoids (see `anisotropy.py` for the layout): smoothed centres (float64)
+        and semi-axis matrices scaled by `radii` (a scalar or one per particle, e.g. eq 29's);
+        spheres get exactly ``r * I`` and their own position. The grid is built with cell side
+        `params.radius`, so this is its own neighbour walk, not `compute`'s."""
+        kernels = self.anisotropy_kernels()
+        points = checked_positions(positions)
+        n = points.shape[0]
+        radius = check_radii(radii, n)
+        if n == 0:
+            return AnisotropyResult.empty()
+        grid = self._build_grid(points, params.radius)
+        shapes = kernels.run(self._grid_args(grid), n, params, self._buffer)
+        return shapes.result(points, radius)
 
 
 # -- renderer glue ---------------------------------------------------------------------------

@@ -1,18 +1,24 @@
 """The SPH stage of a frame: whether a scene needs it, and what it changes in the frame the splat
-draws (eq 29 radii, surface-only splatting). `SphStage` owns the OpenCL context and engine,
-created on the first frame that needs them, on the GL owner thread."""
+draws (eq 29 radii, surface-only splatting, anisotropic ellipsoids). `SphStage` owns the OpenCL
+context and engine, created on the first frame that needs them, on the GL owner thread."""
 
 from __future__ import annotations
 
-from dataclasses import replace
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 
 import numpy as np
+import numpy.typing as npt
 
 from sphrender.client.frame import ParticleFrame
-from sphrender.server.engine.gpu.cl_context import CLContext
+from sphrender.server.engine.gpu.cl_context import CLContext, CLUnavailableError
+from sphrender.server.engine.sph.anisotropy import AnisotropyParameters, AnisotropyResult
 from sphrender.server.engine.sph.engine import SphEngine, SphParameters, SphResult
 from sphrender.server.engine.sph.radii import F32, adaptive_radii, surface_density
 from sphrender.server.scene import Scene
+
+log = logging.getLogger("sphrender.sph")
 
 
 def frame_particle_radius(frame: ParticleFrame, scene: Scene) -> float:
@@ -26,8 +32,9 @@ def needs_sph(scene: Scene) -> bool:
     """Whether a frame of this scene needs the SPH pass at all (compute only what is needed).
 
     Densities alone are needed by no feature yet, so a client that sends none costs nothing
-    unless adaptive radii or surface-only splatting are on."""
-    return scene.sph.adaptive_radius or scene.sph.surface_only
+    unless adaptive radii, surface-only splatting or anisotropy are on."""
+    sph = scene.sph
+    return sph.adaptive_radius or sph.surface_only or sph.anisotropy
 
 
 def eq29_radii(result: SphResult, frame: ParticleFrame, scene: Scene) -> F32:
@@ -43,23 +50,52 @@ def eq29_radii(result: SphResult, frame: ParticleFrame, scene: Scene) -> F32:
     )
 
 
-def apply_to_frame(
-    engine: SphEngine, frame: ParticleFrame, scene: Scene
-) -> tuple[ParticleFrame, SphResult]:
-    """The frame the splat pass should draw: eq 29 radii and/or only the particles to splat."""
+@dataclass(frozen=True)
+class SphFrame:
+    """What the SPH stage made of one frame."""
+
+    #: What the splat draws: eq 29 radii and/or only the particles to splat (positions are the
+    #: client's, not the smoothed centres).
+    frame: ParticleFrame
+    #: Density, colour field, surface flags of the INPUT frame's particles; None when neither
+    #: adaptive radii nor surface-only splatting asked for them.
+    sph: SphResult | None
+    #: Ellipsoids of `frame`'s particles (same order and subset; axes scaled by the radii the
+    #: splat uses, eq 29's when on); None when `sph.anisotropy` is off or was not asked for.
+    anisotropy: AnisotropyResult | None
+
+
+def apply_sph(
+    engine: SphEngine, frame: ParticleFrame, scene: Scene, *, anisotropy: bool = True
+) -> SphFrame:
+    """Everything the scene's [sph] asks for: eq 29 radii, the surface-only subset and (when
+    `anisotropy` and ``scene.sph.anisotropy``) the ellipsoids. Anisotropy is computed over all
+    particles (hidden interior ones shape the surface's neighbourhoods), then subset."""
     particle_radius = frame_particle_radius(frame, scene)
     params = SphParameters.from_scene(scene, particle_radius)
     sph = scene.sph
-    result = engine.compute(
-        frame.positions,
-        params,
-        frame.densities,
-        gradient=False,
-        splat_mask=sph.surface_only,
-    )
-    radii = eq29_radii(result, frame, scene) if sph.adaptive_radius else frame.radii
-    out = replace(frame, radii=radii)
-    if result.splat_keep is not None:
+    result = None
+    radii = frame.radii
+    if sph.adaptive_radius or sph.surface_only:
+        result = engine.compute(
+            frame.positions,
+            params,
+            frame.densities,
+            gradient=False,
+            splat_mask=sph.surface_only,
+        )
+        if sph.adaptive_radius:
+            radii = eq29_radii(result, frame, scene)
+    ellipsoids = None
+    if anisotropy and sph.anisotropy:
+        ellipsoids = engine.anisotropy(
+            frame.positions,
+            AnisotropyParameters.from_scene(scene, params.support_radius),
+            radii if radii is not None else scene.particles.radius,
+        )
+    densities = frame.densities if result is None else result.density
+    out = replace(frame, radii=radii, densities=densities)
+    if result is not None and result.splat_keep is not None:
         keep = result.splat_keep
         out = ParticleFrame(
             positions=out.positions[keep],
@@ -67,7 +103,48 @@ def apply_to_frame(
             radii=None if out.radii is None else out.radii[keep],
             temperatures=None if out.temperatures is None else out.temperatures[keep],
         )
-    return out, result
+        ellipsoids = None if ellipsoids is None else ellipsoids.subset(keep)
+    return SphFrame(out, result, ellipsoids)
+
+
+def apply_to_frame(
+    engine: SphEngine, frame: ParticleFrame, scene: Scene
+) -> tuple[ParticleFrame, SphResult | None]:
+    """The sphere path: the frame the splat pass should draw (eq 29 radii and/or only the
+    particles to splat) and the SPH result (None when no feature needed it). Computes no
+    anisotropy; the ellipsoid splat takes `apply_sph`'s `SphFrame.anisotropy`."""
+    out = apply_sph(engine, frame, scene, anisotropy=False)
+    return out.frame, out.sph
+
+
+def wants_exact_droplets(scene: Scene) -> bool:
+    """Whether droplets are split off the smoothed surface (`quality.exact_droplets`; only
+    when there is smoothing to keep them out of)."""
+    return scene.quality.exact_droplets and scene.quality.filter != "none"
+
+
+def droplet_mask(
+    frame: ParticleFrame, scene: Scene, engine: Callable[[], SphEngine]
+) -> npt.NDArray[np.bool_]:
+    """Which particles are droplets: kernel density below `quality.droplet_density` x
+    `sph.rest_density`. The frame's densities when it has them (the client's, or those the SPH
+    stage computed), else an eq 2 density pass on `engine()`."""
+    densities = frame.densities
+    if densities is None:
+        params = SphParameters.from_scene(scene, frame_particle_radius(frame, scene))
+        densities = engine().density(frame.positions, params)
+    threshold = scene.quality.droplet_density * scene.sph.rest_density
+    return np.asarray(densities) < threshold
+
+
+@dataclass(frozen=True)
+class SphOutcome:
+    """What the SPH stage changes in a frame, for the renderer."""
+
+    frame: ParticleFrame  # eq 29 radii, surface-only subset (or the frame as it came)
+    reference_radius: float | None = None  # the radius the smoothing follows (None: frame's)
+    droplets: npt.NDArray[np.bool_] | None = None  # which particles skip smoothing
+    ellipsoids: tuple[npt.NDArray[np.float64], F32] | None = None  # (centres, semi-axes)
 
 
 class SphStage:
@@ -76,6 +153,7 @@ class SphStage:
 
     def __init__(self, cl_device: str | None = None) -> None:
         self._cl_device = cl_device
+        self._warned = False
         self._cl: CLContext | None = None
         self._engine: SphEngine | None = None
 
@@ -86,6 +164,43 @@ class SphStage:
                 self._cl = CLContext(self._cl_device)
             self._engine = SphEngine(self._cl)
         return self._engine
+
+    @staticmethod
+    def wanted(scene: Scene, frame: ParticleFrame) -> bool:
+        """Whether this frame needs the stage (an [sph] feature, or exact droplets)."""
+        return needs_sph(scene) or wants_exact_droplets(scene)
+
+    def warm(self, frame: ParticleFrame, scene: Scene) -> None:
+        """Build the CL context and program now if this frame will need them (so the first
+        frame's stage time is the pass's, not LLVM's)."""
+        if needs_sph(scene) or frame.densities is None:
+            try:
+                self.engine()
+            except CLUnavailableError:
+                if needs_sph(scene):
+                    raise
+
+    def run(self, frame: ParticleFrame, scene: Scene) -> SphOutcome:
+        """Everything the scene asks of SPH for this frame (on the owner thread). Exact droplets
+        without OpenCL (and without client densities) are skipped with one warning: the frame
+        still renders, its droplets smoothed as without the option."""
+        reference_radius = frame_particle_radius(frame, scene)
+        ellipsoids = droplets = None
+        if needs_sph(scene):
+            result = apply_sph(self.engine(), frame, scene)
+            frame = result.frame
+            if result.anisotropy is not None:
+                ellipsoids = (result.anisotropy.centers, result.anisotropy.axes)
+        if wants_exact_droplets(scene):
+            try:
+                droplets = droplet_mask(frame, scene, self.engine)
+            except CLUnavailableError as exc:
+                if not self._warned:
+                    log.warning(
+                        "exact droplets need densities or OpenCL, rendering without: %s", exc
+                    )
+                    self._warned = True
+        return SphOutcome(frame, reference_radius, droplets, ellipsoids)
 
     def release(self) -> None:
         if self._engine is not None:

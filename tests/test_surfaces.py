@@ -1,0 +1,355 @@
+"""Real splashy surfaces (issue "Real SPH surfaces"): exact droplets, silhouette anti-aliasing,
+ellipsoid impostors. Real EGL and PoCL; every expectation is exact or derived from an analytic
+shape, stated next to it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from sphrender.client.frame import make_frame
+from sphrender.server.bench.analytic import pixel_rays
+from sphrender.server.bench.scenes import spheres_truth
+from sphrender.server.bench.surface_quality import edge_alpha_error, supersampled_coverage
+from sphrender.server.content.lattice import jittered_lattice_ball, lattice_slab
+from sphrender.server.engine.frame_output import RenderedFrame
+from sphrender.server.engine.geometry import occlusion
+from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.geometry.prepare import prepare_particles
+from sphrender.server.engine.geometry.screen_box import screen_box
+from sphrender.server.engine.gpu.draw import FullscreenTriangle, read_image
+from sphrender.server.engine.gpu.gl_context import GLContext
+from sphrender.server.engine.gpu.programs import ProgramCache
+from sphrender.server.engine.passes.context import PassContext
+from sphrender.server.engine.passes.splat import SplatPass
+from sphrender.server.engine.renderer import SurfaceRenderer
+from sphrender.server.scene import Scene, scene_from_dict
+
+R = 0.02
+
+
+def make_scene(width: int = 160, height: int = 120, **sections: Any) -> Scene:
+    base: dict[str, Any] = {
+        "image": {"width": width, "height": height},
+        "camera": {"eye": [0.1, 0.35, 0.55], "target": [0.0, 0.02, 0.0], "fov_y": 40.0},
+        "particles": {"radius": R},
+    }
+    for key, value in sections.items():
+        base[key] = {**base.get(key, {}), **value}
+    return scene_from_dict(base)
+
+
+def render(renderer: SurfaceRenderer, positions: Any, scene: Scene, **arrays: Any) -> RenderedFrame:
+    frame, _ = renderer.render(make_frame(positions, **arrays), scene, depth=True, normals=True)
+    assert np.isfinite(frame.rgba).all()
+    assert frame.normals is not None and np.isfinite(frame.normals).all()
+    assert frame.depth is not None and not np.isnan(frame.depth).any()
+    return frame
+
+
+def pool_and_droplets() -> tuple[np.ndarray, np.ndarray]:
+    """A 3-layer lattice pool and six single-particle droplets 4-8 r above it, >= 6 r apart."""
+    pool = lattice_slab(0.3, 0.3, 3, R)
+    droplets = np.array(
+        [[-0.06, 5 * R, 0.02], [0.0, 6 * R, -0.05], [0.06, 4 * R, 0.04], [-0.02, 8 * R, 0.08],
+         [0.08, 7 * R, -0.06], [-0.09, 5 * R, -0.07]]
+    )  # fmt: skip
+    return pool, droplets
+
+
+# -- exact droplets ---------------------------------------------------------------------------
+
+
+def test_exact_droplets_are_the_unfiltered_spheres_over_the_smoothed_pool(
+    renderer: SurfaceRenderer,
+) -> None:
+    """With exact droplets the depth image is exactly the nearer of (the pool smoothed on its
+    own, the droplets splatted unfiltered on their own), pixel by pixel: the smoothing never
+    sees a droplet and a droplet is never smoothed. Exact equality, since both halves run the
+    same shaders on the same inputs (droplets = isolated particles: density 0.32 rest < 0.5)."""
+    pool, droplets = pool_and_droplets()
+    quality = {"exact_droplets": True, "antialias": False}
+    both = render(renderer, np.concatenate([pool, droplets]), make_scene(quality=quality))
+    pool_only = render(renderer, pool, make_scene(quality=quality))
+    raw = render(renderer, droplets, make_scene(quality={**quality, "filter": "none"}))
+    assert both.depth is not None and pool_only.depth is not None and raw.depth is not None
+    expected = np.minimum(pool_only.depth, raw.depth)
+    assert np.array_equal(both.depth, expected)
+    assert (np.isfinite(raw.depth) & (raw.depth < pool_only.depth)).sum() > 200  # droplets show
+    # Without the option the droplets are smoothed with the pool: the same pixels differ.
+    smoothed = render(renderer, np.concatenate([pool, droplets]), make_scene())
+    assert smoothed.depth is not None
+    in_front = np.isfinite(raw.depth) & (raw.depth < pool_only.depth)
+    assert np.abs(smoothed.depth[in_front] - raw.depth[in_front]).max() > 0.5 * R
+
+
+def test_exact_droplets_from_client_densities_need_no_sph_pass(
+    renderer: SurfaceRenderer,
+) -> None:
+    """Client densities decide the droplets without OpenCL: the same image as computed ones
+    when the client's densities are the kernel's (a lone particle has m W(0) = 1000 / pi)."""
+    pool, droplets = pool_and_droplets()
+    positions = np.concatenate([pool, droplets])
+    densities = np.full(len(positions), 1000.0, np.float32)
+    densities[len(pool) :] = 1000.0 / np.pi
+    scene = make_scene(quality={"exact_droplets": True})
+    computed = render(renderer, positions, scene)
+    given, stats = renderer.render(make_frame(positions, densities=densities), scene, depth=True)
+    assert given.depth is not None and computed.depth is not None
+    assert np.array_equal(given.depth, computed.depth)
+    assert "sph" in stats.stage_ms  # the stage ran, but only the threshold
+    assert stats.particles_splatted >= len(droplets)
+
+
+def test_exact_droplets_hard_cases(renderer: SurfaceRenderer) -> None:
+    """Only droplets, one droplet, none, a droplet at the near plane: clean images."""
+    scene = make_scene(quality={"exact_droplets": True}, camera={"near": 0.05})
+    _, droplets = pool_and_droplets()
+    alone = render(renderer, droplets, scene)
+    unfiltered = render(
+        renderer, droplets, make_scene(quality={"filter": "none"}, camera={"near": 0.05})
+    )
+    assert alone.depth is not None and unfiltered.depth is not None
+    assert np.array_equal(np.isfinite(alone.depth), np.isfinite(unfiltered.depth))
+    render(renderer, droplets[:1], scene)
+    render(renderer, np.zeros((0, 3)), scene)
+    eye = np.array([0.1, 0.35, 0.55])
+    view = (np.array([0.0, 0.02, 0.0]) - eye) / np.linalg.norm([0.1, 0.33, 0.55])
+    render(renderer, [eye + 0.06 * view, *droplets], scene)  # cut by the near plane
+
+
+# -- silhouette anti-aliasing -----------------------------------------------------------------
+
+
+def test_alpha_is_sub_pixel_coverage_on_every_edge(renderer: SurfaceRenderer) -> None:
+    """Droplets of 3-10 px radius: alpha on the pixels their true silhouettes cross against a
+    4 x 4 supersampled ray cast. The binary mask scores ~0.25 (a pixel half covered is 0 or 1);
+    the analytic coverage ramp is exact for a straight edge, and a circle of radius >= 3 px
+    bends by < 1/24 px inside a pixel, so the remaining error is the 16-sample estimate's
+    (1/32 per pixel on average) plus that curvature: 0.06 bounds it (measured 0.03)."""
+    _, droplets = pool_and_droplets()
+    scene = make_scene(quality={"antialias": True, "filter": "none"})
+    frame = render(renderer, droplets, scene)
+    camera = Camera.from_config(scene.camera, 160, 120)
+    coverage = supersampled_coverage(
+        lambda cam: spheres_truth(cam, droplets, R), scene.camera, 160, 120
+    )
+    alpha = frame.rgba[..., 3].astype(np.float64)
+    # Where two silhouettes meet inside one pixel the pass keeps the larger coverage, not the
+    # union's (blend MAX): those junction pixels are checked only through the mean.
+    touched = sum(
+        supersampled_coverage(
+            lambda cam, c=c: spheres_truth(cam, c[None], R), scene.camera, 160, 120
+        )
+        > 0.0
+        for c in droplets
+    )
+    junction = touched >= 2
+    assert edge_alpha_error(alpha, coverage) < 0.06
+    binary = render(renderer, droplets, make_scene(quality={"filter": "none"}))
+    assert edge_alpha_error(binary.rgba[..., 3].astype(np.float64), coverage) > 0.15
+    assert np.all((alpha >= 0.0) & (alpha <= 1.0))
+    # 16 samples inside (or outside) leave at most a border of 1/8 px unsampled: alpha is
+    # within 1/8 (+ float slack) of 1 (or 0) there, and exactly 1 two pixels inside an edge.
+    assert np.all(alpha[(coverage == 1.0) & ~junction] >= 0.87)
+    assert np.all(alpha[coverage == 0.0] <= 0.13)
+    deep = (coverage == 1.0) & ~junction
+    for axis in (0, 1):
+        for step in (-2, -1, 1, 2):
+            deep &= np.roll(coverage, step, axis=axis) == 1.0
+    assert deep.sum() > 100 and np.all(alpha[deep] >= 1.0 - 1e-6)
+    assert camera.width == 160
+
+
+def test_antialiased_edges_have_no_fringe_over_the_environment(renderer: SurfaceRenderer) -> None:
+    """Over the environment background an edge pixel is a blend of the background there and a
+    surface colour next to it: every channel lies between the background's and the range of
+    the fully covered neighbours' colours (a fringe would fall outside: dark or bright)."""
+    _, droplets = pool_and_droplets()
+    sections: dict[str, Any] = {
+        "quality": {"antialias": True, "filter": "none"},
+        "shading": {"background": "environment"},
+        "environment": {"uniform": [0.2, 0.4, 0.8]},
+    }
+    frame = render(renderer, droplets, make_scene(**sections))
+    coverage = supersampled_coverage(
+        lambda cam: spheres_truth(cam, droplets, R), make_scene().camera, 160, 120
+    )
+    rgb = frame.rgba[..., :3].astype(np.float64)
+    background = np.array([0.2, 0.4, 0.8])
+    full = np.isfinite(frame.depth) if frame.depth is not None else coverage == 1
+    edge = (coverage > 0.0) & (coverage < 1.0)
+    checked = 0
+    for y, x in zip(*np.nonzero(edge), strict=True):
+        window = (slice(max(y - 2, 0), y + 3), slice(max(x - 2, 0), x + 3))
+        inside = rgb[window][full[window]]
+        if inside.size == 0:
+            continue
+        low = np.minimum(background, inside.min(axis=0)) - 1e-3
+        high = np.maximum(background, inside.max(axis=0)) + 1e-3
+        assert np.all((rgb[y, x] >= low) & (rgb[y, x] <= high)), (y, x, rgb[y, x], low, high)
+        checked += 1
+    assert checked > 50
+
+
+def test_antialiasing_keeps_the_aovs_of_the_front_surface(renderer: SurfaceRenderer) -> None:
+    """Z and N are those of the surface at the pixel centre, with or without anti-aliasing."""
+    pool, droplets = pool_and_droplets()
+    positions = np.concatenate([pool, droplets])
+    on = render(renderer, positions, make_scene(quality={"antialias": True}))
+    off = render(renderer, positions, make_scene(quality={"antialias": False}))
+    assert on.depth is not None and off.depth is not None
+    assert np.array_equal(on.depth, off.depth)
+    assert on.normals is not None and off.normals is not None
+    assert np.array_equal(on.normals, off.normals)
+    assert np.all(on.rgba[..., 3][np.isfinite(on.depth)] > 0.0)
+
+
+# -- ellipsoid impostors ----------------------------------------------------------------------
+
+
+def ray_ellipsoid_depth(camera: Camera, center: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """Eye depth of the front hit per pixel (rows top first, inf = miss), float64."""
+    rays = pixel_rays(camera)
+    inverse = np.linalg.inv(axes.astype(np.float64))
+    d = rays.directions @ inverse.T
+    c = inverse @ (center - rays.origin)
+    dd = np.einsum("ijk,ijk->ij", d, d)
+    along = (d @ c) / dd
+    perpendicular = c[None, None, :] - along[..., None] * d
+    miss2 = np.einsum("ijk,ijk->ij", perpendicular, perpendicular)
+    hit = (miss2 <= 1.0) & (along > 0.0)
+    t = along - np.sqrt(np.maximum(1.0 - miss2, 0.0) / dd)
+    return np.where(hit, t * rays.view_z, np.inf), miss2
+
+
+def splat_depth(gl: GLContext, scene: Scene, centers: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """The splat pass alone on given ellipsoids (rows top first, 0 = background)."""
+    context = PassContext(gl, ProgramCache(gl), FullscreenTriangle(gl))
+    splat = SplatPass(context)
+    try:
+        camera = Camera.from_config(scene.camera, scene.image.width, scene.image.height)
+        frame = make_frame(centers)
+        prepared = prepare_particles(frame, camera, scene, ellipsoids=(centers, axes))
+        out = splat.run(camera, prepared, bounds=None, box=None)
+        return read_image(out.depth.read(), scene.image.width, scene.image.height)
+    finally:
+        splat.release()
+        context.fullscreen.release()
+        context.programs.release()
+
+
+def tilted_axes(lengths: tuple[float, float, float], seed: int) -> np.ndarray:
+    q, _ = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))
+    return (q * np.asarray(lengths)).astype(np.float32)  # columns: orthogonal semi-axes
+
+
+@pytest.mark.parametrize("shift", [0.0, 1e5])
+def test_ray_ellipsoid_depth_matches_the_analytic_ellipsoid(
+    gl_context: GLContext, shift: float
+) -> None:
+    """A flat, tilted ellipsoid (axes 3 : 1.5 : 0.5) against a float64 ray cast. Float32 view
+    coordinates after a float64 subtraction: the depth's relative error is a few ulps of the
+    ~1/(1 - miss^2) amplified square root, 2e-5 away from the silhouette (miss^2 < 0.98),
+    and the hit mask differs only where miss^2 is within 1e-3 of 1. At 1e5 (scene and eye
+    shifted together) the same bounds hold: nothing is lost to the big coordinates."""
+    offset = np.full(3, shift)
+    eye, target = offset + np.array([0.1, 0.35, 0.55]), offset + np.array([0.0, 0.02, 0.0])
+    scene = make_scene(camera={"eye": eye.tolist(), "target": target.tolist()})
+    axes = tilted_axes((3 * R, 1.5 * R, 0.5 * R), seed=4)
+    centers = np.array([[0.01, 0.03, -0.02]]) + offset
+    depth = splat_depth(gl_context, scene, centers, axes[None])
+    camera = Camera.from_config(scene.camera, 160, 120)
+    truth, miss2 = ray_ellipsoid_depth(camera, centers[0], axes)
+    got = np.where(depth > 0, depth, np.inf)
+    clear = np.abs(miss2 - 1.0) > 1e-3
+    assert np.array_equal(np.isfinite(got)[clear], np.isfinite(truth)[clear])
+    inside = np.isfinite(truth) & np.isfinite(got) & (miss2 < 0.98)
+    assert inside.sum() > 150
+    np.testing.assert_allclose(got[inside], truth[inside], rtol=2e-5)
+
+
+def test_sphere_axes_render_the_sphere(gl_context: GLContext) -> None:
+    """Axes r I are a sphere: the ellipsoid shader gives the sphere shader's depth to float32
+    rounding (different but equivalent arithmetic), with the same hit mask off the edge."""
+    scene = make_scene()
+    centers = jittered_lattice_ball(0.08, R, seed=2)[:60]
+    axes = np.repeat((np.eye(3, dtype=np.float32) * R)[None], len(centers), axis=0)
+    ellipsoid = splat_depth(gl_context, scene, centers, axes)
+    context = PassContext(gl_context, ProgramCache(gl_context), FullscreenTriangle(gl_context))
+    splat = SplatPass(context)
+    try:
+        camera = Camera.from_config(scene.camera, 160, 120)
+        prepared = prepare_particles(make_frame(centers), camera, scene)
+        sphere = read_image(
+            splat.run(camera, prepared, bounds=None, box=None).depth.read(), 160, 120
+        )
+    finally:
+        splat.release()
+        context.fullscreen.release()
+        context.programs.release()
+    both = (sphere > 0) & (ellipsoid > 0)
+    assert both.sum() > 0.95 * max((sphere > 0).sum(), 1)
+    np.testing.assert_allclose(ellipsoid[both], sphere[both], rtol=1e-5)
+
+
+def test_ellipsoid_near_plane_and_degenerate_axes_stay_finite(gl_context: GLContext) -> None:
+    """An ellipsoid cut by the near plane shows only depths >= near; a needle (1000 : 1) and
+    a coin (1 : 1 : 0.001) render finite depths."""
+    scene = make_scene(camera={"near": 0.55})
+    eye = np.array([0.1, 0.35, 0.55])
+    centers = np.array([[0.0, 0.02, 0.0], eye + (np.array([0.0, 0.02, 0.0]) - eye) * 0.85])
+    axes = np.stack([tilted_axes((4 * R, 2 * R, R), 1), tilted_axes((6 * R, 3 * R, 3 * R), 2)])
+    depth = splat_depth(gl_context, scene, centers, axes)
+    assert np.isfinite(depth).all() and np.all((depth == 0) | (depth >= 0.55 * 0.999))
+    needle = np.diag([R, 1e-3 * R, 1e-3 * R]).astype(np.float32)
+    coin = np.diag([R, R, 1e-3 * R]).astype(np.float32)
+    depth = splat_depth(
+        gl_context, make_scene(), centers[:1].repeat(2, 0), np.stack([needle, coin])
+    )
+    assert np.isfinite(depth).all() and (depth > 0).any()
+
+
+def test_occlusion_culling_stays_exact_with_ellipsoids(gl_context: GLContext) -> None:
+    """4k tilted ellipsoids (2 : 1 : 0.5 r) packed in a ball: the splat with occlusion culling
+    (front layer, then only what its depth does not hide, tested on the bounding spheres) gives
+    the same depth image bit for bit as drawing every ellipsoid. Fixed ellipsoids, not the SPH
+    pass, whose float32 sums may differ in the last bit between runs."""
+    r = R / 4
+    positions = jittered_lattice_ball(0.1, r, seed=3)
+    rng = np.random.default_rng(8)
+    rotations = np.linalg.qr(rng.normal(size=(len(positions), 3, 3)))[0]
+    axes = (rotations * np.array([2 * r, r, 0.5 * r])).astype(np.float32)
+    scene = make_scene(particles={"radius": r})
+    camera = Camera.from_config(scene.camera, 160, 120)
+    context = PassContext(gl_context, ProgramCache(gl_context), FullscreenTriangle(gl_context))
+    splat = SplatPass(context)
+    try:
+        prepared = prepare_particles(
+            make_frame(positions), camera, scene, ellipsoids=(positions, axes)
+        )
+        bounds = occlusion.sphere_bounds(prepared.center_radius, camera)
+        box = screen_box(bounds, camera)
+        culled = splat.run(camera, prepared, bounds=bounds, box=box)
+        culled_depth = read_image(culled.depth.read(), 160, 120)
+        everything = splat.run(camera, prepared, bounds=None, box=box)
+        assert culled.splatted < everything.splatted  # it did cull
+        assert np.array_equal(culled_depth, read_image(everything.depth.read(), 160, 120))
+    finally:
+        splat.release()
+        context.fullscreen.release()
+        context.programs.release()
+
+
+def test_anisotropic_frames_render_clean(renderer: SurfaceRenderer) -> None:
+    """The whole chain with anisotropy from the SPH pass (PoCL): pool + droplets and a thin
+    sheet, default quality: finite, and the droplets stay the spheres they are."""
+    pool, droplets = pool_and_droplets()
+    scene = make_scene(sph={"anisotropy": True})
+    frame = render(renderer, np.concatenate([pool, droplets]), scene)
+    sheet = render(renderer, lattice_slab(0.2, 0.2, 1, R), scene)
+    assert frame.depth is not None and sheet.depth is not None
+    assert np.isfinite(sheet.depth).sum() > 1000
