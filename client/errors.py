@@ -15,3 +15,8 @@ class InputError(ValueError):
         super().__init__(f"{field}: {message}")
         self.field = field
         self.message = message
+
+    def __reduce__(self) -> tuple[type[InputError], tuple[str, str]]:
+        """Picklable (the default would call __init__ with the one formatted argument), so the
+        error survives a trip between processes, e.g. out of a Ray actor."""
+        return type(self), (self.field, self.message)

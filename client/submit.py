@@ -38,10 +38,16 @@ class TransientError(RuntimeError):
     """A failure worth retrying (connection refused or reset, server busy)."""
 
 
+class FrameFailed(RuntimeError):
+    """This frame cannot be rendered and retrying it here would not help (a backend already
+    retried it, e.g. on several cluster workers); reported like bad input."""
+
+
 class FrameRenderer(Protocol):
     def render(self, frame: ParticleFrame) -> bytes:
         """Encoded image bytes for one frame; raises InputError for bad input,
-        TransientError for failures worth retrying."""
+        TransientError for failures worth retrying, FrameFailed for a frame that failed
+        after the backend's own retries."""
         ...
 
 
@@ -216,8 +222,13 @@ def run_submission(
             _finish((job, loaded), renderer, summary, progress, retry_attempts, retry_delay)
 
         with ThreadPoolExecutor(max_workers=concurrency) as pool:
-            for future in [pool.submit(process, job) for job in todo]:
-                future.result()
+            futures = [pool.submit(process, job) for job in todo]
+            try:
+                for future in futures:
+                    future.result()
+            except BaseException:  # Ctrl-C: finish the frames in flight, start no other
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
         summary.seconds = time.monotonic() - start
         return summary
 
@@ -253,6 +264,10 @@ def _finish(
     except InputError as exc:
         summary.failed.append((job, str(exc)))
         progress.update(job, f"failed: {exc}")
+        return
+    except FrameFailed as exc:
+        summary.failed.append((job, str(exc)))
+        progress.update(job, "failed")
         return
     except TransientError as exc:
         summary.failed.append((job, f"gave up after {retry_attempts} attempts: {exc}"))

@@ -104,7 +104,7 @@ LAYERS = (
     ("sphrender.server.engine.passes",),
     ("sphrender.server.engine.renderer",),
     ("sphrender.server.output",),
-    ("sphrender.server.service", "sphrender.server.bench"),
+    ("sphrender.server.service", "sphrender.server.bench", "sphrender.server.cluster"),
     ("sphrender.server.cli",),
 )
 

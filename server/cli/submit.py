@@ -1,4 +1,5 @@
-"""`sphrender submit INPUT... (--server URL | --local) -o DIR`: a whole sequence, resumable."""
+"""`sphrender submit INPUT... (--server URL | --local | --ray [ADDRESS]) -o DIR`: a whole
+sequence, resumable."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from types import ModuleType
 
 from sphrender.client.errors import InputError
 from sphrender.server.cli.options import (
@@ -52,6 +54,23 @@ def add_parser(commands: Subcommands, common: argparse.ArgumentParser) -> None:
         action="store_true",
         help="render with the embedded engine in this process (no server)",
     )
+    where.add_argument(
+        "--ray",
+        nargs="?",
+        const="",
+        metavar="ADDRESS",
+        help="render on a Ray cluster (pip install 'sphrender[ray]'): a pool of actors, one GL "
+        "context each; ADDRESS is auto (the cluster `ray start` runs here), HOST:PORT or "
+        "ray://HOST:PORT; without it $RAY_ADDRESS, else a local Ray instance for this run. "
+        "Put it after the inputs or write --ray=ADDRESS",
+    )
+    submit.add_argument(
+        "--ray-actors",
+        type=int,
+        metavar="N",
+        help="--ray: render actors per node without GPUs (default 1; nodes with GPUs get one "
+        "per GPU)",
+    )
     submit.add_argument("--token", help="bearer token for --server (default: $SPHRENDER_TOKEN)")
     submit.add_argument(
         "--resume", action="store_true", help="skip frames whose output is a complete image"
@@ -61,8 +80,8 @@ def add_parser(commands: Subcommands, common: argparse.ArgumentParser) -> None:
         type=int,
         default=2,
         metavar="N",
-        help="frames in flight at once on the server (--server), or input files read ahead "
-        "(--local, which renders one frame at a time)",
+        help="frames in flight at once on the server (--server) or per actor (--ray), or input "
+        "files read ahead (--local, which renders one frame at a time)",
     )
     submit.add_argument(
         "--attribute",
@@ -84,6 +103,18 @@ def _parse_attribute_map(pairs: Sequence[str]) -> dict[str, str]:
     return mapping
 
 
+def _ray_backend() -> ModuleType:
+    try:
+        from sphrender.server.cluster import ray_backend
+    except ImportError as exc:
+        if exc.name is None or not exc.name.startswith("ray"):
+            raise
+        raise InputError(
+            "--ray", "Ray is not installed: pip install 'sphrender[ray]' (Ray 2.x)"
+        ) from None
+    return ray_backend
+
+
 def run(args: argparse.Namespace) -> int:
     from sphrender.client.sequences import expand_inputs, plan_jobs
     from sphrender.client.submit import FrameRenderer, RemoteFrameRenderer, run_submission
@@ -92,6 +123,10 @@ def run(args: argparse.Namespace) -> int:
 
     if args.jobs < 1:
         raise InputError("--jobs", f"must be at least 1, got {args.jobs}")
+    if args.ray_actors is not None and args.ray is None:
+        raise InputError("--ray-actors", "only applies with --ray")
+    if args.ray_actors is not None and args.ray_actors < 1:
+        raise InputError("--ray-actors", f"must be at least 1, got {args.ray_actors}")
     scene = load_scene(args)
     fmt: ImageFormat = args.format or scene.output.format
     attribute_map = _parse_attribute_map(args.attribute)
@@ -109,6 +144,16 @@ def run(args: argparse.Namespace) -> int:
         backend = RemoteFrameRenderer(args.server, raw_scene, fmt, token=token)
         close = None
         concurrency = args.jobs
+    elif args.ray is not None:
+        ray_backend = _ray_backend()
+        options = ray_backend.RayOptions(
+            address=args.ray or None,
+            actors_per_node=args.ray_actors or 1,
+            in_flight_per_actor=args.jobs,
+        )
+        pool = ray_backend.RayFrameRenderer(scene, fmt, environment_dirs(args), options)
+        log.info("ray: %d render actors", pool.actor_count)
+        backend, close, concurrency = pool, pool.close, pool.capacity
     else:
         from sphrender.server.output.local import LocalFrameRenderer
 

@@ -43,14 +43,20 @@ def encode_for_scene(rendered: RenderedFrame, scene: Scene, fmt: ImageFormat) ->
 class LocalFrameRenderer:
     """A `FrameRenderer` (see `sphrender.client.submit`) backed by the embedded engine.
 
-    Creates its GL context on construction; must be used and closed on that same thread."""
+    Creates its GL context on construction (on EGL device `device_index`); must be used and
+    closed on that same thread."""
 
     def __init__(
-        self, scene: Scene, fmt: ImageFormat, environment_dirs: Sequence[str | Path] = ()
+        self,
+        scene: Scene,
+        fmt: ImageFormat,
+        environment_dirs: Sequence[str | Path] = (),
+        *,
+        device_index: int = 0,
     ) -> None:
         self.scene = scene
         self.format = fmt
-        self._gl = GLContext()
+        self._gl = GLContext(device_index=device_index)
         self._renderer = SurfaceRenderer(self._gl, environment_dirs=environment_dirs)
         self._renderer.check_image_size(scene)
 

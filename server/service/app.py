@@ -85,6 +85,8 @@ class RenderService:
         )
         self.scenes = SceneValidator(config.limits.max_pixels, config.security.environment_dirs)
         self.draining = threading.Event()
+        #: set first on SIGTERM when drain_grace_s > 0: not ready, but still serving
+        self.leaving = threading.Event()
         self.started_at = time.time()
         self._active_lock = threading.Lock()
         self._active_http_requests = 0
@@ -131,7 +133,16 @@ class RenderService:
         return None if self.stream_server is None else int(self.stream_server.server_address[1])
 
     def stop(self) -> bool:
-        """Drain and stop; returns True when everything finished within the drain timeout."""
+        """Drain and stop; returns True when everything finished within the drain timeout.
+
+        With ``drain_grace_s`` > 0 the service first only turns not ready (/readyz 503
+        "draining") and keeps accepting frames for that long, so a load balancer stops sending
+        before the listeners close; then the drain proper (``drain_timeout_s``)."""
+        grace = self.config.lifecycle.drain_grace_s
+        if grace > 0:
+            self.leaving.set()
+            log.info("not ready, grace", extra={"event": "drain_grace", "seconds": grace})
+            time.sleep(grace)
         deadline = time.monotonic() + self.config.lifecycle.drain_timeout_s
         self.draining.set()
         log.info("draining", extra={"event": "drain_start", "queued": self.scheduler.depth})
@@ -279,7 +290,7 @@ class RenderService:
     # -- status ---------------------------------------------------------------------------------
 
     def readiness(self) -> tuple[bool, str]:
-        if self.draining.is_set():
+        if self.draining.is_set() or self.leaving.is_set():
             return False, "draining"
         if not self.worker.ready.is_set():
             return False, "starting"

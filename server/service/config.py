@@ -161,6 +161,13 @@ class LifecycleConfig:
         "on SIGTERM/SIGINT: how long in-flight frames may take before the process exits anyway",
         low=0.0,
     )
+    drain_grace_s: float = spec(
+        0.0,
+        "on SIGTERM/SIGINT, before the listeners close: how long /readyz answers 503 "
+        "'draining' while frames are still accepted, so a load balancer's health checks take "
+        "the replica out first (set >= check interval x fall count; see deploy/haproxy/)",
+        low=0.0,
+    )
 
 
 @dataclass(frozen=True)

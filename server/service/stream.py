@@ -65,6 +65,8 @@ log = logging.getLogger("sphrender.service.stream")
 
 #: Socket poll interval: how quickly a blocked thread notices a drain or a dead peer.
 TICK_S = 0.2
+#: After GOODBYE, how long the writer waits for the client to close before closing itself.
+LINGER_S = 2.0
 _HELLO_KEYS = {"token", "scene", "mode", "max_in_flight", "client"}
 _FRAME_KEYS = {"id", "arrays", "scene"}
 
@@ -486,6 +488,7 @@ class StreamConnection:
                     return
             if self._goodbye is not None:
                 self._send_all(encode_message(MessageType.GOODBYE, {"reason": self._goodbye}))
+                self._linger()
         except _Closed as closed:
             log.info(
                 "stream client gone while answering",
@@ -496,6 +499,24 @@ class StreamConnection:
             self._abandon()
             with contextlib.suppress(OSError):
                 self.sock.shutdown(socket.SHUT_RDWR)
+
+    def _linger(self) -> None:
+        """After GOODBYE: half-close, then discard what the client still sends until it closes
+        (at most LINGER_S). Closing with unread bytes makes the kernel send RST, which can
+        destroy the answers and GOODBYE still on their way (or in a load balancer's buffers)."""
+        try:
+            self.sock.shutdown(socket.SHUT_WR)
+        except OSError:
+            return
+        deadline = time.monotonic() + LINGER_S
+        while time.monotonic() < deadline:
+            try:
+                if not self.sock.recv(1 << 16):
+                    return
+            except TimeoutError:
+                continue
+            except OSError:
+                return
 
     def _abandon(self) -> None:
         """Cancel whatever is still owed (the client cannot receive it any more)."""
