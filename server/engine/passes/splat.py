@@ -15,7 +15,7 @@ targets (depth texture, depth renderbuffer, temperature texture, their framebuff
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import moderngl
@@ -46,6 +46,9 @@ COVERAGE_FRAGMENT_SHADER = "splat/splat_coverage.frag.glsl"
 COVERAGE_MARGIN_PX = 1.5
 #: Whole pixels a coverage quad reaches past its sphere's bounds rectangle.
 COVERAGE_REACH_PX = 2
+#: A particle whose rectangle grown by this many pixels is covered all over needs no coverage:
+#: its quads reach COVERAGE_REACH_PX past it, and the shade pass looks 1 pixel further.
+INTERIOR_REACH_PX = COVERAGE_REACH_PX + 1
 
 
 @dataclass(frozen=True)
@@ -174,18 +177,25 @@ class SplatPass:
         ctx = self._context.gl.ctx
         ctx.enable(moderngl.DEPTH_TEST)
         try:
+            coverage_rows = None  # None: every quad drawn needs its coverage
             if bounds is None or count < occlusion.MIN_PARTICLES:
                 self._draw_spheres(vao, prepared, None, first=0)
                 splatted = count
             else:
-                # With anti-aliasing a hidden particle's silhouette still counts within the
-                # coverage margin: it is culled only when hidden there too.
-                test_bounds = bounds.grown(COVERAGE_REACH_PX) if antialias else bounds
-                splatted = self._draw_culled(fbo, vao, camera, prepared, test_bounds, box)
+                splatted, coverage_rows = self._draw_culled(
+                    fbo, vao, camera, prepared, bounds, box, antialias
+                )
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
         if coverage is not None:
-            self._draw_coverage(coverage, camera, prepared, splatted)
+            if coverage_rows is None:
+                self._draw_coverage(coverage, camera, prepared, 0, splatted)
+            elif coverage_rows.size:
+                # Only the particles near an edge, uploaded after the splatted ones (whose
+                # contents the depth pass no longer needs, so growing may drop them).
+                self._reserve_for(prepared, splatted + coverage_rows.size)
+                self._draw_spheres(None, prepared, coverage_rows, first=splatted)
+                self._draw_coverage(coverage, camera, prepared, splatted, coverage_rows.size)
         return SplatOutput(targets.depth, temperature, splatted, _texture(coverage))
 
     def run_droplets(
@@ -224,14 +234,14 @@ class SplatPass:
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
         if coverage is not None and count:
-            self._draw_coverage(targets.coverage_target(), camera, droplets, count)
+            self._draw_coverage(targets.coverage_target(), camera, droplets, 0, count)
         return SplatOutput(composite, temperature, count, coverage)
 
     def _draw_coverage(
-        self, target: Target, camera: Camera, prepared: PreparedParticles, count: int
+        self, target: Target, camera: Camera, prepared: PreparedParticles, first: int, count: int
     ) -> None:
-        """Coverage of the first `count` quads in the buffers (those the splat just drew), into
-        `target` with blending MAX and no depth test (see splat_coverage.frag.glsl)."""
+        """Coverage of quads `first` .. `first + count` in the buffers, into `target` with
+        blending MAX and no depth test (see splat_coverage.frag.glsl)."""
         if count == 0:
             return
         ctx = self._context.gl.ctx
@@ -246,7 +256,7 @@ class SplatPass:
         ctx.enable(moderngl.BLEND)
         ctx.blend_equation = moderngl.MAX  # type: ignore[assignment]  # the stub wants a pair
         try:
-            vao.render(moderngl.TRIANGLES, vertices=6 * count)
+            vao.render(moderngl.TRIANGLES, vertices=6 * count, first=6 * first)
         finally:
             ctx.blend_equation = moderngl.FUNC_ADD  # type: ignore[assignment]
             ctx.disable(moderngl.BLEND)
@@ -274,27 +284,47 @@ class SplatPass:
         prepared: PreparedParticles,
         bounds: occlusion.SphereBounds,
         box: ScreenBox | None,
-    ) -> int:
-        """Front layer, read its depth back, then only the particles it does not hide; returns
-        how many were drawn."""
+        antialias: bool = False,
+    ) -> tuple[int, npt.NDArray[np.intp] | None]:
+        """Front layer, read its depth back, then only the particles it does not hide. Returns
+        how many were drawn and, with `antialias`, which of them can reach a silhouette (None:
+        all): a particle whose surroundings the front layer covers entirely within
+        INTERIOR_REACH_PX adds nothing to the coverage that the shade pass keeps."""
         radius = prepared.center_radius[:, 3].astype(np.float64)
         in_front = occlusion.front_layer(bounds, radius, (camera.width, camera.height))
         front = np.flatnonzero(in_front)
         self._draw_spheres(vao, prepared, front, first=0)
         others = np.flatnonzero(~in_front)
+        if not others.size and not antialias:
+            return int(front.size), None
+        read_box = box if box is not None else (0, 0, camera.width, camera.height)
+        x, y, w, h = read_box
+        depth = np.frombuffer(
+            fbo.read(viewport=read_box, components=1, attachment=0, dtype="f4"), np.float32
+        ).reshape(h, w)
+        sides = np.minimum(bounds.x1 - bounds.x0, bounds.y1 - bounds.y0) + 1
+        if antialias:
+            sides = np.concatenate(
+                [sides, sides + 2 * COVERAGE_REACH_PX, sides + 2 * INTERIOR_REACH_PX]
+            )
+        table = occlusion.DepthMaxTable(depth, (x, y), sides)
+        # "Covered all over within k pixels": the front layer's largest depth there is finite.
+        infinitely_far = np.full_like(radius, np.inf)
+
+        def covered_around(rows: npt.NDArray[np.intp], pixels: int) -> npt.NDArray[np.bool_]:
+            grown = replace(bounds.grown(pixels), near_depth=infinitely_far)
+            return table.occluded(grown, rows)
+
         if others.size:
-            read_box = box if box is not None else (0, 0, camera.width, camera.height)
-            x, y, w, h = read_box
-            depth = np.frombuffer(
-                fbo.read(viewport=read_box, components=1, attachment=0, dtype="f4"),
-                np.float32,
-            ).reshape(h, w)
-            width_px = bounds.x1[others] - bounds.x0[others] + 1
-            height_px = bounds.y1[others] - bounds.y0[others] + 1
-            table = occlusion.DepthMaxTable(depth, (x, y), np.minimum(width_px, height_px))
-            others = others[~table.occluded(bounds, others)]  # the ones that may show
+            hidden = table.occluded(bounds, others)
+            if antialias:  # a silhouette within the coverage reach still shows
+                hidden[hidden] = covered_around(others[hidden], COVERAGE_REACH_PX)
+            others = others[~hidden]
             self._draw_spheres(vao, prepared, others, first=front.size)
-        return int(front.size + others.size)
+        drawn = np.concatenate([front, others])
+        if not antialias:
+            return int(drawn.size), None
+        return int(drawn.size), drawn[~covered_around(drawn, INTERIOR_REACH_PX)]
 
     def _vertex_array(
         self, ellipsoid: bool, has_temperature: bool, *, coverage: bool = False
@@ -357,7 +387,7 @@ class SplatPass:
 
     def _draw_spheres(
         self,
-        vao: moderngl.VertexArray,
+        vao: moderngl.VertexArray | None,
         prepared: PreparedParticles,
         rows: npt.NDArray[np.intp] | None,
         *,
@@ -377,7 +407,8 @@ class SplatPass:
         if prepared.temperatures is not None:
             kelvin = prepared.temperatures if rows is None else prepared.temperatures[rows]
             self._temperature_buffer.write(np.repeat(kelvin, 4).tobytes(), offset=first * 16)
-        vao.render(moderngl.TRIANGLES, vertices=6 * data.shape[0], first=6 * first)
+        if vao is not None:  # None: upload only
+            vao.render(moderngl.TRIANGLES, vertices=6 * data.shape[0], first=6 * first)
 
     def release(self) -> None:
         for vao in self._vaos.values():
