@@ -191,14 +191,15 @@ def test_gl_context_refuses_other_threads(renderer: SurfaceRenderer) -> None:
 def test_aovs_are_read_back_only_when_asked(renderer: SurfaceRenderer) -> None:
     frame, stats = renderer.render(make_frame(np.zeros((1, 3))), scene())
     assert frame.depth is None and frame.normals is None
-    # A lone particle is a droplet: the SPH density pass finds it, the droplet pass draws it.
+    # No densities and no density pass (the default): no SPH stage, no droplet split.
+    assert set(stats.stage_ms) == {"prepare", "splat", "smooth", "normals", "shade", "readback"}
+    # With the density pass a lone particle is a droplet: found by SPH, drawn by its own pass.
+    _, stats = renderer.render(
+        make_frame(np.zeros((1, 3))), scene(quality={"droplet_density_pass": True})
+    )
     assert set(stats.stage_ms) == {
         "sph", "prepare", "splat", "smooth", "droplets", "normals", "shade", "readback"
     }  # fmt: skip
-    _, stats = renderer.render(
-        make_frame(np.zeros((1, 3))), scene(quality={"exact_droplets": False})
-    )
-    assert set(stats.stage_ms) == {"prepare", "splat", "smooth", "normals", "shade", "readback"}
     _, stats = renderer.render(make_frame(np.zeros((0, 3))), scene())
     assert "smooth" not in stats.stage_ms  # nothing to smooth
 

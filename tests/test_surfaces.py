@@ -71,7 +71,7 @@ def test_exact_droplets_are_the_unfiltered_spheres_over_the_smoothed_pool(
     sees a droplet and a droplet is never smoothed. Exact equality, since both halves run the
     same shaders on the same inputs (droplets = isolated particles: density 0.32 rest < 0.45)."""
     pool, droplets = pool_and_droplets()
-    quality = {"exact_droplets": True, "antialias": False}
+    quality = {"exact_droplets": True, "droplet_density_pass": True, "antialias": False}
     both = render(renderer, np.concatenate([pool, droplets]), make_scene(quality=quality))
     pool_only = render(renderer, pool, make_scene(quality=quality))
     raw = render(renderer, droplets, make_scene(quality={**quality, "filter": "none"}))
@@ -91,24 +91,30 @@ def test_exact_droplets_are_the_unfiltered_spheres_over_the_smoothed_pool(
 def test_exact_droplets_from_client_densities_need_no_sph_pass(
     renderer: SurfaceRenderer,
 ) -> None:
-    """Client densities decide the droplets without OpenCL: the same image as computed ones
-    when the client's densities are the kernel's (a lone particle has m W(0) = 1000 / pi)."""
+    """Client densities decide the droplets without OpenCL (the default: no density pass): the
+    same image as computed ones when the client's densities are the kernel's (a lone particle
+    has m W(0) = 1000 / pi); without densities and without the pass there is no split."""
     pool, droplets = pool_and_droplets()
     positions = np.concatenate([pool, droplets])
     densities = np.full(len(positions), 1000.0, np.float32)
     densities[len(pool) :] = 1000.0 / np.pi
     scene = make_scene(quality={"exact_droplets": True})
-    computed = render(renderer, positions, scene)
+    computed = render(renderer, positions, make_scene(quality={"droplet_density_pass": True}))
     given, stats = renderer.render(make_frame(positions, densities=densities), scene, depth=True)
     assert given.depth is not None and computed.depth is not None
     assert np.array_equal(given.depth, computed.depth)
     assert "sph" in stats.stage_ms  # the stage ran, but only the threshold
     assert stats.particles_splatted >= len(droplets)
+    unsplit, stats = renderer.render(make_frame(positions), scene, depth=True)
+    assert "sph" not in stats.stage_ms and "droplets" not in stats.stage_ms
+    assert unsplit.depth is not None and not np.array_equal(unsplit.depth, given.depth)
 
 
 def test_exact_droplets_hard_cases(renderer: SurfaceRenderer) -> None:
     """Only droplets, one droplet, none, a droplet at the near plane: clean images."""
-    scene = make_scene(quality={"exact_droplets": True}, camera={"near": 0.05})
+    scene = make_scene(
+        quality={"exact_droplets": True, "droplet_density_pass": True}, camera={"near": 0.05}
+    )
     _, droplets = pool_and_droplets()
     alone = render(renderer, droplets, scene)
     unfiltered = render(

@@ -160,8 +160,15 @@ class QualityConfig:
         "droplets (particles whose kernel density is below droplet_density * sph.rest_density: "
         "isolated particles and pairs) are not smoothed: they are splatted "
         "as exact spheres over the smoothed surface, so a kernel wider than a droplet neither "
-        "flattens it nor blends it into the pool behind. Uses the frame's densities, else an "
-        "SPH density pass (OpenCL)",
+        "flattens it nor blends it into the pool behind. Uses the frame's densities (the "
+        "client's, or those an [sph] feature computed); frames without them are split only "
+        "with droplet_density_pass",
+    )
+    droplet_density_pass: bool = spec(
+        False,
+        "exact_droplets on frames that carry no densities: compute them with an SPH density "
+        "pass (OpenCL; measured ~100 ms at 100k particles on a 2-core CPU); off: such frames "
+        "render without the droplet split",
     )
     droplet_density: float = spec(
         0.45,

@@ -167,13 +167,18 @@ class SphStage:
 
     @staticmethod
     def wanted(scene: Scene, frame: ParticleFrame) -> bool:
-        """Whether this frame needs the stage (an [sph] feature, or exact droplets)."""
-        return needs_sph(scene) or wants_exact_droplets(scene)
+        """Whether this frame needs the stage: an [sph] feature, or exact droplets with the
+        frame's densities or with leave to compute them (`quality.droplet_density_pass`)."""
+        if needs_sph(scene):
+            return True
+        quality = scene.quality
+        has_densities = frame.densities is not None or quality.droplet_density_pass
+        return wants_exact_droplets(scene) and has_densities
 
     def warm(self, frame: ParticleFrame, scene: Scene) -> None:
         """Build the CL context and program now if this frame will need them (so the first
         frame's stage time is the pass's, not LLVM's)."""
-        if needs_sph(scene) or frame.densities is None:
+        if needs_sph(scene) or (frame.densities is None and scene.quality.droplet_density_pass):
             try:
                 self.engine()
             except CLUnavailableError:
@@ -191,7 +196,9 @@ class SphStage:
             frame = result.frame
             if result.anisotropy is not None:
                 ellipsoids = (result.anisotropy.centers, result.anisotropy.axes)
-        if wants_exact_droplets(scene):
+        if wants_exact_droplets(scene) and (
+            frame.densities is not None or scene.quality.droplet_density_pass
+        ):
             try:
                 droplets = droplet_mask(frame, scene, self.engine)
             except CLUnavailableError as exc:
