@@ -15,3 +15,7 @@ class InputError(ValueError):
         super().__init__(f"{field}: {message}")
         self.field = field
         self.message = message
+
+
+class LimitError(InputError):
+    """Input over a configured size limit (HTTP 413, stream code ``too_large``)."""
