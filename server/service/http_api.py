@@ -36,7 +36,7 @@ from sphrender.client.protocol import (
     parse_json_object,
 )
 from sphrender.server.scene import Scene, merge_scene_dicts
-from sphrender.server.service.admission import Reservation, decoding, frame_estimate
+from sphrender.server.service.admission import Busy, Reservation, decoding, frame_estimate
 from sphrender.server.service.facade import ServiceFacade
 from sphrender.server.service.http_base import (
     HEALTH_ROUTES,
@@ -236,7 +236,7 @@ class ApiHandler(HandlerBase):
     def _scene_for(self, session: Session | None, scene_json: str | None) -> Scene:
         scenes = self.service.scenes
         if session is None:
-            scene = Scene() if scene_json is None else scenes.from_json(scene_json)[0]
+            scene = scenes.from_dict({}) if scene_json is None else scenes.from_json(scene_json)[0]
         elif scene_json is None:
             return session.scene
         else:
@@ -262,7 +262,10 @@ class ApiHandler(HandlerBase):
                 pixels = scene.image.width * scene.image.height
                 total = frame_estimate(length, particles, pixels)
                 what = f"{particles} particles at {scene.image.width}x{scene.image.height}"
-                extra = self._reserve(total - length, what, "positions")
+                service.memory.check(total, what, "positions")
+                extra = service.memory.reserve(total - length, what, "positions")
+                if extra is None:
+                    raise Busy
                 reservation.amount += extra.amount  # one reservation, released once
                 extra.amount = 0
                 decided.append(scene)
@@ -282,6 +285,14 @@ class ApiHandler(HandlerBase):
             except InputError as exc:
                 service.record_invalid_frame("http", _code(exc))
                 raise HttpError.from_input(exc) from None
+            except Busy:
+                raise HttpError(
+                    503,
+                    ErrorCode.BUSY,
+                    "the server's memory budget for frames in progress is used up "
+                    "(limits.memory_budget_bytes); retry later",
+                    retry_after_s=service.retry_after_s(),
+                ) from None
             scene = decided[0]
             key = session.id if session is not None else f"http-connection-{id(self):x}"
             self._render_and_answer(FrameJob(key, particles, scene, self._format(scene), "http"))

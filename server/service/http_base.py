@@ -125,6 +125,8 @@ class HandlerBase(BaseHTTPRequestHandler):
         text = message or HTTPStatus(code).phrase
         if not hasattr(self, "command") or self.command is None:
             self.command = ""
+        if getattr(self, "request_version", "HTTP/0.9") == "HTTP/0.9":
+            self.request_version = "HTTP/1.1"  # always a status line and headers (no HTTP/0.9)
         self._reader.end_head()
         self._send_error(HttpError(code, error_code, text, field, close=True), method="")
 
