@@ -128,6 +128,21 @@ def test_frame_with_a_list_dtype_is_bad_input_and_leaks_no_thread(server: Server
     assert threads_of(server.proc.pid) <= before + 2
 
 
+def test_empty_frames_render_over_both_transports(server: ServerProcess) -> None:
+    """N = 0 is a valid frame (PROTOCOL.md 4.2); zero-size arrays once broke the hand-off to
+    the renderer process."""
+    empty = np.zeros((0, 3))
+    with server.stream() as client:
+        client.hello()
+        client.frame(1, empty, radii=np.zeros(0, dtype=np.float32))
+        kind, header, _payload = client.receive()
+        assert (kind, header["id"], header["particles"]) == (MessageType.IMAGE, 1, 0)
+    status, _headers, _body = server.request(
+        "POST", "/v1/render", encode_npz_frame(empty, scene=SMALL_SCENE)
+    )
+    assert status == 200
+
+
 HUGE = "1" + "0" * 400
 
 
@@ -184,8 +199,8 @@ def test_npy_header_with_an_unclosed_brace_is_400(server: ServerProcess) -> None
         (b"GARBAGE\r\n\r\n", 400, "bad_input"),
         (b"GET /" + b"a" * 70000 + b" HTTP/1.1\r\n\r\n", 414, "too_large"),
         (b"GET /healthz HTTP/1.1\r\n" + b"X-A: b\r\n" * 120 + b"\r\n", 431, "too_large"),
-        (b"BREW /healthz HTTP/1.1\r\n\r\n", 501, "bad_input"),
-        (b"GET /healthz HTTP/2.0\r\n\r\n", 505, "unsupported_version"),
+        (b"BREW /healthz HTTP/1.1\r\n\r\n", 405, "bad_input"),  # stdlib: 501
+        (b"GET /healthz HTTP/2.0\r\n\r\n", 400, "unsupported_version"),  # stdlib: 505
     ],
 )
 def test_every_http_error_is_json(

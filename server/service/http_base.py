@@ -41,12 +41,14 @@ HEALTH_ROUTES = ("/healthz", "/readyz", "/metrics")
 _HEALTH_HEAD_TIMEOUT_S = 2.0
 _CONTENT_LENGTH = re.compile(r"[0-9]{1,19}")
 #: What the standard library's own errors mean in this API's codes.
+#: 501 (unknown method) and 505 (HTTP version) are answered 405 and 400: a client's mistake
+#: is never a 5xx here.
 _STDLIB_CODES = {
-    HTTPStatus.REQUEST_URI_TOO_LONG: (ErrorCode.TOO_LARGE, "request line"),
-    HTTPStatus.REQUEST_HEADER_FIELDS_TOO_LARGE: (ErrorCode.TOO_LARGE, "headers"),
-    HTTPStatus.NOT_IMPLEMENTED: (ErrorCode.BAD_INPUT, "method"),
-    HTTPStatus.HTTP_VERSION_NOT_SUPPORTED: (ErrorCode.UNSUPPORTED_VERSION, "version"),
-    HTTPStatus.REQUEST_TIMEOUT: (ErrorCode.TIMEOUT, "request"),
+    HTTPStatus.REQUEST_URI_TOO_LONG: (414, ErrorCode.TOO_LARGE, "request line"),
+    HTTPStatus.REQUEST_HEADER_FIELDS_TOO_LARGE: (431, ErrorCode.TOO_LARGE, "headers"),
+    HTTPStatus.NOT_IMPLEMENTED: (405, ErrorCode.BAD_INPUT, "method"),
+    HTTPStatus.HTTP_VERSION_NOT_SUPPORTED: (400, ErrorCode.UNSUPPORTED_VERSION, "version"),
+    HTTPStatus.REQUEST_TIMEOUT: (408, ErrorCode.TIMEOUT, "request"),
 }
 
 
@@ -121,14 +123,18 @@ class HandlerBase(BaseHTTPRequestHandler):
 
     def send_error(self, code: int, message: str | None = None, explain: str | None = None) -> None:
         """The standard library's errors (bad request line, 414, 431, 501, 505) as JSON."""
-        error_code, field = _STDLIB_CODES.get(HTTPStatus(code), (ErrorCode.BAD_INPUT, "request"))
         text = message or HTTPStatus(code).phrase
+        code, error_code, field = _STDLIB_CODES.get(
+            HTTPStatus(code), (400, ErrorCode.BAD_INPUT, "request")
+        )
         if not hasattr(self, "command") or self.command is None:
             self.command = ""
         if getattr(self, "request_version", "HTTP/0.9") == "HTTP/0.9":
             self.request_version = "HTTP/1.1"  # always a status line and headers (no HTTP/0.9)
         self._reader.end_head()
-        self._send_error(HttpError(code, error_code, text, field, close=True), method="")
+        headers = {"Allow": "GET, POST, DELETE"} if code == 405 else None
+        error = HttpError(code, error_code, text, field, close=True, headers=headers)
+        self._send_error(error, method="")
 
     def handle_expect_100(self) -> bool:
         """curl sends ``Expect: 100-continue`` for large bodies: refuse before the upload."""

@@ -38,6 +38,8 @@ from collections.abc import Sequence
 from multiprocessing.connection import Connection
 from typing import Any
 
+import numpy as np
+
 from sphrender.client.errors import InputError
 from sphrender.client.protocol import ErrorCode
 from sphrender.server.scene import Scene
@@ -342,7 +344,15 @@ class RenderWorker(threading.Thread):
                     if self._scheduler.finished and idle:
                         break
                     continue
-                self._dispatch(job)
+                try:
+                    self._dispatch(job)
+                except Exception:  # the supervisor must never die: that job fails, no other
+                    log.exception("dispatching a job failed", extra={"event": "worker_bug"})
+                    if isinstance(job, WarmJob):
+                        if not job.future.done():
+                            job.future.set_result(RuntimeError("internal error"))
+                    else:
+                        job.resolve(ErrorOutcome(ErrorCode.RENDER_FAILED, "internal error"))
         finally:
             self._stopped.set()
             if self._child is not None:
@@ -413,10 +423,14 @@ class RenderWorker(threading.Thread):
                 ]
                 specs = [(name, value.dtype.str, value.shape) for name, value in arrays]
                 child.conn.send(("frame", job_id, job.scene, job.format, fault, specs))
-                for _name, value in arrays:
-                    child.conn.send_bytes(value.data.cast("B"))
+                for _name, value in arrays:  # raw bytes, no pickling (empty arrays too)
+                    child.conn.send_bytes(np.ascontiguousarray(value).reshape(-1).view(np.uint8))
         except OSError:
             pass  # the child died; _supervise answers the job with the others it held
+        except Exception:
+            # A bug on our side; the pipe may hold half a message, so this child cannot go on.
+            log.exception("sending a job to the renderer failed", extra={"event": "worker_bug"})
+            child.process.kill()
         send_ms = (time.perf_counter() - start) * 1e3
         with self._lock:
             if job_id in self._pending:
