@@ -20,6 +20,7 @@ Everything is derived from a `random.Random(seed)`, so a failure is reproduced b
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import random
@@ -75,15 +76,16 @@ _WEIRD: list[Any] = [
 ]
 
 
-def prefix(kind: int, header_len: int, payload_len: int, **over: int) -> bytes:
+def prefix(kind: int, hlen: int, plen: int, **over: int) -> bytes:
+    """A 16-byte prefix; `over` replaces fields (version, type, flags, header_len, ...)."""
     return struct.pack(
         "<4sBBHII",
         b"SPHR",
         over.get("version", 1),
         over.get("type", kind),
         over.get("flags", 0),
-        over.get("header_len", header_len),
-        over.get("payload_len", payload_len),
+        over.get("header_len", hlen),
+        over.get("payload_len", plen),
     )
 
 
@@ -396,8 +398,9 @@ def run_connection_input(port: int, rng: random.Random, tally: Tally, timeout: f
     conn = stream_hello(port) if needs_hello else Conn(port, timeout)
     try:
         conn.sock.settimeout(timeout)
-        conn.sock.sendall(data)
-        conn.sock.shutdown(socket.SHUT_WR)  # no more: the server must finish and close
+        with contextlib.suppress(OSError):  # the server may close before taking it all
+            conn.sock.sendall(data)
+            conn.sock.shutdown(socket.SHUT_WR)  # no more: the server must finish and close
         start = time.monotonic()
         while True:
             try:
