@@ -146,13 +146,13 @@ class LimitsConfig:
         64, "entries in an .npz body (checked before the archive is read)", low=2, high=65536
     )
     max_request_bytes: int = spec(
-        1024 * MIB,
+        1536 * MIB,
         "memory one frame may need, estimated before it is read: the bytes received + "
-        "particles x 144 B + pixels x 120 B (PROTOCOL.md, memory budget); 413 beyond",
+        "particles x 640 B + pixels x 120 B (PROTOCOL.md, memory budget); 413 beyond",
         low=MIB,
     )
     memory_budget_bytes: int = spec(
-        2048 * MIB,
+        3072 * MIB,
         "memory all frames in progress may need together (the same estimate); beyond it HTTP "
         "gets 503 + Retry-After and the stream waits (TCP backpressure)",
         low=MIB,
@@ -228,7 +228,7 @@ class WorkerConfig:
         low_open=True,
     )
     max_rss_bytes: int = spec(
-        3072 * MIB,
+        4096 * MIB,
         "the renderer process is replaced, between frames, once its resident memory exceeds "
         "this (GL targets of a huge image, allocator growth)",
         low=64 * MIB,
