@@ -351,3 +351,66 @@ def test_drain_does_not_wait_for_a_half_sent_message(tmp_path: Path) -> None:
         assert process.proc.wait(20) == 0
         assert time.monotonic() - start < 6
         client.close()
+
+
+def _status_bytes(pid: int, key: str) -> int:
+    with open(f"/proc/{pid}/status") as handle:
+        for line in handle:
+            if line.startswith(key + ":"):
+                return int(line.split()[1]) * 1024
+    raise AssertionError(key)
+
+
+def _renderer_pid(pid: int) -> int:
+    for tid in os.listdir(f"/proc/{pid}/task"):
+        with open(f"/proc/{pid}/task/{tid}/children") as handle:
+            found = handle.read().split()
+        if found:
+            return int(found[0])
+    raise AssertionError("no renderer process")
+
+
+def test_peak_memory_of_bombs_stays_within_the_documented_budget(tmp_path: Path) -> None:
+    """The campaign's bombs against a fresh server: refused ones do not move the peak RSS
+    beyond the bytes received; an accepted deflate bomb stays within its estimate
+    (PROTOCOL.md 5.1: bytes + particles x 640 + pixels x 120)."""
+    config = {
+        "http": {"max_body_bytes": 64 << 20},
+        "stream": {"max_payload_bytes": 255 << 20},
+        "limits": {"max_particles": 400_000, "max_pixels": 320 * 240},
+    }
+    with ServerProcess(tmp_path / "bombs", config) as process:
+        pid = process.proc.pid
+        renderer = _renderer_pid(pid)
+        start = _status_bytes(pid, "VmHWM")
+        # 1. a zip of 100 000 empty entries: refused from its directory record
+        buffer = io.BytesIO()
+        with zipfile.ZipFile(buffer, "w") as archive:
+            archive.writestr("positions.npy", b"")
+            for index in range(100_000):
+                archive.writestr(f"e{index}", b"")
+        body = buffer.getvalue()
+        assert process.request("POST", "/v1/render", body)[0] == 413
+        # 2. four streams announcing 255 MiB payloads for one particle: refused unread
+        header = b'{"id":1,"arrays":[{"name":"positions","dtype":"<f8","shape":[1,3]}]}'
+        clients = [process.stream() for _ in range(4)]
+        for client in clients:
+            client.hello()
+            client.send(struct.pack("<4sBBHII", b"SPHR", 1, 2, 0, len(header), 255 << 20))
+            client.send(header + bytes(1 << 20))
+            assert client.receive()[1]["field"] == "payload_length"
+        for client in clients:
+            client.close()
+        refused_peak = _status_bytes(pid, "VmHWM") - start
+        assert refused_peak < 2 * len(body) + (16 << 20), refused_peak
+        # 3. an accepted deflate bomb: 400 000 particles in a few kB
+        render_start = _status_bytes(renderer, "VmRSS")
+        service_start = _status_bytes(pid, "VmRSS")
+        bomb = encode_npz_frame(np.zeros((400_000, 3)), scene=SMALL_SCENE, compress=True)
+        assert len(bomb) < 50_000
+        assert process.request("POST", "/v1/render", bomb, timeout=120)[0] == 200
+        growth = (_status_bytes(pid, "VmHWM") - service_start) + (
+            _status_bytes(renderer, "VmHWM") - render_start
+        )
+        estimate = len(bomb) + 400_000 * 640 + 64 * 48 * 120
+        assert growth < estimate, (growth, estimate)
