@@ -177,6 +177,8 @@ def campaign(
         "rate_per_s": round(tally.inputs / elapsed, 1),
         "crashes": (0 if alive else 1) + int(restarts),
         "segfault_in_log": "Segmentation fault" in log_text,
+        "decode_bugs_logged": log_text.count('"decode_bug"'),
+        "internal_errors_logged": log_text.count('"stream_bug"') + log_text.count('"worker_bug"'),
         "hangs": tally.hangs,
         "server_errors_5xx": tally.server_errors,
         "busy_503": tally.busy,
