@@ -118,6 +118,7 @@ def _valid_arrays(rng: random.Random, n: int) -> tuple[list[dict[str, Any]], byt
 
 def _mutate_json(rng: random.Random, value: Any, depth: int = 0, big: bool = False) -> Any:
     """One random change somewhere in a JSON value."""
+    out: Any
     if isinstance(value, dict) and value and rng.random() < 0.7:
         key = rng.choice(list(value))
         out = dict(value)
@@ -158,11 +159,11 @@ def frame_input(rng: random.Random, frame_id: int) -> bytes:
     elif roll < 0.7:
         header["scene"] = _mutate_json(rng, {"camera": dict(SCENE["camera"]), "image": {}})
     elif roll < 0.8 and n:
-        payload = bytearray(payload)
+        spoiled = bytearray(payload)
         for _ in range(rng.randrange(1, 4)):
-            at = rng.randrange(len(payload) - 7)
-            payload[at : at + 8] = struct.pack("<d", rng.choice((np.nan, np.inf, -np.inf, 0.0)))
-        payload = bytes(payload)
+            at = rng.randrange(len(spoiled) - 7)
+            spoiled[at : at + 8] = struct.pack("<d", rng.choice((np.nan, np.inf, -np.inf, 0.0)))
+        payload = bytes(spoiled)
     elif roll < 0.9:
         cut = rng.randrange(len(payload) + 1) if payload else 0
         payload = payload[:cut] + bytes(rng.randrange(0, 17))
@@ -203,7 +204,7 @@ def connection_input(rng: random.Random) -> tuple[bytes, bool]:
                 {"payload_len": rng.choice((1 << 30, 2**32 - 1))},
             )
         )
-        data = message(MessageType.FRAME, b"{}", **over)
+        data = message(MessageType.FRAME, b"{}", b"", **over)
         return (b"XXXX" + data[4:] if rng.random() < 0.2 else data), rng.random() < 0.5
     if roll < 0.4:  # header that is not a JSON object
         return message(rng.choice((MessageType.HELLO, MessageType.FRAME)), _bad_header(rng)), False

@@ -424,7 +424,8 @@ class RenderWorker(threading.Thread):
                 specs = [(name, value.dtype.str, value.shape) for name, value in arrays]
                 child.conn.send(("frame", job_id, job.scene, job.format, fault, specs))
                 for _name, value in arrays:  # raw bytes, no pickling (empty arrays too)
-                    child.conn.send_bytes(np.ascontiguousarray(value).reshape(-1).view(np.uint8))
+                    flat = np.ascontiguousarray(value).reshape(-1).view(np.uint8)
+                    child.conn.send_bytes(flat)  # type: ignore[arg-type]  # ndarray is a buffer
         except OSError:
             pass  # the child died; _supervise answers the job with the others it held
         except Exception:
