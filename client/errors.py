@@ -20,3 +20,7 @@ class InputError(ValueError):
         """Picklable (the default would call __init__ with the one formatted argument), so the
         error survives a trip between processes, e.g. out of a Ray actor."""
         return type(self), (self.field, self.message)
+
+
+class LimitError(InputError):
+    """Input over a configured size limit (HTTP 413, stream code ``too_large``)."""

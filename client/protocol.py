@@ -30,21 +30,18 @@ configured size limit is exceeded, so transports can answer 413 rather than 400.
 
 from __future__ import annotations
 
-import io
 import json
 import math
 import struct
-import zipfile
-import zlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
-from sphrender.client.errors import InputError
+from sphrender.client.errors import InputError, LimitError
+from sphrender.client.npz_body import NpzFrame, decode_npz_frame, encode_npz_frame
 
 __all__ = [
     "ARRAY_NAMES",
@@ -54,6 +51,7 @@ __all__ = [
     "PREFIX_SIZE",
     "VERSION",
     "WIRE_DTYPES",
+    "ArraySlot",
     "ErrorCode",
     "LimitError",
     "Message",
@@ -67,6 +65,7 @@ __all__ = [
     "encode_npz_frame",
     "parse_header",
     "parse_prefix",
+    "plan_frame_arrays",
     "read_message",
 ]
 
@@ -85,6 +84,8 @@ ARRAY_NAMES: tuple[str, ...] = ("positions", "densities", "radii", "temperatures
 WIRE_DTYPES: dict[str, np.dtype[Any]] = {"<f4": np.dtype("<f4"), "<f8": np.dtype("<f8")}
 #: How deep a JSON header may nest (a scene is 3 levels deep; this leaves room and no more).
 MAX_JSON_DEPTH = 16
+#: Longest JSON integer accepted, in digits: every 64-bit integer fits (2**64 has 20 digits).
+MAX_JSON_INT_DIGITS = 20
 
 
 class MessageType(IntEnum):
@@ -136,10 +137,6 @@ class ProtocolError(Exception):
         self.code = code
         self.message = message
         self.field = field
-
-
-class LimitError(InputError):
-    """Input over a configured size limit (HTTP 413, stream code ``too_large``)."""
 
 
 @dataclass(frozen=True)
@@ -222,11 +219,35 @@ def _depth(value: Any, limit: int) -> int:
     return deepest
 
 
+def _bounded_int(text: str) -> int:
+    digits = len(text.lstrip("-"))
+    if digits > MAX_JSON_INT_DIGITS:
+        raise ValueError(
+            f"an integer of {digits} digits is out of range (at most {MAX_JSON_INT_DIGITS} digits)"
+        )
+    return int(text)
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        shown = text if len(text) <= 24 else text[:24] + "..."
+        raise ValueError(f"the number {shown} is out of range for a 64-bit float")
+    return value
+
+
 def parse_json_object(data: bytes | bytearray | memoryview, what: str) -> dict[str, Any]:
-    """Strict JSON: UTF-8, an object at the top, no NaN/Infinity, bounded nesting."""
+    """Strict JSON: UTF-8, an object at the top, no NaN/Infinity, numbers within 64-bit range
+    (integers of at most 20 digits, floats finite: ``1e400`` and a 400-digit integer are
+    refused here, so no later ``float()`` can overflow), bounded nesting."""
     try:
         text = bytes(data).decode("utf-8")
-        value = json.loads(text, parse_constant=_reject_constant)
+        value = json.loads(
+            text,
+            parse_constant=_reject_constant,
+            parse_int=_bounded_int,
+            parse_float=_finite_float,
+        )
         _depth(value, MAX_JSON_DEPTH)
     except (UnicodeDecodeError, ValueError, RecursionError) as exc:
         raise InputError(what, f"is not valid JSON: {str(exc).splitlines()[0]}") from None
@@ -312,19 +333,27 @@ def _shape(field: str, value: Any, name: str) -> tuple[int, ...]:
     return tuple(value)
 
 
-def decode_frame_arrays(
-    specs: Any, payload: bytes | bytearray | memoryview, *, max_particles: int
-) -> dict[str, np.ndarray]:
-    """The arrays of a FRAME from its header's ``arrays`` list and its payload.
+@dataclass(frozen=True)
+class ArraySlot:
+    """Where one declared array lies in a FRAME's payload."""
 
-    Every declared size is checked against `max_particles` and against the payload length before
-    anything is allocated; the sum of the arrays' byte sizes must equal the payload length
-    exactly. The arrays returned are read-only views into the payload (native float dtypes).
-    """
+    name: str
+    dtype: np.dtype[Any]
+    shape: tuple[int, ...]
+    offset: int
+    nbytes: int
+
+
+def plan_frame_arrays(
+    specs: Any, payload_length: int, *, max_particles: int
+) -> tuple[list[ArraySlot], int]:
+    """Check a FRAME header's ``arrays`` list against `payload_length` and `max_particles`
+    before any of the payload is read; returns the arrays' places and the particle count.
+
+    The sum of the arrays' byte sizes must equal `payload_length` exactly."""
     if not isinstance(specs, list) or not specs:
         raise InputError("arrays", "must be a non-empty list of {name, dtype, shape}")
-    view = memoryview(payload).cast("B")
-    arrays: dict[str, np.ndarray] = {}
+    slots: list[ArraySlot] = []
     offset = 0
     count: int | None = None
     for index, spec in enumerate(specs):
@@ -335,13 +364,16 @@ def decode_frame_arrays(
         if unknown:
             raise InputError(f"{where}.{sorted(unknown)[0]}", "unknown key")
         name = spec.get("name")
-        if name not in ARRAY_NAMES:
+        if not isinstance(name, str) or name not in ARRAY_NAMES:
             raise InputError(f"{where}.name", f"must be one of {', '.join(ARRAY_NAMES)}")
-        if name in arrays:
+        if any(slot.name == name for slot in slots):
             raise InputError(f"{where}.name", f"{name!r} appears twice")
-        dtype = WIRE_DTYPES.get(spec.get("dtype"))  # type: ignore[arg-type]
+        wire = spec.get("dtype")
+        dtype = WIRE_DTYPES.get(wire) if isinstance(wire, str) else None
         if dtype is None:
-            raise InputError(f"{where}.dtype", f"must be one of {', '.join(WIRE_DTYPES)}")
+            raise InputError(
+                f"{where}.dtype", f"must be one of the strings {', '.join(WIRE_DTYPES)}"
+            )
         shape = _shape(f"{where}.shape", spec.get("shape"), name)
         n = shape[0]
         if n > max_particles:
@@ -350,166 +382,35 @@ def decode_frame_arrays(
             raise InputError(f"{where}.shape", f"has {n} entries but the first array has {count}")
         count = n
         nbytes = math.prod(shape) * dtype.itemsize
-        if offset + nbytes > view.nbytes:
+        if offset + nbytes > payload_length:
             raise InputError(
                 f"{where}.shape",
-                f"needs {nbytes} bytes at offset {offset} but the payload has {view.nbytes}",
+                f"needs {nbytes} bytes at offset {offset} but the payload has {payload_length}",
             )
-        array = np.frombuffer(view[offset : offset + nbytes], dtype=dtype).reshape(shape)
-        arrays[name] = array.astype(dtype.newbyteorder("="), copy=False)
+        slots.append(ArraySlot(name, dtype, shape, offset, nbytes))
         offset += nbytes
-    if offset != view.nbytes:
+    if offset != payload_length:
         raise InputError(
-            "payload_length", f"is {view.nbytes} bytes but the arrays declare {offset} bytes"
+            "payload_length", f"is {payload_length} bytes but the arrays declare {offset} bytes"
         )
-    if "positions" not in arrays:
+    if not any(slot.name == "positions" for slot in slots):
         raise InputError("arrays", "must include 'positions'")
-    return arrays
+    return slots, count or 0
 
 
-# --------------------------------------------------------------------------------------------
-# .npz bodies
+def decode_frame_arrays(
+    specs: Any, payload: bytes | bytearray | memoryview, *, max_particles: int
+) -> dict[str, np.ndarray]:
+    """The arrays of a FRAME from its header's ``arrays`` list and its payload.
 
-
-@dataclass(frozen=True)
-class NpzFrame:
-    """The particle arrays of an .npz body and its scene JSON text (None when absent)."""
-
-    arrays: dict[str, np.ndarray]
-    scene_json: str | None
-
-
-def encode_npz_frame(
-    positions: object,
-    *,
-    densities: object | None = None,
-    radii: object | None = None,
-    temperatures: object | None = None,
-    scene: Mapping[str, Any] | str | None = None,
-    compress: bool = False,
-) -> bytes:
-    """An .npz body for ``POST /v1/render`` (what ``np.savez`` writes; the scene as 0-d str)."""
-    entries: dict[str, np.ndarray] = {"positions": np.asarray(positions)}
-    for name, value in (("densities", densities), ("radii", radii), ("temperatures", temperatures)):
-        if value is not None:
-            entries[name] = np.asarray(value)
-    if scene is not None:
-        text = scene if isinstance(scene, str) else json.dumps(scene, allow_nan=False)
-        entries["scene"] = np.array(text)
-    buffer = io.BytesIO()
-    save: Callable[..., None] = np.savez_compressed if compress else np.savez
-    save(buffer, **entries)
-    return buffer.getvalue()
-
-
-_ZIP_ERRORS: tuple[type[BaseException], ...] = (
-    zipfile.BadZipFile,
-    zipfile.LargeZipFile,
-    zlib.error,
-    EOFError,
-    OSError,
-    ValueError,
-    struct.error,
-    NotImplementedError,  # unsupported compression method
-    RuntimeError,  # encrypted entry
-    KeyError,
-)
-
-
-def _read_exact(handle: io.BufferedIOBase | Any, n: int, field: str) -> bytes:
-    data = handle.read(n)
-    if len(data) != n:
-        raise InputError(field, f"entry is truncated: {len(data)} of {n} bytes")
-    return bytes(data)
-
-
-def _read_npy_entry(
-    archive: zipfile.ZipFile, member: str, field: str, budget: int
-) -> tuple[np.ndarray, int]:
-    """One .npy member, its header parsed by numpy (literal_eval, never pickle); returns the
-    array and the bytes it used. Sizes are checked before the data is read."""
-    info = archive.getinfo(member)
-    if info.file_size > budget:
-        raise LimitError(
-            field, f"entry of {info.file_size} bytes exceeds the remaining limit of {budget}"
-        )
-    with archive.open(info) as handle:
-        try:
-            version = np.lib.format.read_magic(handle)
-            if version == (1, 0):
-                shape, fortran, dtype = np.lib.format.read_array_header_1_0(handle)
-            elif version in ((2, 0), (3, 0)):
-                shape, fortran, dtype = np.lib.format.read_array_header_2_0(handle)
-            else:
-                raise ValueError(f"unsupported .npy version {version}")
-        except (ValueError, SyntaxError, TypeError, EOFError) as exc:
-            raise InputError(field, f"not a valid .npy entry: {exc}") from None
-        if dtype.hasobject or dtype.fields is not None or dtype.kind not in "fiuUS":
-            raise InputError(field, f"dtype {dtype} is not allowed (numbers or text only)")
-        header_size = handle.tell()
-        nbytes = math.prod(shape) * dtype.itemsize
-        if nbytes + header_size != info.file_size:
-            raise InputError(
-                field,
-                f"declares shape {shape} ({nbytes} bytes) but the entry holds "
-                f"{info.file_size - header_size} bytes",
-            )
-        data = _read_exact(handle, nbytes, field)
-    order: Literal["C", "F"] = "F" if fortran else "C"
-    array = np.frombuffer(data, dtype=dtype).reshape(tuple(shape), order=order)
-    return array, info.file_size
-
-
-def decode_npz_frame(
-    data: bytes | bytearray | memoryview, *, max_particles: int, max_uncompressed_bytes: int
-) -> NpzFrame:
-    """Parse an .npz body: arrays named as in `ARRAY_NAMES` plus an optional ``scene``.
-
-    Other entries are ignored unread. Raises `InputError` (field ``body``, or the entry's name)
-    for anything malformed and `LimitError` when the arrays would exceed the limits.
+    Every declared size is checked (`plan_frame_arrays`) before anything is allocated. The arrays
+    returned are read-only views into the payload (native float dtypes).
     """
-    raw = bytes(data)
-    if not raw.startswith(b"PK\x03\x04"):
-        raise InputError("body", "must be an .npz (zip) archive (application/x-npz)")
-    budget = max_uncompressed_bytes
+    view = memoryview(payload).cast("B")
+    slots, _count = plan_frame_arrays(specs, view.nbytes, max_particles=max_particles)
     arrays: dict[str, np.ndarray] = {}
-    scene_json: str | None = None
-    try:
-        with zipfile.ZipFile(io.BytesIO(raw)) as archive:
-            members = {name.removesuffix(".npy"): name for name in archive.namelist()}
-            if "positions" not in members:
-                listing = ", ".join(sorted(members)) or "none"
-                raise InputError("positions", f"missing entry 'positions'; the body has {listing}")
-            for name in (*ARRAY_NAMES, "scene"):
-                if name not in members:
-                    continue
-                array, used = _read_npy_entry(archive, members[name], name, budget)
-                budget -= used
-                if name == "scene":
-                    scene_json = _scene_text(array)
-                    continue
-                if array.dtype.kind not in "fiu":
-                    raise InputError(name, f"must be a numeric array, got dtype {array.dtype}")
-                if array.ndim >= 1 and array.shape[0] > max_particles:
-                    raise LimitError(
-                        name, f"{array.shape[0]} particles exceed the limit of {max_particles}"
-                    )
-                arrays[name] = array
-    except InputError:
-        raise
-    except _ZIP_ERRORS as exc:
-        detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise InputError("body", f"cannot read the .npz archive: {detail}") from None
-    return NpzFrame(arrays, scene_json)
-
-
-def _scene_text(value: npt.NDArray[Any]) -> str:
-    if value.dtype.kind not in "US" or value.size != 1:
-        raise InputError("scene", f"must be a single string, got {value.dtype} {value.shape}")
-    item = value.reshape(()).item()
-    if isinstance(item, bytes):
-        try:
-            return item.decode("utf-8")
-        except UnicodeDecodeError:
-            raise InputError("scene", "bytes are not valid UTF-8") from None
-    return str(item)
+    for slot in slots:
+        chunk = view[slot.offset : slot.offset + slot.nbytes]
+        array = np.frombuffer(chunk, dtype=slot.dtype).reshape(slot.shape)
+        arrays[slot.name] = array.astype(slot.dtype.newbyteorder("="), copy=False)
+    return arrays

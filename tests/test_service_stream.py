@@ -366,6 +366,11 @@ def test_payload_shorter_than_announced_times_out(service: ServerProcess) -> Non
     with service.stream() as client:
         client.hello()
         client.send(prefix(2, len(header), 1000) + header + bytes(24))
+        # Judged from the header before the payload is read: that frame gets its error...
+        kind, answer, _payload = client.receive()
+        assert kind == MessageType.ERROR, answer
+        assert (answer["id"], answer["code"], answer["field"]) == (1, "bad_input", "payload_length")
+        # ...and the 976 bytes that never come time the connection out.
         expect_fatal(client, "timeout", None)
 
 

@@ -28,6 +28,7 @@ from typing import Any, Literal
 from sphrender.client.frame import ParticleFrame, make_frame
 from sphrender.client.protocol import VERSION as PROTOCOL_VERSION
 from sphrender.client.protocol import ErrorCode, LimitError
+from sphrender.server.service.admission import MemoryBudget, decoding
 from sphrender.server.service.config import (
     ServerConfig,
     check_bind_policy,
@@ -79,14 +80,26 @@ class RenderService:
             self.metrics,
             config.scheduler.encoder_threads,
             config.security.environment_dirs,
+            start_timeout_s=config.worker.start_timeout_s,
+            render_timeout_s=config.limits.render_timeout_s,
+            max_rss_bytes=config.worker.max_rss_bytes,
         )
         self.sessions = SessionRegistry(
             config.limits.max_sessions, config.limits.session_idle_timeout_s
         )
-        self.scenes = SceneValidator(config.limits.max_pixels, config.security.environment_dirs)
+        self.scenes = SceneValidator(
+            config.limits.max_pixels,
+            config.security.environment_dirs,
+            config.limits.max_scene_bytes,
+        )
+        self.memory = MemoryBudget(
+            config.limits.memory_budget_bytes, config.limits.max_request_bytes
+        )
         self.draining = threading.Event()
         #: set first on SIGTERM when drain_grace_s > 0: not ready, but still serving
         self.leaving = threading.Event()
+        #: Set by the drain: reads of a half-received message or body end by this time.
+        self.drain_read_deadline: float | None = None
         self.started_at = time.time()
         self._active_lock = threading.Lock()
         self._active_http_requests = 0
@@ -97,6 +110,7 @@ class RenderService:
         self.metrics.sessions.set_callback(
             lambda: [((k,), float(v)) for k, v in self.sessions.counts().items()]
         )
+        self.metrics.memory_reserved.set_callback(lambda: [((), float(self.memory.used))])
         self.metrics.open_connections.set_callback(
             lambda: [
                 ((), 0.0 if self.stream_server is None else self.stream_server.open_connections())
@@ -112,10 +126,15 @@ class RenderService:
         if self.worker.startup_error is not None:
             raise self.worker.startup_error
         self.metrics.build_info.set(1, _version("sphrender"), self.worker.gl_renderer)
-        self.http_server = make_http_server(self)
+        try:
+            self.http_server = make_http_server(self)
+            if self.config.stream.enabled:
+                self.stream_server = make_stream_server(self)
+        except BaseException:
+            self.worker.kill()
+            raise
         self._spawn("sphrender-http", self.http_server.serve_forever)
-        if self.config.stream.enabled:
-            self.stream_server = make_stream_server(self)
+        if self.stream_server is not None:
             self._spawn("sphrender-stream", self.stream_server.serve_forever)
         self._spawn("sphrender-reaper", self._reap_sessions)
 
@@ -144,6 +163,7 @@ class RenderService:
             log.info("not ready, grace", extra={"event": "drain_grace", "seconds": grace})
             time.sleep(grace)
         deadline = time.monotonic() + self.config.lifecycle.drain_timeout_s
+        self.drain_read_deadline = time.monotonic() + self.config.lifecycle.drain_read_timeout_s
         self.draining.set()
         log.info("draining", extra={"event": "drain_start", "queued": self.scheduler.depth})
         for server in (self.http_server, self.stream_server):
@@ -261,7 +281,8 @@ class RenderService:
         or `TimeoutError`."""
         if self.draining.is_set():
             raise SchedulerClosed
-        scene = self.scenes.from_dict(raw_scene)
+        with decoding("scene", transport):
+            scene = self.scenes.from_dict(raw_scene)
         self.worker.check_image_size(scene)
         session = self.sessions.add(scene, raw_scene, transport)
         try:

@@ -54,8 +54,27 @@ class HttpConfig:
         low=0.0,
         low_open=True,
     )
+    header_timeout_s: float = spec(
+        10.0,
+        "the request line and all headers must arrive within this from the request's first "
+        "byte (a client dribbling its headers cannot hold a connection longer)",
+        low=0.0,
+        low_open=True,
+    )
     max_connections: int = spec(
-        64, "concurrent HTTP connections; more get 503 at once", low=1, high=4096
+        128,
+        "concurrent HTTP connections (one thread each). When full, the connection that has "
+        "waited longest for its request line or headers (idle keep-alive or slow client) is "
+        "closed to make room; only if none is waiting does a new connection get 503",
+        low=1,
+        high=4096,
+    )
+    health_connections: int = spec(
+        4,
+        "connections kept beyond max_connections for GET /healthz, /readyz and /metrics only "
+        "(anything else on them gets 503), so health checks are answered under load",
+        low=0,
+        high=256,
     )
 
 
@@ -95,17 +114,48 @@ class StreamConfig:
         low=0.0,
         low_open=True,
     )
-    max_connections: int = spec(32, "concurrent stream connections", low=1, high=4096)
+    max_connections: int = spec(
+        32,
+        "concurrent stream connections (separate from limits.max_sessions). When full, a "
+        "connection still waiting for its HELLO after 1 s is closed to make room",
+        low=1,
+        high=4096,
+    )
 
 
 @dataclass(frozen=True)
 class LimitsConfig:
-    max_particles: int = spec(5_000_000, "particles per frame (413 beyond)", low=1, high=50_000_000)
+    max_particles: int = spec(2_000_000, "particles per frame (413 beyond)", low=1, high=50_000_000)
     max_pixels: int = spec(
         3840 * 2160, "image width x height per frame (413 beyond)", low=1, high=MAX_IMAGE_PIXELS
     )
     max_sessions: int = spec(
-        64, "open sessions (HTTP sessions + stream connections); 503 beyond", low=1, high=65536
+        64,
+        "open HTTP sessions (POST /v1/sessions); 503 beyond. Stream connections are capped "
+        "separately by stream.max_connections",
+        low=1,
+        high=65536,
+    )
+    max_scene_bytes: int = spec(
+        1 << 20,
+        "scene JSON text: HELLO's and FRAME's scene, POST /v1/sessions, an .npz scene entry",
+        low=1024,
+        high=64 * MIB,
+    )
+    max_npz_entries: int = spec(
+        64, "entries in an .npz body (checked before the archive is read)", low=2, high=65536
+    )
+    max_request_bytes: int = spec(
+        1536 * MIB,
+        "memory one frame may need, estimated before it is read: the bytes received + "
+        "particles x 640 B + pixels x 120 B (PROTOCOL.md, memory budget); 413 beyond",
+        low=MIB,
+    )
+    memory_budget_bytes: int = spec(
+        3072 * MIB,
+        "memory all frames in progress may need together (the same estimate); beyond it HTTP "
+        "gets 503 + Retry-After and the stream waits (TCP backpressure)",
+        low=MIB,
     )
     session_idle_timeout_s: float = spec(
         600.0, "an HTTP session unused for this long is deleted", low=0.0, low_open=True
@@ -168,6 +218,28 @@ class LifecycleConfig:
         "the replica out first (set >= check interval x fall count; see deploy/haproxy/)",
         low=0.0,
     )
+    drain_read_timeout_s: float = spec(
+        2.0,
+        "on SIGTERM/SIGINT: a message or request body that is half received gets this long to "
+        "complete; then its connection is closed (it was not accepted, so nothing is lost)",
+        low=0.0,
+    )
+
+
+@dataclass(frozen=True)
+class WorkerConfig:
+    start_timeout_s: float = spec(
+        120.0,
+        "the renderer process (which owns GL) must be up and warm within this",
+        low=0.0,
+        low_open=True,
+    )
+    max_rss_bytes: int = spec(
+        4096 * MIB,
+        "the renderer process is replaced, between frames, once its resident memory exceeds "
+        "this (GL targets of a huge image, allocator growth)",
+        low=64 * MIB,
+    )
 
 
 @dataclass(frozen=True)
@@ -179,6 +251,7 @@ class ServerConfig:
     security: SecurityConfig = field(default_factory=SecurityConfig)
     logging: LoggingConfig = field(default_factory=LoggingConfig)
     lifecycle: LifecycleConfig = field(default_factory=LifecycleConfig)
+    worker: WorkerConfig = field(default_factory=WorkerConfig)
 
     def with_overrides(self, overrides: Mapping[str, Mapping[str, Any]]) -> ServerConfig:
         """A copy with ``{section: {key: value}}`` replaced, validated again as a whole."""
@@ -219,6 +292,11 @@ def _check_cross_field(config: ServerConfig) -> None:
         raise InputError(
             "scheduler.queue_per_session",
             f"must not exceed scheduler.queue_total ({config.scheduler.queue_total})",
+        )
+    if config.limits.max_request_bytes > config.limits.memory_budget_bytes:
+        raise InputError(
+            "limits.max_request_bytes",
+            f"must not exceed limits.memory_budget_bytes ({config.limits.memory_budget_bytes})",
         )
     if config.stream.enabled and config.stream.port != 0 and config.stream.port == config.http.port:
         raise InputError("stream.port", f"must differ from http.port ({config.http.port})")
@@ -266,6 +344,9 @@ def public_limits(config: ServerConfig) -> dict[str, Any]:
         "max_pixels": config.limits.max_pixels,
         "max_body_bytes": config.http.max_body_bytes,
         "max_sessions": config.limits.max_sessions,
+        "max_stream_connections": config.stream.max_connections,
+        "max_scene_bytes": config.limits.max_scene_bytes,
+        "max_request_bytes": config.limits.max_request_bytes,
         "session_idle_timeout_s": config.limits.session_idle_timeout_s,
         "max_in_flight": config.stream.max_in_flight,
         "max_header_bytes": config.stream.max_header_bytes,

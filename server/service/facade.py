@@ -14,6 +14,7 @@ from collections.abc import Callable
 from typing import Any, Literal, Protocol
 
 from sphrender.client.frame import ParticleFrame
+from sphrender.server.service.admission import MemoryBudget
 from sphrender.server.service.config import ServerConfig
 from sphrender.server.service.jobs import FrameJob
 from sphrender.server.service.metrics import ServiceMetrics
@@ -29,8 +30,11 @@ class ServiceFacade(Protocol):
     sessions: SessionRegistry
     scenes: SceneValidator
     worker: RenderWorker
+    memory: MemoryBudget
     #: Set when SIGTERM / SIGINT starts the drain: transports stop taking new work.
     draining: threading.Event
+    #: Set by the drain: half-received messages and bodies must be complete by this time.
+    drain_read_deadline: float | None
 
     def enter_http_request(self) -> None:
         """An HTTP request started (the drain waits for it)."""

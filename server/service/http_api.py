@@ -23,15 +23,9 @@ validates; rendering happens on the render thread.
 
 from __future__ import annotations
 
-import contextlib
-import hmac
-import json
 import logging
-import re
-import time
 from concurrent.futures import TimeoutError as FutureTimeout
-from http.server import BaseHTTPRequestHandler
-from typing import Any, ClassVar
+from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 from sphrender.client.errors import InputError
@@ -42,7 +36,14 @@ from sphrender.client.protocol import (
     parse_json_object,
 )
 from sphrender.server.scene import Scene, merge_scene_dicts
+from sphrender.server.service.admission import Busy, Reservation, decoding, frame_estimate
 from sphrender.server.service.facade import ServiceFacade
+from sphrender.server.service.http_base import (
+    HEALTH_ROUTES,
+    SESSION_FRAMES_PATH,
+    SESSION_PATH,
+    HandlerBase,
+)
 from sphrender.server.service.http_errors import HttpError
 from sphrender.server.service.http_server import SphrenderHttpServer
 from sphrender.server.service.jobs import (
@@ -59,69 +60,9 @@ from sphrender.server.service.sessions import Session, SessionLimitReached
 
 log = logging.getLogger("sphrender.service.http")
 
-_SESSION = re.compile(r"^/v1/sessions/([0-9a-f]{32})$")
-_SESSION_FRAMES = re.compile(r"^/v1/sessions/([0-9a-f]{32})/frames$")
-#: Largest scene JSON body for POST /v1/sessions.
-MAX_SCENE_BYTES = 1 << 20
-#: Fixed routes; anything else is reported as "other" so metric labels stay bounded.
-_ROUTES = ("/healthz", "/readyz", "/v1/info", "/metrics", "/v1/render", "/v1/sessions")
 
-
-def _route_label(path: str) -> str:
-    if _SESSION_FRAMES.match(path):
-        return "/v1/sessions/{id}/frames"
-    if _SESSION.match(path):
-        return "/v1/sessions/{id}"
-    return path if path in _ROUTES else "other"
-
-
-class ApiHandler(BaseHTTPRequestHandler):
-    """Request handler; `service` is bound by `make_handler`."""
-
-    service: ClassVar[ServiceFacade]
-    protocol_version = "HTTP/1.1"  # keep-alive; every answer carries Content-Length
-    server_version = "sphrender"
-
-    def version_string(self) -> str:
-        return self.server_version
-
-    # -- plumbing -------------------------------------------------------------------------------
-
-    def handle(self) -> None:
-        server: SphrenderHttpServer = self.server  # type: ignore[assignment]
-        if not server.enter_connection():
-            self._raw_busy()
-            return
-        try:
-            super().handle()
-        except (ConnectionError, TimeoutError):
-            pass  # client went away or idled out between requests
-        finally:
-            server.leave_connection()
-
-    def _raw_busy(self) -> None:
-        body = json.dumps(
-            {"error": "too many connections", "field": None, "code": ErrorCode.BUSY}
-        ).encode()
-        head = (
-            "HTTP/1.1 503 Service Unavailable\r\nContent-Type: application/json\r\n"
-            f"Content-Length: {len(body)}\r\nRetry-After: 1\r\nConnection: close\r\n\r\n"
-        )
-        with contextlib.suppress(OSError):
-            self.wfile.write(head.encode("ascii") + body)
-
-    def log_message(self, format: str, *args: Any) -> None:
-        log.debug(format % args, extra={"peer": self.client_address[0]})
-
-    def handle_expect_100(self) -> bool:
-        """curl sends ``Expect: 100-continue`` for large bodies: refuse before the upload."""
-        try:
-            self._check_auth()
-            self._content_length()
-        except HttpError as error:
-            self._send_error(error, method="POST")
-            return False
-        return super().handle_expect_100()
+class ApiHandler(HandlerBase):
+    """Request handler (routes and their work); `service` is bound by `make_handler`."""
 
     def do_GET(self) -> None:
         self._dispatch("GET")
@@ -140,6 +81,7 @@ class ApiHandler(BaseHTTPRequestHandler):
 
     def _dispatch(self, method: str) -> None:
         service = self.service
+        self._reader.end_head()
         service.enter_http_request()
         self._status = 0
         try:
@@ -162,6 +104,14 @@ class ApiHandler(BaseHTTPRequestHandler):
                     f"no such resource {url.path}",
                     "path",
                     close=method in ("POST", "PUT"),
+                )
+            if self._mode == "health" and url.path not in HEALTH_ROUTES:
+                raise HttpError(
+                    503,
+                    ErrorCode.BUSY,
+                    "too many connections; this one may only ask /healthz, /readyz or /metrics",
+                    retry_after_s=1,
+                    close=True,
                 )
             if url.path not in ("/healthz", "/readyz"):
                 self._check_auth()
@@ -192,13 +142,6 @@ class ApiHandler(BaseHTTPRequestHandler):
                 self._count_request(0)  # no answer could be sent
             service.leave_http_request()
 
-    def _count_request(self, status: int) -> None:
-        """Counted before the answer is written, so a client that reads /metrics right after
-        its answer sees its own request."""
-        self._status = status
-        route = _route_label(urlsplit(self.path).path)
-        self.service.metrics.http_requests.inc(self.command, route, str(status))
-
     def _route(self, method: str, path: str) -> tuple[Any, list[str]]:
         table: dict[str, dict[str, Any]] = {
             "/healthz": {"GET": self._healthz},
@@ -209,10 +152,10 @@ class ApiHandler(BaseHTTPRequestHandler):
             "/v1/sessions": {"POST": self._create_session},
         }
         routes = table.get(path)
-        if routes is None and (match := _SESSION_FRAMES.match(path)):
+        if routes is None and (match := SESSION_FRAMES_PATH.match(path)):
             sid = match.group(1)
             routes = {"POST": lambda: self._session_frame(sid)}
-        elif routes is None and (match := _SESSION.match(path)):
+        elif routes is None and (match := SESSION_PATH.match(path)):
             sid = match.group(1)
             routes = {
                 "GET": lambda: self._get_session(sid),
@@ -221,141 +164,6 @@ class ApiHandler(BaseHTTPRequestHandler):
         if routes is None:
             return None, []
         return routes.get(method), sorted(routes)
-
-    # -- auth and bodies ------------------------------------------------------------------------
-
-    def _check_auth(self) -> None:
-        token = self.service.config.security.token
-        if not token:
-            return
-        presented = self.headers.get("Authorization", "")
-        scheme, _, value = presented.partition(" ")
-        ok = scheme.lower() == "bearer" and hmac.compare_digest(
-            value.strip().encode("utf-8"), token.encode("utf-8")
-        )
-        if not ok:
-            raise HttpError(
-                401,
-                ErrorCode.UNAUTHORIZED,
-                "missing or wrong bearer token",
-                "Authorization",
-                close=self.command in ("POST", "PUT"),
-                headers={"WWW-Authenticate": 'Bearer realm="sphrender"'},
-            )
-
-    def _content_length(self, limit: int | None = None) -> int:
-        limit = self.service.config.http.max_body_bytes if limit is None else limit
-        if self.headers.get("Transfer-Encoding"):
-            raise HttpError(
-                411,
-                ErrorCode.BAD_INPUT,
-                "chunked bodies are not supported; send Content-Length",
-                "Transfer-Encoding",
-                close=True,
-            )
-        text = self.headers.get("Content-Length")
-        if text is None:
-            raise HttpError(
-                411, ErrorCode.BAD_INPUT, "Content-Length is required", "Content-Length", close=True
-            )
-        if not text.strip().isdigit():
-            raise HttpError(
-                400,
-                ErrorCode.BAD_INPUT,
-                f"Content-Length must be a non-negative integer, got {text!r}",
-                "Content-Length",
-                close=True,
-            )
-        length = int(text)
-        if length > limit:
-            raise HttpError(
-                413,
-                ErrorCode.TOO_LARGE,
-                f"body of {length} bytes exceeds the limit of {limit}",
-                "body",
-                close=True,
-            )
-        return length
-
-    def _read_body(self, limit: int | None = None) -> bytes:
-        """Exactly Content-Length bytes within ``http.body_timeout_s`` (each read also times out
-        after ``http.read_timeout_s``), so a dribbling client cannot hold the thread."""
-        length = self._content_length(limit)
-        deadline = time.monotonic() + self.service.config.http.body_timeout_s
-        chunks: list[bytes] = []
-        remaining = length
-        while remaining:
-            if time.monotonic() > deadline:
-                raise HttpError(
-                    408, ErrorCode.TIMEOUT, "the body did not arrive in time", "body", close=True
-                )
-            try:
-                chunk = self.rfile.read1(min(remaining, 1 << 20))
-            except TimeoutError:
-                raise HttpError(
-                    408,
-                    ErrorCode.TIMEOUT,
-                    "the body stalled (http.read_timeout_s)",
-                    "body",
-                    close=True,
-                ) from None
-            if not chunk:
-                raise ConnectionError("client closed the connection mid-body")
-            chunks.append(chunk)
-            remaining -= len(chunk)
-        self.service.metrics.bytes_in.inc("http", amount=length)
-        return b"".join(chunks)
-
-    # -- answers --------------------------------------------------------------------------------
-
-    def _send(
-        self,
-        status: int,
-        body: bytes,
-        content_type: str,
-        headers: dict[str, str] | None = None,
-        *,
-        close: bool = False,
-    ) -> None:
-        self._count_request(status)
-        self.send_response(status)
-        self.send_header("Content-Type", content_type)
-        self.send_header("Content-Length", str(len(body)))
-        for name, value in (headers or {}).items():
-            self.send_header(name, value)
-        if close or self.service.draining.is_set():
-            self.send_header("Connection", "close")
-            self.close_connection = True
-        self.end_headers()
-        if self.command != "HEAD":
-            self.wfile.write(body)
-        self.service.metrics.bytes_out.inc("http", amount=len(body))
-
-    def _send_json(
-        self, status: int, payload: Any, headers: dict[str, str] | None = None, **kw: Any
-    ) -> None:
-        body = (json.dumps(payload, allow_nan=False) + "\n").encode("utf-8")
-        self._send(status, body, "application/json", headers, **kw)
-
-    def _send_error(self, error: HttpError, *, method: str) -> None:
-        headers = dict(error.headers)
-        if error.retry_after_s is not None:
-            headers["Retry-After"] = str(error.retry_after_s)
-        payload = {"error": error.message, "field": error.field, "code": error.code}
-        log.info(
-            "request failed",
-            extra={
-                "event": "http_error",
-                "status": error.status,
-                "code": error.code,
-                "field": error.field,
-                "path": self.path,
-            },
-        )
-        try:
-            self._send_json(error.status, payload, headers, close=error.close)
-        except OSError:
-            self.close_connection = True
 
     # -- simple GET endpoints -------------------------------------------------------------------
 
@@ -384,39 +192,12 @@ class ApiHandler(BaseHTTPRequestHandler):
             raise HttpError(400, ErrorCode.BAD_INPUT, "must be png or exr", "format")
         return "png" if values[-1] == "png" else "exr"
 
-    def _decode_body(self) -> tuple[dict[str, Any], str | None]:
-        service = self.service
-        body = self._read_body()
-        limits = service.config.limits
-        try:
-            npz = decode_npz_frame(
-                body,
-                max_particles=limits.max_particles,
-                max_uncompressed_bytes=16 * 6 * limits.max_particles + (1 << 20),
-            )
-        except InputError as exc:
-            service.record_invalid_frame("http", _code(exc))
-            raise HttpError.from_input(exc) from None
-        return npz.arrays, npz.scene_json
-
     def _render(self) -> None:
-        arrays, scene_json = self._decode_body()
-        try:
-            if scene_json is None:
-                scene = Scene()
-            else:
-                scene, _raw = self.service.scenes.from_json(scene_json)
-            self.service.worker.check_image_size(scene)
-            particles = self.service.make_particles(arrays)
-        except InputError as exc:
-            self.service.record_invalid_frame("http", _code(exc))
-            raise HttpError.from_input(exc) from None
-        key = f"http-connection-{id(self.connection):x}"
-        self._render_and_answer(FrameJob(key, particles, scene, self._format(scene), "http"))
+        self._frame_request(None)
 
     def _session(self, session_id: str, *, touch: bool = True) -> Session:
         session = self.service.sessions.get(session_id, touch=touch)
-        if session is None:
+        if session is None or session.transport != "http":
             raise HttpError(
                 404,
                 ErrorCode.NOT_FOUND,
@@ -431,23 +212,92 @@ class ApiHandler(BaseHTTPRequestHandler):
         sessions = self.service.sessions
         sessions.begin_frame(session)
         try:
-            arrays, scene_json = self._decode_body()
-            try:
-                scene = session.scene
-                if scene_json is not None:
-                    override = parse_json_object(scene_json.encode("utf-8"), "scene")
-                    scene = self.service.scenes.from_dict(
-                        merge_scene_dicts(session.raw_scene, override)
-                    )
-                    self.service.worker.check_image_size(scene)
-                particles = self.service.make_particles(arrays)
-            except InputError as exc:
-                self.service.record_invalid_frame("http", _code(exc))
-                raise HttpError.from_input(exc) from None
-            job = FrameJob(session.id, particles, scene, self._format(scene), "http")
-            self._render_and_answer(job)
+            self._frame_request(session)
         finally:
             sessions.end_frame(session)
+
+    def _reserve(self, amount: int, what: str, field: str) -> Reservation:
+        try:
+            reservation = self.service.memory.reserve(amount, what, field)
+        except InputError as exc:
+            self.service.record_invalid_frame("http", _code(exc))
+            raise HttpError.from_input(exc, close=True) from None
+        if reservation is None:
+            raise HttpError(
+                503,
+                ErrorCode.BUSY,
+                "the server's memory budget for frames in progress is used up "
+                "(limits.memory_budget_bytes); retry later",
+                retry_after_s=self.service.retry_after_s(),
+                close=True,
+            )
+        return reservation
+
+    def _scene_for(self, session: Session | None, scene_json: str | None) -> Scene:
+        scenes = self.service.scenes
+        if session is None:
+            scene = scenes.from_dict({}) if scene_json is None else scenes.from_json(scene_json)[0]
+        elif scene_json is None:
+            return session.scene
+        else:
+            scenes.check_size(len(scene_json.encode("utf-8", errors="surrogatepass")))
+            override = parse_json_object(scene_json.encode("utf-8", "surrogatepass"), "scene")
+            scene = scenes.from_dict(merge_scene_dicts(session.raw_scene, override))
+        self.service.worker.check_image_size(scene)
+        return scene
+
+    def _frame_request(self, session: Session | None) -> None:
+        """A frame body: reserve its memory, read it, decode it (scene first, then the arrays,
+        admitted against the memory budget before they are read), render, answer."""
+        service = self.service
+        limits = service.config.limits
+        length = self._content_length()
+        reservation = self._reserve(length, f"a body of {length} bytes", "body")
+        try:
+            body = self._read_body(length)
+            decided: list[Scene] = []
+
+            def admit(scene_json: str | None, particles: int) -> None:
+                scene = self._scene_for(session, scene_json)
+                pixels = scene.image.width * scene.image.height
+                total = frame_estimate(length, particles, pixels)
+                what = f"{particles} particles at {scene.image.width}x{scene.image.height}"
+                service.memory.check(total, what, "positions")
+                extra = service.memory.reserve(total - length, what, "positions")
+                if extra is None:
+                    raise Busy
+                reservation.amount += extra.amount  # one reservation, released once
+                extra.amount = 0
+                decided.append(scene)
+
+            try:
+                with decoding("body", "http"):
+                    npz = decode_npz_frame(
+                        body,
+                        max_particles=limits.max_particles,
+                        max_uncompressed_bytes=limits.max_request_bytes,
+                        max_entries=limits.max_npz_entries,
+                        max_scene_bytes=limits.max_scene_bytes,
+                        admit=admit,
+                    )
+                    del body  # the arrays were copied out of the archive
+                    particles = service.make_particles(npz.arrays)
+            except InputError as exc:
+                service.record_invalid_frame("http", _code(exc))
+                raise HttpError.from_input(exc) from None
+            except Busy:
+                raise HttpError(
+                    503,
+                    ErrorCode.BUSY,
+                    "the server's memory budget for frames in progress is used up "
+                    "(limits.memory_budget_bytes); retry later",
+                    retry_after_s=service.retry_after_s(),
+                ) from None
+            scene = decided[0]
+            key = session.id if session is not None else f"http-connection-{id(self):x}"
+            self._render_and_answer(FrameJob(key, particles, scene, self._format(scene), "http"))
+        finally:
+            reservation.release()
 
     def _render_and_answer(self, job: FrameJob) -> None:
         service = self.service
@@ -504,9 +354,10 @@ class ApiHandler(BaseHTTPRequestHandler):
 
     def _create_session(self) -> None:
         service = self.service
-        body = self._read_body(limit=MAX_SCENE_BYTES)
+        body = self._read_body(self._content_length(limit=service.config.limits.max_scene_bytes))
         try:
-            raw = parse_json_object(body, "scene") if body.strip() else {}
+            with decoding("scene", "http"):
+                raw = parse_json_object(body, "scene") if body.strip() else {}
             session = service.create_session(raw, "http")
         except InputError as exc:
             raise HttpError.from_input(exc) from None
@@ -564,7 +415,10 @@ def make_http_server(service: ServiceFacade) -> SphrenderHttpServer:
     config = service.config.http
     try:
         return SphrenderHttpServer(
-            (config.host, config.port), make_handler(service), config.max_connections
+            (config.host, config.port),
+            make_handler(service),
+            config.max_connections,
+            config.health_connections,
         )
     except OSError as exc:
         raise InputError(

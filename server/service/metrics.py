@@ -303,8 +303,23 @@ class ServiceMetrics:
             "sphrender_gl_context_rebuilds_total",
             "GL contexts rebuilt after a GL error while rendering",
         )
+        self.worker_restarts = registry.counter(
+            "sphrender_worker_restarts_total",
+            "Renderer processes replaced, by reason: crash (a native fault or other death), hung "
+            "(over limits.render_timeout_s), rss (over worker.max_rss_bytes)",
+            ("reason",),
+        )
+        self.worker_rss = registry.gauge(
+            "sphrender_worker_rss_bytes", "Resident memory of the renderer process"
+        )
+        self.memory_reserved = registry.gauge(
+            "sphrender_memory_reserved_bytes",
+            "Estimated memory held by frames in progress (limits.memory_budget_bytes)",
+        )
         self.in_flight.set(0)
         self.context_rebuilds.inc(amount=0)
+        for reason in ("crash", "hung", "rss"):
+            self.worker_restarts.inc(reason, amount=0)
 
     def exposition(self) -> str:
         return self.registry.exposition()

@@ -5,9 +5,13 @@ scene is parsed, checked against the server's limits and warmed on the render th
 so frames only carry particles (and optionally a partial scene override, merged section by
 section onto the session's scene).
 
-Both transports count against ``limits.max_sessions``. HTTP sessions unused for
-``limits.session_idle_timeout_s`` are deleted by the service's reaper; a stream session lives as
-long as its connection.
+Only HTTP sessions count against ``limits.max_sessions`` (stream connections have their own cap,
+``stream.max_connections``, so idle HTTP sessions cannot lock streams out). HTTP sessions unused
+for ``limits.session_idle_timeout_s`` are deleted by the service's reaper; a stream session lives
+as long as its connection.
+
+Scene JSON is at most ``limits.max_scene_bytes``; validated scenes are cached by the SHA-256 of
+their text (small texts only), so the cache never holds client text itself.
 
 Environment maps (``[environment] file``) may only come from ``security.environment_dirs``: the
 path is resolved (symlinks included) and must lie inside one of them; the scene handed to the
@@ -16,10 +20,11 @@ renderer carries the resolved absolute path. Error messages never reveal server 
 
 from __future__ import annotations
 
-import functools
+import hashlib
 import secrets
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -69,7 +74,8 @@ class SessionRegistry:
         self, scene: Scene, raw_scene: dict[str, Any], transport: Literal["http", "stream"]
     ) -> Session:
         with self._lock:
-            if len(self._sessions) >= self.max_sessions:
+            http = sum(1 for s in self._sessions.values() if s.transport == "http")
+            if transport == "http" and http >= self.max_sessions:
                 raise SessionLimitReached
             session = Session(secrets.token_hex(16), scene, raw_scene, transport)
             self._sessions[session.id] = session
@@ -125,14 +131,44 @@ class SessionRegistry:
 class SceneValidator:
     """Scene JSON -> validated `Scene` under the server's limits (pixels, environment dirs)."""
 
-    def __init__(self, max_pixels: int, environment_dirs: Sequence[str]) -> None:
-        self.max_pixels = max_pixels
-        self._environments = EnvironmentLibrary(environment_dirs)
-        self.from_json = functools.lru_cache(maxsize=128)(self._from_json_uncached)
+    #: Scenes cached (by the SHA-256 of their text), and the longest text that is cached.
+    CACHE_ENTRIES = 32
+    CACHE_MAX_TEXT = 64 * 1024
 
-    def _from_json_uncached(self, text: str) -> tuple[Scene, dict[str, Any]]:
-        raw = parse_json_object(text.encode("utf-8"), "scene")
-        return self.from_dict(raw), raw
+    def __init__(
+        self, max_pixels: int, environment_dirs: Sequence[str], max_scene_bytes: int = 1 << 20
+    ) -> None:
+        self.max_pixels = max_pixels
+        self.max_scene_bytes = max_scene_bytes
+        self._environments = EnvironmentLibrary(environment_dirs)
+        self._cache: OrderedDict[bytes, tuple[Scene, dict[str, Any]]] = OrderedDict()
+        self._cache_lock = threading.Lock()
+
+    def check_size(self, size: int, field: str = "scene") -> None:
+        if size > self.max_scene_bytes:
+            raise LimitError(
+                field,
+                f"the scene text is {size} bytes; this server's limit is {self.max_scene_bytes} "
+                "bytes (limits.max_scene_bytes)",
+            )
+
+    def from_json(self, text: str) -> tuple[Scene, dict[str, Any]]:
+        data = text.encode("utf-8", errors="surrogatepass")
+        self.check_size(len(data))
+        key = hashlib.sha256(data).digest()
+        with self._cache_lock:
+            hit = self._cache.get(key)
+            if hit is not None:
+                self._cache.move_to_end(key)
+                return hit
+        raw = parse_json_object(data, "scene")
+        result = (self.from_dict(raw), raw)
+        if len(data) <= self.CACHE_MAX_TEXT:
+            with self._cache_lock:
+                self._cache[key] = result
+                while len(self._cache) > self.CACHE_ENTRIES:
+                    self._cache.popitem(last=False)
+        return result
 
     def from_dict(self, raw: Mapping[str, Any]) -> Scene:
         scene = scene_from_dict(raw)

@@ -20,6 +20,13 @@ timeout so the threads also notice a drain or the other thread's failure quickly
 Framing errors (bad magic, unknown type, oversized lengths, a header that is not JSON, a frame
 without a usable id) are fatal: the connection gets one ERROR with ``"id": null`` after the
 answers already owed, then closes. Errors in a frame's content answer that frame only.
+
+A FRAME is judged from its header before its payload is read: the arrays must add up to
+``payload_length``, the particles must be within the limits and the frame's memory estimate
+must fit the budget (`admission.py`); a refused frame's payload is read and dropped in small
+chunks, never allocated. Every decode step runs inside `admission.decoding`, so no client
+input can raise anything but a documented error; any other failure of the reader ends the
+connection with a fatal ERROR after the owed answers, and the writer always finishes.
 """
 
 from __future__ import annotations
@@ -32,7 +39,6 @@ import socketserver
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
 from sphrender.client.errors import InputError
@@ -47,72 +53,25 @@ from sphrender.client.protocol import (
     encode_message,
     parse_header,
     parse_prefix,
+    plan_frame_arrays,
 )
-from sphrender.server.scene import merge_scene_dicts
+from sphrender.server.scene import Scene, merge_scene_dicts
+from sphrender.server.service.admission import Busy, decoding, frame_estimate
 from sphrender.server.service.config import public_limits
 from sphrender.server.service.facade import ServiceFacade
-from sphrender.server.service.jobs import (
-    DroppedOutcome,
-    ErrorOutcome,
-    FrameJob,
-    ImageOutcome,
-    Outcome,
-)
+from sphrender.server.service.jobs import ErrorOutcome, FrameJob, Outcome
 from sphrender.server.service.scheduler import QueueFull, SchedulerClosed
 from sphrender.server.service.sessions import Session, SessionLimitReached
+from sphrender.server.service.stream_wire import TICK_S, Channel, Closed, Slot, answer_bytes
 
 log = logging.getLogger("sphrender.service.stream")
 
-#: Socket poll interval: how quickly a blocked thread notices a drain or a dead peer.
-TICK_S = 0.2
 #: After GOODBYE, how long the writer waits for the client to close before closing itself.
 LINGER_S = 2.0
 _HELLO_KEYS = {"token", "scene", "mode", "max_in_flight", "client"}
 _FRAME_KEYS = {"id", "arrays", "scene"}
-
-
-class _Closed(Exception):
-    """The connection is over; `reason` says how (metrics label and log field)."""
-
-    def __init__(self, reason: str) -> None:
-        super().__init__(reason)
-        self.reason = reason
-
-
-@dataclass
-class _Slot:
-    """One owed answer, in arrival order: a job still running or an outcome already known."""
-
-    frame_id: int | None
-    job: FrameJob | None = None
-    outcome: Outcome | None = None
-    fatal: bool = False
-
-
-def _answer(slot: _Slot, outcome: Outcome) -> bytes:
-    if isinstance(outcome, ImageOutcome):
-        header: dict[str, Any] = {
-            "id": slot.frame_id,
-            "format": outcome.format,
-            "width": outcome.width,
-            "height": outcome.height,
-            "particles": outcome.particles,
-            "drawn": outcome.drawn,
-            "timings_ms": outcome.timings_ms,
-        }
-        return encode_message(MessageType.IMAGE, header, outcome.data)
-    if isinstance(outcome, DroppedOutcome):
-        return encode_message(MessageType.DROPPED, {"id": slot.frame_id, "reason": outcome.reason})
-    return encode_message(
-        MessageType.ERROR,
-        {
-            "id": slot.frame_id,
-            "code": outcome.code,
-            "error": outcome.message,
-            "field": outcome.field,
-            "fatal": slot.fatal,
-        },
-    )
+#: A connection still without a session this long after connecting may be evicted for another.
+_EVICT_HANDSHAKE_AFTER_S = 1.0
 
 
 class StreamConnection:
@@ -127,7 +86,7 @@ class StreamConnection:
         self.server = server
         self.config = service.config.stream
         self._cond = threading.Condition()
-        self._answers: deque[_Slot] = deque()
+        self._answers: deque[Slot] = deque()
         self._in_flight = 0
         self._reading_done = False
         self._goodbye: str | None = None
@@ -136,79 +95,52 @@ class StreamConnection:
         self.session: Session | None = None
         self.mode: Literal["queue", "latest"] = "queue"
         self.max_in_flight = self.config.max_in_flight
-        sock.settimeout(TICK_S)
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.connected_at = time.monotonic()
+        self.channel = Channel(
+            sock,
+            idle_timeout_s=self.config.idle_timeout_s,
+            write_timeout_s=self.config.write_timeout_s,
+            dead=self._dead.is_set,
+            draining=self._draining.is_set,
+            drain_deadline=lambda: service.drain_read_deadline,
+            in_flight=lambda: self._in_flight,
+        )
 
     def begin_drain(self) -> None:
         self._draining.set()
 
+    def evict(self) -> None:
+        """Close a connection that has not finished its handshake (room for a newcomer)."""
+        self._dead.set()
+        with contextlib.suppress(OSError):
+            self.sock.shutdown(socket.SHUT_RDWR)
+
     # -- socket I/O -----------------------------------------------------------------------------
 
-    def _recv_exact(
-        self, n: int, deadline: float, *, idle_deadline: float | None = None
-    ) -> bytearray:
-        """n bytes, or `_Closed`. Before the first byte the idle rules apply (the message has not
-        started: a drain may end the connection here); after it, the message deadline."""
-        buffer = bytearray()
-        while len(buffer) < n:
-            if self._dead.is_set():
-                raise _Closed("gone")
-            now = time.monotonic()
-            if idle_deadline is not None and not buffer:
-                if self._draining.is_set():
-                    raise _Closed("shutdown")
-                if self._in_flight > 0:
-                    idle_deadline = now + self.config.idle_timeout_s  # waiting for answers
-                if now > idle_deadline:
-                    raise _Closed("idle_timeout")
-            elif now > deadline:
-                raise _Closed("slow")
-            try:
-                chunk = self.sock.recv(min(n - len(buffer), 1 << 20))
-            except TimeoutError:
-                continue
-            except OSError:
-                raise _Closed("gone") from None
-            if not chunk:
-                raise _Closed("eof" if idle_deadline is not None and not buffer else "vanished")
-            buffer += chunk
-        return buffer
-
-    def _read_message(
+    def _read_head(
         self, idle_deadline: float, message_deadline: float | None = None
-    ) -> tuple[MessageType, dict[str, Any], bytearray, int]:
-        first = self._recv_exact(1, message_deadline or 0.0, idle_deadline=idle_deadline)
+    ) -> tuple[MessageType, dict[str, Any], int, float]:
+        """A message's prefix and header; returns (type, header, payload length, deadline).
+        The payload is left on the socket for the caller to read or discard."""
+        first = self.channel.recv(1, message_deadline or 0.0, idle_deadline=idle_deadline)
         deadline = message_deadline or time.monotonic() + self.config.message_timeout_s
-        prefix = first + self._recv_exact(PREFIX_SIZE - 1, deadline)
+        prefix = first + self.channel.recv(PREFIX_SIZE - 1, deadline)
         kind, header_len, payload_len = parse_prefix(
             prefix,
             max_header_bytes=self.config.max_header_bytes,
             max_payload_bytes=self.config.max_payload_bytes,
         )
-        header = parse_header(self._recv_exact(header_len, deadline)) if header_len else {}
-        payload = self._recv_exact(payload_len, deadline) if payload_len else bytearray()
-        size = PREFIX_SIZE + header_len + payload_len
-        self.service.metrics.bytes_in.inc("stream", amount=size)
-        return kind, header, payload, size
+        header = parse_header(self.channel.recv(header_len, deadline)) if header_len else {}
+        self.service.metrics.bytes_in.inc("stream", amount=PREFIX_SIZE + header_len)
+        return kind, header, payload_len, deadline
 
     def _send_all(self, data: bytes) -> None:
-        view = memoryview(data)
-        sent = 0
-        deadline = time.monotonic() + self.config.write_timeout_s
-        while sent < len(view):
-            if time.monotonic() > deadline:
-                raise _Closed("write_timeout")
-            try:
-                sent += self.sock.send(view[sent:])
-            except TimeoutError:
-                continue
-            except OSError:
-                raise _Closed("gone") from None
+        self.channel.send_all(data)
         self.service.metrics.bytes_out.inc("stream", amount=len(data))
 
     def _send_fatal(self, code: str, message: str, field: str | None) -> None:
         """An immediate fatal ERROR (handshake only; later ones go through the answer list)."""
-        with contextlib.suppress(_Closed):
+        with contextlib.suppress(Closed):
             self._send_all(
                 encode_message(
                     MessageType.ERROR,
@@ -233,11 +165,13 @@ class StreamConnection:
                     target=self._write_loop, name="sphrender-stream-writer", daemon=True
                 )
                 writer.start()
-                end = self._read_loop()
-                with self._cond:
-                    self._reading_done = True
-                    self._cond.notify_all()
-                writer.join()
+                try:
+                    end = self._read_loop()
+                finally:  # whatever happened, the writer answers what is owed and ends
+                    with self._cond:
+                        self._reading_done = True
+                        self._cond.notify_all()
+                    writer.join()
             finally:
                 self.server.unregister(self)
         finally:
@@ -259,8 +193,8 @@ class StreamConnection:
     def _handshake(self) -> str:
         deadline = time.monotonic() + self.config.handshake_timeout_s
         try:
-            kind, header, payload, _size = self._read_message(deadline, deadline)
-        except _Closed as closed:
+            kind, header, payload_len, _deadline = self._read_head(deadline, deadline)
+        except Closed as closed:
             if closed.reason in ("slow", "idle_timeout"):
                 self._send_fatal(ErrorCode.TIMEOUT, "no HELLO within handshake_timeout_s", None)
                 return "timeout"
@@ -271,7 +205,7 @@ class StreamConnection:
         try:
             if kind != MessageType.HELLO:
                 raise ProtocolError(ErrorCode.PROTOCOL, f"expected HELLO, got {kind.name}", "type")
-            if payload:
+            if payload_len:
                 raise ProtocolError(ErrorCode.PROTOCOL, "HELLO has no payload", "payload_length")
             for key in header:
                 if key not in _HELLO_KEYS:
@@ -311,7 +245,7 @@ class StreamConnection:
         }
         try:
             self._send_all(encode_message(MessageType.WELCOME, welcome))
-        except _Closed as closed:
+        except Closed as closed:
             return closed.reason
         return "ok"
 
@@ -358,38 +292,57 @@ class StreamConnection:
                     self._cond.wait(TICK_S)
             if self._dead.is_set():
                 return "gone"
-            idle_deadline = time.monotonic() + self.config.idle_timeout_s
             try:
-                kind, header, payload, _size = self._read_message(idle_deadline)
-            except _Closed as closed:
+                end = self._read_one()
+            except Closed as closed:
                 return self._reader_closed(closed.reason)
-            except ProtocolError as exc:
+            except Exception:  # a bug, not the client's doing: end this connection cleanly
+                log.exception("stream reader failed", extra={"event": "stream_bug"})
+                message = "internal error while reading this message; the connection is closed"
                 self._push(
-                    _Slot(None, outcome=ErrorOutcome(exc.code, exc.message, exc.field), fatal=True)
+                    Slot(None, outcome=ErrorOutcome(ErrorCode.PROTOCOL, message), fatal=True)
                 )
-                return "protocol"
-            if kind == MessageType.BYE:
-                self._goodbye = "bye"
-                return "bye"
-            if kind != MessageType.FRAME:
-                message = f"unexpected {kind.name} after the handshake"
-                self._push(
-                    _Slot(
-                        None, outcome=ErrorOutcome(ErrorCode.PROTOCOL, message, "type"), fatal=True
-                    )
-                )
-                return "protocol"
-            fatal = self._accept_frame(header, payload)
-            if fatal is not None:
-                self._push(fatal)
-                return "protocol"
+                return "error"
+            if end is not None:
+                return end
+
+    def _read_one(self) -> str | None:
+        """Read and handle one message; returns how the connection ends, or None to go on."""
+        idle_deadline = time.monotonic() + self.config.idle_timeout_s
+        try:
+            kind, header, payload_len, deadline = self._read_head(idle_deadline)
+        except ProtocolError as exc:
+            self._push(
+                Slot(None, outcome=ErrorOutcome(exc.code, exc.message, exc.field), fatal=True)
+            )
+            return "protocol"
+        if kind == MessageType.BYE:
+            self._goodbye = "bye"
+            return "bye"
+        if kind != MessageType.FRAME:
+            message = f"unexpected {kind.name} after the handshake"
+            self._push(
+                Slot(None, outcome=ErrorOutcome(ErrorCode.PROTOCOL, message, "type"), fatal=True)
+            )
+            return "protocol"
+        fatal = self._accept_frame(header, payload_len, deadline)
+        if fatal is not None:
+            self._push(fatal)
+            return "protocol"
+        return None
 
     def _reader_closed(self, reason: str) -> str:
         if reason == "slow":
             message = (
                 f"message not complete within message_timeout_s ({self.config.message_timeout_s} s)"
             )
-            self._push(_Slot(None, outcome=ErrorOutcome(ErrorCode.TIMEOUT, message), fatal=True))
+            self._push(Slot(None, outcome=ErrorOutcome(ErrorCode.TIMEOUT, message), fatal=True))
+        elif reason == "shutdown_mid_message":
+            log.info(
+                "draining: half-received message dropped",
+                extra={"event": "stream_drain_cut", "peer": self.peer},
+            )
+            self._goodbye = reason = "shutdown"
         elif reason in ("eof", "shutdown", "idle_timeout"):
             self._goodbye = reason
         elif reason == "vanished":
@@ -399,7 +352,34 @@ class StreamConnection:
             self._dead.set()
         return reason
 
-    def _accept_frame(self, header: dict[str, Any], payload: bytearray) -> _Slot | None:
+    def _frame_scene(self, header: dict[str, Any]) -> Scene:
+        assert self.session is not None
+        if "scene" not in header:
+            return self.session.scene
+        override = header["scene"]
+        if not isinstance(override, dict):
+            raise InputError("scene", "must be a JSON object (a partial scene)")
+        scene = self.service.scenes.from_dict(merge_scene_dicts(self.session.raw_scene, override))
+        self.service.worker.check_image_size(scene)
+        return scene
+
+    def _refuse(
+        self, frame_id: int, exc: InputError | Busy, payload_len: int, deadline: float
+    ) -> None:
+        """Answer a frame refused from its header; its payload is read and dropped."""
+        if isinstance(exc, Busy):
+            outcome = ErrorOutcome(ErrorCode.BUSY, str(exc))
+        else:
+            code = ErrorCode.TOO_LARGE if isinstance(exc, LimitError) else ErrorCode.BAD_INPUT
+            outcome = ErrorOutcome(code, exc.message, exc.field)
+        self.service.record_invalid_frame("stream", outcome.code)
+        self._push(Slot(frame_id, outcome=outcome))
+        self.channel.discard(payload_len, deadline)
+        self.service.metrics.bytes_in.inc("stream", amount=payload_len)
+
+    def _accept_frame(
+        self, header: dict[str, Any], payload_len: int, deadline: float
+    ) -> Slot | None:
         """Queue one FRAME (or answer its error); returns a fatal slot if it has no usable id."""
         frame_id = header.get("id")
         if (
@@ -408,36 +388,59 @@ class StreamConnection:
             or not (0 <= frame_id <= MAX_FRAME_ID)
         ):
             message = f"FRAME needs an integer id in [0, 2^53 - 1], got {frame_id!r}"
-            return _Slot(None, outcome=ErrorOutcome(ErrorCode.PROTOCOL, message, "id"), fatal=True)
+            return Slot(None, outcome=ErrorOutcome(ErrorCode.PROTOCOL, message, "id"), fatal=True)
         assert self.session is not None
         service = self.service
+        limits = service.config.limits
         try:
-            for key in header:
-                if key not in _FRAME_KEYS:
-                    raise InputError(f"header.{key}", "unknown key")
-            arrays = decode_frame_arrays(
-                header.get("arrays"), payload, max_particles=service.config.limits.max_particles
-            )
-            particles = service.make_particles(arrays)
-            scene = self.session.scene
-            if "scene" in header:
-                override = header["scene"]
-                if not isinstance(override, dict):
-                    raise InputError("scene", "must be a JSON object (a partial scene)")
-                scene = service.scenes.from_dict(
-                    merge_scene_dicts(self.session.raw_scene, override)
+            with decoding("arrays", "stream"):
+                for key in header:
+                    if key not in _FRAME_KEYS:
+                        raise InputError(f"header.{key}", "unknown key")
+                _slots, count = plan_frame_arrays(
+                    header.get("arrays"), payload_len, max_particles=limits.max_particles
                 )
-                service.worker.check_image_size(scene)
+                scene = self._frame_scene(header)
+            image = scene.image
+            estimate = frame_estimate(payload_len, count, image.width * image.height)
+            what = f"{count} particles at {image.width}x{image.height}"
+            reservation = service.memory.reserve(
+                estimate,
+                what,
+                "arrays",
+                timeout=max(0.0, deadline - time.monotonic()),
+                abort=lambda: self._dead.is_set() or self._draining.is_set(),
+            )
+            if reservation is None:
+                raise Busy(
+                    "the server's memory budget for frames in progress is used up "
+                    "(limits.memory_budget_bytes); send it again later"
+                )
+        except (InputError, Busy) as exc:
+            self._refuse(frame_id, exc, payload_len, deadline)
+            return None
+        try:
+            payload = self.channel.recv(payload_len, deadline) if payload_len else bytearray()
+            service.metrics.bytes_in.inc("stream", amount=payload_len)
+            with decoding("arrays", "stream"):
+                arrays = decode_frame_arrays(
+                    header["arrays"], payload, max_particles=limits.max_particles
+                )
+                particles = service.make_particles(arrays)
         except InputError as exc:
+            reservation.release()
             code = ErrorCode.TOO_LARGE if isinstance(exc, LimitError) else ErrorCode.BAD_INPUT
             service.record_invalid_frame("stream", code)
-            self._push(_Slot(frame_id, outcome=ErrorOutcome(code, exc.message, exc.field)))
+            self._push(Slot(frame_id, outcome=ErrorOutcome(code, exc.message, exc.field)))
             return None
+        except BaseException:
+            reservation.release()
+            raise
         self.session.frames += 1  # only this connection's reader thread touches it
         job = FrameJob(
             self.session.id, particles, scene, scene.output.format, "stream", frame_id=frame_id
         )
-        self._push(_Slot(frame_id, job=job))
+        self._push(Slot(frame_id, job=job, release=reservation.release))
         # On QueueFull/SchedulerClosed the job has been answered with the error; its slot has it.
         with contextlib.suppress(QueueFull, SchedulerClosed):
             service.submit(
@@ -448,7 +451,7 @@ class StreamConnection:
             )
         return None
 
-    def _push(self, slot: _Slot) -> None:
+    def _push(self, slot: Slot) -> None:
         with self._cond:
             self._answers.append(slot)
             self._in_flight += 1
@@ -456,7 +459,7 @@ class StreamConnection:
 
     # -- writer ---------------------------------------------------------------------------------
 
-    def _outcome(self, slot: _Slot) -> Outcome | None:
+    def _outcome(self, slot: Slot) -> Outcome | None:
         if slot.outcome is not None:
             return slot.outcome
         assert slot.job is not None
@@ -478,8 +481,10 @@ class StreamConnection:
                     slot = self._answers[0]
                 outcome = self._outcome(slot)
                 if outcome is None:
-                    raise _Closed("gone")
-                self._send_all(_answer(slot, outcome))
+                    raise Closed("gone")
+                self._send_all(answer_bytes(slot, outcome))
+                if slot.release is not None:
+                    slot.release()
                 with self._cond:
                     self._answers.popleft()
                     self._in_flight -= 1
@@ -489,7 +494,7 @@ class StreamConnection:
             if self._goodbye is not None:
                 self._send_all(encode_message(MessageType.GOODBYE, {"reason": self._goodbye}))
                 self._linger()
-        except _Closed as closed:
+        except Closed as closed:
             log.info(
                 "stream client gone while answering",
                 extra={"event": "stream_write_failed", "peer": self.peer, "reason": closed.reason},
@@ -528,6 +533,8 @@ class StreamConnection:
         for slot in slots:
             if slot.job is not None:
                 slot.job.cancel()
+            if slot.release is not None:
+                slot.release()
         if self.session is not None:
             self.service.scheduler.cancel_key(self.session.id)
 
@@ -555,9 +562,21 @@ class StreamServer(socketserver.ThreadingTCPServer):
         self._connections: set[StreamConnection] = set()
 
     def register(self, connection: StreamConnection) -> bool:
+        """Count a connection in; when full, the oldest one still without a session after
+        1 s (a client that connected and is not saying HELLO) is closed to make room."""
         with self._lock:
             if len(self._connections) >= self._max:
-                return False
+                now = time.monotonic()
+                waiting = [
+                    c
+                    for c in self._connections
+                    if c.session is None and now - c.connected_at > _EVICT_HANDSHAKE_AFTER_S
+                ]
+                if not waiting:
+                    return False
+                victim = min(waiting, key=lambda c: c.connected_at)
+                self._connections.discard(victim)
+                victim.evict()
             self._connections.add(connection)
             return True
 

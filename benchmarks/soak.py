@@ -1,0 +1,156 @@
+"""Soak: many small frames of varied sizes through a real server, sessions created and deleted.
+
+    nice -n 10 .venv/bin/python benchmarks/soak.py --frames 10000 --out soak.json
+
+Cycles through stream sessions (HELLO, a burst of pipelined frames, BYE) and HTTP sessions
+(POST /v1/sessions, frames, DELETE), with image sizes and particle counts varying per session,
+and checks every answer is an image. Reports the resident memory of the service process and of
+the renderer process (and their sum) at frame 1,000 and at the end, and the service's threads
+and open files at the start and after the last session closed. Bounded by --frames.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+
+import numpy as np
+from service_harness import ServerProcess
+
+from sphrender.client.protocol import (
+    MessageType,
+    encode_frame,
+    encode_message,
+    encode_npz_frame,
+)
+
+SIZES = ((32, 24), (64, 48), (96, 72), (128, 96), (160, 120))
+_PAGE = os.sysconf("SC_PAGE_SIZE")
+
+
+def rss(pid: int) -> int:
+    with open(f"/proc/{pid}/statm") as handle:
+        return int(handle.read().split()[1]) * _PAGE
+
+
+def children(pid: int) -> list[int]:
+    found: list[int] = []
+    for tid in os.listdir(f"/proc/{pid}/task"):
+        try:
+            with open(f"/proc/{pid}/task/{tid}/children") as handle:
+                found += [int(c) for c in handle.read().split()]
+        except OSError:
+            pass
+    return found
+
+
+def counts(pid: int) -> dict[str, int]:
+    return {
+        "threads": len(os.listdir(f"/proc/{pid}/task")),
+        "fds": len(os.listdir(f"/proc/{pid}/fd")),
+    }
+
+
+def memory(pid: int) -> dict[str, int]:
+    child = sum(rss(c) for c in children(pid))
+    parent = rss(pid)
+    return {"service_rss": parent, "renderer_rss": child, "total_rss": parent + child}
+
+
+def scene(rng: random.Random) -> dict[str, Any]:
+    width, height = rng.choice(SIZES)
+    return {
+        "image": {"width": width, "height": height},
+        "camera": {"eye": [0.6, 0.5, 0.9], "target": [0.0, 0.0, 0.0], "fov_y": 40.0},
+        "particles": {"radius": rng.choice((0.015, 0.02, 0.03))},
+    }
+
+
+def positions(rng: random.Random) -> np.ndarray:
+    n = rng.choice((50, 200, 800, 2000))
+    return np.random.default_rng(rng.randrange(1 << 30)).normal(size=(n, 3)) * 0.15
+
+
+def soak(frames: int, seed: int) -> dict[str, Any]:
+    rng = random.Random(seed)
+    done = 0
+    samples: dict[str, Any] = {}
+    errors = 0
+    sessions = 0
+    with tempfile.TemporaryDirectory() as tmp, ServerProcess(Path(tmp), {}) as server:
+        pid = server.proc.pid
+        time.sleep(0.5)
+        samples["start"] = {**counts(pid), **memory(pid)}
+        started = time.monotonic()
+        while done < frames:
+            burst = min(frames - done, rng.randrange(5, 60))
+            sessions += 1
+            if rng.random() < 0.7:
+                with server.stream() as client:
+                    client.hello(scene(rng))
+                    for start in range(0, burst, 8):
+                        batch = range(start, min(burst, start + 8))
+                        client.send(b"".join(encode_frame(i, positions(rng)) for i in batch))
+                        for _ in batch:
+                            kind, _header, _payload = client.receive()
+                            errors += kind != MessageType.IMAGE
+                    client.send(encode_message(MessageType.BYE, {}))
+                    client.receive()
+            else:
+                status, body = server.json("POST", "/v1/sessions", scene(rng))
+                assert status == 201, body
+                for _ in range(burst):
+                    answer = server.request(
+                        "POST",
+                        f"/v1/sessions/{body['id']}/frames",
+                        encode_npz_frame(positions(rng)),
+                    )
+                    errors += answer[0] != 200
+                server.request("DELETE", f"/v1/sessions/{body['id']}")
+            before = done
+            done += burst
+            if before < 1000 <= done:
+                samples["frame_1000"] = memory(pid)
+        elapsed = time.monotonic() - started
+        time.sleep(2.0)
+        samples["end"] = {**counts(pid), **memory(pid)}
+    first, last = samples["frame_1000"], samples["end"]
+    return {
+        "frames": done,
+        "sessions": sessions,
+        "errors": errors,
+        "seconds": round(elapsed, 1),
+        "fps": round(done / elapsed, 1),
+        "samples": samples,
+        "rss_growth_from_frame_1000_pct": {
+            key: round(100.0 * (last[key] - first[key]) / first[key], 2)
+            for key in ("service_rss", "renderer_rss", "total_rss")
+        },
+    }
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=10_000)
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--out", type=Path)
+    args = parser.parse_args()
+    report = soak(max(args.frames, 1001), args.seed)
+    text = json.dumps(report, indent=2)
+    print(text)
+    if args.out:
+        args.out.write_text(text + "\n")
+    return 1 if report["errors"] else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,292 @@
+"""The HTTP handler's plumbing: connection admission, deadlines, bodies and answers.
+
+`HandlerBase` is what `http_api.ApiHandler` routes on top of. Every answer it writes is JSON
+(``{"error", "field", "code"}`` for errors), including the ones the standard library would
+write as HTML (malformed request line 400, 414, 431, 501, 505: `send_error` is overridden).
+Bodies are read into one preallocated buffer under the body deadline (`http_server`), after
+``Content-Length`` has been checked: ASCII digits only, one value, within the limit.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hmac
+import io
+import json
+import logging
+import re
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler
+from typing import Any, ClassVar
+from urllib.parse import urlsplit
+
+from sphrender.client.protocol import ErrorCode
+from sphrender.server.service.facade import ServiceFacade
+from sphrender.server.service.http_errors import HttpError
+from sphrender.server.service.http_server import (
+    ConnectionMode,
+    DeadlineReader,
+    SphrenderHttpServer,
+)
+
+log = logging.getLogger("sphrender.service.http")
+
+SESSION_PATH = re.compile(r"^/v1/sessions/([0-9a-f]{32})$")
+SESSION_FRAMES_PATH = re.compile(r"^/v1/sessions/([0-9a-f]{32})/frames$")
+#: Fixed routes; anything else is reported as "other" so metric labels stay bounded.
+_ROUTES = ("/healthz", "/readyz", "/v1/info", "/metrics", "/v1/render", "/v1/sessions")
+#: Routes a health-reserve connection may use (see http_server).
+HEALTH_ROUTES = ("/healthz", "/readyz", "/metrics")
+#: The head of a health-reserve connection must arrive within this (seconds).
+_HEALTH_HEAD_TIMEOUT_S = 2.0
+_CONTENT_LENGTH = re.compile(r"[0-9]{1,19}")
+#: What the standard library's own errors mean in this API's codes.
+#: 501 (unknown method) and 505 (HTTP version) are answered 405 and 400: a client's mistake
+#: is never a 5xx here.
+_STDLIB_CODES = {
+    HTTPStatus.REQUEST_URI_TOO_LONG: (414, ErrorCode.TOO_LARGE, "request line"),
+    HTTPStatus.REQUEST_HEADER_FIELDS_TOO_LARGE: (431, ErrorCode.TOO_LARGE, "headers"),
+    HTTPStatus.NOT_IMPLEMENTED: (405, ErrorCode.BAD_INPUT, "method"),
+    HTTPStatus.HTTP_VERSION_NOT_SUPPORTED: (400, ErrorCode.UNSUPPORTED_VERSION, "version"),
+    HTTPStatus.REQUEST_TIMEOUT: (408, ErrorCode.TIMEOUT, "request"),
+}
+
+
+def route_label(path: str) -> str:
+    if SESSION_FRAMES_PATH.match(path):
+        return "/v1/sessions/{id}/frames"
+    if SESSION_PATH.match(path):
+        return "/v1/sessions/{id}"
+    return path if path in _ROUTES else "other"
+
+
+class HandlerBase(BaseHTTPRequestHandler):
+    """Request handler plumbing; `service` is bound by `http_api.make_handler`."""
+
+    service: ClassVar[ServiceFacade]
+    protocol_version = "HTTP/1.1"  # keep-alive; every answer carries Content-Length
+    server_version = "sphrender"
+    _mode: ConnectionMode = "normal"
+    _status = 0
+
+    def version_string(self) -> str:
+        return self.server_version
+
+    # -- connection -----------------------------------------------------------------------------
+
+    def setup(self) -> None:
+        super().setup()
+        config = self.service.config.http
+        self._reader = DeadlineReader(
+            self.connection,
+            idle_timeout_s=config.read_timeout_s,
+            write_timeout_s=config.read_timeout_s,
+            drain_deadline=lambda: self.service.drain_read_deadline,
+        )
+        self.rfile = io.BufferedReader(self._reader, 65536)
+
+    def handle(self) -> None:
+        server: SphrenderHttpServer = self.server  # type: ignore[assignment]
+        mode = server.enter_connection(id(self), self._reader)
+        if mode is None:
+            self._raw_busy()
+            return
+        self._mode = mode
+        try:
+            super().handle()
+        except (ConnectionError, TimeoutError):
+            pass  # client went away or idled out between requests
+        finally:
+            server.leave_connection(id(self), mode)
+
+    def handle_one_request(self) -> None:
+        head = self.service.config.http.header_timeout_s
+        if self._mode == "health":
+            head = min(head, _HEALTH_HEAD_TIMEOUT_S)
+        self._reader.expect_request(head)
+        self._status = 0
+        super().handle_one_request()
+
+    def _raw_busy(self) -> None:
+        body = json.dumps(
+            {"error": "too many connections", "field": None, "code": ErrorCode.BUSY}
+        ).encode()
+        head = (
+            "HTTP/1.1 503 Service Unavailable\r\nContent-Type: application/json\r\n"
+            f"Content-Length: {len(body)}\r\nRetry-After: 1\r\nConnection: close\r\n\r\n"
+        )
+        with contextlib.suppress(OSError):
+            self.wfile.write(head.encode("ascii") + body)
+
+    def log_message(self, format: str, *args: Any) -> None:
+        log.debug(format % args, extra={"peer": self.client_address[0]})
+
+    def send_error(self, code: int, message: str | None = None, explain: str | None = None) -> None:
+        """The standard library's errors (bad request line, 414, 431, 501, 505) as JSON."""
+        text = message or HTTPStatus(code).phrase
+        code, error_code, field = _STDLIB_CODES.get(
+            HTTPStatus(code), (400, ErrorCode.BAD_INPUT, "request")
+        )
+        if not hasattr(self, "command") or self.command is None:
+            self.command = ""
+        if getattr(self, "request_version", "HTTP/0.9") == "HTTP/0.9":
+            self.request_version = "HTTP/1.1"  # always a status line and headers (no HTTP/0.9)
+        self._reader.end_head()
+        headers = {"Allow": "GET, POST, DELETE"} if code == 405 else None
+        error = HttpError(code, error_code, text, field, close=True, headers=headers)
+        self._send_error(error, method="")
+
+    def handle_expect_100(self) -> bool:
+        """curl sends ``Expect: 100-continue`` for large bodies: refuse before the upload."""
+        try:
+            self._check_auth()
+            self._content_length()
+        except HttpError as error:
+            self._send_error(error, method="POST")
+            return False
+        return super().handle_expect_100()
+
+    # -- auth and bodies ------------------------------------------------------------------------
+
+    def _count_request(self, status: int) -> None:
+        """Counted before the answer is written, so a client that reads /metrics right after
+        its answer sees its own request."""
+        self._status = status
+        route = route_label(urlsplit(self.path).path) if getattr(self, "path", "") else "other"
+        self.service.metrics.http_requests.inc(self.command or "other", route, str(status))
+
+    def _check_auth(self) -> None:
+        token = self.service.config.security.token
+        if not token:
+            return
+        presented = self.headers.get("Authorization", "")
+        scheme, _, value = presented.partition(" ")
+        ok = scheme.lower() == "bearer" and hmac.compare_digest(
+            value.strip().encode("utf-8", errors="surrogateescape"), token.encode("utf-8")
+        )
+        if not ok:
+            raise HttpError(
+                401,
+                ErrorCode.UNAUTHORIZED,
+                "missing or wrong bearer token",
+                "Authorization",
+                close=self.command in ("POST", "PUT"),
+                headers={"WWW-Authenticate": 'Bearer realm="sphrender"'},
+            )
+
+    def _content_length(self, limit: int | None = None) -> int:
+        limit = self.service.config.http.max_body_bytes if limit is None else limit
+        if self.headers.get("Transfer-Encoding"):
+            raise HttpError(
+                411,
+                ErrorCode.BAD_INPUT,
+                "chunked bodies are not supported; send Content-Length",
+                "Transfer-Encoding",
+                close=True,
+            )
+        values = self.headers.get_all("Content-Length") or []
+        if not values:
+            raise HttpError(
+                411, ErrorCode.BAD_INPUT, "Content-Length is required", "Content-Length", close=True
+            )
+        texts = {value.strip(" \t") for value in values}
+        text = next(iter(texts))
+        if len(texts) != 1 or not _CONTENT_LENGTH.fullmatch(text):
+            shown = ", ".join(repr(v[:40]) for v in values[:3])
+            raise HttpError(
+                400,
+                ErrorCode.BAD_INPUT,
+                f"Content-Length must be one decimal number of ASCII digits 0-9, got {shown}",
+                "Content-Length",
+                close=True,
+            )
+        length = int(text)
+        if length > limit:
+            raise HttpError(
+                413,
+                ErrorCode.TOO_LARGE,
+                f"body of {length} bytes exceeds the limit of {limit}",
+                "body",
+                close=True,
+            )
+        return length
+
+    def _read_body(self, length: int) -> bytearray:
+        """Exactly `length` bytes into one buffer within ``http.body_timeout_s`` (a deadline for
+        the whole body, shortened by a drain), so a dribbling client cannot hold the thread."""
+        self._reader.begin_body(self.service.config.http.body_timeout_s)
+        body = bytearray(length)
+        view = memoryview(body)
+        got = 0
+        try:
+            while got < length:
+                n = self.rfile.readinto(view[got:])
+                if not n:
+                    raise ConnectionError("client closed the connection mid-body")
+                got += n
+        except TimeoutError:
+            raise HttpError(
+                408,
+                ErrorCode.TIMEOUT,
+                "the body did not arrive within http.body_timeout_s"
+                if self.service.drain_read_deadline is None
+                else "the server is shutting down and the body was not complete",
+                "body",
+                close=True,
+            ) from None
+        finally:
+            view.release()
+            self._reader.end_head()
+        self.service.metrics.bytes_in.inc("http", amount=length)
+        return body
+
+    # -- answers --------------------------------------------------------------------------------
+
+    def _send(
+        self,
+        status: int,
+        body: bytes,
+        content_type: str,
+        headers: dict[str, str] | None = None,
+        *,
+        close: bool = False,
+    ) -> None:
+        self._count_request(status)
+        self.send_response(status)
+        self.send_header("Content-Type", content_type)
+        self.send_header("Content-Length", str(len(body)))
+        for name, value in (headers or {}).items():
+            self.send_header(name, value)
+        if close or self.service.draining.is_set():
+            self.send_header("Connection", "close")
+            self.close_connection = True
+        self.end_headers()
+        if self.command != "HEAD":
+            self.wfile.write(body)
+        self.service.metrics.bytes_out.inc("http", amount=len(body))
+
+    def _send_json(
+        self, status: int, payload: Any, headers: dict[str, str] | None = None, **kw: Any
+    ) -> None:
+        body = (json.dumps(payload, allow_nan=False) + "\n").encode("utf-8")
+        self._send(status, body, "application/json", headers, **kw)
+
+    def _send_error(self, error: HttpError, *, method: str) -> None:
+        headers = dict(error.headers)
+        if error.retry_after_s is not None:
+            headers["Retry-After"] = str(error.retry_after_s)
+        payload = {"error": error.message, "field": error.field, "code": error.code}
+        log.info(
+            "request failed",
+            extra={
+                "event": "http_error",
+                "status": error.status,
+                "code": error.code,
+                "field": error.field,
+                "path": getattr(self, "path", ""),
+            },
+        )
+        try:
+            self._send_json(error.status, payload, headers, close=error.close)
+        except OSError:
+            self.close_connection = True
