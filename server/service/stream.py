@@ -62,7 +62,14 @@ from sphrender.server.service.facade import ServiceFacade
 from sphrender.server.service.jobs import ErrorOutcome, FrameJob, Outcome
 from sphrender.server.service.scheduler import QueueFull, SchedulerClosed
 from sphrender.server.service.sessions import Session, SessionLimitReached
-from sphrender.server.service.stream_wire import TICK_S, Channel, Closed, Slot, answer_bytes
+from sphrender.server.service.stream_wire import (
+    TICK_S,
+    Channel,
+    Closed,
+    Slot,
+    answer_bytes,
+    linger,
+)
 
 log = logging.getLogger("sphrender.service.stream")
 
@@ -493,7 +500,7 @@ class StreamConnection:
                     return
             if self._goodbye is not None:
                 self._send_all(encode_message(MessageType.GOODBYE, {"reason": self._goodbye}))
-                self._linger()
+                linger(self.sock, LINGER_S)
         except Closed as closed:
             log.info(
                 "stream client gone while answering",
@@ -504,24 +511,6 @@ class StreamConnection:
             self._abandon()
             with contextlib.suppress(OSError):
                 self.sock.shutdown(socket.SHUT_RDWR)
-
-    def _linger(self) -> None:
-        """After GOODBYE: half-close, then discard what the client still sends until it closes
-        (at most LINGER_S). Closing with unread bytes makes the kernel send RST, which can
-        destroy the answers and GOODBYE still on their way (or in a load balancer's buffers)."""
-        try:
-            self.sock.shutdown(socket.SHUT_WR)
-        except OSError:
-            return
-        deadline = time.monotonic() + LINGER_S
-        while time.monotonic() < deadline:
-            try:
-                if not self.sock.recv(1 << 16):
-                    return
-            except TimeoutError:
-                continue
-            except OSError:
-                return
 
     def _abandon(self) -> None:
         """Cancel whatever is still owed (the client cannot receive it any more)."""

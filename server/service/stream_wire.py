@@ -169,3 +169,22 @@ class Channel:
                 continue
             except OSError:
                 raise Closed("gone") from None
+
+
+def linger(sock: socket.socket, seconds: float) -> None:
+    """After GOODBYE: half-close, then discard what the client still sends until it closes (at
+    most `seconds`). Closing with unread bytes makes the kernel send RST, which can destroy the
+    answers and GOODBYE still on their way (or in a load balancer's buffers)."""
+    try:
+        sock.shutdown(socket.SHUT_WR)
+    except OSError:
+        return
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        try:
+            if not sock.recv(1 << 16):
+                return
+        except TimeoutError:
+            continue
+        except OSError:
+            return
