@@ -1,0 +1,273 @@
+"""Mutation check: plant small, plausible bugs one at a time and see whether the tests that
+claim to guard against them fail. Not part of CI (it runs selected tests once per mutation).
+
+    .venv/bin/python tools/mutation_check.py            # every mutation, then the score
+    .venv/bin/python tools/mutation_check.py --list     # the table, nothing run
+    .venv/bin/python tools/mutation_check.py -k resume  # mutations whose name contains "resume"
+
+Every planted bug is one row of `MUTATIONS`: the file (relative to the repository root), the
+exact text to replace (it must occur exactly once, or the script stops before running anything:
+a stale path or text is an error, never a silently "caught" mutation), its replacement, the
+tests expected to catch it (pytest node ids) and what the bug is.
+
+Safety: the working tree is never modified. The script copies the tree (tracked files plus
+untracked files that git does not ignore, i.e. what `git status` shows) into a temporary
+directory, builds the import layout `sphrender/{server,client,shaders,configs}` there as
+symlinks into the copy, and runs pytest from the copy with that layout first on PYTHONPATH.
+The package is installed editable from the working tree, but setuptools' editable finder sits
+after the normal path finder on `sys.meta_path`, so the copy wins; the script checks this
+before anything else (every package must import from the copy, also in a child process as the
+console script `sphrender` runs) and stops otherwise. Child processes the tests start
+(`sphrender serve`, `sphrender submit`) inherit PYTHONPATH and so run the copy too. Each
+mutation is applied to the copy's file and the original bytes are written back (and compared)
+before the next one; the copy is deleted at the end.
+
+Outcome per mutation: pytest exit status 1 (tests failed) = caught, 0 = survived; anything else
+(collection error, unknown node id, timeout) is an error of the check itself and is reported
+as such, never counted as caught. Before the mutations the union of all named tests runs on the
+unmutated copy and must pass, so that a "caught" means the bug was seen, not that the test was
+already failing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGE_FOLDERS = ("server", "client", "shaders", "configs")
+#: Caught share the check aims at (the issue's Done-when).
+TARGET_SCORE = 0.9
+TIMEOUT_S = 900
+
+
+@dataclass(frozen=True)
+class Mutation:
+    name: str
+    path: str  # relative to the repository root
+    old: str  # must occur exactly once in the file
+    new: str
+    tests: tuple[str, ...]  # pytest node ids (relative to the repository root)
+    description: str
+
+
+# fmt: off
+MUTATIONS: tuple[Mutation, ...] = (
+    # -- the six the issue found -------------------------------------------------------------
+    Mutation(
+        name="diffuse-ibl-without-1/pi",
+        path="shaders/shade_pbr.frag.glsl",
+        old="diffuse_ibl = (1.0 - specular_albedo) * u_diffuse_albedo * irradiance * (1.0 / PI);",
+        new="diffuse_ibl = (1.0 - specular_albedo) * u_diffuse_albedo * irradiance;",
+        tests=(
+            "tests/test_shading_mitsuba.py::test_dielectric_and_partly_metallic_spheres_under_the_workshop_match_mitsuba",
+        ),
+        description="the diffuse environment term E_sh(n) c_diff without its 1/pi",
+    ),
+    Mutation(
+        name="prefiltered-level-from-roughness-squared",
+        path="shaders/shade_pbr.frag.glsl",
+        old="float lod = clamp(u_roughness, 0.0, 1.0) * u_prefiltered_max_lod;",
+        new="float lod = clamp(u_roughness * u_roughness, 0.0, 1.0) * u_prefiltered_max_lod;",
+        tests=(
+            "tests/test_shading_mitsuba.py::test_dielectric_and_partly_metallic_spheres_under_the_workshop_match_mitsuba",
+        ),
+        description="prefiltered environment level looked up at roughness^2, not roughness",
+    ),
+)
+# fmt: on
+
+
+def check_table(mutations: Sequence[Mutation], root: Path) -> list[str]:
+    """Every problem with the table against the files under `root` (empty = usable)."""
+    problems = []
+    names = [m.name for m in mutations]
+    for name in sorted({n for n in names if names.count(n) > 1}):
+        problems.append(f"duplicate mutation name {name!r}")
+    for m in mutations:
+        path = root / m.path
+        if not path.is_file():
+            problems.append(f"{m.name}: {m.path} does not exist")
+            continue
+        count = path.read_text(encoding="utf-8").count(m.old)
+        if count != 1:
+            problems.append(f"{m.name}: the old text occurs {count} times in {m.path}, not once")
+        if m.old == m.new:
+            problems.append(f"{m.name}: old and new text are the same")
+        if not m.tests:
+            problems.append(f"{m.name}: no tests named")
+        for test in m.tests:
+            test_file = root / test.split("::", 1)[0]
+            if not test_file.is_file():
+                problems.append(f"{m.name}: test file {test_file.relative_to(root)} not found")
+    return problems
+
+
+def tree_files(repo: Path) -> list[str]:
+    """Tracked files and untracked files git does not ignore (the working tree as git sees it)."""
+    listed = subprocess.run(
+        ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+        cwd=repo,
+        capture_output=True,
+        check=True,
+    ).stdout.decode()
+    return [name for name in listed.split("\0") if name and (repo / name).is_file()]
+
+
+@contextmanager
+def copied_tree(repo: Path = REPO) -> Iterator[tuple[Path, dict[str, str]]]:
+    """A temporary copy of the tree and the environment that imports `sphrender` from it."""
+    with tempfile.TemporaryDirectory(prefix="sphrender-mutation-") as tmp:
+        # Nested one level deeper so nothing named `shared` sits beside the copy: tests that
+        # still needed ../shared would fail here instead of passing on the workplace's data.
+        tree = Path(tmp) / "checkout" / "sphrender"
+        for name in tree_files(repo):
+            target = tree / name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(repo / name, target)
+        layout = Path(tmp) / "layout" / "sphrender"
+        layout.mkdir(parents=True)
+        for folder in PACKAGE_FOLDERS:
+            (layout / folder).symlink_to(tree / folder, target_is_directory=True)
+        env = {
+            **os.environ,
+            "PYTHONPATH": os.pathsep.join(
+                [str(layout.parent), *filter(None, [os.environ.get("PYTHONPATH")])]
+            ),
+            "PYTHONDONTWRITEBYTECODE": "1",
+        }
+        check_imports_from(tree, env)
+        yield tree, env
+
+
+def check_imports_from(tree: Path, env: dict[str, str]) -> None:
+    """Stop unless a child interpreter with `env` imports every package from `tree`."""
+    probe = (
+        "import importlib.resources, sphrender.server.engine.renderer as r, "
+        "sphrender.client.submit as s, sphrender.server.cli as c;"
+        "print(r.__file__); print(s.__file__); print(c.__file__);"
+        "print(importlib.resources.files('sphrender.shaders').joinpath('sph.cl'));"
+        "print(importlib.resources.files('sphrender.configs').joinpath('demo.toml'))"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", probe],
+        cwd=tree,
+        env=env,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    if result.returncode != 0:
+        raise SystemExit(f"the copied tree does not import:\n{result.stderr}")
+    for line in result.stdout.split():
+        resolved = Path(line).resolve()
+        if not resolved.is_relative_to(tree.resolve()):
+            raise SystemExit(f"the copy is not what runs: {line} resolves outside {tree}")
+
+
+def run_pytest(
+    tree: Path, env: dict[str, str], tests: Sequence[str], *, stop_first: bool
+) -> tuple[int, float, str]:
+    """(exit status, seconds, the first failed test or the last lines of output); status -1 =
+    timed out."""
+    command = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--no-header"]
+    command += ["-x"] if stop_first else []
+    start = time.monotonic()
+    try:
+        result = subprocess.run(
+            [*command, *tests],
+            cwd=tree,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=TIMEOUT_S,
+            check=False,
+        )
+    except subprocess.TimeoutExpired:
+        return -1, time.monotonic() - start, "timed out"
+    lines = (result.stdout + result.stderr).strip().splitlines()
+    failed = [line.split(" ", 1)[1] for line in lines if line.startswith(("FAILED ", "ERROR "))]
+    detail = failed[0] if failed else "\n".join(lines[-6:])
+    return result.returncode, time.monotonic() - start, detail
+
+
+@contextmanager
+def planted(tree: Path, mutation: Mutation) -> Iterator[None]:
+    path = tree / mutation.path
+    original = path.read_bytes()
+    text = original.decode("utf-8")
+    if text.count(mutation.old) != 1:
+        raise SystemExit(f"{mutation.name}: old text not found exactly once in {mutation.path}")
+    path.write_bytes(text.replace(mutation.old, mutation.new, 1).encode("utf-8"))
+    try:
+        yield
+    finally:
+        path.write_bytes(original)
+        if path.read_bytes() != original:
+            raise SystemExit(f"could not restore {path}")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--list", action="store_true", help="print the table and exit")
+    parser.add_argument("-k", dest="select", help="only mutations whose name contains this")
+    parser.add_argument(
+        "--skip-baseline", action="store_true", help="do not run the tests unmutated first"
+    )
+    args = parser.parse_args(argv)
+    mutations = [m for m in MUTATIONS if not args.select or args.select in m.name]
+    problems = check_table(MUTATIONS, REPO)
+    if problems:
+        print("The mutation table does not match the tree:", *problems, sep="\n  ")
+        return 2
+    if args.list:
+        for m in mutations:
+            print(f"{m.name}\n  {m.path}: {m.description}\n  guarded by: {', '.join(m.tests)}")
+        return 0
+    if not mutations:
+        print("no mutation selected")
+        return 2
+    with copied_tree() as (tree, env):
+        if not args.skip_baseline:
+            union = list(dict.fromkeys(t for m in mutations for t in m.tests))
+            status, seconds, tail = run_pytest(tree, env, union, stop_first=False)
+            print(f"baseline: {len(union)} tests unmutated, exit {status} in {seconds:.0f} s")
+            if status != 0:
+                print(tail)
+                print("the named tests must pass on the unmutated tree; stopping")
+                return 2
+        rows: list[tuple[Mutation, str, float, str]] = []
+        for m in mutations:
+            with planted(tree, m):
+                status, seconds, detail = run_pytest(tree, env, m.tests, stop_first=True)
+            outcome = {0: "SURVIVED", 1: "caught"}.get(status, f"ERROR (exit {status})")
+            by = detail.split(" - ", 1)[0].split("::", 1)[-1] if status == 1 else ""
+            rows.append((m, outcome, seconds, by))
+            print(f"{outcome:>16}  {m.name}  ({seconds:.0f} s)  {by}", flush=True)
+            if status not in (0, 1):
+                print(detail)
+    caught = sum(outcome == "caught" for _, outcome, _, _ in rows)
+    errors = [m.name for m, outcome, _, _ in rows if outcome.startswith("ERROR")]
+    print()
+    print("| mutation | file | outcome | first failing test | seconds |\n|---|---|---|---|---|")
+    for m, outcome, seconds, by in rows:
+        print(f"| {m.name} | {m.path} | {outcome} | {by} | {seconds:.0f} |")
+    score = caught / len(rows)
+    print(f"\nscore: {caught} / {len(rows)} caught = {score:.0%} (target {TARGET_SCORE:.0%})")
+    if errors:
+        print("errors (not counted as caught):", ", ".join(errors))
+        return 2
+    return 0 if score >= TARGET_SCORE else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
