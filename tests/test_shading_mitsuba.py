@@ -1,5 +1,6 @@
 """Mitsuba 3 (scalar_rgb) as an independent reference: copper and iron spheres at roughness 0.2
-and 0.5 under a uniform and a non-uniform environment.
+and 0.5 under a uniform and a non-uniform environment; below, dielectric, partly metallic and
+metal spheres under the strongly directional workshop preset (diffuse + specular IBL).
 
 Parameter mapping: Mitsuba's `principled` BSDF with metallic = 1 is a GGX metal with Schlick's
 Fresnel, F0 = base_color, and alpha = roughness^2, i.e. our model except for the shadowing term:
@@ -11,15 +12,16 @@ comparison is about shading, not the particle surface.
 
 Compared: the mean over the facing region (true n.v >= 0.5, at least 2 px inside the
 silhouette) per channel. Tolerance per channel, derived:
-* Mitsuba's Monte Carlo noise: 3 x the standard error of the region mean, estimated from two
-  renders with different seeds;
+* Mitsuba's Monte Carlo noise: 3 x the standard error of the region mean, estimated from the
+  spread of four renders with different seeds (METAL_SEEDS);
 * the G difference: the ratio of directional albedos (height-correlated / separable) for the
   material's F0, by quadrature, averaged over the region's n.v distribution; this is exact for
   the uniform environment and a good estimate for the smooth overcast sky;
 * our method's own error: prefiltered table lookup 0.5% (furnace test budget) under the
-  uniform environment; under the sky the split sum adds its error, measured on a much harsher
-  environment in test_shading_ibl.py (mean 0.8% at roughness 0.2, 7.6% at 0.5), of which a
-  smooth sky keeps a fraction: allowance 2% (0.2) and 4% (0.5).
+  uniform environment; under the sky the split sum adds its error, measured here on llvmpipe
+  as at most 0.21% (roughness 0.2) and 0.31% (0.5) over metals and channels: allowance twice
+  that, 0.4% and 0.6%, for another driver's mip filtering. (A smooth sky hides lookup-level and
+  orientation errors; the workshop section below is the test for those.)
 The issue's Done-when asks copper at roughness 0.5 within 6% per channel of principled: checked
 separately under the uniform environment.
 """
@@ -48,6 +50,7 @@ WIDTH = HEIGHT = 40
 EYE = (0.0, 0.5, 3.4)
 FOV_Y = 40.0
 SPP = 96
+METAL_SEEDS = (1, 2, 3, 4)
 ENVIRONMENTS = ("uniform", "overcast")
 
 
@@ -177,18 +180,22 @@ def g_ratio(metal: str, roughness: float) -> tuple[np.ndarray, np.ndarray]:
 def test_sphere_matches_mitsuba_principled(
     renderer: SurfaceRenderer, overcast_exr: Path, metal: str, roughness: float, environment: str
 ) -> None:
-    f0 = METAL_F0[metal]
-    first = mitsuba_render(f0, roughness, environment, overcast_exr, seed=1)
-    second = mitsuba_render(f0, roughness, environment, overcast_exr, seed=2)
     ours, region, facing = our_render(renderer, metal, roughness, environment)
-    mitsuba_mean = 0.5 * (first[region].mean(axis=0) + second[region].mean(axis=0))
-    noise = np.abs(first[region].mean(axis=0) - second[region].mean(axis=0)) / 2.0
+    f0 = METAL_F0[metal]
+    region_means = np.array(
+        [
+            mitsuba_render(f0, roughness, environment, overcast_exr, seed=seed)[region].mean(0)
+            for seed in METAL_SEEDS
+        ]
+    )
+    mitsuba_mean = region_means.mean(axis=0)
+    noise = region_means.std(axis=0, ddof=1) / np.sqrt(len(METAL_SEEDS))
     mus, ratios = g_ratio(metal, roughness)
     per_pixel = np.stack([np.interp(facing[region], mus, ratios[:, c]) for c in range(3)], -1)
     expected_g = per_pixel.mean(axis=0) - 1.0
     ours_mean = ours[region].mean(axis=0)
     relative = ours_mean / mitsuba_mean - 1.0
-    method = 0.005 if environment == "uniform" else {0.2: 0.02, 0.5: 0.04}[roughness]
+    method = 0.005 if environment == "uniform" else {0.2: 0.004, 0.5: 0.006}[roughness]
     tolerance = 3.0 * noise / mitsuba_mean + np.abs(expected_g) + method
     print(
         f"{metal} r={roughness} {environment}: ours {ours_mean.round(4)} mitsuba "
