@@ -83,6 +83,39 @@ MUTATIONS: tuple[Mutation, ...] = (
         ),
         description="prefiltered environment level looked up at roughness^2, not roughness",
     ),
+    Mutation(
+        name="temperatures-of-the-first-k-after-culling",
+        path="server/engine/renderer.py",
+        old="np.ascontiguousarray(frame.temperatures[keep], dtype=np.float32)",
+        new="np.ascontiguousarray(frame.temperatures[: int(keep.sum())], dtype=np.float32)",
+        tests=(
+            "tests/test_shading_emission.py::test_each_pixel_shows_the_temperature_of_its_front_particle",
+        ),
+        description="prepare_particles keeps the first k temperatures, not the visible particles'",
+    ),
+    Mutation(
+        name="temperatures-not-subset-by-surface-only-splatting",
+        path="server/engine/sph.py",
+        old="temperatures=None if out.temperatures is None else out.temperatures[keep],",
+        new="temperatures=None if out.temperatures is None else out.temperatures[: keep.sum()],",
+        tests=(
+            "tests/test_shading_emission.py::test_each_pixel_shows_the_temperature_of_its_front_particle",
+        ),
+        description="surface-only splatting keeps the first k temperatures, not the splatted ones",
+    ),
+    Mutation(
+        name="occlusion-second-pass-takes-temperatures-in-upload-order",
+        path="server/engine/renderer.py",
+        old="kelvin = prepared.temperatures if rows is None else prepared.temperatures[rows]",
+        new=(
+            "kelvin = prepared.temperatures if rows is None"
+            " else prepared.temperatures[first : first + rows.size]"
+        ),
+        tests=(
+            "tests/test_shading_emission.py::test_each_pixel_shows_the_temperature_of_its_front_particle",
+        ),
+        description="the occlusion-culled draws upload temperatures by quad slot, not by particle",
+    ),
 )
 # fmt: on
 
