@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import shutil
 import signal
+import struct
 import subprocess
 import time
 from pathlib import Path
@@ -193,3 +194,71 @@ def test_image_checks_detect_truncation(tmp_path: Path) -> None:
     assert not is_complete_exr(png)
     os.truncate(png, 0)
     assert not is_complete_png(png)
+
+
+def exr_offset_table(data: bytes) -> int:
+    """Byte offset of a single-part scanline EXR's chunk offset table (after the header)."""
+    pos = 8  # magic + version
+    while True:
+        end = data.index(b"\0", pos)
+        if end == pos:
+            return pos + 1  # the empty name that ends the header
+        type_end = data.index(b"\0", end + 1)
+        (size,) = struct.unpack_from("<i", data, type_end + 1)
+        pos = type_end + 5 + size
+
+
+def damage(path: Path, how: str) -> None:
+    """What an interrupted or broken writer can leave under a final name."""
+    data = path.read_bytes()
+    if how == "truncated":
+        path.write_bytes(data[: len(data) * 2 // 3])
+    elif how == "empty":
+        path.write_bytes(b"")
+    elif how == "corrupt" and path.suffix == ".png":  # one byte flipped: a chunk CRC fails
+        middle = len(data) // 2
+        path.write_bytes(data[:middle] + bytes([data[middle] ^ 0x5A]) + data[middle + 1 :])
+    elif how == "corrupt":  # EXR: offset table still zero, as OpenEXR leaves it until close
+        table = exr_offset_table(data)
+        path.write_bytes(data[:table] + bytes(8) + data[table + 8 :])
+    else:
+        raise ValueError(how)
+
+
+def ball_positions(seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    positions: np.ndarray = rng.normal(size=(400, 3)) * 0.1 + np.array([0.0, 0.5, 0.0])
+    return positions
+
+
+@pytest.mark.parametrize("fmt", ["png", "exr"])
+def test_resume_renders_again_what_is_damaged_under_its_final_name(
+    tmp_path: Path, scene_file: Path, fmt: str
+) -> None:
+    """`--resume` skips only complete images. A truncated file, a corrupt one of the right
+    length (PNG: a flipped byte, so a chunk CRC fails; EXR: the chunk offset table still zero)
+    and a zero-length file, each under its final name, are rendered again, byte for byte what
+    the first run wrote; intact outputs are left alone (same mtime). The atomic writer never
+    leaves these itself (the kill test), but a full disk, a copy or another tool can."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for n in range(5):
+        np.save(frames / f"f_{n}.npy", ball_positions(n))
+    out = tmp_path / "out"
+    args = [str(frames), "--scene", str(scene_file), "-o", str(out), "--format", fmt]
+    first = submit(*args)
+    assert first.returncode == 0, first.stderr
+    fresh = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert len(fresh) == 5
+    cases = {"f_0": "truncated", "f_1": "empty", "f_2": "corrupt"}
+    for stem, how in cases.items():
+        damage(out / f"{stem}.{fmt}", how)
+        assert (out / f"{stem}.{fmt}").read_bytes() != fresh[f"{stem}.{fmt}"]
+    intact = {p.name: p.stat().st_mtime_ns for p in out.iterdir() if p.stem not in cases}
+    rerun = submit(*args, "--resume")
+    assert rerun.returncode == 0, rerun.stderr
+    assert "3 rendered, 2 skipped" in rerun.stderr
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == fresh
+    for name, mtime in intact.items():
+        assert (out / name).stat().st_mtime_ns == mtime
+    assert stray_files(out) == []

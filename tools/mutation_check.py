@@ -62,7 +62,7 @@ class Mutation:
 
 # fmt: off
 MUTATIONS: tuple[Mutation, ...] = (
-    # -- the six the issue found -------------------------------------------------------------
+    # -- the six the issue found (and their neighbours) -------------------------------------------------------------
     Mutation(
         name="diffuse-ibl-without-1/pi",
         path="shaders/shade_pbr.frag.glsl",
@@ -115,6 +115,16 @@ MUTATIONS: tuple[Mutation, ...] = (
             "tests/test_shading_emission.py::test_each_pixel_shows_the_temperature_of_its_front_particle",
         ),
         description="the occlusion-culled draws upload temperatures by quad slot, not by particle",
+    ),
+    Mutation(
+        name="resume-skips-any-existing-output",
+        path="client/submit.py",
+        old="if resume and is_complete_image(job.output):",
+        new="if resume and job.output.exists():",
+        tests=(
+            "tests/test_submit.py::test_resume_renders_again_what_is_damaged_under_its_final_name",
+        ),
+        description="--resume skips every existing output, complete or not",
     ),
 )
 # fmt: on
