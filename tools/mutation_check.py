@@ -62,7 +62,7 @@ class Mutation:
 
 # fmt: off
 MUTATIONS: tuple[Mutation, ...] = (
-    # -- the six the issue found (and their neighbours) -------------------------------------------------------------
+    # -- the six the issue found, and their neighbours --------------------------------------
     Mutation(
         name="diffuse-ibl-without-1/pi",
         path="shaders/shade_pbr.frag.glsl",
@@ -125,6 +125,25 @@ MUTATIONS: tuple[Mutation, ...] = (
             "tests/test_submit.py::test_resume_renders_again_what_is_damaged_under_its_final_name",
         ),
         description="--resume skips every existing output, complete or not",
+    ),
+    Mutation(
+        name="normals-from-the-forward-difference",
+        path="shaders/surface_normals.frag.glsl",
+        old="if (has_plus && (!has_minus || abs(z_plus - zc) <= abs(zc - z_minus))) {",
+        new="if (has_plus) {",
+        tests=(
+            "tests/test_engine_groundtruth.py::test_normals_beside_a_nearer_surface_come_from_their_own_surface",
+            "tests/test_engine_groundtruth.py::test_default_quality_on_90k_ball_meets_issue_bounds",
+        ),
+        description="normals always from the forward difference, not the smaller one-sided one",
+    ),
+    Mutation(
+        name="gaussian-weight-with-1/sigma^2",
+        path="shaders/common/gaussian_steps.glsl",
+        old="vec4 q = exp(-1.0 / (2.0 * sigma * sigma));",
+        new="vec4 q = exp(-1.0 / (sigma * sigma));",
+        tests=("tests/test_engine_groundtruth.py::test_default_quality_on_90k_ball_meets_issue_bounds",),
+        description="separable Gaussian weights exp(-k^2 / sigma^2) instead of / (2 sigma^2)",
     ),
 )
 # fmt: on
