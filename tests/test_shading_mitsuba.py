@@ -33,6 +33,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import NamedTuple
 
+import mitsuba as mi  # the test extra: a missing reference renderer fails, never skips
 import numpy as np
 import OpenImageIO as oiio
 import pytest
@@ -43,8 +44,6 @@ from sphrender.server.engine.camera import Camera
 from sphrender.server.engine.materials import METAL_F0
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import scene_from_dict
-
-mi = pytest.importorskip("mitsuba", reason="mitsuba (PyPI, test extra) is not installed")
 
 WIDTH = HEIGHT = 40
 EYE = (0.0, 0.5, 3.4)
