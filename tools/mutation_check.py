@@ -22,6 +22,10 @@ console script `sphrender` runs) and stops otherwise. Child processes the tests 
 mutation is applied to the copy's file and the original bytes are written back (and compared)
 before the next one; the copy is deleted at the end.
 
+Rows are real bugs, not equivalent mutants: a change that cannot alter behaviour is no test of
+anything (one tried and dropped: not converting big-endian arrays in `readers._native`, which
+`make_frame` converts to native float anyway).
+
 Outcome per mutation: pytest exit status 1 (tests failed) = caught, 0 = survived; anything else
 (collection error, unknown node id, timeout) is an error of the check itself and is reported
 as such, never counted as caught. Before the mutations the union of all named tests runs on the
@@ -144,6 +148,200 @@ MUTATIONS: tuple[Mutation, ...] = (
         new="vec4 q = exp(-1.0 / (sigma * sigma));",
         tests=("tests/test_engine_groundtruth.py::test_default_quality_on_90k_ball_meets_issue_bounds",),
         description="separable Gaussian weights exp(-k^2 / sigma^2) instead of / (2 sigma^2)",
+    ),
+    # -- shaders (GLSL) ------------------------------------------------------------------------
+    Mutation(
+        name="schlick-exponent-4",
+        path="shaders/common/brdf.glsl",
+        old="return f0 + (1.0 - f0) * pow5(clamp(1.0 - cos_theta, 0.0, 1.0));",
+        new="return f0 + (1.0 - f0) * pow(clamp(1.0 - cos_theta, 0.0, 1.0), 4.0);",
+        tests=("tests/test_shading_brdf.py",),
+        description="Schlick's Fresnel with (1 - v.h)^4 instead of ^5",
+    ),
+    Mutation(
+        name="alpha-is-roughness",
+        path="shaders/common/brdf.glsl",
+        old="    float r = clamp(roughness, MIN_ROUGHNESS, 1.0);\n    return r * r;",
+        new="    float r = clamp(roughness, MIN_ROUGHNESS, 1.0);\n    return r;",
+        tests=("tests/test_shading_brdf.py",),
+        description="GGX alpha = roughness instead of roughness^2",
+    ),
+    Mutation(
+        name="sh9-l22-with-c3",
+        path="shaders/common/sh9.glsl",
+        old="return c1 * sh[8] * (x * x - y * y)",
+        new="return c3 * sh[8] * (x * x - y * y)",
+        tests=(
+            "tests/test_shading_ibl.py::test_sh_irradiance_in_the_shader_matches_brute_force",
+        ),
+        description="the SH9 L22 (x^2 - y^2) term with c3 (the common bug) instead of c1",
+    ),
+    Mutation(
+        name="equirect-mirrored",
+        path="shaders/common/equirect.glsl",
+        old="return vec2(atan(d.x, -d.z) * (0.5 / 3.14159265358979),",
+        new="return vec2(atan(d.x, d.z) * (0.5 / 3.14159265358979),",
+        tests=(
+            "tests/test_shading_mitsuba.py::test_dielectric_and_partly_metallic_spheres_under_the_workshop_match_mitsuba",
+        ),
+        description="environment lookup u = atan2(x, z): the environment turned by 180 degrees",
+    ),
+    Mutation(
+        name="narrow-range-keeps-the-unmatched-mirror-sample",
+        path="shaders/smooth_depth_separable.frag.glsl",
+        old="bvec4 accept = both(in_reach, both(valid_a, valid_b));",
+        new="bvec4 accept = both(in_reach, valid_a);",
+        tests=("tests/test_filters.py",),
+        description="narrow range: a dropped sample's mirror sample is still averaged",
+    ),
+    Mutation(
+        name="splat-back-surface",
+        path="shaders/splat_sphere.frag.glsl",
+        old="float t = along - sqrt(discriminant);",
+        new="float t = along + sqrt(discriminant);",
+        tests=(
+            "tests/test_engine_groundtruth.py::test_one_particle_is_an_exact_sphere_without_filter",
+        ),
+        description="the impostor's depth from the far intersection of the ray and the sphere",
+    ),
+    Mutation(
+        name="emission-without-its-angular-shape",
+        path="shaders/shade_pbr.frag.glsl",
+        old="vec3 emissivity = u_emissivity * (1.0 - pow5(1.0 - nv));",
+        new="vec3 emissivity = u_emissivity;",
+        tests=(
+            "tests/test_shading_emission.py::test_shader_emission_is_one_minus_fresnel_times_planck",
+        ),
+        description="hot-metal emission without (1 - F(n.v)): as bright at grazing angles",
+    ),
+    # -- OpenCL (shaders/sph.cl) ---------------------------------------------------------------
+    Mutation(
+        name="sph-gradient-sign",
+        path="shaders/sph.cl",
+        old="gradient -= (volume * spline_dw_over_q(q)) * d;",
+        new="gradient += (volume * spline_dw_over_q(q)) * d;",
+        tests=("tests/test_sph.py",),
+        description="colour-field gradient with grad W(x_j - x_i): the normals point inwards",
+    ),
+    Mutation(
+        name="sph-kernel-normalisation-1/pi",
+        path="shaders/sph.cl",
+        old="#define SIGMA_3D 2.546479089470325f /* 8 / pi */",
+        new="#define SIGMA_3D 0.3183098861837907f /* 8 / pi */",
+        tests=("tests/test_sph.py",),
+        description="cubic spline normalised with 1 / (pi h^3) (support radius taken for h/2)",
+    ),
+    Mutation(
+        name="sph-surface-test-as-printed",
+        path="shaders/sph.cl",
+        old="const uchar surface = length(gradient) > threshold ? 1 : 0;",
+        new="const uchar surface = length(gradient) < threshold ? 1 : 0;",
+        tests=("tests/test_sph.py",),
+        description="eq 28 as misprinted in the thesis, |n| < t",
+    ),
+    Mutation(
+        name="sph-spline-derivative-without-1/q",
+        path="shaders/sph.cl",
+        old="return -6.0f * t * t / q;",
+        new="return -6.0f * t * t;",
+        tests=("tests/test_sph.py",),
+        description="(dW/dq) / q of the outer spline branch without its 1 / q",
+    ),
+    # -- Python engine --------------------------------------------------------------------------
+    Mutation(
+        name="near-plane-culls-straddling-spheres",
+        path="server/engine/camera.py",
+        old="keep = depth + r > self.near",
+        new="keep = depth - r > self.near",
+        tests=("tests/test_engine_hard_cases.py",),
+        description="near-plane culling drops spheres that cross the near plane",
+    ),
+    Mutation(
+        name="float32-before-the-eye-subtraction",
+        path="server/engine/camera.py",
+        old="return (positions - self.eye) @ self.rotation.T",
+        new=(
+            "return (positions.astype(np.float32) - self.eye.astype(np.float32))"
+            ".astype(np.float64) @ self.rotation.T"
+        ),
+        tests=(
+            "tests/test_engine_groundtruth.py::test_ball_renders_identically_after_translation",
+        ),
+        description="positions rounded to float32 before subtracting the eye (1e5 loses 1e-2)",
+    ),
+    Mutation(
+        name="eq29-deficit-not-squared",
+        path="server/engine/sph.py",
+        old="radius = body * (1.0 - deficit**2 / decline)",
+        new="radius = body * (1.0 - deficit / decline)",
+        tests=("tests/test_sph.py::test_eq29_adaptive_radius",),
+        description="eq 29 with a linear density deficit instead of its square",
+    ),
+    # -- encoders, wire protocol, service, client ----------------------------------------------
+    Mutation(
+        name="exr-channels-bgr",
+        path="server/encoders.py",
+        old='for index, name in enumerate("RGB"):',
+        new='for index, name in enumerate("BGR"):',
+        tests=("tests/test_encoders.py",),
+        description="EXR colour planes written under each other's names (B as R)",
+    ),
+    Mutation(
+        name="png-alpha-unpremultiplied-by-the-writer",
+        path="server/encoders.py",
+        old='spec.attribute("oiio:UnassociatedAlpha", 1)',
+        new='spec.attribute("oiio:UnassociatedAlpha", 0)',
+        tests=("tests/test_encoders.py",),
+        description="PNG written as associated alpha: OpenImageIO divides straight RGB by alpha",
+    ),
+    Mutation(
+        name="protocol-trailing-payload-accepted",
+        path="client/protocol.py",
+        old="    if offset != view.nbytes:",
+        new="    if offset > view.nbytes:",
+        tests=("tests/test_protocol.py",),
+        description="a FRAME payload longer than its arrays declare is accepted",
+    ),
+    Mutation(
+        name="scheduler-serves-the-first-session-again",
+        path="server/service/scheduler.py",
+        old=(
+            "                    del self._queues[key]\n"
+            "                    if queue:\n"
+            "                        self._queues[key] = queue"
+        ),
+        new="                    if not queue:\n                        del self._queues[key]",
+        tests=("tests/test_service_units.py",),
+        description="take() leaves a served session first in line: no round robin",
+    ),
+    Mutation(
+        name="png-check-ignores-crc",
+        path="client/image_check.py",
+        old="if zlib.crc32(kind + body) & 0xFFFFFFFF != crc:",
+        new="if first and zlib.crc32(kind + body) & 0xFFFFFFFF != crc:",
+        tests=(
+            "tests/test_submit.py::test_resume_renders_again_what_is_damaged_under_its_final_name",
+            "tests/test_submit.py::test_image_checks_detect_truncation",
+        ),
+        description="the PNG completeness check verifies only the IHDR chunk's CRC",
+    ),
+    Mutation(
+        name="exr-check-accepts-offsets-into-the-header",
+        path="client/image_check.py",
+        old="if any(not (pos + 8 * chunks <= o < len(data)) for o in offsets):",
+        new="if any(not (o < len(data)) for o in offsets):",
+        tests=(
+            "tests/test_submit.py::test_resume_renders_again_what_is_damaged_under_its_final_name",
+        ),
+        description="the EXR check accepts chunk offsets that point before the data (zeroed table)",
+    ),
+    Mutation(
+        name="bgeo-floats-read-little-endian",
+        path="client/readers.py",
+        old='_BGEO_TYPES: dict[int, str] = {0: ">f4", 1: ">i4", 4: ">i4", 5: ">f4"}',
+        new='_BGEO_TYPES: dict[int, str] = {0: "<f4", 1: ">i4", 4: ">i4", 5: ">f4"}',
+        tests=("tests/test_readers.py",),
+        description="BGEO float attributes (density) decoded little-endian",
     ),
 )
 # fmt: on
