@@ -168,7 +168,7 @@ def test_ball_renders_identically_after_translation(
 
 @pytest.mark.parametrize("name", list(BALL_TRUTH_BOUNDS))
 def test_each_filter_on_ball(renderer: SurfaceRenderer, ball: np.ndarray, name: str) -> None:
-    extra = {"separable": False} if name.endswith("-2d") else {}
+    extra: dict[str, Any] = {"separable": False} if name.endswith("-2d") else {}
     scene = ball_scene(filter=name.removesuffix("-2d"), **extra)
     errors, truth = render_ball(renderer, ball, scene, np.zeros(3))
     assert errors.silhouette_iou >= 0.97

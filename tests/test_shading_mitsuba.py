@@ -29,7 +29,7 @@ separately under the uniform environment.
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import NamedTuple
 
@@ -70,8 +70,8 @@ def overcast_exr(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def mitsuba_sphere(
-    bsdf: dict[str, object],
-    emitter: dict[str, object],
+    bsdf: Mapping[str, object],
+    emitter: Mapping[str, object],
     *,
     eye: tuple[float, float, float] = EYE,
     size: int = WIDTH,
@@ -109,7 +109,7 @@ def mitsuba_sphere(
     return np.array(mi.render(scene), dtype=np.float64)[..., :3]
 
 
-def principled_metal(f0: Sequence[float], roughness: float) -> dict[str, object]:
+def principled_metal(f0: Sequence[float] | np.ndarray, roughness: float) -> dict[str, object]:
     """GGX + Schlick with F0 = base colour (see the module docstring)."""
     return {
         "type": "principled",
@@ -276,7 +276,7 @@ def workshop_exr(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def workshop_mitsuba(
-    bsdf: dict[str, object], exr: Path, *, spp: int = WORKSHOP_SPP, seeds: int = WORKSHOP_SEEDS
+    bsdf: Mapping[str, object], exr: Path, *, spp: int = WORKSHOP_SPP, seeds: int = WORKSHOP_SEEDS
 ) -> np.ndarray:
     """(seeds, H, W, 3): one Mitsuba image per seed."""
     emitter = {"type": "envmap", "filename": str(exr)}
