@@ -18,10 +18,11 @@ Tolerances:
   seeds 0-7 (measured on llvmpipe, in BALL_TRUTH_BOUNDS): the lattice's random jitter moves the
   figures by that much without any change in quality, so a smaller margin would judge the seed;
   a real regression (a Gaussian twice as narrow: mean 2.34 -> 3.12 deg; normals from the forward
-  difference: 2.34 -> 2.59 deg) moves them by 3-25 standard deviations. Another driver's
-  rounding moves them by far less than a jitter seed. The depth error of the default preset is
-  2.9 r and lies wholly behind the true sphere: every particle centre is inside R, so the union
-  of spheres is inside R + r (bumps 2.35 r deep on average unfiltered; the narrow-range filter
+  difference: 2.34 -> 2.59 deg) moves them by 9-27 standard deviations. (Other GL drivers were
+  not measured; a driver's float rounding changes depths at the 1e-6 level, far below what a
+  jitter seed does.) The depth error of the default preset is 2.9 r, behind the true sphere
+  (signed mean asserted positive): every particle centre is inside R, so the union of spheres
+  is inside R + r (its bumps lie 2.35 r deep on average unfiltered; the narrow-range filter
   adds 0.55 r).
 """
 

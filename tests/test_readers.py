@@ -336,7 +336,7 @@ def test_bgeo_particle_limit_is_checked_before_reading_points(tmp_path: Path) ->
 # Real data (SPlisHSPlasH dam break)
 
 
-def test_vendored_files_are_the_manifests() -> None:
+def test_vendored_files_match_the_manifest() -> None:
     """Every vendored file is there, unchanged (SHA-256), and nothing else is."""
     found = sorted(
         str(p.relative_to(DATA)) for p in DATA.glob("*/*") if p.suffix in (".vtk", ".bgeo")
