@@ -22,8 +22,8 @@ if TYPE_CHECKING:
     from service_harness import ServerProcess
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED = REPO.parent / "shared"
-DAMBREAK = SHARED / "data" / "dambreak-splishsplash"
+#: Real SPH frames vendored with the tests (a slab of the SPlisHSPlasH dam break, tests/data/).
+DAMBREAK = REPO / "tests" / "data" / "dambreak-splishsplash"
 
 
 @pytest.fixture(scope="session")
@@ -54,8 +54,9 @@ def sph_engine(cl_context: CLContext) -> Iterator[SphEngine]:
 
 @pytest.fixture(scope="session")
 def dambreak() -> Path:
-    if not DAMBREAK.is_dir():
-        pytest.skip(f"shared data not found at {DAMBREAK}")
+    """The vendored real frames; missing data is a failure, never a skip."""
+    if not (DAMBREAK / "vtk").is_dir() or not (DAMBREAK / "bgeo").is_dir():
+        pytest.fail(f"vendored dam-break frames not found at {DAMBREAK} (tests/data/README.md)")
     return DAMBREAK
 
 

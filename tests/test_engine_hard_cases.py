@@ -106,14 +106,27 @@ def test_particle_around_the_eye_is_culled(renderer: SurfaceRenderer) -> None:
 def test_particles_at_and_across_the_near_plane(renderer: SurfaceRenderer, offset: float) -> None:
     """Sphere centres at depth near + offset with r = 0.05: their front is cut by the near plane.
     Fragments nearer than `near` are discarded; nothing is NaN and no sprite is giant: coverage
-    stays within the projection of the sphere's silhouette cone."""
-    sc = scene(camera={"near": 0.1})
-    z = 1.0 - (0.1 + offset)
+    stays within the projection of the sphere's silhouette cone. What remains visible is exact:
+    the pixels whose ray meets the sphere's front surface at eye depth >= near (a numpy ray
+    cast; the same pixel-centre test as the splat, ties within 1e-6 of near left out), so a
+    sphere that crosses the near plane is not culled whole. Its silhouette's tangent points lie
+    at eye depth d - r^2 / d (d = near + offset): at offset 0.049 (0.132) a ring around the cut
+    stays visible; at 0 and 0.02 (0.079, 0.099) the whole front lies nearer than the plane."""
+    near = 0.1
+    sc = scene(camera={"near": near})
+    z = 1.0 - (near + offset)
     frame = render(renderer, np.array([[0.0, 0.0, z]]), sc)
     assert frame.depth is not None
     covered = np.isfinite(frame.depth)
-    assert np.all(frame.depth[covered] >= 0.1 * (1 - 1e-6))
-    assert np.all(frame.depth[covered] <= 0.1 + offset + 0.05 + 1e-6)
+    assert np.all(frame.depth[covered] >= near * (1 - 1e-6))
+    assert np.all(frame.depth[covered] <= near + offset + 0.05 + 1e-6)
+    camera = Camera.from_config(sc.camera, sc.image.width, sc.image.height)
+    hit, front_depth = sphere_hits(camera, np.array([0.0, 0.0, z]), 0.05)
+    visible = hit & (front_depth >= near)
+    ties = hit & (np.abs(front_depth - near) < 1e-6)
+    assert np.array_equal(covered & ~ties, visible & ~ties)
+    depth = near + offset
+    assert visible.any() == (depth - 0.05**2 / depth > near)
 
 
 def test_far_plane_clips(renderer: SurfaceRenderer) -> None:

@@ -3,8 +3,8 @@
 Tolerance: depths are ~2 scene units and a pixel sums at most a few hundred float32 terms, so
 accumulation error is ~1e-6 relative; GLSL's exp() on llvmpipe is within a few ulp. We allow
 2e-5 absolute (1e-5 relative; measured at most 7e-6), far below what any wrong rule produces:
-a box filter posing as a Gaussian differs by > 1e-2 on the same image (asserted, so this test
-can fail).
+a box filter posing as a Gaussian differs by > 1e-2 on the same image (BOX_DIFFERENCE, asserted
+for every filter and image below, so this test can fail; measured 1.6e-2 at the least).
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from sphrender.server.scene import QualityConfig
 RADIUS = 0.01
 PX_PER_UNIT = 260.0  # r_px = 1.3 px at z = 2
 TOLERANCE = 2e-5
+BOX_DIFFERENCE = 1e-2  # 500 x TOLERANCE
 
 
 def synthetic_depth(height: int = 36, width: int = 44) -> np.ndarray:
@@ -72,7 +73,7 @@ def assert_matches_reference(
     # The comparison is sharp enough to catch the classic porting bug: spatial weights that
     # degenerate to a box filter.
     box = filter_depth(depth, RADIUS, px_per_unit, quality, box=True)
-    assert np.abs(gpu - box).max() > 30 * TOLERANCE
+    assert np.abs(gpu - box).max() > BOX_DIFFERENCE
 
 
 @pytest.mark.parametrize("name", list(QUALITIES))

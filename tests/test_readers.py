@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import gzip
+import hashlib
+import json
 import pickle
 import struct
 import subprocess
@@ -25,18 +27,14 @@ from sphrender.client.readers import (
     read_particles,
 )
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
-DATA = SHARED / "data" / "dambreak-splishsplash"
+#: Real SPlisHSPlasH frames vendored with the tests (a slab of each frame, tests/data/README.md);
+#: their particle counts and checksums are in the manifest.
+DATA = Path(__file__).resolve().parent / "data" / "dambreak-splishsplash"
+MANIFEST: dict[str, dict[str, Any]] = json.loads((DATA / "manifest.json").read_text())
 VTK_FILES = sorted((DATA / "vtk").glob("*.vtk"), key=natural_sort_key)
 BGEO_FRAMES = (5, 11)
 
-needs_data = pytest.mark.skipif(
-    not (DATA / "vtk").is_dir() or not (DATA / "bgeo").is_dir(),
-    reason=f"shared SPlisHSPlasH data not found at {DATA} (clone shared/ beside the repository)",
-)
-
-# Documented in DATA/README.md and scene.json.
-PARTICLES_PER_FRAME = 32768
+# Documented in the source data's README.md and scene.json.
 PARTICLE_RADIUS = 0.015
 EXTENT_LOW = np.array([-2.0, 0.0, -0.75]) - PARTICLE_RADIUS
 EXTENT_HIGH = np.array([2.0, 3.0, 0.75]) + PARTICLE_RADIUS
@@ -338,18 +336,23 @@ def test_bgeo_particle_limit_is_checked_before_reading_points(tmp_path: Path) ->
 # Real data (SPlisHSPlasH dam break)
 
 
-@needs_data
-def test_shared_vtk_files_found() -> None:
+def test_vendored_files_match_the_manifest() -> None:
+    """Every vendored file is there, unchanged (SHA-256), and nothing else is."""
+    found = sorted(
+        str(p.relative_to(DATA)) for p in DATA.glob("*/*") if p.suffix in (".vtk", ".bgeo")
+    )
+    assert found == sorted(MANIFEST)
+    for name, entry in MANIFEST.items():
+        assert hashlib.sha256((DATA / name).read_bytes()).hexdigest() == entry["sha256"], name
     assert len(VTK_FILES) >= 2, f"expected VTK frames in {DATA / 'vtk'}"
     frames = [int(p.stem.rsplit("_", 1)[1]) for p in VTK_FILES]
-    assert frames == sorted(frames)  # natural order: 1, 3, 5, ..., 15
+    assert frames == sorted(frames)  # natural order: 1, 5, 11
 
 
-@needs_data
 @pytest.mark.parametrize("path", VTK_FILES, ids=lambda p: p.name)
 def test_real_vtk_frame(path: Path) -> None:
     frame = read_particles(path)
-    assert frame.count == PARTICLES_PER_FRAME
+    assert frame.count == MANIFEST[f"vtk/{path.name}"]["particles"]
     assert_native(frame)
     assert np.isfinite(frame.positions).all()
     assert (frame.positions >= EXTENT_LOW).all() and (frame.positions <= EXTENT_HIGH).all()
@@ -364,7 +367,6 @@ def test_real_vtk_frame(path: Path) -> None:
     assert frame.densities.max() <= 1.25 * REST_DENSITY
 
 
-@needs_data
 def test_real_vtk_is_big_endian_in_meshio_but_native_from_reader() -> None:
     raw = meshio.read(VTK_FILES[0])
     assert raw.points.dtype.byteorder == ">"  # what the README warns about
@@ -375,7 +377,6 @@ def test_real_vtk_is_big_endian_in_meshio_but_native_from_reader() -> None:
     np.testing.assert_array_equal(frame.densities, raw.point_data["density"])
 
 
-@needs_data
 @pytest.mark.parametrize("frame_number", BGEO_FRAMES)
 def test_real_bgeo_equals_vtk(frame_number: int) -> None:
     vtk = read_particles(DATA / "vtk" / f"ParticleData_Fluid_{frame_number}.vtk")
@@ -383,13 +384,12 @@ def test_real_bgeo_equals_vtk(frame_number: int) -> None:
     assert bgeo_path.read_bytes()[:2] == b"\x1f\x8b"  # the shipped files are gzip-compressed
     bgeo = read_particles(bgeo_path)
     assert_native(bgeo)
-    assert bgeo.count == vtk.count == PARTICLES_PER_FRAME
+    assert bgeo.count == vtk.count == MANIFEST[f"bgeo/{bgeo_path.name}"]["particles"]
     np.testing.assert_array_equal(bgeo.positions, vtk.positions)
     assert bgeo.densities is not None and vtk.densities is not None
     np.testing.assert_array_equal(bgeo.densities, vtk.densities)
 
 
-@needs_data
 def test_real_bgeo_plain_and_gzip_and_bgeo_gz_suffix(tmp_path: Path) -> None:
     original = DATA / "bgeo" / f"ParticleData_Fluid_{BGEO_FRAMES[0]}.bgeo"
     raw = gzip.decompress(original.read_bytes())
@@ -408,7 +408,6 @@ def test_real_bgeo_plain_and_gzip_and_bgeo_gz_suffix(tmp_path: Path) -> None:
         np.testing.assert_array_equal(frame.densities, reference.densities)
 
 
-@needs_data
 def test_real_bgeo_truncated(tmp_path: Path) -> None:
     original = DATA / "bgeo" / f"ParticleData_Fluid_{BGEO_FRAMES[0]}.bgeo"
     compressed = original.read_bytes()
@@ -424,7 +423,6 @@ def test_real_bgeo_truncated(tmp_path: Path) -> None:
     assert read_error(gz_cut).field == "file"
 
 
-@needs_data
 def test_real_attribute_map_missing_attribute() -> None:
     error = read_error(VTK_FILES[0], attribute_map={"temperature": "T"})
     assert error.field == "attribute_map.temperature"

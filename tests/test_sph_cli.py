@@ -86,10 +86,12 @@ def test_sph_on_real_frame_matches_ckdtree(
 def test_surface_fraction_of_the_initial_block(
     dambreak: Path, scene_toml: Path, tmp_path: Path
 ) -> None:
-    """Frame 1 is the initial 32^3 lattice block: its surface is the outer layer,
-    (32^3 - 30^3) / 32^3 = 17.6% of the particles."""
+    """Frame 1 is the initial 32^3 lattice block, vendored as its central slab of 8 layers
+    (tests/data/): a 32 x 32 x 8 lattice box, whose surface is the outer layer of particles,
+    32 * 32 * 8 - 30 * 30 * 6 = 2792 of 8192 (the slab's cut faces are free surfaces too)."""
     arrays = run_sph(dambreak / "vtk" / "ParticleData_Fluid_1.vtk", scene_toml, tmp_path / "o.npz")
-    assert int(arrays["surface"].sum()) == 32**3 - 30**3
+    assert arrays["surface"].size == 32 * 32 * 8
+    assert int(arrays["surface"].sum()) == 32 * 32 * 8 - 30 * 30 * 6
 
 
 def test_sph_with_adaptive_radius_and_surface_only(

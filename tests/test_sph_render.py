@@ -13,8 +13,11 @@ Ground truth:
   crevice narrower than h between two fluid parts is not "surface" and its floor is dropped:
   there the image shows the fluid behind (never the background). So coverage must be identical,
   and the share of pixels whose depth moves by more than 1% is bounded by the measured share
-  (llvmpipe, 640x360: ball 0.015%, dam-break frame 5 0.18%, frame 11 0.05%) with ~3x margin.
-  A cube of lattice particles (frame 1) has no crevice and renders bit-identically.
+  (llvmpipe, 640x360: ball 0.015%; the vendored slabs of the dam break, tests/data/: frame 5
+  0.097%, frame 11 0.014%) with ~3x margin. A cube of lattice particles (frame 1) has no
+  crevice and renders bit-identically. The drawn share is bounded at the measured one + 0.03
+  (frame 1 0.617, 5 0.770, 11 0.925): a slab 8 layers thick keeps little interior to drop,
+  since everything within h (2 layers) of its faces is splatted.
 """
 
 from __future__ import annotations
@@ -156,13 +159,15 @@ def test_surface_only_splatting_on_ball(renderer: SurfaceRenderer) -> None:
     assert moved < 5e-4
 
 
-@pytest.mark.parametrize(("name", "max_moved"), [("1", 0.0), ("5", 6e-3), ("11", 2e-3)])
+@pytest.mark.parametrize(
+    ("name", "max_drawn", "max_moved"), [("1", 0.65, 0.0), ("5", 0.8, 3e-3), ("11", 0.955, 5e-4)]
+)
 def test_surface_only_splatting_on_real_frames(
-    renderer: SurfaceRenderer, dambreak: Path, name: str, max_moved: float
+    renderer: SurfaceRenderer, dambreak: Path, name: str, max_drawn: float, max_moved: float
 ) -> None:
     frame = read_particles(dambreak / "vtk" / f"ParticleData_Fluid_{name}.vtk")
     drawn, moved, full, part = surface_only_errors(renderer, frame.positions, real_frame_scene())
-    assert drawn < 0.85
+    assert drawn < max_drawn
     assert moved <= max_moved
     if max_moved == 0.0:
         assert np.array_equal(full, part)

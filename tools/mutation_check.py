@@ -1,0 +1,533 @@
+"""Mutation check: plant small, plausible bugs one at a time and see whether the tests that
+claim to guard against them fail. Not part of CI (it runs selected tests once per mutation).
+
+    .venv/bin/python tools/mutation_check.py            # every mutation, then the score
+    .venv/bin/python tools/mutation_check.py --list     # the table, nothing run
+    .venv/bin/python tools/mutation_check.py -k resume  # mutations whose name contains "resume"
+
+Every planted bug is one row of `MUTATIONS`: the file (relative to the repository root), the
+exact text to replace (it must occur exactly once, or the script stops before running anything:
+a stale path or text is an error, never a silently "caught" mutation), its replacement, the
+tests expected to catch it (pytest node ids) and what the bug is.
+
+Safety: the working tree is never modified. The script copies the tree (tracked files plus
+untracked files that git does not ignore, i.e. what `git status` shows) into a temporary
+directory, builds the import layout `sphrender/{server,client,shaders,configs}` there as
+symlinks into the copy, and runs pytest from the copy with that layout first on PYTHONPATH.
+The package is installed editable from the working tree, but setuptools' editable finder sits
+after the normal path finder on `sys.meta_path`, so the copy wins; the script checks this
+before anything else (every package must import from the copy, also in a child process as the
+console script `sphrender` runs) and stops otherwise. Child processes the tests start
+(`sphrender serve`, `sphrender submit`) inherit PYTHONPATH and so run the copy too. Each
+mutation is applied to the copy's file and the original bytes are written back (and compared)
+before the next one; the copy is deleted at the end.
+
+Rows are real bugs, not equivalent mutants: a change that cannot alter behaviour is no test of
+anything (one tried and dropped: not converting big-endian arrays in `readers._native`, which
+`make_frame` converts to native float anyway).
+
+Outcome per mutation: pytest exit status 1 (tests failed) = caught, 0 = survived; anything else
+(collection error, unknown node id, timeout) is an error of the check itself and is reported
+as such, never counted as caught. Before the mutations the union of all named tests runs on the
+unmutated copy and must pass, so that a "caught" means the bug was seen, not that the test was
+already failing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGE_FOLDERS = ("server", "client", "shaders", "configs")
+#: Caught share the check aims at (the issue's Done-when).
+TARGET_SCORE = 0.9
+TIMEOUT_S = 900
+
+
+@dataclass(frozen=True)
+class Mutation:
+    name: str
+    path: str  # relative to the repository root
+    old: str  # must occur exactly once in the file
+    new: str
+    tests: tuple[str, ...]  # pytest node ids (relative to the repository root)
+    description: str
+
+
+# fmt: off
+MUTATIONS: tuple[Mutation, ...] = (
+    # -- the six the issue found, and their neighbours --------------------------------------
+    Mutation(
+        name="diffuse-ibl-without-1/pi",
+        path="shaders/shade/shade_pbr.frag.glsl",
+        old="diffuse_ibl = (1.0 - specular_albedo) * u_diffuse_albedo * irradiance * (1.0 / PI);",
+        new="diffuse_ibl = (1.0 - specular_albedo) * u_diffuse_albedo * irradiance;",
+        tests=(
+            "tests/test_shading_mitsuba.py::test_dielectric_and_partly_metallic_spheres_under_the_workshop_match_mitsuba",
+        ),
+        description="the diffuse environment term E_sh(n) c_diff without its 1/pi",
+    ),
+    Mutation(
+        name="prefiltered-level-from-roughness-squared",
+        path="shaders/shade/shade_pbr.frag.glsl",
+        old="float lod = clamp(u_roughness, 0.0, 1.0) * u_prefiltered_max_lod;",
+        new="float lod = clamp(u_roughness * u_roughness, 0.0, 1.0) * u_prefiltered_max_lod;",
+        tests=(
+            "tests/test_shading_mitsuba.py::test_dielectric_and_partly_metallic_spheres_under_the_workshop_match_mitsuba",
+        ),
+        description="prefiltered environment level looked up at roughness^2, not roughness",
+    ),
+    Mutation(
+        name="temperatures-of-the-first-k-after-culling",
+        path="server/engine/geometry/prepare.py",
+        old="np.ascontiguousarray(frame.temperatures[keep], dtype=np.float32)",
+        new="np.ascontiguousarray(frame.temperatures[: int(keep.sum())], dtype=np.float32)",
+        tests=(
+            "tests/test_shading_emission.py::test_each_pixel_shows_the_temperature_of_its_front_particle",
+        ),
+        description="prepare_particles keeps the first k temperatures, not the visible particles'",
+    ),
+    Mutation(
+        name="temperatures-not-subset-by-surface-only-splatting",
+        path="server/engine/sph/frame.py",
+        old="temperatures=None if out.temperatures is None else out.temperatures[keep],",
+        new="temperatures=None if out.temperatures is None else out.temperatures[: keep.sum()],",
+        tests=(
+            "tests/test_shading_emission.py::test_each_pixel_shows_the_temperature_of_its_front_particle",
+        ),
+        description="surface-only splatting keeps the first k temperatures, not the splatted ones",
+    ),
+    Mutation(
+        name="occlusion-second-pass-takes-temperatures-in-upload-order",
+        path="server/engine/passes/splat.py",
+        old="kelvin = prepared.temperatures if rows is None else prepared.temperatures[rows]",
+        new=(
+            "kelvin = prepared.temperatures if rows is None"
+            " else prepared.temperatures[first : first + rows.size]"
+        ),
+        tests=(
+            "tests/test_shading_emission.py::test_each_pixel_shows_the_temperature_of_its_front_particle",
+        ),
+        description="the occlusion-culled draws upload temperatures by quad slot, not by particle",
+    ),
+    Mutation(
+        name="resume-skips-any-existing-output",
+        path="client/submit.py",
+        old="if resume and is_complete_image(job.output):",
+        new="if resume and job.output.exists():",
+        tests=(
+            "tests/test_submit.py::test_resume_renders_again_what_is_damaged_under_its_final_name",
+        ),
+        description="--resume skips every existing output, complete or not",
+    ),
+    Mutation(
+        name="normals-from-the-forward-difference",
+        path="shaders/normals/surface_normals.frag.glsl",
+        old="if (has_plus && (!has_minus || abs(z_plus - zc) <= abs(zc - z_minus))) {",
+        new="if (has_plus) {",
+        tests=(
+            "tests/test_engine_groundtruth.py::test_normals_beside_a_nearer_surface_come_from_their_own_surface",
+            "tests/test_engine_groundtruth.py::test_default_quality_on_90k_ball_meets_issue_bounds",
+        ),
+        description="normals always from the forward difference, not the smaller one-sided one",
+    ),
+    Mutation(
+        name="gaussian-weight-with-1/sigma^2",
+        path="shaders/common/gaussian_steps.glsl",
+        old="vec4 q = exp(-1.0 / (2.0 * sigma * sigma));",
+        new="vec4 q = exp(-1.0 / (sigma * sigma));",
+        tests=("tests/test_engine_groundtruth.py::test_default_quality_on_90k_ball_meets_issue_bounds",),
+        description="separable Gaussian weights exp(-k^2 / sigma^2) instead of / (2 sigma^2)",
+    ),
+    # -- shaders (GLSL) ------------------------------------------------------------------------
+    Mutation(
+        name="schlick-exponent-4",
+        path="shaders/common/brdf.glsl",
+        old="return f0 + (1.0 - f0) * pow5(clamp(1.0 - cos_theta, 0.0, 1.0));",
+        new="return f0 + (1.0 - f0) * pow(clamp(1.0 - cos_theta, 0.0, 1.0), 4.0);",
+        tests=("tests/test_shading_brdf.py",),
+        description="Schlick's Fresnel with (1 - v.h)^4 instead of ^5",
+    ),
+    Mutation(
+        name="alpha-is-roughness",
+        path="shaders/common/brdf.glsl",
+        old="    float r = clamp(roughness, MIN_ROUGHNESS, 1.0);\n    return r * r;",
+        new="    float r = clamp(roughness, MIN_ROUGHNESS, 1.0);\n    return r;",
+        tests=("tests/test_shading_brdf.py",),
+        description="GGX alpha = roughness instead of roughness^2",
+    ),
+    Mutation(
+        name="sh9-l22-with-c3",
+        path="shaders/common/sh9.glsl",
+        old="return c1 * sh[8] * (x * x - y * y)",
+        new="return c3 * sh[8] * (x * x - y * y)",
+        tests=(
+            "tests/test_shading_ibl.py::test_sh_irradiance_in_the_shader_matches_brute_force",
+        ),
+        description="the SH9 L22 (x^2 - y^2) term with c3 (the common bug) instead of c1",
+    ),
+    Mutation(
+        name="equirect-mirrored",
+        path="shaders/common/equirect.glsl",
+        old="return vec2(atan(d.x, -d.z) * (0.5 / 3.14159265358979),",
+        new="return vec2(atan(d.x, d.z) * (0.5 / 3.14159265358979),",
+        tests=(
+            "tests/test_shading_mitsuba.py::test_dielectric_and_partly_metallic_spheres_under_the_workshop_match_mitsuba",
+        ),
+        description="environment lookup u = atan2(x, z): the environment turned by 180 degrees",
+    ),
+    Mutation(
+        name="narrow-range-keeps-the-unmatched-mirror-sample",
+        path="shaders/smooth/smooth_depth_separable.frag.glsl",
+        old="bvec4 accept = both(in_reach, both(valid_a, valid_b));",
+        new="bvec4 accept = both(in_reach, valid_a);",
+        tests=("tests/test_filters.py",),
+        description="narrow range: a dropped sample's mirror sample is still averaged",
+    ),
+    Mutation(
+        name="splat-back-surface",
+        path="shaders/splat/splat_sphere.frag.glsl",
+        old="float t = along - sqrt(discriminant);",
+        new="float t = along + sqrt(discriminant);",
+        tests=(
+            "tests/test_engine_groundtruth.py::test_one_particle_is_an_exact_sphere_without_filter",
+        ),
+        description="the impostor's depth from the far intersection of the ray and the sphere",
+    ),
+    Mutation(
+        name="emission-without-its-angular-shape",
+        path="shaders/shade/shade_pbr.frag.glsl",
+        old="vec3 emissivity = u_emissivity * (1.0 - pow5(1.0 - nv));",
+        new="vec3 emissivity = u_emissivity;",
+        tests=(
+            "tests/test_shading_emission.py::test_shader_emission_is_one_minus_fresnel_times_planck",
+        ),
+        description="hot-metal emission without (1 - F(n.v)): as bright at grazing angles",
+    ),
+    # -- OpenCL (shaders/sph.cl) ---------------------------------------------------------------
+    Mutation(
+        name="sph-gradient-sign",
+        path="shaders/sph/sph.cl",
+        old="gradient -= (volume * spline_dw_over_q(q)) * d;",
+        new="gradient += (volume * spline_dw_over_q(q)) * d;",
+        tests=("tests/test_sph.py",),
+        description="colour-field gradient with grad W(x_j - x_i): the normals point inwards",
+    ),
+    Mutation(
+        name="sph-kernel-normalisation-1/pi",
+        path="shaders/sph/sph.cl",
+        old="#define SIGMA_3D 2.546479089470325f /* 8 / pi */",
+        new="#define SIGMA_3D 0.3183098861837907f /* 8 / pi */",
+        tests=("tests/test_sph.py",),
+        description="cubic spline normalised with 1 / (pi h^3) (support radius taken for h/2)",
+    ),
+    Mutation(
+        name="sph-surface-test-as-printed",
+        path="shaders/sph/sph.cl",
+        old="const uchar surface = length(gradient) > threshold ? 1 : 0;",
+        new="const uchar surface = length(gradient) < threshold ? 1 : 0;",
+        tests=("tests/test_sph.py",),
+        description="eq 28 as misprinted in the thesis, |n| < t",
+    ),
+    Mutation(
+        name="sph-spline-derivative-without-1/q",
+        path="shaders/sph/sph.cl",
+        old="return -6.0f * t * t / q;",
+        new="return -6.0f * t * t;",
+        tests=("tests/test_sph.py",),
+        description="(dW/dq) / q of the outer spline branch without its 1 / q",
+    ),
+    # -- Python engine --------------------------------------------------------------------------
+    Mutation(
+        name="near-plane-culls-straddling-spheres",
+        path="server/engine/geometry/camera.py",
+        old="keep = depth + r > self.near",
+        new="keep = depth - r > self.near",
+        tests=("tests/test_engine_hard_cases.py",),
+        description="near-plane culling drops spheres that cross the near plane",
+    ),
+    Mutation(
+        name="float32-before-the-eye-subtraction",
+        path="server/engine/geometry/camera.py",
+        old="return (positions - self.eye) @ self.rotation.T",
+        new=(
+            "return (positions.astype(np.float32) - self.eye.astype(np.float32))"
+            ".astype(np.float64) @ self.rotation.T"
+        ),
+        tests=(
+            "tests/test_engine_groundtruth.py::test_ball_renders_identically_after_translation",
+        ),
+        description="positions rounded to float32 before subtracting the eye (1e5 loses 1e-2)",
+    ),
+    Mutation(
+        name="eq29-deficit-not-squared",
+        path="server/engine/sph/radii.py",
+        old="radius = body * (1.0 - deficit**2 / decline)",
+        new="radius = body * (1.0 - deficit / decline)",
+        tests=("tests/test_sph.py::test_eq29_adaptive_radius",),
+        description="eq 29 with a linear density deficit instead of its square",
+    ),
+    # -- encoders, wire protocol, service, client ----------------------------------------------
+    Mutation(
+        name="exr-channels-bgr",
+        path="server/output/encoders.py",
+        old='for index, name in enumerate("RGB"):',
+        new='for index, name in enumerate("BGR"):',
+        tests=("tests/test_encoders.py",),
+        description="EXR colour planes written under each other's names (B as R)",
+    ),
+    Mutation(
+        name="png-alpha-unpremultiplied-by-the-writer",
+        path="server/output/encoders.py",
+        old='spec.attribute("oiio:UnassociatedAlpha", 1)',
+        new='spec.attribute("oiio:UnassociatedAlpha", 0)',
+        tests=("tests/test_encoders.py",),
+        description="PNG written as associated alpha: OpenImageIO divides straight RGB by alpha",
+    ),
+    Mutation(
+        name="protocol-trailing-payload-accepted",
+        path="client/protocol.py",
+        old="    if offset != payload_length:",
+        new="    if offset > payload_length:",
+        tests=("tests/test_protocol.py",),
+        description="a FRAME payload longer than its arrays declare is accepted",
+    ),
+    Mutation(
+        name="scheduler-serves-the-first-session-again",
+        path="server/service/scheduler.py",
+        old=(
+            "                    del self._queues[key]\n"
+            "                    if queue:\n"
+            "                        self._queues[key] = queue"
+        ),
+        new="                    if not queue:\n                        del self._queues[key]",
+        tests=("tests/test_service_units.py",),
+        description="take() leaves a served session first in line: no round robin",
+    ),
+    Mutation(
+        name="png-check-ignores-crc",
+        path="client/image_check.py",
+        old="if zlib.crc32(kind + body) & 0xFFFFFFFF != crc:",
+        new="if first and zlib.crc32(kind + body) & 0xFFFFFFFF != crc:",
+        tests=(
+            "tests/test_submit.py::test_resume_renders_again_what_is_damaged_under_its_final_name",
+            "tests/test_submit.py::test_image_checks_detect_truncation",
+        ),
+        description="the PNG completeness check verifies only the IHDR chunk's CRC",
+    ),
+    Mutation(
+        name="exr-check-accepts-offsets-into-the-header",
+        path="client/image_check.py",
+        old="if any(not (pos + 8 * chunks <= o < len(data)) for o in offsets):",
+        new="if any(not (o < len(data)) for o in offsets):",
+        tests=(
+            "tests/test_submit.py::test_resume_renders_again_what_is_damaged_under_its_final_name",
+        ),
+        description="the EXR check accepts chunk offsets that point before the data (zeroed table)",
+    ),
+    Mutation(
+        name="bgeo-floats-read-little-endian",
+        path="client/readers.py",
+        old='_BGEO_TYPES: dict[int, str] = {0: ">f4", 1: ">i4", 4: ">i4", 5: ">f4"}',
+        new='_BGEO_TYPES: dict[int, str] = {0: "<f4", 1: ">i4", 4: ">i4", 5: ">f4"}',
+        tests=("tests/test_readers.py",),
+        description="BGEO float attributes (density) decoded little-endian",
+    ),
+)
+# fmt: on
+
+
+def check_table(mutations: Sequence[Mutation], root: Path) -> list[str]:
+    """Every problem with the table against the files under `root` (empty = usable)."""
+    problems = []
+    names = [m.name for m in mutations]
+    for name in sorted({n for n in names if names.count(n) > 1}):
+        problems.append(f"duplicate mutation name {name!r}")
+    for m in mutations:
+        path = root / m.path
+        if not path.is_file():
+            problems.append(f"{m.name}: {m.path} does not exist")
+            continue
+        count = path.read_text(encoding="utf-8").count(m.old)
+        if count != 1:
+            problems.append(f"{m.name}: the old text occurs {count} times in {m.path}, not once")
+        if m.old == m.new:
+            problems.append(f"{m.name}: old and new text are the same")
+        if not m.tests:
+            problems.append(f"{m.name}: no tests named")
+        for test in m.tests:
+            test_file = root / test.split("::", 1)[0]
+            if not test_file.is_file():
+                problems.append(f"{m.name}: test file {test_file.relative_to(root)} not found")
+    return problems
+
+
+def tree_files(repo: Path) -> list[str]:
+    """Tracked files and untracked files git does not ignore (the working tree as git sees it)."""
+    listed = subprocess.run(
+        ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+        cwd=repo,
+        capture_output=True,
+        check=True,
+    ).stdout.decode()
+    return [name for name in listed.split("\0") if name and (repo / name).is_file()]
+
+
+@contextmanager
+def copied_tree(repo: Path = REPO) -> Iterator[tuple[Path, dict[str, str]]]:
+    """A temporary copy of the tree and the environment that imports `sphrender` from it."""
+    with tempfile.TemporaryDirectory(prefix="sphrender-mutation-") as tmp:
+        # Nested one level deeper so nothing named `shared` sits beside the copy: tests that
+        # still needed ../shared would fail here instead of passing on the workplace's data.
+        tree = Path(tmp) / "checkout" / "sphrender"
+        for name in tree_files(repo):
+            target = tree / name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(repo / name, target)
+        layout = Path(tmp) / "layout" / "sphrender"
+        layout.mkdir(parents=True)
+        for folder in PACKAGE_FOLDERS:
+            (layout / folder).symlink_to(tree / folder, target_is_directory=True)
+        env = {
+            **os.environ,
+            "PYTHONPATH": os.pathsep.join(
+                [str(layout.parent), *filter(None, [os.environ.get("PYTHONPATH")])]
+            ),
+            "PYTHONDONTWRITEBYTECODE": "1",
+        }
+        check_imports_from(tree, env)
+        yield tree, env
+
+
+def check_imports_from(tree: Path, env: dict[str, str]) -> None:
+    """Stop unless a child interpreter with `env` imports every package from `tree`."""
+    probe = (
+        "import importlib.resources, sphrender.server.engine.renderer as r, "
+        "sphrender.client.submit as s, sphrender.server.cli as c;"
+        "print(r.__file__); print(s.__file__); print(c.__file__);"
+        "print(importlib.resources.files('sphrender.shaders').joinpath('sph.cl'));"
+        "print(importlib.resources.files('sphrender.configs').joinpath('demo.toml'))"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", probe],
+        cwd=tree,
+        env=env,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    if result.returncode != 0:
+        raise SystemExit(f"the copied tree does not import:\n{result.stderr}")
+    for line in result.stdout.split():
+        resolved = Path(line).resolve()
+        if not resolved.is_relative_to(tree.resolve()):
+            raise SystemExit(f"the copy is not what runs: {line} resolves outside {tree}")
+
+
+def run_pytest(
+    tree: Path, env: dict[str, str], tests: Sequence[str], *, stop_first: bool
+) -> tuple[int, float, str]:
+    """(exit status, seconds, the first failed test or the last lines of output); status -1 =
+    timed out."""
+    command = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--no-header"]
+    command += ["-x"] if stop_first else []
+    start = time.monotonic()
+    try:
+        result = subprocess.run(
+            [*command, *tests],
+            cwd=tree,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=TIMEOUT_S,
+            check=False,
+        )
+    except subprocess.TimeoutExpired:
+        return -1, time.monotonic() - start, "timed out"
+    lines = (result.stdout + result.stderr).strip().splitlines()
+    failed = [line.split(" ", 1)[1] for line in lines if line.startswith(("FAILED ", "ERROR "))]
+    detail = failed[0] if failed else "\n".join(lines[-6:])
+    return result.returncode, time.monotonic() - start, detail
+
+
+@contextmanager
+def planted(tree: Path, mutation: Mutation) -> Iterator[None]:
+    path = tree / mutation.path
+    original = path.read_bytes()
+    text = original.decode("utf-8")
+    if text.count(mutation.old) != 1:
+        raise SystemExit(f"{mutation.name}: old text not found exactly once in {mutation.path}")
+    path.write_bytes(text.replace(mutation.old, mutation.new, 1).encode("utf-8"))
+    try:
+        yield
+    finally:
+        path.write_bytes(original)
+        if path.read_bytes() != original:
+            raise SystemExit(f"could not restore {path}")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--list", action="store_true", help="print the table and exit")
+    parser.add_argument("-k", dest="select", help="only mutations whose name contains this")
+    parser.add_argument(
+        "--skip-baseline", action="store_true", help="do not run the tests unmutated first"
+    )
+    args = parser.parse_args(argv)
+    mutations = [m for m in MUTATIONS if not args.select or args.select in m.name]
+    problems = check_table(MUTATIONS, REPO)
+    if problems:
+        print("The mutation table does not match the tree:", *problems, sep="\n  ")
+        return 2
+    if args.list:
+        for m in mutations:
+            print(f"{m.name}\n  {m.path}: {m.description}\n  guarded by: {', '.join(m.tests)}")
+        return 0
+    if not mutations:
+        print("no mutation selected")
+        return 2
+    with copied_tree() as (tree, env):
+        if not args.skip_baseline:
+            union = list(dict.fromkeys(t for m in mutations for t in m.tests))
+            status, seconds, tail = run_pytest(tree, env, union, stop_first=False)
+            print(f"baseline: {len(union)} tests unmutated, exit {status} in {seconds:.0f} s")
+            if status != 0:
+                print(tail)
+                print("the named tests must pass on the unmutated tree; stopping")
+                return 2
+        rows: list[tuple[Mutation, str, float, str]] = []
+        for m in mutations:
+            with planted(tree, m):
+                status, seconds, detail = run_pytest(tree, env, m.tests, stop_first=True)
+            outcome = {0: "SURVIVED", 1: "caught"}.get(status, f"ERROR (exit {status})")
+            by = detail.split(" - ", 1)[0].split("::", 1)[-1] if status == 1 else ""
+            rows.append((m, outcome, seconds, by))
+            print(f"{outcome:>16}  {m.name}  ({seconds:.0f} s)  {by}", flush=True)
+            if status not in (0, 1):
+                print(detail)
+    caught = sum(outcome == "caught" for _, outcome, _, _ in rows)
+    errors = [m.name for m, outcome, _, _ in rows if outcome.startswith("ERROR")]
+    print()
+    print("| mutation | file | outcome | first failing test | seconds |\n|---|---|---|---|---|")
+    for m, outcome, seconds, by in rows:
+        print(f"| {m.name} | {m.path} | {outcome} | {by} | {seconds:.0f} |")
+    score = caught / len(rows)
+    print(f"\nscore: {caught} / {len(rows)} caught = {score:.0%} (target {TARGET_SCORE:.0%})")
+    if errors:
+        print("errors (not counted as caught):", ", ".join(errors))
+        return 2
+    return 0 if score >= TARGET_SCORE else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
