@@ -39,6 +39,8 @@ from sphrender.server.bench.sweep import Setting, bench_scene_dict, scene_for
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
+from sphrender.server.engine.sph.engine import SphParameters
+from sphrender.server.scene import scene_from_dict
 
 SETTINGS = {
     "unfiltered": Setting(
@@ -95,7 +97,8 @@ def measure(renderer: SurfaceRenderer, setting: Setting, width: int, height: int
     camera = Camera.from_config(spatter.camera_config(), width, height)
     truth = spatter.truth(camera)
     assert isinstance(truth, SpatterTruth)
-    frame = make_frame(spatter.positions)
+    # As a simulator writes them: the kernel densities of the frame (eq 2, computed once here).
+    frame = make_frame(spatter.positions, densities=spatter_densities(renderer, spatter))
     renderer.render(frame, scene, depth=True, normals=True)
     start = time.perf_counter()
     rendered, _ = renderer.render(frame, scene, depth=True, normals=True)
@@ -108,7 +111,7 @@ def measure(renderer: SurfaceRenderer, setting: Setting, width: int, height: int
         height,
     )
     out["edge_alpha_err"] = edge_alpha_error(rendered.rgba[..., 3].astype(np.float64), coverage)
-    moved = make_frame(jittered(spatter.positions, spatter.radius, 0.02))
+    moved = make_frame(jittered(spatter.positions, spatter.radius, 0.02), densities=frame.densities)
     other, _ = renderer.render(moved, scene, depth=True, normals=True)
     out["flicker_mean_deg"], out["flicker_p99_deg"] = flicker_deg(rendered, other)
     out["spatter_band_deg"] = band_error_deg(
@@ -118,7 +121,7 @@ def measure(renderer: SurfaceRenderer, setting: Setting, width: int, height: int
         dam, dam_truth = DAMBREAK
         dam_camera = Camera.from_config(dam.camera_config(), width, height)
         dam_scene = scene_for(setting, bench_scene_dict(dam, width, height))
-        dam_frame = make_frame(dam.positions)
+        dam_frame = make_frame(dam.positions, densities=DAMBREAK_DENSITIES)
         dam_render, _ = renderer.render(dam_frame, dam_scene, depth=True, normals=True)
         m = surface_metrics(dam_render, dam_camera, dam_truth, dam.radius)
         out["dam_mean_deg"], out["dam_p95_deg"] = m.normal_mean_deg, m.normal_p95_deg
@@ -126,7 +129,7 @@ def measure(renderer: SurfaceRenderer, setting: Setting, width: int, height: int
             dam_render, dam_truth, silhouette_band(dam_truth, dam.radius)
         )
         moved, _ = renderer.render(
-            make_frame(jittered(dam.positions, dam.radius, 0.02)),
+            make_frame(jittered(dam.positions, dam.radius, 0.02), densities=DAMBREAK_DENSITIES),
             dam_scene,
             depth=True,
             normals=True,
@@ -144,12 +147,20 @@ def measure(renderer: SurfaceRenderer, setting: Setting, width: int, height: int
 
 
 DAMBREAK: tuple[Any, Any] | None = None
+DAMBREAK_DENSITIES: Any = None
+
+
+def spatter_densities(renderer: SurfaceRenderer, scene: Any) -> Any:
+    params = SphParameters.from_scene(
+        scene_from_dict({"particles": {"radius": scene.radius}}), scene.radius
+    )
+    return renderer.sph_engine().density(scene.positions, params)
 
 
 def load_dambreak(gl: GLContext, renderer: SurfaceRenderer, width: int, height: int) -> None:
     """The dam-break frame and its pysplashsurf truth at this size (needs ../shared/data and
     pysplashsurf; skipped otherwise)."""
-    global DAMBREAK
+    global DAMBREAK, DAMBREAK_DENSITIES
     path = dambreak_frame()
     if path is None:
         print("dam break skipped: ../shared/data not found")
@@ -163,6 +174,7 @@ def load_dambreak(gl: GLContext, renderer: SurfaceRenderer, width: int, height: 
     )
     camera = Camera.from_config(scene.camera_config(), width, height)
     DAMBREAK = (scene, scene.truth(camera))
+    DAMBREAK_DENSITIES = read_particles(path).densities  # SPlisHSPlasH's own
 
 
 def main() -> None:

@@ -213,14 +213,14 @@ def front_particles(
     return nearest.reshape(shape), (gap * view_z).reshape(shape)
 
 
-def splatted_temperature(renderer: SurfaceRenderer) -> np.ndarray:
+def splatted_temperature(renderer: SurfaceRenderer, size: tuple[int, int]) -> np.ndarray:
     """The kelvin target of the last render as splatted (front particle per pixel, before the
     blur), rows top first. Read from the renderer's own target: no public AOV carries it, and
     the blurred field mixes neighbours, so only this image can show which particle's value
     landed on a pixel."""
-    targets = renderer._targets
-    assert targets is not None and targets.temperature is not None
-    width, height = targets.size
+    width, height = size
+    targets = renderer.splat_pass.targets(size)
+    assert targets.temperature is not None
     kelvin = np.frombuffer(targets.temperature.read(), dtype=np.float32).reshape(height, width)
     return np.ascontiguousarray(kelvin[::-1])
 
@@ -271,7 +271,7 @@ def test_each_pixel_shows_the_temperature_of_its_front_particle(
         assert stats.particles_drawn < len(ball)  # hidden interior not drawn
     else:
         assert stats.particles_splatted < stats.particles_drawn  # occlusion culling ran
-    got = splatted_temperature(renderer)
+    got = splatted_temperature(renderer, (128, 96))
     front, gap = front_particles(camera, positions, r)
     hit = front >= 0
     assert np.array_equal(got > 0, hit)  # coverage is the union of the spheres

@@ -86,6 +86,11 @@ class SurfaceRenderer:
         return self._context.programs
 
     @property
+    def splat_pass(self) -> SplatPass:
+        """The splat pass and its targets (tests read the splatted temperature from them)."""
+        return self._splat
+
+    @property
     def shade_pass(self) -> ShadePass:
         """The shading pass and its caches (environments, IBL, BRDF tables)."""
         return self._shade
