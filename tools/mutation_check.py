@@ -343,6 +343,51 @@ MUTATIONS: tuple[Mutation, ...] = (
         tests=("tests/test_readers.py",),
         description="BGEO float attributes (density) decoded little-endian",
     ),
+    # -- real splashy surfaces: droplets, anti-aliasing, ellipsoids ----------------------------
+    Mutation(
+        name="droplet-threshold-inverted",
+        path="server/engine/sph/frame.py",
+        old="return np.asarray(densities) < threshold",
+        new="return np.asarray(densities) >= threshold",
+        tests=(
+            "tests/test_surfaces.py::test_exact_droplets_are_the_unfiltered_spheres_over_the_smoothed_pool",
+        ),
+        description="the dense particles are taken for droplets and the droplets smoothed",
+    ),
+    Mutation(
+        name="edge-coverage-sides-swapped",
+        path="shaders/common/edge_coverage.glsl",
+        old="return s >= 0.0 ? share : 1.0 - share;",
+        new="return s >= 0.0 ? 1.0 - share : share;",
+        tests=("tests/test_surfaces.py::test_alpha_is_sub_pixel_coverage_on_every_edge",),
+        description="a pixel's coverage counted on the outer side of the silhouette",
+    ),
+    Mutation(
+        name="interior-junctions-left-translucent",
+        path="shaders/shade/shade_pbr.frag.glsl",
+        old="coverage < 1.0 && !next_to_background(pixel, size)",
+        new="coverage < 0.0 && !next_to_background(pixel, size)",
+        tests=("tests/test_occlusion.py",),
+        description="alpha < 1 where two front spheres meet inside a surface (and culling shows)",
+    ),
+    Mutation(
+        name="ellipsoid-back-surface",
+        path="shaders/splat/splat_ellipsoid.frag.glsl",
+        old="    float t = along - sqrt((1.0 - miss2) / dd);",
+        new="    float t = along + sqrt((1.0 - miss2) / dd);",
+        tests=("tests/test_surfaces.py::test_ray_ellipsoid_depth_matches_the_analytic_ellipsoid",),
+        description="the ellipsoid impostor shows its back surface",
+    ),
+    Mutation(
+        name="normals-across-discontinuities",
+        path="shaders/normals/surface_normals.frag.glsl",
+        old="    bool has_plus = z_plus > 0.0 && abs(z_plus - zc) <= jump;",
+        new="    bool has_plus = z_plus > 0.0;",
+        tests=(
+            "tests/test_surfaces.py::test_normals_of_a_one_pixel_droplet_are_not_differenced_into_the_pool",
+        ),
+        description="a normal differenced into a farther surface across a depth step",
+    ),
 )
 # fmt: on
 
