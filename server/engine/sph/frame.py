@@ -123,6 +123,13 @@ def wants_exact_droplets(scene: Scene) -> bool:
     return scene.quality.exact_droplets and scene.quality.filter != "none"
 
 
+def splits_droplets(scene: Scene, frame: ParticleFrame) -> bool:
+    """Whether this frame's droplets are split off: exact droplets wanted, and densities at hand
+    (the frame's) or leave to compute them (`quality.droplet_density_pass`)."""
+    has_densities = frame.densities is not None or scene.quality.droplet_density_pass
+    return wants_exact_droplets(scene) and has_densities
+
+
 def droplet_mask(
     frame: ParticleFrame, scene: Scene, engine: Callable[[], SphEngine]
 ) -> npt.NDArray[np.bool_]:
@@ -169,16 +176,12 @@ class SphStage:
     def wanted(scene: Scene, frame: ParticleFrame) -> bool:
         """Whether this frame needs the stage: an [sph] feature, or exact droplets with the
         frame's densities or with leave to compute them (`quality.droplet_density_pass`)."""
-        if needs_sph(scene):
-            return True
-        quality = scene.quality
-        has_densities = frame.densities is not None or quality.droplet_density_pass
-        return wants_exact_droplets(scene) and has_densities
+        return needs_sph(scene) or splits_droplets(scene, frame)
 
     def warm(self, frame: ParticleFrame, scene: Scene) -> None:
         """Build the CL context and program now if this frame will need them (so the first
         frame's stage time is the pass's, not LLVM's)."""
-        if needs_sph(scene) or (frame.densities is None and scene.quality.droplet_density_pass):
+        if needs_sph(scene) or (frame.densities is None and splits_droplets(scene, frame)):
             try:
                 self.engine()
             except CLUnavailableError:
@@ -196,9 +199,7 @@ class SphStage:
             frame = result.frame
             if result.anisotropy is not None:
                 ellipsoids = (result.anisotropy.centers, result.anisotropy.axes)
-        if wants_exact_droplets(scene) and (
-            frame.densities is not None or scene.quality.droplet_density_pass
-        ):
+        if splits_droplets(scene, frame):
             try:
                 droplets = droplet_mask(frame, scene, self.engine)
             except CLUnavailableError as exc:
