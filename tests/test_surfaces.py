@@ -296,7 +296,7 @@ def splat_depth(gl: GLContext, scene: Scene, centers: np.ndarray, axes: np.ndarr
         camera = Camera.from_config(scene.camera, scene.image.width, scene.image.height)
         frame = make_frame(centers)
         prepared = prepare_particles(frame, camera, scene, ellipsoids=(centers, axes))
-        out = splat.run(camera, prepared, bounds=None, box=None)
+        out = splat.run(camera, splat.upload(prepared), bounds=None, box=None)
         return read_image(out.depth.read(), scene.image.width, scene.image.height)
     finally:
         splat.release()
@@ -347,7 +347,7 @@ def test_sphere_axes_render_the_sphere(gl_context: GLContext) -> None:
         camera = Camera.from_config(scene.camera, 160, 120)
         prepared = prepare_particles(make_frame(centers), camera, scene)
         sphere = read_image(
-            splat.run(camera, prepared, bounds=None, box=None).depth.read(), 160, 120
+            splat.run(camera, splat.upload(prepared), bounds=None, box=None).depth.read(), 160, 120
         )
     finally:
         splat.release()
@@ -395,9 +395,9 @@ def test_occlusion_culling_stays_exact_with_ellipsoids(gl_context: GLContext) ->
         )
         bounds = occlusion.sphere_bounds(prepared.center_radius, camera)
         box = screen_box(bounds, camera)
-        culled = splat.run(camera, prepared, bounds=bounds, box=box)
+        culled = splat.run(camera, splat.upload(prepared), bounds=bounds, box=box)
         culled_depth = read_image(culled.depth.read(), 160, 120)
-        everything = splat.run(camera, prepared, bounds=None, box=box)
+        everything = splat.run(camera, splat.upload(prepared), bounds=None, box=box)
         assert culled.splatted < everything.splatted  # it did cull
         assert np.array_equal(culled_depth, read_image(everything.depth.read(), 160, 120))
     finally:

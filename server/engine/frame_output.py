@@ -84,6 +84,10 @@ class RenderStats:
     particles_drawn: int = 0  # visible: in front of the camera and inside the image
     particles_splatted: int = 0  # rasterised: the visible ones less those found hidden
     far: float = 0.0
+    #: What the render thread did outside GL calls (Python, numpy): the frame time's floor on a
+    #: GPU. Wall time of the render less the time inside the GL calls that do the device's work
+    #: (gpu/gl_clock.py) and less the SPH stage (OpenCL, its own stage time).
+    host_ms: float = 0.0
 
     @property
     def total_ms(self) -> float:

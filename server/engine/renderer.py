@@ -33,15 +33,13 @@ import numpy.typing as npt
 from sphrender.client.errors import InputError
 from sphrender.client.frame import ParticleFrame
 from sphrender.server.engine.frame_output import RenderedFrame, RenderStats
-from sphrender.server.engine.geometry import occlusion
 from sphrender.server.engine.geometry.camera import Camera
-from sphrender.server.engine.geometry.prepare import prepare_particles
-from sphrender.server.engine.geometry.screen_box import screen_box
 from sphrender.server.engine.gpu.draw import FullscreenTriangle, image_bytes, read_image
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.programs import ProgramCache
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.normals import NormalsPass
+from sphrender.server.engine.passes.prepare_stage import PrepareMode, PrepareStage
 from sphrender.server.engine.passes.readback import read_frame
 from sphrender.server.engine.passes.shade import ShadePass
 from sphrender.server.engine.passes.smooth import SmoothPass
@@ -62,15 +60,18 @@ class SurfaceRenderer:
         stage_timings: bool = True,
         cl_device: str | None = None,
         environment_dirs: Sequence[str | Path] = (),
+        prepare: PrepareMode = "auto",
     ) -> None:
         """`stage_timings`: wait for the GPU after each stage so `RenderStats` holds true stage
         times; `cl_device`: OpenCL device for the SPH stage (None = probe);
-        `environment_dirs`: the only directories `[environment] file` may name files in."""
+        `environment_dirs`: the only directories `[environment] file` may name files in;
+        `prepare`: where particles are culled and transformed (passes/prepare_stage.py)."""
         self._gl = gl
         self._stage_timings = stage_timings
         self._context = PassContext(gl, ProgramCache(gl), FullscreenTriangle(gl))
         self._sph = SphStage(cl_device)  # OpenCL is created on the first frame that needs it
         self._splat = SplatPass(self._context)
+        self._prepare = PrepareStage(self._context, self._splat, prepare)
         self._smooth = SmoothPass(self._context)
         self._normals = NormalsPass(self._context)
         self._temperature = TemperaturePass(self._context)
@@ -115,7 +116,8 @@ class SurfaceRenderer:
         start = time.perf_counter()
         yield
         if self._stage_timings:
-            self._gl.ctx.finish()
+            with self._gl.clock:
+                self._gl.ctx.finish()
         stats.stage_ms[name] = (time.perf_counter() - start) * 1e3
 
     # -- frame -----------------------------------------------------------------------------
@@ -130,6 +132,7 @@ class SurfaceRenderer:
     ) -> tuple[RenderedFrame, RenderStats]:
         """Render one frame; `depth` / `normals` ask for those AOVs to be read back."""
         self._gl.check_owner()
+        start, in_gl = time.perf_counter(), self._gl.clock.seconds
         self.check_image_size(scene)
         camera = Camera.from_config(scene.camera, scene.image.width, scene.image.height)
         stats = RenderStats(particles_in=frame.count)
@@ -142,31 +145,17 @@ class SurfaceRenderer:
         frame = sph.frame
 
         with self._stage(stats, "prepare"):
-            prepared = prepare_particles(
-                frame,
-                camera,
-                scene,
-                reference_radius=sph.reference_radius,
-                droplets=sph.droplets,
-                ellipsoids=sph.ellipsoids,
-            )
-            stats.particles_drawn = int(prepared.center_radius.shape[0])
+            prepared = self._prepare.run(sph, camera, scene)
+            stats.particles_drawn = prepared.visible
             stats.far = prepared.far
-            bounds = occlusion.sphere_bounds(prepared.center_radius, camera)
-            box = screen_box(bounds, camera)
-            bulk, drops = prepared, None
-            if prepared.droplets is not None and prepared.droplets.any():
-                bulk, drops = (
-                    prepared.subset(~prepared.droplets),
-                    prepared.subset(prepared.droplets),
-                )
-                bounds = bounds.subset(~prepared.droplets)
+            box = prepared.box
 
         with self._stage(stats, "splat"):
-            culling = bounds if scene.quality.occlusion_culling else None
             antialias = scene.quality.antialias
-            splat = self._splat.run(camera, bulk, bounds=culling, box=box, antialias=antialias)
-            stats.particles_splatted = splat.splatted
+            splat = self._splat.run(
+                camera, prepared.bulk, bounds=prepared.bounds, box=box, antialias=antialias
+            )
+            stats.particles_splatted = splat.splatted if splat.splatted >= 0 else prepared.visible
 
         px_per_unit = camera.pixels_per_unit_at_unit_depth
         surface = splat.depth
@@ -179,13 +168,15 @@ class SurfaceRenderer:
                     quality=scene.quality,
                     box=box,
                 )
-        if drops is not None:
+        if prepared.droplets is not None:
             with self._stage(stats, "droplets"):
-                splat = self._splat.run_droplets(
-                    camera, drops, surface, splat.temperature, splat.coverage
-                )
-                surface = splat.depth
-                stats.particles_splatted += splat.splatted
+                drops = self._prepare.droplets(prepared)
+                if drops is not None:
+                    splat = self._splat.run_droplets(
+                        camera, drops, surface, splat.temperature, splat.coverage
+                    )
+                    surface = splat.depth
+                    stats.particles_splatted += max(splat.splatted, 0)
 
         with self._stage(stats, "normals"):
             normal_depth = self._normals.run(surface, camera, box, prepared.reference_radius)
@@ -209,7 +200,11 @@ class SurfaceRenderer:
                 want_normals=normals,
                 color_box=box if transparent else None,
                 surface_box=box,
+                clock=self._gl.clock,
             )
+        wall_ms = (time.perf_counter() - start) * 1e3
+        device_ms = (self._gl.clock.seconds - in_gl) * 1e3
+        stats.host_ms = max(wall_ms - device_ms - stats.stage_ms.get("sph", 0.0), 0.0)
         return rendered, stats
 
     # -- single passes on given images (the same code paths, for tests against references) --

@@ -24,10 +24,23 @@ def screen_box(
     sphere reaches the eye plane."""
     if bounds.valid.size == 0 or not bounds.valid.all():
         return None
-    x0 = int(np.clip(bounds.x0.min() - margin_px, 0, camera.width))
-    x1 = int(np.clip(bounds.x1.max() + 1 + margin_px, 0, camera.width))
-    y0 = int(np.clip(bounds.y0.min() - margin_px, 0, camera.height))
-    y1 = int(np.clip(bounds.y1.max() + 1 + margin_px, 0, camera.height))
+    return clip_box(
+        int(bounds.x0.min()),
+        int(bounds.x1.max()),
+        int(bounds.y0.min()),
+        int(bounds.y1.max()),
+        camera,
+        margin_px,
+    )
+
+
+def clip_box(x0: int, x1: int, y0: int, y1: int, camera: Camera, margin_px: int = 2) -> ScreenBox:
+    """The inclusive pixel rectangle x0..x1, y0..y1 grown by `margin_px` and clipped to the
+    image (the device prepare reduces the rectangles on the GPU and calls this)."""
+    x0 = int(np.clip(x0 - margin_px, 0, camera.width))
+    x1 = int(np.clip(x1 + 1 + margin_px, 0, camera.width))
+    y0 = int(np.clip(y0 - margin_px, 0, camera.height))
+    y1 = int(np.clip(y1 + 1 + margin_px, 0, camera.height))
     if x1 <= x0 or y1 <= y0:
         return (0, 0, 1, 1)  # nothing on screen: a token box keeps the passes trivial
     return (x0, y0, x1 - x0, y1 - y0)

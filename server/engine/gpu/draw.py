@@ -16,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from sphrender.server.engine.geometry.screen_box import ScreenBox
+from sphrender.server.engine.gpu.gl_clock import thread_clock
 from sphrender.server.engine.gpu.gl_context import GLContext
 
 
@@ -94,7 +95,8 @@ class FullscreenTriangle:
         if vao is None:
             vao = self._gl.ctx.vertex_array(program, [])
             self._vaos[program.glo] = vao
-        vao.render(moderngl.TRIANGLES, vertices=3)
+        with self._gl.clock:
+            vao.render(moderngl.TRIANGLES, vertices=3)
 
     def release(self) -> None:
         for vao in self._vaos.values():
@@ -111,7 +113,8 @@ def set_scissor(fbo: moderngl.Framebuffer, box: ScreenBox | None) -> None:
 def clear_and_scissor(fbo: moderngl.Framebuffer, box: ScreenBox | None) -> None:
     """Clear the whole target, then restrict the next passes into it to `box` (None: all)."""
     set_scissor(fbo, None)
-    fbo.clear(0.0, 0.0, 0.0, 0.0)
+    with thread_clock():
+        fbo.clear(0.0, 0.0, 0.0, 0.0)
     set_scissor(fbo, box)
 
 

@@ -16,6 +16,7 @@ from typing import Any
 
 import moderngl
 
+from sphrender.server.engine.gpu.gl_clock import GLClock, own_on_this_thread
 from sphrender.server.engine.gpu.gl_libraries import failure_message, resolve_libraries
 
 
@@ -37,7 +38,7 @@ class GLLimits:
 class GLContext:
     """Owns a standalone moderngl context created through EGL (no display needed)."""
 
-    REQUIRED_VERSION = 330
+    REQUIRED_VERSION = 430  # storage buffers and compute shaders (the splat pulls its particles)
 
     def __init__(self, device_index: int = 0) -> None:
         libegl, libgl = resolve_libraries()
@@ -56,6 +57,9 @@ class GLContext:
             raise GLUnavailableError(failure_message(str(exc), libegl, libgl)) from None
         self._ctx: moderngl.Context | None = ctx
         self._owner = threading.get_ident()
+        #: Time inside the GL calls that do the device's work (gl_clock.py).
+        self.clock = GLClock()
+        own_on_this_thread(self.clock)
         info: dict[str, Any] = ctx.info
         self.renderer: str = str(info.get("GL_RENDERER", "unknown"))
         self.version: str = str(info.get("GL_VERSION", "unknown"))

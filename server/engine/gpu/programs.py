@@ -23,6 +23,7 @@ class ProgramCache:
         self._gl = gl
         self._loader = loader or ShaderLoader()
         self._programs: dict[tuple[str, str, tuple[tuple[str, str], ...]], moderngl.Program] = {}
+        self._compute: dict[str, moderngl.ComputeShader] = {}
 
     def get(
         self,
@@ -33,9 +34,24 @@ class ProgramCache:
         key = (vertex, fragment, tuple(sorted((k, repr(v)) for k, v in (defines or {}).items())))
         program = self._programs.get(key)
         if program is None:
-            program = self._build(vertex, fragment, defines)
+            with self._gl.clock:  # compiling is the driver's work, not the frame's host work
+                program = self._build(vertex, fragment, defines)
             self._programs[key] = program
         return program
+
+    def compute(self, name: str) -> moderngl.ComputeShader:
+        """The compute shader `name` (GL 4.3), compiled on first use."""
+        shader = self._compute.get(name)
+        if shader is None:
+            composed = self._loader.compose(name)
+            try:
+                with self._gl.clock:
+                    shader = self._gl.ctx.compute_shader(composed.source)
+            except moderngl.Error as exc:
+                translated = self._loader.translate_compile_error(composed, str(exc))
+                raise ShaderCompileError(f"{name}: {translated}") from None
+            self._compute[name] = shader
+        return shader
 
     def _build(
         self, vertex: str, fragment: str, defines: Mapping[str, DefineValue] | None
@@ -57,3 +73,6 @@ class ProgramCache:
         for program in self._programs.values():
             program.release()
         self._programs.clear()
+        for shader in self._compute.values():
+            shader.release()
+        self._compute.clear()

@@ -11,22 +11,30 @@ import numpy.typing as npt
 from sphrender.server.engine.frame_output import RenderedFrame
 from sphrender.server.engine.geometry.screen_box import ScreenBox
 from sphrender.server.engine.gpu.draw import Target
+from sphrender.server.engine.gpu.gl_clock import GLClock
 
 
 def read_region(
-    fbo: moderngl.Framebuffer, size: tuple[int, int], box: ScreenBox | None
+    fbo: moderngl.Framebuffer, size: tuple[int, int], box: ScreenBox | None, clock: GLClock
 ) -> npt.NDArray[np.float32]:
-    """The RGBA float target of `fbo` as (H, W, 4), rows top first, reading only `box` (the
-    rest is known to be zero) or everything (None)."""
+    """The RGBA float target of `fbo` as (H, W, 4), rows top first, reading only the rows of
+    `box` (the rest is known to be zero) or everything (None).
+
+    The driver writes the rows straight into the returned array (GL rows are bottom first, so
+    whole rows of the box, contiguous there); the array handed back is its flipped view, so the
+    render thread copies nothing per pixel (an encoder that needs C order copies on its own
+    thread). Zeros outside the rows come from `np.zeros` (pages the OS zeroes on first touch)."""
     width, height = size
     if box is None:
-        data = np.frombuffer(fbo.read(components=4, dtype="f4"), dtype=np.float32)
-        return np.ascontiguousarray(data.reshape(height, width, 4)[::-1])
-    x, y, w, h = box
-    part = np.frombuffer(fbo.read(viewport=box, components=4, dtype="f4"), dtype=np.float32)
-    out = np.zeros((height, width, 4), dtype=np.float32)
-    out[height - y - h : height - y, x : x + w] = part.reshape(h, w, 4)[::-1]
-    return out
+        bottom_first = np.empty((height, width, 4), dtype=np.float32)
+        with clock:
+            fbo.read_into(bottom_first, components=4, dtype="f4")
+        return bottom_first[::-1]
+    _, y, _, h = box
+    bottom_first = np.zeros((height, width, 4), dtype=np.float32)
+    with clock:
+        fbo.read_into(bottom_first[y : y + h], viewport=(0, y, width, h), components=4, dtype="f4")
+    return bottom_first[::-1]
 
 
 def read_frame(
@@ -37,14 +45,15 @@ def read_frame(
     want_normals: bool,
     color_box: ScreenBox | None,
     surface_box: ScreenBox | None,
+    clock: GLClock,
 ) -> RenderedFrame:
     """Colour, and depth / normals when asked. `color_box` / `surface_box`: where those targets
     can be non-zero (None: anywhere)."""
     size = color.texture.size
-    rgba = read_region(color.fbo, size, color_box)
+    rgba = read_region(color.fbo, size, color_box, clock)
     depth_out = normals_out = None
     if want_depth or want_normals:
-        nd = read_region(normal_depth.fbo, size, surface_box)
+        nd = read_region(normal_depth.fbo, size, surface_box, clock)
         if want_depth:
             z = nd[:, :, 3]
             depth_out = np.where(z > 0.0, z, np.float32(np.inf)).astype(np.float32)

@@ -9,7 +9,11 @@ With the spheres' screen bounds (occlusion culling on) and enough particles, the
 drawn first and only the particles its depth image does not hide follow
 (`geometry/occlusion.py`, exact): the same image from a fraction of the quads.
 
-Owns: the corner, index, instance and temperature buffers, both vertex arrays, and the splat
+The vertex stage pulls each quad's particle from storage buffers (`splat_buffers.py`): the host
+prepare uploads the culled view-space spheres once and the occlusion culling's subsets as id
+lists; the device prepare (`device_prepare.py`) writes the spheres on the GPU.
+
+Owns: the storage buffers (`SplatBuffers`), the attribute-less vertex arrays, and the splat
 targets (depth texture, depth renderbuffer, temperature texture, their framebuffers).
 """
 
@@ -26,6 +30,7 @@ from sphrender.server.engine.geometry import occlusion
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.prepare import PreparedParticles
 from sphrender.server.engine.geometry.screen_box import ScreenBox
+from sphrender.server.engine.gpu.gl_clock import GLClock
 from sphrender.server.engine.gpu.draw import (
     PerSize,
     Target,
@@ -34,6 +39,7 @@ from sphrender.server.engine.gpu.draw import (
     write_matrix,
 )
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
+from sphrender.server.engine.passes.splat_buffers import AXES, IDS, SPHERES, TEMPERATURES, SplatBuffers
 
 VERTEX_SHADER = "splat/splat_sphere.vert.glsl"
 FRAGMENT_SHADER = "splat/splat_sphere.frag.glsl"
@@ -55,7 +61,7 @@ INTERIOR_REACH_PX = COVERAGE_REACH_PX + 1
 class SplatOutput:
     depth: moderngl.Texture  # eye depth, R32F, 0 = background
     temperature: moderngl.Texture | None  # kelvin of the front sphere, when the frame has them
-    splatted: int  # particles rasterised (visible less those found hidden)
+    splatted: int  # particles rasterised (visible less those found hidden); -1: device prepare
     coverage: moderngl.Texture | None = None  # sub-pixel coverage (R32F), when anti-aliasing
 
 
@@ -120,20 +126,30 @@ class SplatTargets:
         self.depth_buffer.release()
 
 
+@dataclass(frozen=True)
+class SplatBatch:
+    """The particles the splat buffers hold for one draw (`SplatPass.upload`, or the device
+    prepare pass): quads 0 .. count - 1."""
+
+    count: int
+    far: float
+    has_temperature: bool
+    ellipsoid: bool
+    #: Draw the particles marked as exact droplets (device prepare marks them in the spheres'
+    #: sign) instead of the bulk.
+    droplets: bool = False
+    #: The CPU's copy (host prepare): what the occlusion culling reads. None: device prepare.
+    host: PreparedParticles | None = None
+
+
 class SplatPass:
     def __init__(self, context: PassContext) -> None:
         self._context = context
-        ctx = context.gl.ctx
-        # Sphere quads are drawn as plain indexed triangles, 4 vertices per particle, not as
-        # instances: llvmpipe's draw module runs its vertex pipeline once per instance, which
-        # made the splat of 90k particles cost ~70 ms of pure per-instance overhead. The corner
-        # and index buffers depend only on the particle count and grow geometrically.
-        self._quad_capacity = 0
-        self._corner_buffer = ctx.buffer(reserve=4)
-        self._index_buffer = ctx.buffer(reserve=4)
-        self._instance_buffer = ctx.buffer(reserve=16 * 1024)
-        self._temperature_buffer = ctx.buffer(reserve=4 * 1024)
-        self._axes_buffer = ctx.buffer(reserve=36 * 1024)  # ellipsoids: 3 semi-axes per vertex
+        # Quads are plain indexed triangles, 4 vertices per particle, not instances: llvmpipe's
+        # draw module runs its vertex pipeline once per instance, which made the splat of 90k
+        # particles cost ~70 ms of pure per-instance overhead. The vertex stage pulls its
+        # particle from storage buffers (splat_buffers.py), so nothing is repeated per corner.
+        self.buffers = SplatBuffers(context.gl.ctx, context.gl.clock)
         # Keyed by (ellipsoid, has temperature, coverage).
         self._vaos: dict[tuple[bool, bool, bool], moderngl.VertexArray] = {}
         self._targets = PerSize(lambda size: SplatTargets(context.gl.ctx, size))
@@ -142,66 +158,80 @@ class SplatPass:
         """The targets for `size` (rebuilt only when the size changes)."""
         return self._targets.get(size)
 
+    def upload(self, prepared: PreparedParticles) -> SplatBatch:
+        """Host prepare: write `prepared` (already culled, view space) into the buffers."""
+        buffers = self.buffers
+        buffers.write(SPHERES, prepared.center_radius)
+        if prepared.temperatures is not None:
+            buffers.write(TEMPERATURES, prepared.temperatures)
+        if prepared.axes is not None:
+            buffers.write(AXES, prepared.axes)
+        return SplatBatch(
+            int(prepared.center_radius.shape[0]),
+            prepared.far,
+            prepared.temperatures is not None,
+            prepared.axes is not None,
+            host=prepared,
+        )
+
     def run(
         self,
         camera: Camera,
-        prepared: PreparedParticles,
+        batch: SplatBatch,
         *,
         bounds: occlusion.SphereBounds | None,
         box: ScreenBox | None,
         antialias: bool = False,
     ) -> SplatOutput:
-        """Splat `prepared`; `bounds` (None: no occlusion culling) are the spheres' screen
-        rectangles, `box` the screen box holding them (where the front layer is read back).
-        `antialias`: also draw the splatted spheres' sub-pixel coverage (`coverage`)."""
+        """Splat `batch`; `bounds` (None: no occlusion culling; host prepare only) are the
+        spheres' screen rectangles, `box` the screen box holding them (where the front layer is
+        read back). `antialias`: also draw the splatted spheres' sub-pixel coverage."""
         targets = self.targets((camera.width, camera.height))
         temperature: moderngl.Texture | None = None
         fbo = targets.fbo
-        if prepared.temperatures is not None:
+        if batch.has_temperature:
             temperature, fbo = targets.temperature_targets()
+        clock = self._context.gl.clock
         fbo.use()
-        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        count = int(prepared.center_radius.shape[0])
         coverage = None
-        if antialias:
-            coverage = targets.coverage_target()
-            coverage.fbo.clear(0.0, 0.0, 0.0, 0.0)
-            fbo.use()
-        if count == 0:
+        with clock:
+            fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+            if antialias:
+                coverage = targets.coverage_target()
+                coverage.fbo.clear(0.0, 0.0, 0.0, 0.0)
+                fbo.use()
+        if batch.count == 0:
             return SplatOutput(targets.depth, temperature, 0, _texture(coverage))
-        program, vao = self._vertex_array(
-            prepared.axes is not None, prepared.temperatures is not None
-        )
-        self._reserve_for(prepared, count)
-        self._set_depth_uniforms(program, camera, prepared.far)
+        self.buffers.ensure_quads(batch.count)
+        self.buffers.bind()
+        vao = self._depth_draw(camera, batch)
         ctx = self._context.gl.ctx
         ctx.enable(moderngl.DEPTH_TEST)
         try:
-            coverage_rows = None  # None: every quad drawn needs its coverage
-            if bounds is None or count < occlusion.MIN_PARTICLES:
-                self._draw_spheres(vao, prepared, None, first=0)
-                splatted = count
+            coverage_ids = None  # None: every quad drawn needs its coverage
+            host = batch.host
+            if host is None or bounds is None or batch.count < occlusion.MIN_PARTICLES:
+                _render(vao, 0, batch.count, use_ids=False, clock=self._context.gl.clock)
+                splatted = batch.count
             else:
-                splatted, coverage_rows = self._draw_culled(
-                    fbo, vao, camera, prepared, bounds, box, antialias
+                splatted, coverage_ids = self._draw_culled(
+                    fbo, vao, camera, host, bounds, box, antialias
                 )
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
+        if host is None:
+            splatted = -1  # the device prepare counts what it drew
         if coverage is not None:
-            if coverage_rows is None:
-                self._draw_coverage(coverage, camera, prepared, 0, splatted)
-            elif coverage_rows.size:
-                # Only the particles near an edge, uploaded after the splatted ones (whose
-                # contents the depth pass no longer needs, so growing may drop them).
-                self._reserve_for(prepared, splatted + coverage_rows.size)
-                self._draw_spheres(None, prepared, coverage_rows, first=splatted)
-                self._draw_coverage(coverage, camera, prepared, splatted, coverage_rows.size)
+            if coverage_ids is None:
+                self._draw_coverage(coverage, camera, batch, 0, batch.count, use_ids=False)
+            elif coverage_ids[1]:
+                self._draw_coverage(coverage, camera, batch, *coverage_ids, use_ids=True)
         return SplatOutput(targets.depth, temperature, splatted, _texture(coverage))
 
     def run_droplets(
         self,
         camera: Camera,
-        droplets: PreparedParticles,
+        droplets: SplatBatch,
         surface: moderngl.Texture,
         temperature: moderngl.Texture | None,
         coverage: moderngl.Texture | None = None,
@@ -212,69 +242,74 @@ class SplatPass:
         the droplets that show write their kelvin); with `coverage` (the bulk splat's) the
         droplets' coverage is added to it."""
         targets = self.targets((camera.width, camera.height))
-        with_temperature = temperature is not None and droplets.temperatures is not None
+        with_temperature = temperature is not None and droplets.has_temperature
         composite, seed_fbo, draw_fbo = targets.composite_targets(with_temperature)
         ctx = self._context.gl.ctx
         seed_fbo.use()
-        seed_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        with self._context.gl.clock:
+            seed_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         seed = self._context.programs.get(FULLSCREEN_VERT, SEED_SHADER)
         seed["u_depth"] = 0
         seed["u_far"] = droplets.far
         surface.use(0)
-        count = int(droplets.center_radius.shape[0])
+        count = droplets.count
         ctx.enable(moderngl.DEPTH_TEST)
         try:
             self._context.fullscreen.draw(seed)
             if count:
-                program, vao = self._vertex_array(droplets.axes is not None, with_temperature)
-                self._reserve_for(droplets, count)
-                self._set_depth_uniforms(program, camera, droplets.far)
+                self.buffers.ensure_quads(count)
+                self.buffers.bind()
+                vao = self._depth_draw(camera, replace(droplets, has_temperature=with_temperature))
                 draw_fbo.use()
-                self._draw_spheres(vao, droplets, None, first=0)
+                _render(vao, 0, count, use_ids=False, clock=self._context.gl.clock)
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
         if coverage is not None and count:
-            self._draw_coverage(targets.coverage_target(), camera, droplets, 0, count)
-        return SplatOutput(composite, temperature, count, coverage)
+            self._draw_coverage(targets.coverage_target(), camera, droplets, 0, count, use_ids=False)
+        splatted = count if droplets.host is not None else -1  # -1: the device prepare counts
+        return SplatOutput(composite, temperature, splatted, coverage)
+
+    def _depth_draw(self, camera: Camera, batch: SplatBatch) -> moderngl.VertexArray:
+        """The vertex array of `batch`'s depth splat, its uniforms set."""
+        program, vao = self._vertex_array(batch.ellipsoid, batch.has_temperature)
+        _set_particle_uniforms(program, camera, batch)
+        write_matrix(program, "u_projection", camera.projection_matrix(batch.far))
+        program["u_near"] = camera.near
+        program["u_far"] = batch.far
+        set_if_used(program, "u_margin", 0.0)
+        return vao
 
     def _draw_coverage(
-        self, target: Target, camera: Camera, prepared: PreparedParticles, first: int, count: int
+        self,
+        target: Target,
+        camera: Camera,
+        batch: SplatBatch,
+        first: int,
+        count: int,
+        *,
+        use_ids: bool,
     ) -> None:
-        """Coverage of quads `first` .. `first + count` in the buffers, into `target` with
-        blending MAX and no depth test (see splat_coverage.frag.glsl)."""
+        """Coverage of quads `first` .. `first + count` (of the id list when `use_ids`), into
+        `target` with blending MAX and no depth test (see splat_coverage.frag.glsl)."""
         if count == 0:
             return
         ctx = self._context.gl.ctx
-        program, vao = self._vertex_array(prepared.axes is not None, False, coverage=True)
+        program, vao = self._vertex_array(batch.ellipsoid, False, coverage=True)
+        _set_particle_uniforms(program, camera, replace(batch, has_temperature=False))
         focal_px = camera.pixels_per_unit_at_unit_depth
-        write_matrix(program, "u_projection", camera.projection_matrix(prepared.far))
+        write_matrix(program, "u_projection", camera.projection_matrix(batch.far))
         program["u_margin"] = COVERAGE_MARGIN_PX / focal_px
         program["u_near"] = camera.near
         set_if_used(program, "u_focal_px", focal_px)
-        set_if_used(program, "u_far", prepared.far)
+        set_if_used(program, "u_far", batch.far)
         target.fbo.use()
         ctx.enable(moderngl.BLEND)
         ctx.blend_equation = moderngl.MAX  # type: ignore[assignment]  # the stub wants a pair
         try:
-            vao.render(moderngl.TRIANGLES, vertices=6 * count, first=6 * first)
+            _render(vao, first, count, use_ids=use_ids, clock=self._context.gl.clock)
         finally:
             ctx.blend_equation = moderngl.FUNC_ADD  # type: ignore[assignment]
             ctx.disable(moderngl.BLEND)
-
-    def _set_depth_uniforms(self, program: moderngl.Program, camera: Camera, far: float) -> None:
-        write_matrix(program, "u_projection", camera.projection_matrix(far))
-        program["u_near"] = camera.near
-        program["u_far"] = far
-        set_if_used(program, "u_margin", 0.0)
-
-    def _reserve_for(self, prepared: PreparedParticles, count: int) -> None:
-        """Quads and per-vertex buffers for `count` particles of `prepared`'s kind."""
-        self._ensure_quads(count)
-        self._reserve(self._instance_buffer, count * 64)  # 4 corners x vec4
-        if prepared.temperatures is not None:
-            self._reserve(self._temperature_buffer, count * 16)  # 4 corners x float
-        if prepared.axes is not None:
-            self._reserve(self._axes_buffer, count * 144)  # 4 corners x 3 x vec3
 
     def _draw_culled(
         self,
@@ -285,23 +320,27 @@ class SplatPass:
         bounds: occlusion.SphereBounds,
         box: ScreenBox | None,
         antialias: bool = False,
-    ) -> tuple[int, npt.NDArray[np.intp] | None]:
-        """Front layer, read its depth back, then only the particles it does not hide. Returns
-        how many were drawn and, with `antialias`, which of them can reach a silhouette (None:
-        all): a particle whose surroundings the front layer covers entirely within
-        INTERIOR_REACH_PX adds nothing to the coverage that the shade pass keeps."""
+    ) -> tuple[int, tuple[int, int] | None]:
+        """Front layer, read its depth back, then only the particles it does not hide; each
+        subset is an id list (splat_buffers.IDS) over the uploaded spheres. Returns how many were
+        drawn and, with `antialias`, where in the id list the ones that can reach a silhouette
+        are (first, count; None: all): a particle whose surroundings the front layer covers
+        entirely within INTERIOR_REACH_PX adds nothing to the coverage the shade pass keeps."""
         radius = prepared.center_radius[:, 3].astype(np.float64)
         in_front = occlusion.front_layer(bounds, radius, (camera.width, camera.height))
-        front = np.flatnonzero(in_front)
-        self._draw_spheres(vao, prepared, front, first=0)
+        front = np.flatnonzero(in_front).astype(np.uint32)
+        count = int(radius.size)
+        self.buffers.reserve(IDS, 2 * count + 1)  # front + others + coverage rows <= 2 count
+        self.buffers.write(IDS, front)
+        _render(vao, 0, front.size, use_ids=True, clock=self._context.gl.clock)
         others = np.flatnonzero(~in_front)
         if not others.size and not antialias:
             return int(front.size), None
         read_box = box if box is not None else (0, 0, camera.width, camera.height)
         x, y, w, h = read_box
-        depth = np.frombuffer(
-            fbo.read(viewport=read_box, components=1, attachment=0, dtype="f4"), np.float32
-        ).reshape(h, w)
+        with self._context.gl.clock:
+            data = fbo.read(viewport=read_box, components=1, attachment=0, dtype="f4")
+        depth = np.frombuffer(data, np.float32).reshape(h, w)
         sides = np.minimum(bounds.x1 - bounds.x0, bounds.y1 - bounds.y0) + 1
         if antialias:
             sides = np.concatenate(
@@ -320,17 +359,22 @@ class SplatPass:
             if antialias:  # a silhouette within the coverage reach still shows
                 hidden[hidden] = covered_around(others[hidden], COVERAGE_REACH_PX)
             others = others[~hidden]
-            self._draw_spheres(vao, prepared, others, first=front.size)
-        drawn = np.concatenate([front, others])
+            self.buffers.write(IDS, others.astype(np.uint32), offset_items=front.size)
+            _render(vao, front.size, others.size, use_ids=True, clock=self._context.gl.clock)
+        drawn = int(front.size + others.size)
         if not antialias:
-            return int(drawn.size), None
-        return int(drawn.size), drawn[~covered_around(drawn, INTERIOR_REACH_PX)]
+            return drawn, None
+        ids = np.concatenate([front, others.astype(np.uint32)])
+        edge = ids[~covered_around(ids.astype(np.intp), INTERIOR_REACH_PX)]
+        self.buffers.write(IDS, edge, offset_items=drawn)
+        return drawn, (drawn, int(edge.size))
 
     def _vertex_array(
         self, ellipsoid: bool, has_temperature: bool, *, coverage: bool = False
     ) -> tuple[moderngl.Program, moderngl.VertexArray]:
         """The program and vertex array of one kind of splat draw (spheres or ellipsoids,
-        with or without temperatures, depth or coverage)."""
+        with or without temperatures, depth or coverage). The arrays have no attributes: the
+        vertex stage pulls its particle from the storage buffers."""
         programs = self._context.programs
         if ellipsoid:
             program = programs.get(
@@ -346,83 +390,36 @@ class SplatPass:
         key = (ellipsoid, has_temperature, coverage)
         vao = self._vaos.get(key)
         if vao is None:
-            attributes: list[tuple[Any, ...]] = [
-                (self._corner_buffer, "2f", "in_corner"),
-                (self._instance_buffer, "4f", "in_center_radius"),
-            ]
-            if ellipsoid:
-                attributes.append(
-                    (self._axes_buffer, "3f 3f 3f", "in_axis0", "in_axis1", "in_axis2")
-                )
-            if has_temperature:
-                attributes.append((self._temperature_buffer, "1f", "in_temperature"))
             vao = self._context.gl.ctx.vertex_array(
-                program, attributes, index_buffer=self._index_buffer, index_element_size=4
+                program, [], index_buffer=self.buffers.index_buffer, index_element_size=4
             )
             self._vaos[key] = vao
         return program, vao
-
-    @staticmethod
-    def _reserve(buffer: moderngl.Buffer, nbytes: int) -> None:
-        """Grow `buffer` geometrically to at least `nbytes`; orphan keeps the buffer object, so
-        the VAOs stay valid (the contents are lost)."""
-        if nbytes > buffer.size:
-            buffer.orphan(max(nbytes, buffer.size * 2))
-
-    def _ensure_quads(self, count: int) -> None:
-        """Corner (+-1, +-1 per vertex) and index (two triangles per quad) buffers for at least
-        `count` quads."""
-        if count <= self._quad_capacity:
-            return
-        capacity = max(count, 2 * self._quad_capacity, 1024)
-        corners = np.tile(np.array([-1, -1, 1, -1, -1, 1, 1, 1], np.float32), capacity)
-        first = np.arange(capacity, dtype=np.uint32)[:, None] * 4
-        indices = first + np.array([0, 1, 2, 2, 1, 3], dtype=np.uint32)
-        # orphan keeps the buffer objects, so the vertex arrays that use them stay valid
-        self._corner_buffer.orphan(corners.nbytes)
-        self._corner_buffer.write(corners.tobytes())
-        self._index_buffer.orphan(indices.nbytes)
-        self._index_buffer.write(indices.tobytes())
-        self._quad_capacity = capacity
-
-    def _draw_spheres(
-        self,
-        vao: moderngl.VertexArray | None,
-        prepared: PreparedParticles,
-        rows: npt.NDArray[np.intp] | None,
-        *,
-        first: int,
-    ) -> None:
-        """Upload particles `rows` (None: all) as quads number `first`, `first + 1`, ... and
-        draw them. Quads already uploaded below `first` stay in the buffers untouched; the
-        buffers must already hold every particle (`_reserve`)."""
-        data = prepared.center_radius if rows is None else prepared.center_radius[rows]
-        if data.shape[0] == 0:
-            return
-        self._instance_buffer.write(np.repeat(data, 4, axis=0).tobytes(), offset=first * 64)
-        if prepared.axes is not None:
-            axes = prepared.axes if rows is None else prepared.axes[rows]
-            columns = np.ascontiguousarray(axes.transpose(0, 2, 1)).reshape(-1, 9)
-            self._axes_buffer.write(np.repeat(columns, 4, axis=0).tobytes(), offset=first * 144)
-        if prepared.temperatures is not None:
-            kelvin = prepared.temperatures if rows is None else prepared.temperatures[rows]
-            self._temperature_buffer.write(np.repeat(kelvin, 4).tobytes(), offset=first * 16)
-        if vao is not None:  # None: upload only
-            vao.render(moderngl.TRIANGLES, vertices=6 * data.shape[0], first=6 * first)
 
     def release(self) -> None:
         for vao in self._vaos.values():
             vao.release()
         self._vaos.clear()
         self._targets.release()
-        for buffer in (
-            self._corner_buffer,
-            self._index_buffer,
-            self._instance_buffer,
-            self._temperature_buffer,
-            self._axes_buffer,
-        ):
-            buffer.release()
+        self.buffers.release()
+
+
+def _set_particle_uniforms(program: moderngl.Program, camera: Camera, batch: SplatBatch) -> None:
+    """The uniforms of common/splat_particles.glsl (u_use_ids is set per draw)."""
+    set_if_used(program, "u_class", -1.0 if batch.droplets else 1.0)
+    set_if_used(program, "u_has_temperature", batch.has_temperature)
+    if batch.ellipsoid:
+        write_matrix(program, "u_view_rotation", camera.rotation.astype(np.float32))
+
+
+def _render(
+    vao: moderngl.VertexArray, first: int, count: int, *, use_ids: bool, clock: GLClock
+) -> None:
+    """Draw quads `first` .. `first + count` (ids[first ..] when `use_ids`)."""
+    if count:
+        set_if_used(vao.program, "u_use_ids", use_ids)
+        with clock:
+            vao.render(moderngl.TRIANGLES, vertices=6 * count, first=6 * first)
 
 
 def _texture(target: Target | None) -> moderngl.Texture | None:

@@ -1,0 +1,56 @@
+"""Time spent inside GL calls, so a frame's host work can be told from the driver's.
+
+On a GPU the driver returns from most calls at once and the frame time is what the render
+thread does in Python and numpy; on llvmpipe the same calls rasterise. `RenderStats.host_ms` is
+the render's wall time minus the time this clock saw inside the calls that do the device's work
+(draws, compute dispatches, uploads, read-backs, clears, `finish`), each wrapped where it is
+made: ``with clock: vao.render(...)``. Calls left unwrapped (uniform writes, binds) count as
+host work, so the estimate errs high; `server/bench/host_time.py` checks it with a profiler.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from types import TracebackType
+
+_thread = threading.local()
+
+
+def thread_clock() -> GLClock:
+    """The clock of the GL context this thread owns (helpers without a context handle, such as
+    `draw.clear_and_scissor`, time their calls on it); a throwaway one on other threads."""
+    clock = getattr(_thread, "clock", None)
+    return clock if clock is not None else GLClock()
+
+
+def own_on_this_thread(clock: GLClock) -> None:
+    """Make `clock` this thread's (GLContext does, for its owner thread)."""
+    _thread.clock = clock
+
+
+class GLClock:
+    """Accumulates the wall time of the calls made inside ``with clock:`` (owner thread only;
+    nested uses count once)."""
+
+    __slots__ = ("seconds", "_depth", "_start")
+
+    def __init__(self) -> None:
+        self.seconds = 0.0
+        self._depth = 0
+        self._start = 0.0
+
+    def __enter__(self) -> None:
+        if self._depth == 0:
+            self._start = time.perf_counter()
+        self._depth += 1
+
+    def __exit__(
+        self,
+        kind: type[BaseException] | None,
+        error: BaseException | None,
+        trace: TracebackType | None,
+    ) -> None:
+        self._depth -= 1
+        if self._depth == 0:
+            self.seconds += time.perf_counter() - self._start

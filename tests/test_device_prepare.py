@@ -1,0 +1,188 @@
+"""Device prepare (issue "GPU-ready frame"): the compute shader that culls and transforms the
+particles on the GPU gives the image the CPU's prepare gives, on every hard case.
+
+Both paths compute the view-space centre in float64 and round it to float32 once, and the same
+rectangles and far distance, so the splatted depth agrees exactly wherever one sphere is in
+front. Where two spheres tie in the 24-bit depth buffer (|depth difference| < far / 2**24) the
+one drawn first wins, and the host path's occlusion culling draws in another order than the
+device's one pass: those pixels may hold either sphere's depth, so the tolerance is that tie
+width. Colours follow the depth through the same passes: at most the same tie, seen through the
+smoothing's normalised weights and the shading, which the 1e-4 colour tolerance (sRGB-linear
+units, ~1/40 of an 8-bit step) bounds with room.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+
+from sphrender.client.frame import make_frame
+from sphrender.server.content.lattice import jittered_lattice_ball, lattice_slab
+from sphrender.server.engine.frame_output import RenderedFrame, RenderStats
+from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.geometry.prepare import prepare_particles
+from sphrender.server.engine.gpu.draw import FullscreenTriangle, read_image
+from sphrender.server.engine.gpu.gl_context import GLContext
+from sphrender.server.engine.gpu.programs import ProgramCache
+from sphrender.server.engine.passes.context import PassContext
+from sphrender.server.engine.passes.device_prepare import DevicePrepare
+from sphrender.server.engine.passes.splat import SplatPass
+from sphrender.server.engine.renderer import SurfaceRenderer
+from sphrender.server.scene import Scene, scene_from_dict
+
+R = 0.01
+TIE = 2.0**-24  # of far: one step of the 24-bit depth buffer
+
+
+@pytest.fixture(scope="module")
+def renderers(gl_context: GLContext) -> Iterator[tuple[SurfaceRenderer, SurfaceRenderer]]:
+    host = SurfaceRenderer(gl_context, prepare="host")
+    device = SurfaceRenderer(gl_context, prepare="device")
+    yield host, device
+    host.release()
+    device.release()
+
+
+def scene_at(shift: float = 0.0, **sections: Any) -> Scene:
+    base: dict[str, Any] = {
+        "image": {"width": 160, "height": 96},
+        "camera": {
+            "eye": [0.5 + shift, 0.35 + shift, 0.6 + shift],
+            "target": [shift, shift, shift],
+            "fov_y": 40.0,
+        },
+        "particles": {"radius": R},
+    }
+    for key, value in sections.items():
+        base[key] = {**base.get(key, {}), **value}
+    return scene_from_dict(base)
+
+
+def both(
+    renderers: tuple[SurfaceRenderer, SurfaceRenderer], scene: Scene, positions: Any, **arrays: Any
+) -> tuple[tuple[RenderedFrame, RenderStats], tuple[RenderedFrame, RenderStats]]:
+    frame = make_frame(positions, **arrays)
+    host, device = renderers
+    return (
+        host.render(frame, scene, depth=True, normals=True),
+        device.render(frame, scene, depth=True, normals=True),
+    )
+
+
+def assert_same_image(
+    host: tuple[RenderedFrame, RenderStats], device: tuple[RenderedFrame, RenderStats]
+) -> None:
+    (a, sa), (b, sb) = host, device
+    assert a.depth is not None and b.depth is not None
+    assert np.isfinite(b.rgba).all() and not np.isnan(b.depth).any()
+    assert sa.particles_drawn == sb.particles_drawn
+    np.testing.assert_allclose(sb.far, sa.far, rtol=1e-6)  # float32 vs float64 max, x 1.001
+    hit_a, hit_b = np.isfinite(a.depth), np.isfinite(b.depth)
+    assert np.array_equal(hit_a, hit_b)
+    tie = sa.far * TIE * 2  # the tie, plus the far distances' rounding
+    np.testing.assert_allclose(b.depth[hit_b], a.depth[hit_a], rtol=0, atol=tie)
+    np.testing.assert_allclose(b.rgba, a.rgba, rtol=0, atol=1e-4)
+
+
+@pytest.mark.parametrize("shift", [0.0, 1e5])
+def test_ball_with_temperatures_matches_the_host_prepare(
+    renderers: tuple[SurfaceRenderer, SurfaceRenderer], shift: float
+) -> None:
+    """A 4k-particle ball (the host path culls it: > MIN_PARTICLES) with per-particle kelvin,
+    near the origin and at 1e5 (eye and particles shifted together)."""
+    positions = jittered_lattice_ball(0.2, R, seed=3) + shift
+    kelvin = np.linspace(300.0, 2200.0, len(positions)).astype(np.float32)
+    host, device = both(renderers, scene_at(shift), positions, temperatures=kelvin)
+    assert host[1].particles_splatted < host[1].particles_drawn  # the host path did cull
+    assert_same_image(host, device)
+
+
+def test_near_plane_eye_plane_and_eye_inside(
+    renderers: tuple[SurfaceRenderer, SurfaceRenderer],
+) -> None:
+    """Spheres cut by the near plane, one reaching the eye plane (no rectangle: the whole image
+    is the box), one around the eye (culled), one behind the camera, tiny and huge radii."""
+    eye = np.array([0.5, 0.35, 0.6])
+    ahead = -eye / np.linalg.norm(eye)
+    positions = np.concatenate(
+        [
+            jittered_lattice_ball(0.06, R, seed=1),
+            [eye + ahead * 0.12, eye + ahead * 0.005 + [0.03, 0.0, 0.0], eye, eye - ahead * 0.3],
+            [[0.05, 0.05, 0.05], [-0.05, 0.0, 0.02]],
+        ]
+    )
+    radii = np.full(len(positions), R, np.float32)
+    radii[-6:] = [0.02, 0.02, 0.01, 0.05, 1e-5, 0.08]
+    scene = scene_at(camera={"near": 0.1})
+    host, device = both(renderers, scene, positions, radii=radii)
+    assert_same_image(host, device)
+
+
+def test_droplets_and_a_far_limit(renderers: tuple[SurfaceRenderer, SurfaceRenderer]) -> None:
+    """Exact droplets (client densities below droplet_density) over a slab, and a scene far
+    distance that cuts the slab's back."""
+    pool = lattice_slab(0.3, 0.3, 2, R)
+    drops = np.array([[0.0, 5 * R, 0.0], [0.05, 7 * R, -0.04], [-0.06, 4 * R, 0.05]])
+    positions = np.concatenate([pool, drops])
+    densities = np.full(len(positions), 1000.0, np.float32)
+    densities[-3:] = 100.0
+    scene = scene_at(camera={"far": 0.85}, quality={"exact_droplets": True})
+    host, device = both(renderers, scene, positions, densities=densities)
+    assert host[1].stage_ms.get("droplets") is not None and "droplets" in device[1].stage_ms
+    assert_same_image(host, device)
+
+
+def test_nothing_to_draw(renderers: tuple[SurfaceRenderer, SurfaceRenderer]) -> None:
+    """Zero particles, and particles all behind the camera: background, no error."""
+    for positions in (np.zeros((0, 3)), np.array([[1.0, 1.0, 1.5], [2.0, 1.5, 2.0]])):
+        host, device = both(renderers, scene_at(), positions)
+        assert device[1].particles_drawn == 0
+        assert_same_image(host, device)
+
+
+def test_ellipsoids_match_the_host_prepare(gl_context: GLContext) -> None:
+    """Fixed tilted ellipsoids (2 : 1 : 0.5 r) at 1e5 through both prepares, the splat alone:
+    the same depth image (the device computes the bounding radius from the axes itself)."""
+    positions = jittered_lattice_ball(0.12, R, seed=5)
+    rotations = np.linalg.qr(np.random.default_rng(2).normal(size=(len(positions), 3, 3)))[0]
+    axes = (rotations * np.array([2 * R, R, 0.5 * R])).astype(np.float32)
+    scene = scene_at(1e5)
+    shifted = positions + 1e5
+    camera = Camera.from_config(scene.camera, 160, 96)
+    context = PassContext(gl_context, ProgramCache(gl_context), FullscreenTriangle(gl_context))
+    splat = SplatPass(context)
+    try:
+        frame = make_frame(shifted)
+        prepared = prepare_particles(frame, camera, scene, ellipsoids=(shifted, axes))
+        host = read_image(
+            splat.run(camera, splat.upload(prepared), bounds=None, box=None).depth.read(), 160, 96
+        )
+        device = DevicePrepare(context, splat.buffers).run(
+            frame, camera, scene, ellipsoids=(shifted, axes)
+        )
+        assert device.visible == prepared.center_radius.shape[0]
+        got = read_image(
+            splat.run(camera, device.bulk, bounds=None, box=device.box).depth.read(), 160, 96
+        )
+    finally:
+        splat.release()
+        context.fullscreen.release()
+        context.programs.release()
+    assert (host > 0).sum() > 500
+    # The same pixels hit; depths to float32 rounding: the bounding radius (numpy's float32 norm
+    # vs GLSL length, which may differ in the last bit) sizes the quad, and each fragment's ray
+    # is the normalised interpolated quad point, so a few ulps of depth move (measured: 21 of
+    # ~2000 pixels, 1-2 ulps).
+    assert np.array_equal(got > 0, host > 0)
+    np.testing.assert_allclose(got, host, rtol=4 * 2.0**-23, atol=0)
+
+
+def test_host_ms_is_reported(renderers: tuple[SurfaceRenderer, SurfaceRenderer]) -> None:
+    """Every frame says what its render thread did outside GL calls: a positive share of the
+    wall time, which the stage times (measured with the GPU waited for) bound from above."""
+    for renderer in renderers:
+        _, stats = renderer.render(make_frame(jittered_lattice_ball(0.05, R)), scene_at())
+        assert 0.0 < stats.host_ms < sum(stats.stage_ms.values()) + 50.0
