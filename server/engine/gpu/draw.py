@@ -125,10 +125,18 @@ def write_matrix(program: moderngl.Program, name: str, matrix: npt.NDArray[np.fl
     uniform.write(np.ascontiguousarray(matrix.T, dtype=np.float32).tobytes())
 
 
+def uses(program: moderngl.Program, name: str) -> bool:
+    """Whether the compiled variant has uniform `name` (see `set_if_used`)."""
+    return program.get(name, None) is not None
+
+
 def set_if_used(program: moderngl.Program, name: str, value: object) -> None:
-    """Set a uniform if the compiled variant uses it (the GLSL compiler drops unused ones)."""
-    if name in program:
-        program[name] = value
+    """Set a uniform if the compiled variant uses it (the GLSL compiler drops unused ones).
+    `program.get`, not `name in program`: moderngl's Program has no __contains__, so `in`
+    walks every member (a measurable share of a frame's host work)."""
+    uniform = program.get(name, None)
+    if uniform is not None:
+        uniform.value = value  # type: ignore[union-attr]
 
 
 def image_bytes(image: npt.NDArray[np.floating]) -> bytes:

@@ -149,8 +149,9 @@ class DevicePrepare:
             "u_size": (camera.width, camera.height),
         }
         for name, value in uniforms.items():
-            if name in shader:
-                shader[name] = value
+            uniform = shader.get(name, None)  # the compiler drops the unused ones
+            if uniform is not None:
+                uniform.value = value  # type: ignore[union-attr]
         self._buffers.bind()
         per_dispatch = GROUP_SIZE * MAX_GROUPS
         ctx = self._context.gl.ctx

@@ -28,6 +28,7 @@ from sphrender.server.engine.gpu.draw import (
     clear_and_scissor,
     set_if_used,
     set_scissor,
+    uses,
     write_matrix,
 )
 from sphrender.server.engine.lighting.blackbody import TABLE_MAX_K, TABLE_MIN_K, blackbody_table
@@ -116,7 +117,7 @@ class ShadePass:
         textures: list[tuple[str, moderngl.Texture]] = []
 
         def bind(name: str, texture: moderngl.Texture) -> None:
-            if name in program:
+            if uses(program, name):
                 textures.append((name, texture))
 
         bind("u_normal_depth", normal_depth)
@@ -127,7 +128,7 @@ class ShadePass:
             "u_tan_half_fov",
             (camera.tan_half_fov_y * camera.aspect, camera.tan_half_fov_y),
         )
-        if "u_view_to_world" in program:
+        if uses(program, "u_view_to_world"):
             write_matrix(program, "u_view_to_world", camera.rotation.T)
 
         material = resolve_material(scene.material)
@@ -141,12 +142,12 @@ class ShadePass:
             image = self.environments.resolve(scene.environment)
             entry = self.ibl.environment(image)
             world_to_env = rotation_about_y(scene.environment.rotation_deg)
-            if "u_world_to_env" in program:
+            if uses(program, "u_world_to_env"):
                 write_matrix(program, "u_world_to_env", world_to_env)
             set_if_used(program, "u_env_intensity", scene.environment.intensity)
             bind("u_env_source", entry.source)
             set_if_used(program, "u_env_source_size", tuple(float(s) for s in entry.source_size))
-            if "u_sh" in program:
+            if uses(program, "u_sh"):
                 program["u_sh"].write(entry.sh.astype(np.float32).tobytes())  # type: ignore[union-attr]
 
             if shading.ibl_mode == "prefiltered":
@@ -177,7 +178,7 @@ class ShadePass:
     def _set_lights(self, program: moderngl.Program, scene: Scene, camera: Camera) -> None:
         count = len(scene.lights)
         set_if_used(program, "u_light_count", count)
-        if count == 0 or "u_light_type" not in program:
+        if count == 0 or not uses(program, "u_light_type"):
             return
         types = np.zeros(MAX_LIGHTS, dtype=np.int32)
         vectors = np.zeros((MAX_LIGHTS, 3), dtype=np.float32)
