@@ -29,6 +29,7 @@ from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.programs import ProgramCache
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.device_prepare import DevicePrepare
+from sphrender.server.engine.passes.prepare_stage import resolve_mode
 from sphrender.server.engine.passes.splat import SplatPass
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import Scene, scene_from_dict
@@ -186,3 +187,20 @@ def test_host_ms_is_reported(renderers: tuple[SurfaceRenderer, SurfaceRenderer])
     for renderer in renderers:
         _, stats = renderer.render(make_frame(jittered_lattice_ball(0.05, R)), scene_at())
         assert 0.0 < stats.host_ms < sum(stats.stage_ms.values()) + 50.0
+
+
+def test_prepare_modes_resolve_and_bad_ones_are_named(monkeypatch: pytest.MonkeyPatch) -> None:
+    """auto: host on a software rasteriser, device on a GPU, unless SPHRENDER_PREPARE says;
+    an unknown mode names where it came from and the allowed values."""
+    monkeypatch.delenv("SPHRENDER_PREPARE", raising=False)
+    assert resolve_mode("auto", software=True) == "host"
+    assert resolve_mode("auto", software=False) == "device"
+    assert resolve_mode("device", software=True) == "device"
+    monkeypatch.setenv("SPHRENDER_PREPARE", "device")
+    assert resolve_mode("auto", software=True) == "device"
+    assert resolve_mode("host", software=False) == "host"  # an explicit mode wins
+    monkeypatch.setenv("SPHRENDER_PREPARE", "gpu")
+    with pytest.raises(ValueError, match="SPHRENDER_PREPARE must be one of auto, host, device"):
+        resolve_mode("auto", software=True)
+    with pytest.raises(ValueError, match="prepare must be one of"):
+        resolve_mode("fast", software=True)

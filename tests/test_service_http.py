@@ -410,6 +410,8 @@ def test_metrics_are_valid_prometheus_text_and_count_traffic(service: ServerProc
     assert delta("sphrender_frame_latency_seconds_count", transport="http") == 3
     assert delta("sphrender_stage_seconds_count", stage="splat") == 3
     assert delta("sphrender_stage_seconds_count", stage="encode") == 3
+    assert delta("sphrender_frame_host_seconds_count") == 3  # each frame's host work (issue 13)
+    assert delta("sphrender_frame_host_seconds_sum") > 0
     assert delta("sphrender_received_bytes_total", transport="http") == 3 * len(good) + 2 * len(bad)
     assert delta("sphrender_sent_bytes_total", transport="http") > 0
     assert after[("sphrender_frames_in_flight", ())] == 0

@@ -28,6 +28,7 @@ def run(_args: argparse.Namespace) -> int:
         list_devices,
     )
     from sphrender.server.engine.gpu.gl_context import GLContext, GLUnavailableError
+    from sphrender.server.engine.passes.prepare_stage import resolve_mode
 
     info: dict[str, object] = {}
     gl_error: GLUnavailableError | None = None
@@ -38,6 +39,7 @@ def run(_args: argparse.Namespace) -> int:
                 gl_version=gl.version,
                 software=gl.is_software,
                 max_image_side=gl.limits.max_image_side,
+                prepare=resolve_mode("auto", gl.is_software),
             )
     except GLUnavailableError as exc:
         gl_error = exc

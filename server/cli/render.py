@@ -156,12 +156,14 @@ def _encode_and_write(
     stages = " ".join(f"{k}={v:.1f}ms" for k, v in stats.stage_ms.items())
     now = time.perf_counter()
     log.info(
-        "%s: %d particles (%d visible, %d splatted), %s, total %.1f ms, written at %.3f s",
+        "%s: %d particles (%d visible, %d splatted), %s, host %.2f ms, total %.1f ms, "
+        "written at %.3f s",
         path,
         stats.particles_in,
         stats.particles_drawn,
         stats.particles_splatted,
         stages,
+        stats.host_ms,
         (now - start) * 1e3,
         now - command_start,
     )

@@ -82,6 +82,11 @@ class SurfaceRenderer:
         return self._gl
 
     @property
+    def prepare_mode(self) -> str:
+        """Where this renderer culls and transforms particles: "host" or "device"."""
+        return self._prepare.mode
+
+    @property
     def programs(self) -> ProgramCache:
         """The compiled-program cache the passes share."""
         return self._context.programs

@@ -269,6 +269,10 @@ class ServiceMetrics:
             "Time per stage of a frame: queue wait, render passes, encode",
             ("stage",),
         )
+        self.host_seconds = registry.histogram(
+            "sphrender_frame_host_seconds",
+            "Render-thread work outside GL calls per frame (Python, numpy): a GPU frame's floor",
+        )
         self.frame_seconds = registry.histogram(
             "sphrender_frame_latency_seconds",
             "From the frame fully received to its answer ready, by transport",

@@ -239,6 +239,7 @@ class _Child:
                 "particles": stats.particles_in,
                 "drawn": stats.particles_drawn,
                 "timings_ms": timings,
+                "host_ms": stats.host_ms,
                 "recv_ms": recv_ms,
             }
             del frame

@@ -299,6 +299,7 @@ class RenderWorker(threading.Thread):
             for stage, ms in stage_ms.items():
                 self._metrics.stage_seconds.observe(ms / 1e3, stage)
             self._metrics.stage_seconds.observe(ipc_ms / 1e3, "ipc")
+            self._metrics.host_seconds.observe(float(header.get("host_ms", 0.0)) / 1e3)
             self.busy_ms_ewma = 0.8 * self.busy_ms_ewma + 0.2 * sum(stage_ms.values())
             job.resolve(
                 ImageOutcome(

@@ -33,7 +33,7 @@ class GLClock:
     """Accumulates the wall time of the calls made inside ``with clock:`` (owner thread only;
     nested uses count once)."""
 
-    __slots__ = ("seconds", "_depth", "_start")
+    __slots__ = ("_depth", "_start", "seconds")
 
     def __init__(self) -> None:
         self.seconds = 0.0

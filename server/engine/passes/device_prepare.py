@@ -90,16 +90,15 @@ class DevicePrepare:
             box = clip_box(box_min_x, -neg_max_x, box_min_y, -neg_max_y, camera)
         if reference_radius is None:
             reference_radius = (
-                typical_radius(frame.radii) if frame.radii is not None and count else
-                scene.particles.radius
+                typical_radius(frame.radii)
+                if frame.radii is not None and count
+                else scene.particles.radius
             )
         has_temperature = frame.temperatures is not None
         ellipsoid = ellipsoids is not None
         bulk = SplatBatch(count, far, has_temperature, ellipsoid)
         drop_batch = SplatBatch(count, far, has_temperature, ellipsoid, droplets=True)
-        return DevicePrepared(
-            bulk, drop_batch if drops else None, visible, box, reference_radius
-        )
+        return DevicePrepared(bulk, drop_batch if drops else None, visible, box, reference_radius)
 
     def _upload(
         self,

@@ -11,11 +11,14 @@ Two implementations give the same depth image (tested, up to depth-buffer ties):
   whose rasteriser makes hidden quads nearly free while every millisecond of Python is frame time.
 
 `PREPARE_MODES`: "host", "device", or "auto" = device on a hardware GPU, host on a software
-rasteriser (measured: `benchmarks/bench_host.py`; ARCHITECTURE.md has the numbers).
+rasteriser (measured: `benchmarks/bench_host.py`; ARCHITECTURE.md has the numbers). The
+environment variable SPHRENDER_PREPARE (one of the modes) overrides "auto", so an operator can
+switch a server without a code change.
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from typing import Literal
 
@@ -49,15 +52,25 @@ class PreparedFrame:
     reference_radius: float
 
 
+def resolve_mode(mode: str, software: bool) -> PrepareMode:
+    """ "host" or "device" for `mode` on a software (llvmpipe) or hardware GL."""
+    if mode == "auto":
+        mode = os.environ.get("SPHRENDER_PREPARE", "auto") or "auto"
+        where = "SPHRENDER_PREPARE"
+    else:
+        where = "prepare"
+    if mode not in PREPARE_MODES:
+        raise ValueError(f"{where} must be one of {', '.join(PREPARE_MODES)}, got {mode!r}")
+    if mode == "auto":
+        return "host" if software else "device"
+    return "device" if mode == "device" else "host"
+
+
 class PrepareStage:
     def __init__(self, context: PassContext, splat: SplatPass, mode: PrepareMode) -> None:
-        if mode not in PREPARE_MODES:
-            raise ValueError(f"prepare mode must be one of {', '.join(PREPARE_MODES)}")
         self._splat = splat
         self._device = DevicePrepare(context, splat.buffers)
-        self.mode: PrepareMode = mode
-        if mode == "auto":
-            self.mode = "host" if context.gl.is_software else "device"
+        self.mode: PrepareMode = resolve_mode(mode, context.gl.is_software)
 
     def run(self, sph: SphOutcome, camera: Camera, scene: Scene) -> PreparedFrame:
         if self.mode == "device":

@@ -20,7 +20,6 @@ targets (depth texture, depth renderbuffer, temperature texture, their framebuff
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any
 
 import moderngl
 import numpy as np
@@ -30,7 +29,6 @@ from sphrender.server.engine.geometry import occlusion
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.prepare import PreparedParticles
 from sphrender.server.engine.geometry.screen_box import ScreenBox
-from sphrender.server.engine.gpu.gl_clock import GLClock
 from sphrender.server.engine.gpu.draw import (
     PerSize,
     Target,
@@ -38,8 +36,15 @@ from sphrender.server.engine.gpu.draw import (
     set_if_used,
     write_matrix,
 )
+from sphrender.server.engine.gpu.gl_clock import GLClock
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
-from sphrender.server.engine.passes.splat_buffers import AXES, IDS, SPHERES, TEMPERATURES, SplatBuffers
+from sphrender.server.engine.passes.splat_buffers import (
+    AXES,
+    IDS,
+    SPHERES,
+    TEMPERATURES,
+    SplatBuffers,
+)
 
 VERTEX_SHADER = "splat/splat_sphere.vert.glsl"
 FRAGMENT_SHADER = "splat/splat_sphere.frag.glsl"
@@ -265,7 +270,9 @@ class SplatPass:
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
         if coverage is not None and count:
-            self._draw_coverage(targets.coverage_target(), camera, droplets, 0, count, use_ids=False)
+            self._draw_coverage(
+                targets.coverage_target(), camera, droplets, 0, count, use_ids=False
+            )
         splatted = count if droplets.host is not None else -1  # -1: the device prepare counts
         return SplatOutput(composite, temperature, splatted, coverage)
 
