@@ -13,11 +13,14 @@ layout(std430, binding = 0) readonly buffer SplatSpheres { vec4 splat_spheres[];
 layout(std430, binding = 1) readonly buffer SplatIds { uint splat_ids[]; };
 layout(std430, binding = 2) readonly buffer SplatTemperatures { float splat_temperatures[]; };
 layout(std430, binding = 3) readonly buffer SplatAxes { float splat_axes[]; };  // 9 per particle, row-major 3x3, columns = semi-axes
+layout(std430, binding = 8) readonly buffer SplatFlags { uint splat_flags[]; };  // device culling
 
 uniform bool u_use_ids;
 uniform float u_class;           // 1: bulk (w > 0), -1: droplets (w < 0)
 uniform bool u_has_temperature;  // splat_temperatures is bound
 uniform mat3 u_view_rotation;    // world -> view (ellipsoid axes)
+uniform uint u_flag_mask;        // 0: every particle of the class; else those with one of these
+                                 // device-culling flags (splat/occlusion_cull.comp.glsl)
 
 // Outside the clip volume: every triangle of a culled quad is discarded before rasterising.
 const vec4 SPLAT_CULLED = vec4(2.0, 2.0, 2.0, 1.0);
@@ -36,6 +39,9 @@ vec2 splat_corner() {
 bool splat_sphere(uint particle, out vec4 sphere) {
     vec4 s = splat_spheres[particle];
     sphere = vec4(s.xyz, abs(s.w));
+    if (u_flag_mask != 0u && (splat_flags[particle] & u_flag_mask) == 0u) {
+        return false;
+    }
     return u_class * s.w > 0.0;
 }
 

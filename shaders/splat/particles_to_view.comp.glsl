@@ -8,6 +8,8 @@
 
 layout(local_size_x = 256) in;
 
+#include "common/sphere_bounds.glsl"
+
 layout(std430, binding = 0) writeonly buffer SplatSpheres { vec4 spheres[]; };
 layout(std430, binding = 3) readonly buffer SplatAxes { float axes[]; };     // 9 per particle
 layout(std430, binding = 4) readonly buffer Positions { double positions[]; };  // 3 per particle, world
@@ -19,6 +21,7 @@ layout(std430, binding = 7) coherent buffer Summary {
     uint visible;     // particles in front of the camera and inside the image
     uint droplets;    // of those, exact droplets
     uint unbounded;   // visible spheres reaching the eye plane: no rectangle, whole image
+    uint near_bits;   // smallest nearest eye depth of a visible particle (float bits, >= 0)
 } summary;
 
 uniform uint u_first;       // this dispatch's first particle (dispatches are capped at 65535 groups)
@@ -39,6 +42,7 @@ shared uint s_far_bits;
 shared uint s_visible;
 shared uint s_droplets;
 shared uint s_unbounded;
+shared uint s_near_bits;
 
 float particle_radius(uint i) {
     if (!u_ellipsoid) {
@@ -74,23 +78,11 @@ bool visible(dvec3 v, double r) {
     return true;
 }
 
-// occlusion._tangent_extent + sphere_bounds: inclusive pixel interval of the silhouette along
-// one axis, one pixel of margin each side, from the float32 sphere the splat draws.
-ivec2 pixel_interval(double lateral, double depth, double r, double tan_half, int size) {
-    double d2_r2 = (depth - r) * (depth + r);
-    double spread = r * sqrt(lateral * lateral + d2_r2);
-    double scale = 0.5 * double(size) / tan_half;
-    double centre = 0.5 * double(size);
-    double limit = 4.0 * double(max(u_size.x, u_size.y));
-    double lo = clamp((lateral * depth - spread) / d2_r2 * scale + centre, -limit, limit);
-    double hi = clamp((lateral * depth + spread) / d2_r2 * scale + centre, -limit, limit);
-    return ivec2(int(ceil(lo - 0.5)) - 1, int(floor(hi - 0.5)) + 1);
-}
-
 void main() {
     if (gl_LocalInvocationIndex == 0u) {
         s_box[0] = 2147483647; s_box[1] = 2147483647; s_box[2] = 2147483647; s_box[3] = 2147483647;
         s_far_bits = 0u; s_visible = 0u; s_droplets = 0u; s_unbounded = 0u;
+        s_near_bits = 0x7f800000u;  // +inf
     }
     barrier();
     uint i = u_first + gl_GlobalInvocationID.x;
@@ -108,9 +100,10 @@ void main() {
             double rr = double(r);
             double depth = -c.z;
             atomicMax(s_far_bits, floatBitsToUint(float(-v.z + double(r))));
-            if (depth - rr > 1e-6 * max(depth, 1e-300)) {
-                ivec2 x = pixel_interval(c.x, depth, rr, u_tan_half_fov.x, u_size.x);
-                ivec2 y = pixel_interval(c.y, depth, rr, u_tan_half_fov.y, u_size.y);
+            atomicMin(s_near_bits, floatBitsToUint(max(float(-v.z - double(r)), 0.0)));
+            if (has_bounds(depth, rr)) {
+                ivec2 x = pixel_interval(c.x, depth, rr, u_tan_half_fov.x, u_size.x, u_size);
+                ivec2 y = pixel_interval(c.y, depth, rr, u_tan_half_fov.y, u_size.y, u_size);
                 atomicMin(s_box[0], x.x);
                 atomicMin(s_box[1], y.x);
                 atomicMin(s_box[2], -x.y);
@@ -128,5 +121,6 @@ void main() {
         atomicAdd(summary.visible, s_visible);
         atomicAdd(summary.droplets, s_droplets);
         atomicAdd(summary.unbounded, s_unbounded);
+        atomicMin(summary.near_bits, s_near_bits);
     }
 }

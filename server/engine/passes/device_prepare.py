@@ -40,7 +40,7 @@ from sphrender.server.scene import Scene
 COMPUTE_SHADER = "splat/particles_to_view.comp.glsl"
 GROUP_SIZE = 256  # local_size_x of the compute shader
 MAX_GROUPS = 65535  # the smallest GL_MAX_COMPUTE_WORK_GROUP_COUNT[0] GL 4.3 allows
-_SUMMARY_INIT = np.array([2**31 - 1] * 4 + [0] * 4, dtype=np.int32)
+_SUMMARY_INIT = np.array([2**31 - 1] * 4 + [0] * 4 + [0x7F800000, 0, 0, 0], dtype=np.int32)
 
 
 @dataclass(frozen=True)
@@ -52,6 +52,7 @@ class DevicePrepared:
     visible: int
     box: ScreenBox | None
     reference_radius: float
+    nearest: float  # the smallest nearest eye depth of a visible particle (inf: none)
 
 
 class DevicePrepare:
@@ -75,8 +76,9 @@ class DevicePrepare:
         self._upload(frame, droplets, ellipsoids)
         summary = self._dispatch(camera, scene, frame, count, droplets, ellipsoids)
         box_min_x, box_min_y, neg_max_x, neg_max_y, far_bits, visible, drops, unbounded = (
-            int(v) for v in summary
+            int(v) for v in summary[:8]
         )
+        nearest = float(summary[8:9].view(np.float32)[0])
         far_config = scene.camera.far
         if far_config is not None:
             far = far_config
@@ -98,7 +100,9 @@ class DevicePrepare:
         ellipsoid = ellipsoids is not None
         bulk = SplatBatch(count, far, has_temperature, ellipsoid)
         drop_batch = SplatBatch(count, far, has_temperature, ellipsoid, droplets=True)
-        return DevicePrepared(bulk, drop_batch if drops else None, visible, box, reference_radius)
+        return DevicePrepared(
+            bulk, drop_batch if drops else None, visible, box, reference_radius, nearest
+        )
 
     def _upload(
         self,

@@ -11,7 +11,8 @@ buffers by `gl_VertexID`, so nothing is copied per quad corner on the CPU. Two w
   compute shader writes the spheres in place.
 
 Binding points (the shaders' `binding = k`): 0 spheres, 1 ids, 2 temperatures, 3 axes,
-4 positions, 5 radii, 6 droplet mask, 7 the device prepare's summary. Buffers grow
+4 positions, 5 radii, 6 droplet mask, 7 the device prepare's summary; the device occlusion
+culling's 8 per-particle flags, 9 tile minima, 10 max-depth pyramid, 11 drawn counts. Buffers grow
 geometrically (`orphan`, so the vertex arrays stay valid) and are never shrunk: a steady stream
 of frames allocates nothing.
 
@@ -27,9 +28,14 @@ import numpy.typing as npt
 from sphrender.server.engine.gpu.gl_clock import GLClock
 
 SPHERES, IDS, TEMPERATURES, AXES, POSITIONS, RADII, DROPLETS, SUMMARY = range(8)
+FLAGS, TILES, PYRAMID, COUNTS = range(8, 12)
 #: Bytes per particle of each per-particle buffer.
-STRIDE = {SPHERES: 16, IDS: 4, TEMPERATURES: 4, AXES: 36, POSITIONS: 24, RADII: 4, DROPLETS: 1}
-SUMMARY_BYTES = 32
+STRIDE = {
+    SPHERES: 16, IDS: 4, TEMPERATURES: 4, AXES: 36, POSITIONS: 24, RADII: 4, DROPLETS: 1,
+    FLAGS: 4, TILES: 4, PYRAMID: 4,
+}  # fmt: skip
+SUMMARY_BYTES = 48
+COUNTS_BYTES = 16
 
 
 class SplatBuffers:
@@ -38,6 +44,7 @@ class SplatBuffers:
         self._clock = clock
         self._buffers = {binding: ctx.buffer(reserve=64 * 1024) for binding in STRIDE}
         self._buffers[SUMMARY] = ctx.buffer(reserve=SUMMARY_BYTES)
+        self._buffers[COUNTS] = ctx.buffer(reserve=COUNTS_BYTES)
         # Two triangles per quad: 4q + (0, 1, 2, 2, 1, 3); grows with the largest frame.
         self.index_buffer = ctx.buffer(reserve=4)
         self._quad_capacity = 0
