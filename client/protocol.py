@@ -36,7 +36,7 @@ import struct
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Any
+from typing import Any, Literal, TypeAlias
 
 import numpy as np
 
@@ -45,6 +45,7 @@ from sphrender.client.npz_body import NpzFrame, decode_npz_frame, encode_npz_fra
 
 __all__ = [
     "ARRAY_NAMES",
+    "IMAGE_FORMATS",
     "MAGIC",
     "MAX_FRAME_ID",
     "PREFIX",
@@ -53,6 +54,7 @@ __all__ = [
     "WIRE_DTYPES",
     "ArraySlot",
     "ErrorCode",
+    "ImageFormat",
     "LimitError",
     "Message",
     "MessageType",
@@ -80,6 +82,9 @@ PREFIX_SIZE = PREFIX.size  # 16
 MAX_FRAME_ID = 2**53 - 1
 #: The arrays a frame may carry, as in the .npz input format.
 ARRAY_NAMES: tuple[str, ...] = ("positions", "densities", "radii", "temperatures")
+#: The image encodings an IMAGE (and an HTTP render) can carry (PROTOCOL.md §4.3).
+ImageFormat: TypeAlias = Literal["png", "exr", "jpeg", "raw"]
+IMAGE_FORMATS: tuple[ImageFormat, ...] = ("png", "exr", "jpeg", "raw")
 #: Wire dtype names (numpy's array-protocol strings, always little-endian) -> numpy dtype.
 WIRE_DTYPES: dict[str, np.dtype[Any]] = {"<f4": np.dtype("<f4"), "<f8": np.dtype("<f8")}
 #: How deep a JSON header may nest (a scene is 3 levels deep; this leaves room and no more).
