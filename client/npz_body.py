@@ -31,7 +31,7 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.client.errors import InputError, LimitError
+from sphrender.client.errors import InputError, LimitError, show
 
 __all__ = ["NpzFrame", "decode_npz_frame", "encode_npz_frame"]
 
@@ -185,7 +185,7 @@ def _read_header(archive: zipfile.ZipFile, member: str, name: str) -> _Entry:
     if nbytes + header_size != info.file_size:
         raise InputError(
             name,
-            f"declares shape {shape} ({nbytes} bytes) but the entry holds "
+            f"declares shape {show(list(shape))} ({nbytes} bytes) but the entry holds "
             f"{info.file_size - header_size} bytes",
         )
     return _Entry(name, info, tuple(shape), bool(fortran), dtype, header_size, nbytes)
@@ -224,7 +224,7 @@ def decode_npz_frame(
             members = {name.removesuffix(".npy"): name for name in archive.namelist()}
             if "positions" not in members:
                 listing = ", ".join(sorted(members)[:8]) or "none"
-                raise InputError("positions", f"missing entry 'positions'; the body has {listing}")
+                raise InputError("positions", f"missing entry positions; the body has {listing}")
             entries = [
                 _read_header(archive, members[name], name)
                 for name in (*NPZ_ARRAYS, "scene")

@@ -40,7 +40,7 @@ from typing import Any, Literal, TypeAlias
 
 import numpy as np
 
-from sphrender.client.errors import InputError, LimitError
+from sphrender.client.errors import InputError, LimitError, kind_of, show
 from sphrender.client.npz_body import NpzFrame, decode_npz_frame, encode_npz_frame
 
 __all__ = [
@@ -174,7 +174,9 @@ def parse_prefix(
     magic, version, kind, flags, header_len, payload_len = PREFIX.unpack(prefix)
     if magic != MAGIC:
         raise ProtocolError(
-            ErrorCode.PROTOCOL, f"bad magic {bytes(magic)!r}, expected {MAGIC!r}", "magic"
+            ErrorCode.PROTOCOL,
+            f"bad magic (bytes {bytes(magic).hex(' ')}), expected 53 50 48 52 (ASCII SPHR)",
+            "magic",
         )
     if version != VERSION:
         raise ProtocolError(
@@ -257,7 +259,7 @@ def parse_json_object(data: bytes | bytearray | memoryview, what: str) -> dict[s
     except (UnicodeDecodeError, ValueError, RecursionError) as exc:
         raise InputError(what, f"is not valid JSON: {str(exc).splitlines()[0]}") from None
     if not isinstance(value, dict):
-        raise InputError(what, f"must be a JSON object, got {type(value).__name__}")
+        raise InputError(what, f"must be a JSON object, got {kind_of(value)}")
     return value
 
 
@@ -334,7 +336,7 @@ def _shape(field: str, value: Any, name: str) -> tuple[int, ...]:
         or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in value)
         or (len(value) == 2 and value[1] != 3)
     ):
-        raise InputError(field, f"must be {text} with N >= 0 for {name}, got {value!r}")
+        raise InputError(field, f"must be {text} with N >= 0 for {name}, got {show(value)}")
     return tuple(value)
 
 
@@ -357,14 +359,16 @@ def plan_frame_arrays(
 
     The sum of the arrays' byte sizes must equal `payload_length` exactly."""
     if not isinstance(specs, list) or not specs:
-        raise InputError("arrays", "must be a non-empty list of {name, dtype, shape}")
+        raise InputError("arrays", "must be a non-empty array of {name, dtype, shape} objects")
     slots: list[ArraySlot] = []
     offset = 0
     count: int | None = None
     for index, spec in enumerate(specs):
         where = f"arrays[{index}]"
         if not isinstance(spec, dict):
-            raise InputError(where, "must be an object with name, dtype and shape")
+            raise InputError(
+                where, f"must be an object with name, dtype and shape, got {kind_of(spec)}"
+            )
         unknown = set(spec) - {"name", "dtype", "shape"}
         if unknown:
             raise InputError(f"{where}.{sorted(unknown)[0]}", "unknown key")
@@ -372,7 +376,7 @@ def plan_frame_arrays(
         if not isinstance(name, str) or name not in ARRAY_NAMES:
             raise InputError(f"{where}.name", f"must be one of {', '.join(ARRAY_NAMES)}")
         if any(slot.name == name for slot in slots):
-            raise InputError(f"{where}.name", f"{name!r} appears twice")
+            raise InputError(f"{where}.name", f"{name} appears twice")
         wire = spec.get("dtype")
         dtype = WIRE_DTYPES.get(wire) if isinstance(wire, str) else None
         if dtype is None:
