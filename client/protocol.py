@@ -256,7 +256,9 @@ def parse_json_object(data: bytes | bytearray | memoryview, what: str) -> dict[s
             parse_float=_finite_float,
         )
         _depth(value, MAX_JSON_DEPTH)
-    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+    except UnicodeDecodeError as exc:
+        raise InputError(what, f"is not valid UTF-8 (byte {exc.start})") from None
+    except (ValueError, RecursionError) as exc:
         raise InputError(what, f"is not valid JSON: {str(exc).splitlines()[0]}") from None
     if not isinstance(value, dict):
         raise InputError(what, f"must be a JSON object, got {kind_of(value)}")
