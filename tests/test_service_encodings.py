@@ -14,6 +14,7 @@ import socket
 from typing import Any
 
 import numpy as np
+import pytest
 from fuzz_inputs import connection_input, frame_input, http_body
 from service_harness import SMALL_SCENE, ServerProcess, ball
 from test_encodings import decode
@@ -198,3 +199,48 @@ def test_error_texts_are_plain_words(service: ServerProcess) -> None:
     assert not leaks, leaks
     for fragment in ("Infinity", "must be a number", "must be a table"):
         assert any(fragment in text for text in texts), fragment
+
+
+@pytest.mark.parametrize(
+    "header",
+    [b'{"id": 1, "arrays": NaN}', b'{"id": 1, "scene": ' + b"[" * 17 + b"]" * 17 + b"}"],
+    ids=["nan-literal", "17-levels"],
+)
+def test_unparseable_header_is_fatal_protocol(service: ServerProcess, header: bytes) -> None:
+    """PROTOCOL.md §4.4: a header that cannot be parsed is a fatal `protocol` error naming
+    `header` (16 levels of nesting are allowed, 17 are not)."""
+    from fuzz_inputs import message
+
+    with service.stream() as client:
+        client.hello()
+        client.send(message(MessageType.FRAME, header))
+        kind, answer, _ = client.receive()
+        assert (kind, answer["code"], answer["field"], answer["fatal"]) == (
+            MessageType.ERROR,
+            "protocol",
+            "header",
+            True,
+        )
+        assert client.closed_by_server()
+
+
+def test_payload_length_mismatch_answers_that_frame(service: ServerProcess) -> None:
+    """Payload longer than its arrays: `bad_input` naming `payload_length`, not fatal; shorter:
+    the array that does not fit. The connection goes on."""
+    good = encode_frame(1, ball(50))
+    prefix, rest = bytearray(good[:16]), good[16:]
+    longer = bytearray(prefix)
+    longer[12:16] = (int.from_bytes(prefix[12:16], "little") + 8).to_bytes(4, "little")
+    shorter = bytearray(prefix)
+    shorter[12:16] = (int.from_bytes(prefix[12:16], "little") - 8).to_bytes(4, "little")
+    with service.stream() as client:
+        client.hello()
+        client.send(bytes(longer) + rest + bytes(8))
+        client.send(bytes(shorter) + rest[:-8])
+        client.frame(2, ball(50))
+        answers = [client.receive() for _ in range(3)]
+    assert [(a[1].get("code"), a[1].get("field"), a[1].get("fatal")) for a in answers[:2]] == [
+        ("bad_input", "payload_length", False),
+        ("bad_input", "arrays[0].shape", False),
+    ]
+    assert answers[2][0] == MessageType.IMAGE and answers[2][1]["id"] == 2
