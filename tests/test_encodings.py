@@ -177,8 +177,8 @@ def test_display_codes_equal_the_reference_transform(tone_mapper: str) -> None:
     rgba[0, 2, 3] = 0.25
     every = display._tone_map_pixels(rgba, 0.7, display.TONE_MAPPERS[tone_mapper])
     for bits in (8, 16):
-        got = display.display_codes(rgba, bits, 0.7, tone_mapper)  # type: ignore[arg-type]
-        assert np.array_equal(got, display._quantise(every, bits))  # type: ignore[arg-type]
+        got = display.display_codes(rgba, bits, 0.7, tone_mapper)
+        assert np.array_equal(got, display._quantise(every, bits))
 
 
 def test_scene_selects_the_encoding(renderer: SurfaceRenderer) -> None:
