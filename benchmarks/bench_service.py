@@ -1,6 +1,8 @@
-"""Service benchmark: frames per second and latency over the stream for 1, 4 and 16 clients.
+"""Service benchmark: frames per second and latency over the stream for 1, 4 and 16 clients,
+per encoding (png, jpeg, raw, exr).
 
 Not a test. Run:  .venv/bin/python benchmarks/bench_service.py [--frames 24] [--sizes 640x360]
+    [--encodings png,jpeg,raw] [--clients 1,16] [--summary]
 
 Starts a real `sphrender serve` on loopback (ephemeral ports), sends a ~100k-particle jittered
 lattice ball (float64 positions, 2.4 MB per frame) and reports, per image size:
@@ -186,6 +188,47 @@ def row(name: str, fps: float, latencies: list[float], extra: str = "") -> None:
     )
 
 
+def run_size(
+    args: argparse.Namespace,
+    ready: dict[str, Any],
+    positions: np.ndarray,
+    r: float,
+    size: str,
+    encoding: str,
+    summary: list[tuple[str, str, float, float, float]],
+) -> None:
+    width, height = (int(v) for v in size.split("x"))
+    scene = {
+        "image": {"width": width, "height": height},
+        "camera": {"eye": [1.3, 1.0, 1.7], "target": [0.0, 0.0, 0.0], "fov_y": 40.0},
+        "particles": {"radius": r},
+        "output": {"format": encoding},
+    }
+    print(f"\n{width}x{height}, {encoding}, {args.frames} frames per configuration", flush=True)
+    # Warm-up (scene preparation, first-frame costs).
+    stream_run(ready["stream_port"], scene, positions, 1, 2, True)
+    stages: list[dict[str, float]] = []
+    one_fps, one_lat = stream_run(
+        ready["stream_port"], scene, positions, 1, args.frames, False, stages
+    )
+    row("stream, 1 client, one at a time", one_fps, one_lat)
+    means = {n: float(np.mean([s.get(n, 0.0) for s in stages])) for n in stages[0]}
+    print("    server ms/frame: " + ", ".join(f"{n} {v:.1f}" for n, v in means.items()))
+    fps_by_clients = {}
+    for clients in (int(c) for c in args.clients.split(",")):
+        fps, lat = stream_run(ready["stream_port"], scene, positions, clients, args.frames, True)
+        fps_by_clients[clients] = fps
+        extra = f"x{fps / one_fps:.2f} vs one-at-a-time" if clients == 1 else ""
+        row(f"stream, {clients} client(s), pipelined", fps, lat, extra)
+    summary.append(
+        (size, encoding, percentile(one_lat, 50), one_fps, fps_by_clients.get(16, float("nan")))
+    )
+    if not args.skip_http:
+        body = encode_npz_frame(positions, scene=scene)
+        fps, lat = http_run(ready["http_port"], body, max(4, args.frames // 2))
+        row("HTTP, 1 client, one at a time", fps, lat, f"x{fps / one_fps:.2f} vs stream")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--frames", type=int, default=24, help="frames per configuration")
@@ -193,7 +236,10 @@ def main() -> None:
     parser.add_argument("--clients", default="1,4,16")
     parser.add_argument("--ball-radius", type=float, default=0.58, help="0.58 -> ~100k particles")
     parser.add_argument("--encoder-threads", type=int, default=2)
+    parser.add_argument("--encodings", default="png,jpeg,raw,exr", help="output.format values")
+    parser.add_argument("--skip-http", action="store_true")
     args = parser.parse_args()
+    summary: list[tuple[str, str, float, float, float]] = []
 
     r = 0.01
     positions = jittered_lattice_ball(args.ball_radius, r)
@@ -208,31 +254,14 @@ def main() -> None:
     print(f"server: {ready['gl_renderer']}, {os.cpu_count()} CPUs")
     try:
         for size in args.sizes.split(","):
-            width, height = (int(v) for v in size.split("x"))
-            scene = {
-                "image": {"width": width, "height": height},
-                "camera": {"eye": [1.3, 1.0, 1.7], "target": [0.0, 0.0, 0.0], "fov_y": 40.0},
-                "particles": {"radius": r},
-            }
-            print(f"\n{width}x{height}, PNG, {args.frames} frames per configuration")
-            # Warm-up (scene preparation, first-frame costs).
-            stream_run(ready["stream_port"], scene, positions, 1, 2, True)
-            stages: list[dict[str, float]] = []
-            one_fps, one_lat = stream_run(
-                ready["stream_port"], scene, positions, 1, args.frames, False, stages
+            for encoding in args.encodings.split(","):
+                run_size(args, ready, positions, r, size, encoding, summary)
+        print("\nend-to-end latency, 1 client one frame at a time (p50 ms), and fps:")
+        for size, encoding, p50, fps1, fps16 in summary:
+            print(
+                f"  {size:>9} {encoding:<5} p50 {p50:7.1f} ms   1 client {fps1:5.2f} fps"
+                f"   16 clients {fps16:5.2f} fps"
             )
-            row("stream, 1 client, one at a time", one_fps, one_lat)
-            means = {n: float(np.mean([s.get(n, 0.0) for s in stages])) for n in stages[0]}
-            print("    server ms/frame: " + ", ".join(f"{n} {v:.1f}" for n, v in means.items()))
-            for clients in (int(c) for c in args.clients.split(",")):
-                fps, lat = stream_run(
-                    ready["stream_port"], scene, positions, clients, args.frames, True
-                )
-                extra = f"x{fps / one_fps:.2f} vs one-at-a-time" if clients == 1 else ""
-                row(f"stream, {clients} client(s), pipelined", fps, lat, extra)
-            body = encode_npz_frame(positions, scene=scene)
-            fps, lat = http_run(ready["http_port"], body, max(4, args.frames // 2))
-            row("HTTP, 1 client, one at a time", fps, lat, f"x{fps / one_fps:.2f} vs stream")
     finally:
         proc.send_signal(signal.SIGTERM)
         code = proc.wait(60)

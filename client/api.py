@@ -30,7 +30,9 @@ import numpy as np
 from sphrender.client.errors import InputError
 from sphrender.client.frame import ParticleFrame
 from sphrender.client.protocol import (
+    IMAGE_FORMATS,
     ErrorCode,
+    ImageFormat,
     MessageType,
     ProtocolError,
     encode_frame,
@@ -38,8 +40,6 @@ from sphrender.client.protocol import (
     encode_npz_frame,
     read_message,
 )
-
-ImageFormat = Literal["png", "exr"]
 
 #: Errors of the transport itself: the server is down, restarting or went away mid-request.
 CONNECTION_ERRORS: tuple[type[BaseException], ...] = (
@@ -80,6 +80,12 @@ class StreamResult:
     kind: Literal["image", "error", "dropped"]
     header: dict[str, Any]
     data: bytes = b""
+
+    def raw_arrays(self) -> dict[str, np.ndarray]:
+        """The arrays of a raw IMAGE (``format`` "raw"), by name."""
+        if self.kind != "image" or self.header.get("format") != "raw":
+            raise InputError("format", "only a raw IMAGE carries arrays")
+        return decode_raw(self.header["arrays"], self.data)
 
     @property
     def error(self) -> ServerError | None:
@@ -195,13 +201,40 @@ class Client:
         temperatures: object | None = None,
         format: ImageFormat | None = None,
     ) -> bytes:
-        """Render one frame over HTTP; returns the PNG or EXR file bytes."""
+        """Render one frame over HTTP; returns the image bytes (PNG, EXR, JPEG or raw arrays:
+        `render_raw` decodes those)."""
+        return self._render(positions, scene, densities, radii, temperatures, format)[1]
+
+    def _render(
+        self,
+        positions: object,
+        scene: Mapping[str, Any] | None,
+        densities: object | None,
+        radii: object | None,
+        temperatures: object | None,
+        format: ImageFormat | None,
+    ) -> tuple[dict[str, str], bytes]:
+        if format is not None and format not in IMAGE_FORMATS:
+            raise InputError("format", f"must be one of {', '.join(IMAGE_FORMATS)}")
         body = encode_npz_frame(
             positions, densities=densities, radii=radii, temperatures=temperatures, scene=scene
         )
         path = "/v1/render" + (f"?format={format}" if format else "")
-        _headers, data = self.request("POST", path, body, "application/x-npz")
-        return data
+        return self.request("POST", path, body, "application/x-npz")
+
+    def render_raw(
+        self,
+        positions: object,
+        scene: Mapping[str, Any] | None = None,
+        *,
+        densities: object | None = None,
+        radii: object | None = None,
+        temperatures: object | None = None,
+    ) -> dict[str, np.ndarray]:
+        """Render as raw arrays (the scene's ``output.raw_type``) and decode them: ``rgba``
+        (H, W, 4), plus ``Z`` and ``N`` for the float types (PROTOCOL.md §4.3)."""
+        headers, data = self._render(positions, scene, densities, radii, temperatures, "raw")
+        return decode_raw(json.loads(headers["x-sphrender-arrays"]), data)
 
     def render_arrays(
         self, positions: object, scene: Mapping[str, Any] | None = None, **arrays: Any
@@ -360,6 +393,32 @@ def _stream_error(header: Mapping[str, Any]) -> ServerError:
     return ServerError(
         str(header.get("error")), code, header.get("field"), ErrorCode.HTTP_STATUS.get(code)
     )
+
+
+#: dtype strings of raw IMAGE arrays (PROTOCOL.md §4.3).
+RAW_DTYPES: dict[str, np.dtype[Any]] = {
+    "u1": np.dtype("u1"),
+    "<f2": np.dtype("<f2"),
+    "<f4": np.dtype("<f4"),
+}
+
+
+def decode_raw(arrays: Any, data: bytes) -> dict[str, np.ndarray]:
+    """A raw payload split into its arrays by the descriptors (name, dtype, shape), in order;
+    the sizes must add up to the payload exactly."""
+    out: dict[str, np.ndarray] = {}
+    offset = 0
+    for spec in arrays:
+        dtype = RAW_DTYPES[spec["dtype"]]
+        shape = tuple(int(n) for n in spec["shape"])
+        size = int(np.prod(shape)) * dtype.itemsize
+        if offset + size > len(data):
+            raise ProtocolError(ErrorCode.PROTOCOL, "raw payload shorter than its arrays")
+        out[spec["name"]] = np.frombuffer(data, dtype, int(np.prod(shape)), offset).reshape(shape)
+        offset += size
+    if offset != len(data):
+        raise ProtocolError(ErrorCode.PROTOCOL, "raw payload longer than its arrays")
+    return out
 
 
 def decode_exr(data: bytes) -> dict[str, np.ndarray]:

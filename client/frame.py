@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.client.errors import InputError
+from sphrender.client.errors import InputError, show
 
 FloatArray = npt.NDArray[np.floating]
 
@@ -50,7 +50,7 @@ def _as_float_array(name: str, value: object, shape_tail: tuple[int, ...]) -> np
         raise InputError(name, f"must be a numeric array, got dtype {array.dtype}")
     expected = "(N, 3)" if shape_tail else "(N,)"
     if array.ndim != 1 + len(shape_tail) or tuple(array.shape[1:]) != shape_tail:
-        raise InputError(name, f"must have shape {expected}, got {tuple(array.shape)}")
+        raise InputError(name, f"must have shape {expected}, got {show(list(array.shape))}")
     return array
 
 
@@ -77,7 +77,7 @@ def make_frame(
     if not finite.all():
         raise InputError(
             f"positions[{_first_bad_index(np.logical_not(finite))}]",
-            "must be finite (found NaN or Inf)",
+            "must be finite (a row of 3 coordinates; found NaN or Infinity)",
         )
 
     def optional(name: str, value: object | None, low: float, inclusive: bool) -> np.ndarray | None:
@@ -92,7 +92,7 @@ def make_frame(
         if bad.any():
             i = _first_bad_index(bad)
             bound = f">= {low}" if inclusive else f"> {low}"
-            raise InputError(f"{name}[{i}]", f"must be finite and {bound}, got {arr[i]!r}")
+            raise InputError(f"{name}[{i}]", f"must be finite and {bound}, got {show(arr[i])}")
         return np.ascontiguousarray(arr32)
 
     return ParticleFrame(

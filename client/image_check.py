@@ -1,4 +1,4 @@
-"""Cheap, dependency-free checks that a PNG or EXR file is complete (for ``submit --resume``).
+"""Cheap, dependency-free checks that an output image is complete (for ``submit --resume``).
 
 A frame whose output passes is not rendered again. The checks catch what an interrupted writer
 leaves behind (a truncated file, a missing end marker, a bad chunk) without decoding pixels:
@@ -112,11 +112,29 @@ def is_complete_exr(path: str | os.PathLike[str]) -> bool:
         return False
 
 
+def is_complete_jpeg(path: str | os.PathLike[str]) -> bool:
+    """Start of image first, end of image (FF D9) last."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError:
+        return False
+    return data[:3] == b"\xff\xd8\xff" and data[-2:] == b"\xff\xd9"
+
+
 def is_complete_image(path: str | os.PathLike[str]) -> bool:
-    """Dispatch on the suffix (.png / .exr); anything else is not complete."""
+    """Dispatch on the suffix (.png / .exr / .jpg / .raw); anything else is not complete. A raw
+    file carries no size of its own: it counts as complete when it is not empty (the submitter
+    writes every output atomically, so it never leaves a partial one)."""
     suffix = Path(path).suffix.lower()
     if suffix == ".png":
         return is_complete_png(path)
     if suffix == ".exr":
         return is_complete_exr(path)
+    if suffix in (".jpg", ".jpeg"):
+        return is_complete_jpeg(path)
+    if suffix == ".raw":
+        try:
+            return Path(path).stat().st_size > 0
+        except OSError:
+            return False
     return False

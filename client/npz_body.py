@@ -31,7 +31,7 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.client.errors import InputError, LimitError
+from sphrender.client.errors import InputError, LimitError, show
 
 __all__ = ["NpzFrame", "decode_npz_frame", "encode_npz_frame"]
 
@@ -174,18 +174,28 @@ def _read_header(archive: zipfile.ZipFile, member: str, name: str) -> _Entry:
             elif version in ((2, 0), (3, 0)):
                 shape, fortran, dtype = np.lib.format.read_array_header_2_0(handle)
             else:
-                raise ValueError(f"unsupported .npy version {version}")
-        except Exception as exc:  # numpy raises ValueError, SyntaxError, tokenize.TokenError, ...
-            detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise InputError(name, f"not a valid .npy entry: {detail}") from None
+                raise InputError(
+                    name,
+                    f"not a valid .npy entry: NPY version {version[0]}.{version[1]} is not "
+                    "supported (1.0, 2.0 and 3.0 are)",
+                )
+        except InputError:
+            raise
+        except Exception:  # numpy raises ValueError, SyntaxError, tokenize.TokenError, ...
+            raise InputError(
+                name,
+                "not a valid .npy entry: its header is not a dictionary of descr, "
+                "fortran_order and shape",
+            ) from None
         header_size = handle.tell()
     if dtype.hasobject or dtype.fields is not None or dtype.kind not in "fiuUS":
-        raise InputError(name, f"dtype {dtype} is not allowed (numbers or text only)")
+        shown = "a structured or object dtype" if dtype.fields or dtype.hasobject else dtype.str
+        raise InputError(name, f"dtype {shown} is not allowed (numbers or text only)")
     nbytes = math.prod(shape) * dtype.itemsize
     if nbytes + header_size != info.file_size:
         raise InputError(
             name,
-            f"declares shape {shape} ({nbytes} bytes) but the entry holds "
+            f"declares shape {show(list(shape))} ({nbytes} bytes) but the entry holds "
             f"{info.file_size - header_size} bytes",
         )
     return _Entry(name, info, tuple(shape), bool(fortran), dtype, header_size, nbytes)
@@ -224,7 +234,7 @@ def decode_npz_frame(
             members = {name.removesuffix(".npy"): name for name in archive.namelist()}
             if "positions" not in members:
                 listing = ", ".join(sorted(members)[:8]) or "none"
-                raise InputError("positions", f"missing entry 'positions'; the body has {listing}")
+                raise InputError("positions", f"missing entry positions; the body has {listing}")
             entries = [
                 _read_header(archive, members[name], name)
                 for name in (*NPZ_ARRAYS, "scene")

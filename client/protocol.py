@@ -36,15 +36,16 @@ import struct
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Any
+from typing import Any, Literal, TypeAlias
 
 import numpy as np
 
-from sphrender.client.errors import InputError, LimitError
+from sphrender.client.errors import InputError, LimitError, kind_of, show
 from sphrender.client.npz_body import NpzFrame, decode_npz_frame, encode_npz_frame
 
 __all__ = [
     "ARRAY_NAMES",
+    "IMAGE_FORMATS",
     "MAGIC",
     "MAX_FRAME_ID",
     "PREFIX",
@@ -53,6 +54,7 @@ __all__ = [
     "WIRE_DTYPES",
     "ArraySlot",
     "ErrorCode",
+    "ImageFormat",
     "LimitError",
     "Message",
     "MessageType",
@@ -80,6 +82,9 @@ PREFIX_SIZE = PREFIX.size  # 16
 MAX_FRAME_ID = 2**53 - 1
 #: The arrays a frame may carry, as in the .npz input format.
 ARRAY_NAMES: tuple[str, ...] = ("positions", "densities", "radii", "temperatures")
+#: The image encodings an IMAGE (and an HTTP render) can carry (PROTOCOL.md §4.3).
+ImageFormat: TypeAlias = Literal["png", "exr", "jpeg", "raw"]
+IMAGE_FORMATS: tuple[ImageFormat, ...] = ("png", "exr", "jpeg", "raw")
 #: Wire dtype names (numpy's array-protocol strings, always little-endian) -> numpy dtype.
 WIRE_DTYPES: dict[str, np.dtype[Any]] = {"<f4": np.dtype("<f4"), "<f8": np.dtype("<f8")}
 #: How deep a JSON header may nest (a scene is 3 levels deep; this leaves room and no more).
@@ -169,7 +174,9 @@ def parse_prefix(
     magic, version, kind, flags, header_len, payload_len = PREFIX.unpack(prefix)
     if magic != MAGIC:
         raise ProtocolError(
-            ErrorCode.PROTOCOL, f"bad magic {bytes(magic)!r}, expected {MAGIC!r}", "magic"
+            ErrorCode.PROTOCOL,
+            f"bad magic (bytes {bytes(magic).hex(' ')}), expected 53 50 48 52 (ASCII SPHR)",
+            "magic",
         )
     if version != VERSION:
         raise ProtocolError(
@@ -249,10 +256,12 @@ def parse_json_object(data: bytes | bytearray | memoryview, what: str) -> dict[s
             parse_float=_finite_float,
         )
         _depth(value, MAX_JSON_DEPTH)
-    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+    except UnicodeDecodeError as exc:
+        raise InputError(what, f"is not valid UTF-8 (byte {exc.start})") from None
+    except (ValueError, RecursionError) as exc:
         raise InputError(what, f"is not valid JSON: {str(exc).splitlines()[0]}") from None
     if not isinstance(value, dict):
-        raise InputError(what, f"must be a JSON object, got {type(value).__name__}")
+        raise InputError(what, f"must be a JSON object, got {kind_of(value)}")
     return value
 
 
@@ -329,7 +338,7 @@ def _shape(field: str, value: Any, name: str) -> tuple[int, ...]:
         or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in value)
         or (len(value) == 2 and value[1] != 3)
     ):
-        raise InputError(field, f"must be {text} with N >= 0 for {name}, got {value!r}")
+        raise InputError(field, f"must be {text} with N >= 0 for {name}, got {show(value)}")
     return tuple(value)
 
 
@@ -352,14 +361,16 @@ def plan_frame_arrays(
 
     The sum of the arrays' byte sizes must equal `payload_length` exactly."""
     if not isinstance(specs, list) or not specs:
-        raise InputError("arrays", "must be a non-empty list of {name, dtype, shape}")
+        raise InputError("arrays", "must be a non-empty array of {name, dtype, shape} objects")
     slots: list[ArraySlot] = []
     offset = 0
     count: int | None = None
     for index, spec in enumerate(specs):
         where = f"arrays[{index}]"
         if not isinstance(spec, dict):
-            raise InputError(where, "must be an object with name, dtype and shape")
+            raise InputError(
+                where, f"must be an object with name, dtype and shape, got {kind_of(spec)}"
+            )
         unknown = set(spec) - {"name", "dtype", "shape"}
         if unknown:
             raise InputError(f"{where}.{sorted(unknown)[0]}", "unknown key")
@@ -367,7 +378,7 @@ def plan_frame_arrays(
         if not isinstance(name, str) or name not in ARRAY_NAMES:
             raise InputError(f"{where}.name", f"must be one of {', '.join(ARRAY_NAMES)}")
         if any(slot.name == name for slot in slots):
-            raise InputError(f"{where}.name", f"{name!r} appears twice")
+            raise InputError(f"{where}.name", f"{name} appears twice")
         wire = spec.get("dtype")
         dtype = WIRE_DTYPES.get(wire) if isinstance(wire, str) else None
         if dtype is None:

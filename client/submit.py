@@ -22,12 +22,13 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, Protocol, TextIO
+from typing import Protocol, TextIO
 
 from sphrender.client.api import Client, ServerError, ServerUnavailable
 from sphrender.client.errors import InputError
 from sphrender.client.frame import ParticleFrame
 from sphrender.client.image_check import is_complete_image
+from sphrender.client.protocol import ImageFormat
 from sphrender.client.readers import read_particles
 from sphrender.client.sequences import FrameJob
 
@@ -161,13 +162,13 @@ class RemoteFrameRenderer:
         self,
         url: str,
         scene: Mapping[str, object] | None,
-        fmt: Literal["png", "exr"],
+        fmt: ImageFormat,
         token: str | None = None,
         timeout: float = 300.0,
     ) -> None:
         self.client = Client(url, token=token, timeout=timeout, retries=0)
         self.scene = scene
-        self.format: Literal["png", "exr"] = fmt
+        self.format: ImageFormat = fmt
 
     def render(self, frame: ParticleFrame) -> bytes:
         try:

@@ -18,7 +18,7 @@ import OpenImageIO as oiio
 import pytest
 
 from sphrender.server.engine.frame_output import RenderedFrame
-from sphrender.server.output import encoders
+from sphrender.server.output import display, encoders
 from sphrender.server.output.encoders import ExrOptions, PngOptions
 
 H, W = 24, 32
@@ -518,8 +518,8 @@ def test_background_shortcut_gives_the_per_pixel_result(
     options = encoders.PngOptions(bits=bits, exposure=1.5, tone_mapper=tone_mapper)
     frame = RenderedFrame(rgba=rgba)
     mapper = encoders.TONE_MAPPERS[tone_mapper]
-    every_pixel = encoders._tone_map_pixels(rgba, 1.5, mapper)
+    every_pixel = display._tone_map_pixels(rgba, 1.5, mapper)
     assert np.array_equal(encoders.tone_map_for_display(rgba, 1.5, tone_mapper), every_pixel)
     assert np.array_equal(
-        encoders._png_pixels(frame, options), encoders._quantise(every_pixel, bits)
+        encoders._png_pixels(frame, options), display._quantise(every_pixel, bits)
     )

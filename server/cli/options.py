@@ -5,14 +5,14 @@ from __future__ import annotations
 import argparse
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, TypeAlias
+from typing import TYPE_CHECKING, TypeAlias
 
 from sphrender.server.scene.presets import PRESETS
 
 if TYPE_CHECKING:
     from sphrender.server.scene import Scene
 
-ImageFormat = Literal["png", "exr"]
+from sphrender.client.protocol import IMAGE_FORMATS, ImageFormat
 
 #: The `commands` argument of each subcommand's `add_parser`.
 Subcommands: TypeAlias = "argparse._SubParsersAction[argparse.ArgumentParser]"
@@ -25,8 +25,9 @@ EXIT_FRAMES_FAILED = 4
 def add_output_format(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--format",
-        choices=["png", "exr"],
-        help="output format (default: the scene's [output] format, or the suffix of -o)",
+        choices=IMAGE_FORMATS,
+        help="output format (default: the scene's [output] format, or the suffix of -o: .png, "
+        ".exr, .jpg/.jpeg, .raw)",
     )
 
 
@@ -79,9 +80,9 @@ def output_paths(inputs: Sequence[str], output: Path, suffix: str) -> list[Path]
 
 def choose_format(explicit: str | None, output: Path, scene_format: ImageFormat) -> ImageFormat:
     """--format wins, then the output file's suffix, then the scene's [output] format."""
-    for candidate in (explicit, output.suffix.lower().lstrip(".")):
-        if candidate == "png":
-            return "png"
-        if candidate == "exr":
-            return "exr"
+    suffix = output.suffix.lower().lstrip(".")
+    for candidate in (explicit, "jpeg" if suffix == "jpg" else suffix):
+        for known in IMAGE_FORMATS:
+            if candidate == known:
+                return known
     return scene_format

@@ -14,6 +14,7 @@ from types import ModuleType
 from sphrender.client.errors import InputError
 from sphrender.server.cli.options import (
     EXIT_FRAMES_FAILED,
+    IMAGE_FORMATS,
     ImageFormat,
     Subcommands,
     add_env_dir,
@@ -43,7 +44,7 @@ def add_parser(commands: Subcommands, common: argparse.ArgumentParser) -> None:
     add_quality(submit)
     add_env_dir(submit)
     submit.add_argument(
-        "--format", choices=["png", "exr"], help="output format (default: the scene's)"
+        "--format", choices=IMAGE_FORMATS, help="output format (default: the scene's)"
     )
     where = submit.add_mutually_exclusive_group(required=True)
     where.add_argument(

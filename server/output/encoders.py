@@ -37,7 +37,7 @@ from __future__ import annotations
 import io
 import os
 import tempfile
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal, TypeAlias
@@ -48,21 +48,43 @@ import OpenEXR
 import OpenImageIO as oiio
 
 from sphrender.server.engine.frame_output import RenderedFrame
+from sphrender.server.output.display import (
+    TONE_MAPPERS,
+    display_codes,
+    srgb_oetf,
+    tone_map_aces,
+    tone_map_clamp,
+    tone_map_for_display,
+)
+from sphrender.server.output.frame_formats import (
+    JpegOptions,
+    RawOptions,
+    encode_jpeg,
+    encode_raw,
+    raw_arrays,
+)
 
 __all__ = [
     "EXR_AOVS",
     "EXR_COMPRESSIONS",
+    "FORMATS",
     "HALF_MAX",
     "TONE_MAPPERS",
     "ExrOptions",
     "ImageFormat",
+    "JpegOptions",
     "PngOptions",
+    "RawOptions",
     "encode",
     "encode_exr",
+    "encode_jpeg",
     "encode_png",
+    "encode_raw",
     "file_suffix",
+    "raw_arrays",
     "read_exr",
     "srgb_oetf",
+    "tone_map_aces",
     "tone_map_clamp",
     "tone_map_for_display",
     "write",
@@ -70,7 +92,11 @@ __all__ = [
     "write_png",
 ]
 
-ImageFormat: TypeAlias = Literal["png", "exr"]
+ImageFormat: TypeAlias = Literal["png", "exr", "jpeg", "raw"]
+#: Every image format, in the order error messages list them.
+FORMATS: tuple[str, ...] = ("png", "exr", "jpeg", "raw")
+#: Options per format.
+Options: TypeAlias = "PngOptions | ExrOptions | JpegOptions | RawOptions"
 StrPath: TypeAlias = str | os.PathLike[str]
 Float32Array: TypeAlias = npt.NDArray[np.float32]
 
@@ -164,175 +190,12 @@ class ExrOptions:
 
 
 # --------------------------------------------------------------------------------------------
-# Display transform
-
-ToneMapper: TypeAlias = Callable[[Float32Array], Float32Array]
-
-
-def tone_map_clamp(rgb: Float32Array) -> Float32Array:
-    """The simplest tone mapper: hard clip exposed linear RGB to [0, 1] (NaN propagates)."""
-    return np.clip(rgb, 0.0, 1.0).astype(np.float32, copy=False)
-
-
-#: Stephen Hill's fit of the ACES reference rendering transform + sRGB output transform
-#: (as in MJP's BakingLab): linear sRGB -> (RRT_SAT · sRGB->AP1) -> rational curve ->
-#: (ODT_SAT · AP1->sRGB). The matrices apply ACES's saturation tweak; the curve has a toe and
-#: a long shoulder, so very bright values (molten metal at 1e3-1e4 x the walls) roll off to white
-#: instead of clipping per channel with hue shifts.
-ACES_INPUT = np.array(
-    [[0.59719, 0.35458, 0.04823], [0.07600, 0.90834, 0.01566], [0.02840, 0.13383, 0.83777]],
-    dtype=np.float32,
-)
-ACES_OUTPUT = np.array(
-    [[1.60475, -0.53108, -0.07367], [-0.10208, 1.10813, -0.00605], [-0.00327, -0.07276, 1.07602]],
-    dtype=np.float32,
-)
-
-
-def _apply_3x3(x: Float32Array, matrix: Float32Array) -> Float32Array:
-    """`x @ matrix.T` over the last axis, written out per channel: for (N, 3) float32 inputs
-    numpy's matmul takes a slow generic path (17 ms for 150k pixels vs ~1 ms here)."""
-    out = np.empty(x.shape, dtype=np.float32)
-    r, g, b = x[..., 0], x[..., 1], x[..., 2]
-    for row in range(3):
-        m0, m1, m2 = (np.float32(v) for v in matrix[row])
-        out[..., row] = r * m0 + g * m1 + b * m2
-    return out
-
-
-def tone_map_aces(rgb: Float32Array) -> Float32Array:
-    """Filmic ACES fit (Hill): 0.18 -> 0.106 display-linear (sRGB 0.36), 1 -> 0.62, white is
-    approached asymptotically (0.97 at 10); negative input is treated as 0."""
-    x = np.maximum(np.asarray(rgb, dtype=np.float32), 0.0)
-    with np.errstate(over="ignore", invalid="ignore"):
-        v = _apply_3x3(x, ACES_INPUT)
-        # Rational fit of RRT + ODT; for huge v both polynomials are ~v^2, the ratio ~1.0165,
-        # so divide by v^2 first where v is large to stay finite.
-        big = v > 1e6
-        safe = np.where(big, 1.0, v)
-        a = safe * (safe + 0.0245786) - 0.000090537
-        b = safe * (0.983729 * safe + 0.4329510) + 0.238081
-        curve = np.where(big, 1.0 / 0.983729, a / b)
-        out = _apply_3x3(curve.astype(np.float32, copy=False), ACES_OUTPUT)
-    return np.clip(out, 0.0, 1.0).astype(np.float32, copy=False)
-
-
-#: Tone mappers by name: exposed scene-linear RGB -> display-linear RGB in [0, 1].
-TONE_MAPPERS: dict[str, ToneMapper] = {"clamp": tone_map_clamp, "aces": tone_map_aces}
-
-
-def srgb_oetf(linear: Float32Array) -> Float32Array:
-    """Exact sRGB OETF on [0, 1]: 12.92·L if L ≤ 0.0031308, else 1.055·L^(1/2.4) − 0.055."""
-    lin = np.asarray(linear, dtype=np.float32)
-    high = np.float32(1.055) * np.power(np.maximum(lin, np.float32(0.0031308)), np.float32(1 / 2.4))
-    return np.where(lin <= 0.0031308, np.float32(12.92) * lin, high - np.float32(0.055)).astype(
-        np.float32, copy=False
-    )
-
-
-def _sanitize_unit(mapped: Float32Array, source: Float32Array) -> Float32Array:
-    """Clip to [0, 1]; where the *source* was NaN → 0, +inf → 1, −inf → 0 (whatever the mapper)."""
-    out = np.clip(np.nan_to_num(mapped, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
-    if not np.isfinite(source).all():  # the usual frame is finite: skip three full masks
-        out[np.isnan(source)] = 0.0
-        out[np.isposinf(source)] = 1.0
-        out[np.isneginf(source)] = 0.0
-    return out.astype(np.float32, copy=False)
-
-
-def tone_map_for_display(
-    rgba: Float32Array, exposure: float = 0.0, tone_mapper: str = "clamp"
-) -> Float32Array:
-    """Scene-linear straight RGBA → display-referred sRGB-encoded RGBA in [0, 1], float32.
-
-    RGB × 2**exposure, then ``TONE_MAPPERS[tone_mapper]``, then the sRGB OETF. Input NaN maps to
-    0 and +inf to 1 (per channel), so no non-finite value ever reaches the output. Alpha is only
-    clamped to [0, 1] (same NaN/inf rule).
-    """
-    if not np.isfinite(exposure):
-        raise ValueError(f"exposure must be finite, got {exposure!r}")
-    try:
-        mapper = TONE_MAPPERS[tone_mapper]
-    except KeyError:
-        raise ValueError(
-            f"unknown tone mapper {tone_mapper!r}, known: {sorted(TONE_MAPPERS)}"
-        ) from None
-    rgba = np.asarray(rgba, dtype=np.float32)
-    if rgba.ndim != 3 or rgba.shape[-1] != 4:
-        raise ValueError(f"rgba must have shape (H, W, 4), got {rgba.shape}")
-    flat = np.ascontiguousarray(rgba).reshape(-1, 4)
-    live = _live_pixels(flat)
-    if live is None:
-        return _tone_map_pixels(rgba, exposure, mapper)
-    out = np.empty(flat.shape, dtype=np.float32)
-    out[:, :3] = _tone_map_pixels(np.zeros((1, 1, 4), np.float32), exposure, mapper)[0, 0, :3]
-    if live.size:
-        sub = np.take(flat, live, axis=0)[None]
-        out[live, :3] = _tone_map_pixels(sub, exposure, mapper)[0, :, :3]
-    out[:, 3] = _display_alpha(flat[:, 3])
-    return out.reshape(rgba.shape)
-
-
-def _live_pixels(flat: Float32Array) -> npt.NDArray[np.intp] | None:
-    """Indices of the (N, 4) pixels whose RGB is not exactly +0, or None when that is most of
-    them. The display transform is per pixel and a render is mostly background with RGB exactly
-    0, so only these need mapping; the rest get the mapped value of one zero pixel (the same
-    function, so the output is identical). At 1280x720 this saved ~50-80 ms per PNG on a CPU."""
-    bits = flat.view(np.uint32)  # any set bit: nonzero, -0.0 or NaN (all mapped as they are)
-    live = np.flatnonzero((bits[:, 0] | bits[:, 1] | bits[:, 2]) != 0)
-    return live if live.size < flat.shape[0] // 2 else None
-
-
-def _display_alpha(alpha: Float32Array) -> Float32Array:
-    """Alpha clamped to [0, 1], NaN -> 0, +inf -> 1 (as `tone_map_for_display` documents)."""
-    return _sanitize_unit(np.clip(alpha, 0.0, 1.0), alpha)
-
-
-def _tone_map_pixels(rgba: Float32Array, exposure: float, mapper: ToneMapper) -> Float32Array:
-    """`tone_map_for_display` on every pixel of an (H, W, 4) array."""
-    rgb = rgba[..., :3]
-    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
-        scale = np.float32(np.exp2(np.float64(exposure)))  # inf/0 for absurd exposures, no raise
-        exposed = rgb * scale
-        display_linear = _sanitize_unit(mapper(exposed), rgb)
-    out = np.empty(rgba.shape, dtype=np.float32)
-    out[..., :3] = srgb_oetf(display_linear)
-    out[..., 3] = _display_alpha(rgba[..., 3])
-    return out
-
-
-# --------------------------------------------------------------------------------------------
 # PNG
 
 
-def _quantise(display: Float32Array, bits: Literal[8, 16]) -> npt.NDArray[np.uint8 | np.uint16]:
-    """[0, 1] floats → integer code values, rounding half up (floor(v·max + 0.5))."""
-    max_code = (1 << bits) - 1
-    dtype = np.uint8 if bits == 8 else np.uint16
-    codes = np.floor(display * np.float32(max_code) + np.float32(0.5))
-    return np.clip(codes, 0, max_code).astype(dtype)
-
-
 def _png_pixels(frame: RenderedFrame, options: PngOptions) -> npt.NDArray[np.uint8 | np.uint16]:
-    """Code values per pixel: `_quantise(tone_map_for_display(...))`, computed only for the
-    pixels with RGB (see `_live_pixels`); the rest get the code of one zero pixel."""
-    rgba = np.asarray(frame.rgba, dtype=np.float32)
-    flat = np.ascontiguousarray(rgba).reshape(-1, 4)
-    live = _live_pixels(flat)
-    if live is None:
-        display = tone_map_for_display(rgba, options.exposure, options.tone_mapper)
-        return np.ascontiguousarray(_quantise(display, options.bits))
-    mapper = options.tone_mapper
-    dtype = np.uint8 if options.bits == 8 else np.uint16
-    codes = np.empty(flat.shape, dtype=dtype)
-    zero = tone_map_for_display(np.zeros((1, 1, 4), np.float32), options.exposure, mapper)
-    codes[:, :3] = _quantise(zero, options.bits)[0, 0, :3]
-    if live.size:
-        sub = np.take(flat, live, axis=0)[None]
-        mapped = tone_map_for_display(sub, options.exposure, mapper)
-        codes[live, :3] = _quantise(mapped, options.bits)[0, :, :3]
-    codes[:, 3] = _quantise(_display_alpha(flat[:, 3]), options.bits)
-    return codes.reshape(rgba.shape)
+    """Code values per pixel (`display.display_codes`)."""
+    return display_codes(frame.rgba, options.bits, options.exposure, options.tone_mapper)
 
 
 def write_png(frame: RenderedFrame, path: StrPath, options: PngOptions | None = None) -> None:
@@ -448,53 +311,53 @@ def read_exr(source: StrPath | bytes) -> dict[str, np.ndarray]:
 # --------------------------------------------------------------------------------------------
 # Dispatch
 
-_SUFFIXES: Mapping[str, str] = {"png": ".png", "exr": ".exr"}
+_SUFFIXES: Mapping[str, str] = {"png": ".png", "exr": ".exr", "jpeg": ".jpg", "raw": ".raw"}
+_OPTIONS: Mapping[str, type] = {
+    "png": PngOptions,
+    "exr": ExrOptions,
+    "jpeg": JpegOptions,
+    "raw": RawOptions,
+}
 
 
 def file_suffix(format: ImageFormat) -> str:
     """The file-name suffix (with dot) for an image format."""
     try:
         return _SUFFIXES[format]
-    except KeyError:
-        raise ValueError(f"unknown image format {format!r}, known: {sorted(_SUFFIXES)}") from None
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown image format, known: {', '.join(FORMATS)}") from None
 
 
-def _check_options(
-    format: ImageFormat, options: PngOptions | ExrOptions | None
-) -> PngOptions | ExrOptions:
+def _check_options(format: ImageFormat, options: Options | None) -> Options:
     file_suffix(format)  # validates the format name
-    if format == "png":
-        if options is None:
-            return PngOptions()
-        if not isinstance(options, PngOptions):
-            raise TypeError(f"format 'png' needs PngOptions, got {type(options).__name__}")
-        return options
+    wanted = _OPTIONS[format]
     if options is None:
-        return ExrOptions()
-    if not isinstance(options, ExrOptions):
-        raise TypeError(f"format 'exr' needs ExrOptions, got {type(options).__name__}")
+        return wanted()
+    if not isinstance(options, wanted):
+        raise TypeError(f"format {format} needs {wanted.__name__}")
     return options
 
 
-def encode(
-    frame: RenderedFrame, format: ImageFormat, options: PngOptions | ExrOptions | None = None
-) -> bytes:
+def encode(frame: RenderedFrame, format: ImageFormat, options: Options | None = None) -> bytes:
     """Encode to ``format`` with matching options (defaults when None)."""
     checked = _check_options(format, options)
     if isinstance(checked, PngOptions):
         return encode_png(frame, checked)
+    if isinstance(checked, JpegOptions):
+        return encode_jpeg(frame, checked)
+    if isinstance(checked, RawOptions):
+        return encode_raw(frame, checked)
     return encode_exr(frame, checked)
 
 
 def write(
-    frame: RenderedFrame,
-    path: StrPath,
-    format: ImageFormat,
-    options: PngOptions | ExrOptions | None = None,
+    frame: RenderedFrame, path: StrPath, format: ImageFormat, options: Options | None = None
 ) -> None:
     """Write to ``path`` in ``format`` with matching options (defaults when None)."""
     checked = _check_options(format, options)
     if isinstance(checked, PngOptions):
         write_png(frame, path, checked)
-    else:
+    elif isinstance(checked, ExrOptions):
         write_exr(frame, path, checked)
+    else:
+        Path(path).write_bytes(encode(frame, format, checked))

@@ -8,36 +8,74 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Literal
+from typing import Any
 
 from sphrender.client.frame import ParticleFrame
+from sphrender.client.protocol import ImageFormat
 from sphrender.server.engine.frame_output import RenderedFrame, RenderStats
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.output import encoders
 from sphrender.server.scene import Scene
 
-ImageFormat = Literal["png", "exr"]
+__all__ = [
+    "ImageFormat",
+    "LocalFrameRenderer",
+    "aovs_for_output",
+    "encode_for_scene",
+    "encoder_options",
+    "raw_layout",
+    "render_for_output",
+]
+
+
+def aovs_for_output(scene: Scene, fmt: ImageFormat) -> tuple[str, ...]:
+    """The AOVs the output carries: the scene's for EXR and float raw, none otherwise."""
+    if fmt == "exr" or (fmt == "raw" and scene.output.raw_type != "rgba8"):
+        return tuple(scene.output.aovs)
+    return ()
 
 
 def render_for_output(
     renderer: SurfaceRenderer, frame: ParticleFrame, scene: Scene, fmt: ImageFormat
 ) -> tuple[RenderedFrame, RenderStats]:
     """Render, reading back Z / N only when the output format will carry them."""
-    aovs = scene.output.aovs if fmt == "exr" else ()
+    aovs = aovs_for_output(scene, fmt)
     return renderer.render(frame, scene, depth="Z" in aovs, normals="N" in aovs)
 
 
-def encode_for_scene(rendered: RenderedFrame, scene: Scene, fmt: ImageFormat) -> bytes:
+def encoder_options(scene: Scene, fmt: ImageFormat) -> encoders.Options:
+    """The encoder options the scene's ``[output]`` asks for, for one format."""
+    out = scene.output
     if fmt == "png":
-        png = encoders.PngOptions(
-            bits=scene.output.png_bits,
-            exposure=scene.output.exposure,
-            tone_mapper=scene.output.tone_mapper,
+        return encoders.PngOptions(
+            bits=out.png_bits, exposure=out.exposure, tone_mapper=out.tone_mapper
         )
-        return encoders.encode_png(rendered, png)
-    exr = encoders.ExrOptions(pixel_type=scene.output.exr_pixel_type, aovs=scene.output.aovs)
-    return encoders.encode_exr(rendered, exr)
+    if fmt == "jpeg":
+        return encoders.JpegOptions(
+            quality=out.jpeg_quality,
+            background=out.jpeg_background,
+            exposure=out.exposure,
+            tone_mapper=out.tone_mapper,
+        )
+    if fmt == "raw":
+        return encoders.RawOptions(
+            type=out.raw_type, aovs=out.aovs, exposure=out.exposure, tone_mapper=out.tone_mapper
+        )
+    return encoders.ExrOptions(pixel_type=out.exr_pixel_type, aovs=out.aovs)
+
+
+def encode_for_scene(rendered: RenderedFrame, scene: Scene, fmt: ImageFormat) -> bytes:
+    return encoders.encode(rendered, fmt, encoder_options(scene, fmt))
+
+
+def raw_layout(scene: Scene, fmt: ImageFormat) -> list[dict[str, Any]] | None:
+    """For raw output, the payload's array descriptors (PROTOCOL.md §4.3); else None."""
+    if fmt != "raw":
+        return None
+    options = encoder_options(scene, fmt)
+    assert isinstance(options, encoders.RawOptions)
+    return encoders.raw_arrays(options, scene.image.width, scene.image.height)
 
 
 class LocalFrameRenderer:

@@ -14,7 +14,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from sphrender.client.errors import InputError
+from sphrender.client.errors import InputError, show
 from sphrender.server.scene import Scene, merge_scene_dicts, read_scene_toml, scene_from_dict
 
 PRESETS = ("fast", "balanced", "best")
@@ -23,7 +23,7 @@ PRESETS = ("fast", "balanced", "best")
 def preset_sections(name: str) -> dict[str, Any]:
     """The preset's sections as a mapping (InputError naming `quality` for an unknown name)."""
     if name not in PRESETS:
-        raise InputError("quality", f"must be one of {', '.join(PRESETS)}, got {name!r}")
+        raise InputError("quality", f"must be one of {', '.join(PRESETS)}, got {show(name)}")
     text = resources.files("sphrender.configs").joinpath(f"quality-{name}.toml").read_text()
     return tomllib.loads(text)
 

@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from dataclasses import fields
 from typing import Any, Literal, TypeVar, get_args, get_origin
 
-from sphrender.client.errors import InputError
+from sphrender.client.errors import InputError, kind_of, show
 from sphrender.server.scene.schema import MAX_IMAGE_PIXELS, LightConfig, Scene, Vec3
 
 T = TypeVar("T")
@@ -39,7 +39,7 @@ def _check_range(key: str, value: float, meta: Mapping[str, Any]) -> None:
         high is not None and (value >= high if meta["high_open"] else value > high)
     )
     if bad:
-        raise InputError(key, f"must be in {_describe_range(meta)}, got {value!r}")
+        raise InputError(key, f"must be in {_describe_range(meta)}, got {show(value)}")
 
 
 def _convert(key: str, value: Any, annotation: Any, meta: Mapping[str, Any]) -> Any:
@@ -52,41 +52,43 @@ def _convert(key: str, value: Any, annotation: Any, meta: Mapping[str, Any]) -> 
     if origin is Literal:
         allowed = get_args(annotation)
         if value not in allowed or isinstance(value, bool) != isinstance(allowed[0], bool):
-            raise InputError(key, f"must be one of {', '.join(map(repr, allowed))}, got {value!r}")
+            raise InputError(
+                key, f"must be one of {', '.join(map(show, allowed))}, got {show(value)}"
+            )
         return value
     if annotation is str:
         if not isinstance(value, str):
-            raise InputError(key, f"must be a string, got {value!r}")
+            raise InputError(key, f"must be a string, got {show(value)}")
         if len(value) > 4096 or "\x00" in value:
             raise InputError(key, "must be at most 4096 characters without NUL")
         return value
     if annotation is bool:
         if not isinstance(value, bool):
-            raise InputError(key, f"must be true or false, got {value!r}")
+            raise InputError(key, f"must be true or false, got {show(value)}")
         return value
     if annotation is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise InputError(key, f"must be an integer, got {value!r}")
+            raise InputError(key, f"must be an integer, got {show(value)}")
         _check_range(key, value, meta)
         return value
     if annotation is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise InputError(key, f"must be a number, got {value!r}")
+            raise InputError(key, f"must be a number, got {show(value)}")
         if not math.isfinite(value):
-            raise InputError(key, f"must be finite, got {value!r}")
+            raise InputError(key, f"must be finite, got {show(value)}")
         _check_range(key, float(value), meta)
         return float(value)
     if annotation == Vec3:
         if not isinstance(value, list | tuple) or len(value) != 3:
-            raise InputError(key, f"must be a list of 3 numbers, got {value!r}")
+            raise InputError(key, f"must be a list of 3 numbers, got {show(value)}")
         return tuple(_convert(f"{key}[{i}]", v, float, meta) for i, v in enumerate(value))
     if origin is tuple:
         (item_type, _ellipsis) = get_args(annotation)
         if not isinstance(value, list | tuple):
-            raise InputError(key, f"must be a list, got {value!r}")
+            raise InputError(key, f"must be a list, got {show(value)}")
         items = tuple(_convert(f"{key}[{i}]", v, item_type, meta) for i, v in enumerate(value))
         if len(set(items)) != len(items):
-            raise InputError(key, f"must not repeat entries, got {list(value)!r}")
+            raise InputError(key, f"must not repeat entries, got {show(list(value))}")
         return items
     raise TypeError(f"unsupported annotation {annotation!r} for {key}")  # programming error
 
@@ -96,7 +98,7 @@ def section_from_dict(cls: type[T], data: Any, prefix: str) -> T:
     (also used for the server settings): unknown keys, wrong types and values outside a field's
     range raise `InputError` named `prefix.key`."""
     if not isinstance(data, Mapping):
-        raise InputError(prefix, f"must be a table, got {type(data).__name__}")
+        raise InputError(prefix, f"must be a table, got {kind_of(data)}")
     hints = typing.get_type_hints(cls)
     known = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]
     for key in data:
@@ -114,7 +116,7 @@ def _sections_from_list(cls: type[T], data: Any, prefix: str, section: Any) -> t
     """An array of tables (TOML ``[[lights]]``): each entry validated as a section, errors
     named ``prefix[i].key``; the scene field's metadata may cap the count (``max_items``)."""
     if not isinstance(data, list | tuple):
-        raise InputError(prefix, f"must be an array of tables, got {type(data).__name__}")
+        raise InputError(prefix, f"must be an array of tables, got {kind_of(data)}")
     limit = section.metadata.get("max_items")
     if limit is not None and len(data) > limit:
         raise InputError(prefix, f"at most {limit} entries, got {len(data)}")
@@ -124,7 +126,7 @@ def _sections_from_list(cls: type[T], data: Any, prefix: str, section: Any) -> t
 def scene_from_dict(data: Mapping[str, Any]) -> Scene:
     """Build and validate a `Scene` from a TOML/JSON-like mapping (missing keys keep defaults)."""
     if not isinstance(data, Mapping):
-        raise InputError("scene", f"must be a table, got {type(data).__name__}")
+        raise InputError("scene", f"must be a table, got {kind_of(data)}")
     sections: dict[str, Any] = {}
     known = {f.name: f for f in fields(Scene)}
     hints = typing.get_type_hints(Scene)

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
-from sphrender.client.errors import InputError
+from sphrender.client.errors import InputError, kind_of
 from sphrender.server.scene import MAX_IMAGE_PIXELS, section_from_dict, spec
 
 #: Environment variable that supplies the bearer token (keeps it out of files and `ps`).
@@ -267,7 +267,7 @@ T = TypeVar("T")
 def server_config_from_dict(data: Mapping[str, Any]) -> ServerConfig:
     """Build and validate a `ServerConfig` (missing keys keep their defaults)."""
     if not isinstance(data, Mapping):
-        raise InputError("config", f"must be a table, got {type(data).__name__}")
+        raise InputError("config", f"must be a table, got {kind_of(data)}")
     known = {f.name for f in fields(ServerConfig)}
     hints = typing.get_type_hints(ServerConfig)
     sections: dict[str, Any] = {}

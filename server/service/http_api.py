@@ -9,8 +9,9 @@ Routes::
     DELETE /v1/sessions/{id}          204
     GET    /healthz  /readyz  /v1/info  /metrics
 
-Images come back as ``image/png`` or ``image/x-exr`` (the scene's ``[output] format``, or
-``?format=png|exr``) with ``Server-Timing`` per stage. Errors are JSON ``{"error", "field",
+Images come back as ``image/png``, ``image/x-exr``, ``image/jpeg`` or, for raw arrays,
+``application/octet-stream`` with ``X-Sphrender-Arrays`` (the scene's ``[output] format``, or
+``?format=png|exr|jpeg|raw``) with ``Server-Timing`` per stage. Errors are JSON ``{"error", "field",
 "code"}`` with 400 (bad input), 401 (token), 404, 405, 411 (no Content-Length), 413 (over a
 limit; the body is not read and the connection closes), 500 (GL failure) or 503 with
 ``Retry-After`` (queue full, too many sessions or connections, draining).
@@ -23,6 +24,7 @@ validates; rendering happens on the render thread.
 
 from __future__ import annotations
 
+import json
 import logging
 from concurrent.futures import TimeoutError as FutureTimeout
 from typing import Any
@@ -30,7 +32,9 @@ from urllib.parse import parse_qs, urlsplit
 
 from sphrender.client.errors import InputError
 from sphrender.client.protocol import (
+    IMAGE_FORMATS,
     ErrorCode,
+    ImageFormat,
     LimitError,
     decode_npz_frame,
     parse_json_object,
@@ -51,7 +55,6 @@ from sphrender.server.service.jobs import (
     DroppedOutcome,
     ErrorOutcome,
     FrameJob,
-    ImageFormat,
     ImageOutcome,
 )
 from sphrender.server.service.metrics import CONTENT_TYPE as METRICS_CONTENT_TYPE
@@ -184,13 +187,15 @@ class ApiHandler(HandlerBase):
 
     # -- rendering ------------------------------------------------------------------------------
 
-    def _format(self, scene: Scene) -> ImageFormat:
+    def _format(self, scene: Scene) -> ImageFormat:  # ?format= overrides output.format
         values = self._query.get("format")
         if not values:
             return scene.output.format
-        if values[-1] not in CONTENT_TYPES:
-            raise HttpError(400, ErrorCode.BAD_INPUT, "must be png or exr", "format")
-        return "png" if values[-1] == "png" else "exr"
+        for known in IMAGE_FORMATS:
+            if values[-1] == known:
+                return known
+        allowed = ", ".join(IMAGE_FORMATS)
+        raise HttpError(400, ErrorCode.BAD_INPUT, f"must be one of {allowed}", "format")
 
     def _render(self) -> None:
         self._frame_request(None)
@@ -326,16 +331,16 @@ class ApiHandler(HandlerBase):
             ) from None
         if isinstance(outcome, ImageOutcome):
             timing = ", ".join(f"{k};dur={v:.3f}" for k, v in outcome.timings_ms.items())
-            self._send(
-                200,
-                outcome.data,
-                CONTENT_TYPES[outcome.format],
-                {
-                    "Server-Timing": timing,
-                    "X-Sphrender-Particles": str(outcome.particles),
-                    "X-Sphrender-Drawn": str(outcome.drawn),
-                },
-            )
+            headers = {
+                "Server-Timing": timing,
+                "X-Sphrender-Particles": str(outcome.particles),
+                "X-Sphrender-Drawn": str(outcome.drawn),
+                "X-Sphrender-Width": str(outcome.width),
+                "X-Sphrender-Height": str(outcome.height),
+            }
+            if outcome.arrays is not None:
+                headers["X-Sphrender-Arrays"] = json.dumps(outcome.arrays, separators=(",", ":"))
+            self._send(200, outcome.data, CONTENT_TYPES[outcome.format], headers)
         elif isinstance(outcome, ErrorOutcome):
             status = ErrorCode.HTTP_STATUS.get(outcome.code, 500)
             raise HttpError(

@@ -15,15 +15,19 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import Literal, TypeAlias
+from typing import Any, Literal, TypeAlias
 
 from sphrender.client.frame import ParticleFrame
+from sphrender.client.protocol import ImageFormat
 from sphrender.server.scene import Scene
 
-ImageFormat: TypeAlias = Literal["png", "exr"]
-
-#: MIME types of the image answers.
-CONTENT_TYPES: dict[str, str] = {"png": "image/png", "exr": "image/x-exr"}
+#: MIME types of the image answers (raw: PROTOCOL.md §4.3, described by X-Sphrender-Arrays).
+CONTENT_TYPES: dict[str, str] = {
+    "png": "image/png",
+    "exr": "image/x-exr",
+    "jpeg": "image/jpeg",
+    "raw": "application/octet-stream",
+}
 
 
 @dataclass(frozen=True)
@@ -36,6 +40,8 @@ class ImageOutcome:
     drawn: int
     #: Milliseconds per stage: queue, the renderer's passes, encode.
     timings_ms: dict[str, float]
+    #: raw only: the payload's array descriptors (name, dtype, shape), in payload order.
+    arrays: list[dict[str, Any]] | None = None
 
 
 @dataclass(frozen=True)

@@ -225,7 +225,7 @@ class _Child:
     def _encode(
         self, job_id: int, scene: Any, fmt: str, frame: Any, stats: Any, recv_ms: float
     ) -> None:
-        from sphrender.server.output.local import encode_for_scene
+        from sphrender.server.output.local import encode_for_scene, raw_layout
 
         try:
             start = time.perf_counter()
@@ -241,6 +241,7 @@ class _Child:
                 "timings_ms": timings,
                 "host_ms": stats.host_ms,
                 "recv_ms": recv_ms,
+                "arrays": raw_layout(scene, fmt),  # type: ignore[arg-type]
             }
             del frame
             self.send(header, data)

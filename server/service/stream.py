@@ -32,7 +32,6 @@ connection with a fatal ERROR after the owed answers, and the writer always fini
 from __future__ import annotations
 
 import contextlib
-import hmac
 import logging
 import socket
 import socketserver
@@ -41,7 +40,7 @@ import time
 from collections import deque
 from typing import Any, ClassVar, Literal
 
-from sphrender.client.errors import InputError
+from sphrender.client.errors import InputError, show
 from sphrender.client.protocol import (
     MAX_FRAME_ID,
     PREFIX_SIZE,
@@ -57,11 +56,16 @@ from sphrender.client.protocol import (
 )
 from sphrender.server.scene import Scene, merge_scene_dicts
 from sphrender.server.service.admission import Busy, decoding, frame_estimate
-from sphrender.server.service.config import public_limits
 from sphrender.server.service.facade import ServiceFacade
 from sphrender.server.service.jobs import ErrorOutcome, FrameJob, Outcome
 from sphrender.server.service.scheduler import QueueFull, SchedulerClosed
 from sphrender.server.service.sessions import Session, SessionLimitReached
+from sphrender.server.service.stream_handshake import (
+    EVICT_HANDSHAKE_AFTER_S,
+    LINGER_S,
+    check_hello,
+    welcome_header,
+)
 from sphrender.server.service.stream_wire import (
     TICK_S,
     Channel,
@@ -73,12 +77,7 @@ from sphrender.server.service.stream_wire import (
 
 log = logging.getLogger("sphrender.service.stream")
 
-#: After GOODBYE, how long the writer waits for the client to close before closing itself.
-LINGER_S = 2.0
-_HELLO_KEYS = {"token", "scene", "mode", "max_in_flight", "client"}
-_FRAME_KEYS = {"id", "arrays", "scene"}
-#: A connection still without a session this long after connecting may be evicted for another.
-_EVICT_HANDSHAKE_AFTER_S = 1.0
+_FRAME_KEYS = ("id", "arrays", "scene")
 
 
 class StreamConnection:
@@ -210,20 +209,9 @@ class StreamConnection:
             self._send_fatal(exc.code, exc.message, exc.field)
             return "protocol"
         try:
-            if kind != MessageType.HELLO:
-                raise ProtocolError(ErrorCode.PROTOCOL, f"expected HELLO, got {kind.name}", "type")
-            if payload_len:
-                raise ProtocolError(ErrorCode.PROTOCOL, "HELLO has no payload", "payload_length")
-            for key in header:
-                if key not in _HELLO_KEYS:
-                    raise ProtocolError(ErrorCode.BAD_INPUT, "unknown key", f"header.{key}")
-            self._check_token(header.get("token"))
-            self.mode = self._mode(header.get("mode", "queue"))
-            self.max_in_flight = self._max_in_flight(header.get("max_in_flight"))
-            scene = header.get("scene", {})
-            if not isinstance(scene, dict):
-                raise ProtocolError(ErrorCode.BAD_INPUT, "must be a JSON object", "scene")
-            self.session = self.service.create_session(scene, "stream")
+            hello = check_hello(kind, header, payload_len, self.service.config)
+            self.mode, self.max_in_flight = hello.mode, hello.max_in_flight
+            self.session = self.service.create_session(hello.scene, "stream")
         except ProtocolError as exc:
             self._send_fatal(exc.code, exc.message, exc.field)
             return "unauthorized" if exc.code == ErrorCode.UNAUTHORIZED else "handshake"
@@ -240,51 +228,18 @@ class StreamConnection:
         except Exception as exc:  # GL failure while warming the scene, or a warm timeout
             self._send_fatal(ErrorCode.RENDER_FAILED, f"preparing the scene failed: {exc}", None)
             return "handshake"
-        welcome = {
-            "session": self.session.id,
-            "mode": self.mode,
-            "max_in_flight": self.max_in_flight,
-            "limits": public_limits(self.service.config),
-            "server": {
-                "version": self.service.info()["version"],
-                "gl_renderer": self.service.worker.gl_renderer,
-            },
+        server = {
+            "version": self.service.info()["version"],
+            "gl_renderer": self.service.worker.gl_renderer,
         }
+        welcome = welcome_header(
+            self.session.id, self.session.scene, hello, self.service.config, server
+        )
         try:
             self._send_all(encode_message(MessageType.WELCOME, welcome))
         except Closed as closed:
             return closed.reason
         return "ok"
-
-    def _check_token(self, presented: Any) -> None:
-        token = self.service.config.security.token
-        if not token:
-            return
-        given = presented.encode("utf-8") if isinstance(presented, str) else b""
-        if not hmac.compare_digest(given, token.encode("utf-8")):
-            raise ProtocolError(ErrorCode.UNAUTHORIZED, "missing or wrong token", "token")
-
-    @staticmethod
-    def _mode(value: Any) -> Literal["queue", "latest"]:
-        if value == "queue":
-            return "queue"
-        if value == "latest":
-            return "latest"
-        raise ProtocolError(
-            ErrorCode.BAD_INPUT, f"must be 'queue' or 'latest', got {value!r}", "mode"
-        )
-
-    def _max_in_flight(self, value: Any) -> int:
-        limit = self.config.max_in_flight
-        if value is None:
-            return limit
-        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= limit:
-            raise ProtocolError(
-                ErrorCode.BAD_INPUT,
-                f"must be an integer in [1, {limit}], got {value!r}",
-                "max_in_flight",
-            )
-        return value
 
     # -- reader ---------------------------------------------------------------------------------
 
@@ -324,6 +279,10 @@ class StreamConnection:
             )
             return "protocol"
         if kind == MessageType.BYE:
+            problem = self._bad_bye(header, payload_len)
+            if problem is not None:
+                self._push(Slot(None, outcome=problem, fatal=True))
+                return "protocol"
             self._goodbye = "bye"
             return "bye"
         if kind != MessageType.FRAME:
@@ -336,6 +295,16 @@ class StreamConnection:
         if fatal is not None:
             self._push(fatal)
             return "protocol"
+        return None
+
+    @staticmethod
+    def _bad_bye(header: dict[str, Any], payload_len: int) -> ErrorOutcome | None:
+        """BYE carries ``{}`` and no payload (PROTOCOL.md §1: unknown keys are rejected)."""
+        if header:
+            key = sorted(header)[0]
+            return ErrorOutcome(ErrorCode.PROTOCOL, "BYE takes no keys", f"header.{key}")
+        if payload_len:
+            return ErrorOutcome(ErrorCode.PROTOCOL, "BYE has no payload", "payload_length")
         return None
 
     def _reader_closed(self, reason: str) -> str:
@@ -394,7 +363,7 @@ class StreamConnection:
             or not isinstance(frame_id, int)
             or not (0 <= frame_id <= MAX_FRAME_ID)
         ):
-            message = f"FRAME needs an integer id in [0, 2^53 - 1], got {frame_id!r}"
+            message = f"FRAME needs an integer id in [0, 2^53 - 1], got {show(frame_id)}"
             return Slot(None, outcome=ErrorOutcome(ErrorCode.PROTOCOL, message, "id"), fatal=True)
         assert self.session is not None
         service = self.service
@@ -403,7 +372,8 @@ class StreamConnection:
             with decoding("arrays", "stream"):
                 for key in header:
                     if key not in _FRAME_KEYS:
-                        raise InputError(f"header.{key}", "unknown key")
+                        allowed = ", ".join(_FRAME_KEYS)
+                        raise InputError(f"header.{key}", f"unknown key; allowed: {allowed}")
                 _slots, count = plan_frame_arrays(
                     header.get("arrays"), payload_len, max_particles=limits.max_particles
                 )
@@ -559,7 +529,7 @@ class StreamServer(socketserver.ThreadingTCPServer):
                 waiting = [
                     c
                     for c in self._connections
-                    if c.session is None and now - c.connected_at > _EVICT_HANDSHAKE_AFTER_S
+                    if c.session is None and now - c.connected_at > EVICT_HANDSHAKE_AFTER_S
                 ]
                 if not waiting:
                     return False

@@ -57,6 +57,8 @@ def answer_bytes(slot: Slot, outcome: Outcome) -> bytes:
             "drawn": outcome.drawn,
             "timings_ms": outcome.timings_ms,
         }
+        if outcome.arrays is not None:
+            header["arrays"] = outcome.arrays
         return encode_message(MessageType.IMAGE, header, outcome.data)
     if isinstance(outcome, DroppedOutcome):
         if outcome.reason == "superseded":

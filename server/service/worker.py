@@ -310,6 +310,7 @@ class RenderWorker(threading.Thread):
                     particles=int(header["particles"]),
                     drawn=int(header["drawn"]),
                     timings_ms={k: round(v, 3) for k, v in timings.items()},
+                    arrays=header.get("arrays"),
                 )
             )
         else:

@@ -1,0 +1,270 @@
+/* A minimal sphrender stream client in C11 + POSIX sockets, written from PROTOCOL.md alone.
+ *
+ *   sphr_client HOST PORT OUT_PREFIX [TOKEN]
+ *
+ * HELLO (scene with output.format = "raw"), WELCOME, then three pipelined FRAMEs of 300
+ * particles (positions <f8, radii <f4):
+ *   id 1: the session's encoding (raw rgba8)      -> OUT_PREFIX.rgba  (64 x 48 x 4 bytes)
+ *   id 2: per-frame override output.format "jpeg" -> OUT_PREFIX.jpg
+ *   id 3: one negative radius                     -> ERROR bad_input (not fatal)
+ * then BYE and GOODBYE. The positions sent are written to OUT_PREFIX.positions (N x 3 <f8),
+ * so a test can render the same frame. One line per message on stdout; exit status 0 when
+ * every answer was what PROTOCOL.md says it must be.
+ */
+#define _POSIX_C_SOURCE 200809L
+#include <arpa/inet.h>
+#include <netdb.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+enum { HELLO = 0x01, FRAME = 0x02, BYE = 0x03, WELCOME = 0x81, IMAGE = 0x82, ERROR_MSG = 0x83,
+       DROPPED = 0x84, GOODBYE = 0x85 };
+enum { N = 300, WIDTH = 64, HEIGHT = 48 };
+
+static int sock = -1;
+
+static void die(const char *what) {
+    fprintf(stderr, "sphr_client: %s\n", what);
+    exit(1);
+}
+
+static void put_u32(uint8_t *p, uint32_t v) {  /* little-endian whatever the host */
+    for (int i = 0; i < 4; i++) p[i] = (uint8_t)(v >> (8 * i));
+}
+
+static uint32_t get_u32(const uint8_t *p) {
+    return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
+}
+
+static void put_f64(uint8_t *p, double d) {
+    uint64_t bits;
+    memcpy(&bits, &d, 8);
+    for (int i = 0; i < 8; i++) p[i] = (uint8_t)(bits >> (8 * i));
+}
+
+static void put_f32(uint8_t *p, float f) {
+    uint32_t bits;
+    memcpy(&bits, &f, 4);
+    put_u32(p, bits);
+}
+
+static void send_all(const uint8_t *data, size_t n) {
+    while (n) {
+        ssize_t sent = send(sock, data, n, 0);
+        if (sent <= 0) die("send failed");
+        data += sent;
+        n -= (size_t)sent;
+    }
+}
+
+static void recv_all(uint8_t *data, size_t n) {
+    while (n) {
+        ssize_t got = recv(sock, data, n, 0);
+        if (got <= 0) die("the server closed the connection mid-message");
+        data += got;
+        n -= (size_t)got;
+    }
+}
+
+/* Prefix (16 bytes: "SPHR", version 1, type, flags 0, header length, payload length), header,
+ * payload. */
+static void send_message(uint8_t type, const char *header, const uint8_t *payload, size_t plen) {
+    uint8_t prefix[16] = {'S', 'P', 'H', 'R', 1, type, 0, 0};
+    size_t hlen = strlen(header);
+    put_u32(prefix + 8, (uint32_t)hlen);
+    put_u32(prefix + 12, (uint32_t)plen);
+    send_all(prefix, 16);
+    send_all((const uint8_t *)header, hlen);
+    if (plen) send_all(payload, plen);
+}
+
+typedef struct {
+    uint8_t type;
+    char *header;      /* NUL-terminated JSON text */
+    uint8_t *payload;
+    uint32_t payload_length;
+} Message;
+
+static Message receive_message(void) {
+    uint8_t prefix[16];
+    recv_all(prefix, 16);
+    if (memcmp(prefix, "SPHR", 4) != 0) die("bad magic from the server");
+    if (prefix[4] != 1) die("unexpected protocol version");
+    Message m = {prefix[5], NULL, NULL, get_u32(prefix + 12)};
+    uint32_t hlen = get_u32(prefix + 8);
+    m.header = calloc(hlen + 1, 1);
+    m.payload = malloc(m.payload_length ? m.payload_length : 1);
+    if (!m.header || !m.payload) die("out of memory");
+    recv_all((uint8_t *)m.header, hlen);
+    recv_all(m.payload, m.payload_length);
+    return m;
+}
+
+static void free_message(Message *m) {
+    free(m->header);
+    free(m->payload);
+}
+
+/* The text after "key": in a flat JSON header (enough for the server's own headers: keys are
+ * unique per object and values we read are numbers, strings, booleans or null). */
+static const char *json_value(const char *json, const char *key) {
+    char pattern[64];
+    snprintf(pattern, sizeof pattern, "\"%s\":", key);
+    const char *at = strstr(json, pattern);
+    if (!at) return NULL;
+    at += strlen(pattern);
+    while (*at == ' ') at++;
+    return at;
+}
+
+static long json_int(const char *json, const char *key) {
+    const char *v = json_value(json, key);
+    return v ? strtol(v, NULL, 10) : -1;
+}
+
+static void json_string(const char *json, const char *key, char *out, size_t size) {
+    const char *v = json_value(json, key);
+    out[0] = '\0';
+    if (!v || *v != '"') {
+        snprintf(out, size, "%s", v && strncmp(v, "null", 4) == 0 ? "null" : "?");
+        return;
+    }
+    size_t i = 0;
+    for (v++; *v && *v != '"' && i + 1 < size; v++) out[i++] = *v;
+    out[i] = '\0';
+}
+
+static void write_file(const char *prefix, const char *suffix, const uint8_t *data, size_t n) {
+    char path[4096];
+    snprintf(path, sizeof path, "%s%s", prefix, suffix);
+    FILE *f = fopen(path, "wb");
+    if (!f || fwrite(data, 1, n, f) != n || fclose(f) != 0) die("cannot write an output file");
+}
+
+/* FRAME payload: positions (N x 3 <f8) then radii (N <f4), no padding. */
+static uint8_t payload[N * 3 * 8 + N * 4];
+
+static void make_particles(const char *prefix) {
+    uint64_t state = 12345;
+    int made = 0;
+    while (made < N) {  /* points of a ball of radius 0.15, from a fixed LCG */
+        double p[3];
+        for (int k = 0; k < 3; k++) {
+            state = state * 6364136223846793005ULL + 1442695040888963407ULL;
+            p[k] = ((double)(state >> 11) / 9007199254740992.0 * 2.0 - 1.0) * 0.15;
+        }
+        if (p[0] * p[0] + p[1] * p[1] + p[2] * p[2] > 0.15 * 0.15) continue;
+        for (int k = 0; k < 3; k++) put_f64(payload + (made * 3 + k) * 8, p[k]);
+        made++;
+    }
+    for (int i = 0; i < N; i++) put_f32(payload + N * 24 + i * 4, 0.02f);
+    write_file(prefix, ".positions", payload, N * 24);
+}
+
+int main(int argc, char **argv) {
+    if (argc < 4) {
+        fprintf(stderr, "usage: sphr_client HOST PORT OUT_PREFIX [TOKEN]\n");
+        return 2;
+    }
+    const char *prefix = argv[3];
+    struct addrinfo hints = {0}, *address;
+    hints.ai_family = AF_UNSPEC;
+    hints.ai_socktype = SOCK_STREAM;
+    if (getaddrinfo(argv[1], argv[2], &hints, &address) != 0) die("cannot resolve the host");
+    sock = socket(address->ai_family, address->ai_socktype, address->ai_protocol);
+    if (sock < 0 || connect(sock, address->ai_addr, address->ai_addrlen) != 0) die("cannot connect");
+    freeaddrinfo(address);
+    int one = 1;
+    setsockopt(sock, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+
+    char hello[1024];
+    snprintf(hello, sizeof hello,
+             "{\"scene\":{\"image\":{\"width\":%d,\"height\":%d},"
+             "\"camera\":{\"eye\":[0.6,0.5,0.9],\"target\":[0,0,0],\"fov_y\":40},"
+             "\"particles\":{\"radius\":0.02},\"output\":{\"format\":\"raw\"}},"
+             "\"mode\":\"queue\",\"client\":\"c11 example\"%s%s%s}",
+             WIDTH, HEIGHT, argc > 4 ? ",\"token\":\"" : "", argc > 4 ? argv[4] : "",
+             argc > 4 ? "\"" : "");
+    send_message(HELLO, hello, NULL, 0);
+    Message m = receive_message();
+    if (m.type != WELCOME) {
+        char code[64];
+        json_string(m.header, "code", code, sizeof code);
+        printf("HELLO refused: %s\n", code);
+        return 1;
+    }
+    long max_in_flight = json_int(m.header, "max_in_flight");
+    printf("WELCOME max_in_flight=%ld\n", max_in_flight);
+    free_message(&m);
+    if (max_in_flight < 3) die("this example pipelines 3 frames");
+
+    make_particles(prefix);
+    char frame[512];
+    const char *arrays =
+        "\"arrays\":[{\"name\":\"positions\",\"dtype\":\"<f8\",\"shape\":[300,3]},"
+        "{\"name\":\"radii\",\"dtype\":\"<f4\",\"shape\":[300]}]";
+    snprintf(frame, sizeof frame, "{\"id\":1,%s}", arrays);
+    send_message(FRAME, frame, payload, sizeof payload);
+    snprintf(frame, sizeof frame, "{\"id\":2,%s,\"scene\":{\"output\":{\"format\":\"jpeg\"}}}",
+             arrays);
+    send_message(FRAME, frame, payload, sizeof payload);
+    put_f32(payload + N * 24 + 17 * 4, -1.0f);  /* radius 17 < 0: this frame is refused */
+    snprintf(frame, sizeof frame, "{\"id\":3,%s}", arrays);
+    send_message(FRAME, frame, payload, sizeof payload);
+
+    int ok = 1;
+    for (long id = 1; id <= 3; id++) {
+        m = receive_message();
+        long got = json_int(m.header, "id");
+        char format[32], code[64], field[64];
+        if (m.type == IMAGE) {
+            json_string(m.header, "format", format, sizeof format);
+            long w = json_int(m.header, "width"), h = json_int(m.header, "height");
+            printf("IMAGE id=%ld format=%s %ldx%ld bytes=%u\n", got, format, w, h,
+                   (unsigned)m.payload_length);
+            if (strcmp(format, "raw") == 0) {
+                ok &= id == 1 && w == WIDTH && h == HEIGHT && strstr(m.header, "\"u1\"") != NULL &&
+                      m.payload_length == (uint32_t)(w * h * 4);
+                write_file(prefix, ".rgba", m.payload, m.payload_length);
+            } else {
+                int soi = m.payload_length > 4 && m.payload[0] == 0xFF && m.payload[1] == 0xD8;
+                int eoi = m.payload_length > 4 && m.payload[m.payload_length - 2] == 0xFF &&
+                          m.payload[m.payload_length - 1] == 0xD9;
+                printf("JPEG markers %s\n", soi && eoi ? "ok" : "bad");
+                ok &= id == 2 && strcmp(format, "jpeg") == 0 && soi && eoi;
+                write_file(prefix, ".jpg", m.payload, m.payload_length);
+            }
+        } else if (m.type == ERROR_MSG) {
+            json_string(m.header, "code", code, sizeof code);
+            json_string(m.header, "field", field, sizeof field);
+            const char *fatal = json_value(m.header, "fatal");
+            int is_fatal = fatal && strncmp(fatal, "true", 4) == 0;
+            printf("ERROR id=%ld code=%s field=%s fatal=%s\n", got, code, field,
+                   is_fatal ? "true" : "false");
+            ok &= id == 3 && strcmp(code, "bad_input") == 0 && !is_fatal;
+        } else {
+            printf("unexpected message type 0x%02x\n", m.type);
+            ok = 0;
+        }
+        ok &= got == id;  /* answers come in frame order */
+        free_message(&m);
+    }
+    send_message(BYE, "{}", NULL, 0);
+    m = receive_message();
+    char reason[32];
+    json_string(m.header, "reason", reason, sizeof reason);
+    printf("GOODBYE reason=%s\n", m.type == GOODBYE ? reason : "?");
+    ok &= m.type == GOODBYE && strcmp(reason, "bye") == 0;
+    free_message(&m);
+    uint8_t rest;
+    ok &= recv(sock, &rest, 1, 0) == 0;  /* then the server closes */
+    close(sock);
+    printf("%s\n", ok ? "OK" : "FAILED");
+    return ok ? 0 : 1;
+}

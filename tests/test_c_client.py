@@ -1,0 +1,65 @@
+"""The C example client (examples/c_client/, written from PROTOCOL.md alone) against a real
+server: compiled with gcc here, run as a process, its stdout and the pixels it wrote checked.
+
+Its raw frame must be the server's render of the particles it sent, byte for byte: the same
+engine renders them here (raw rgba8 = the PNG's 8-bit codes, `encode_for_scene`).
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+from service_harness import ServerProcess
+
+from sphrender.client.frame import make_frame
+from sphrender.server.engine.renderer import SurfaceRenderer
+from sphrender.server.output.local import encode_for_scene
+from sphrender.server.scene import scene_from_dict
+
+SOURCE = Path(__file__).resolve().parent.parent / "examples" / "c_client" / "sphr_client.c"
+FLAGS = ["-std=c11", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
+SCENE = {
+    "image": {"width": 64, "height": 48},
+    "camera": {"eye": [0.6, 0.5, 0.9], "target": [0, 0, 0], "fov_y": 40},
+    "particles": {"radius": 0.02},
+    "output": {"format": "raw"},
+}
+
+
+def test_c_client_against_a_real_server(
+    service: ServerProcess, renderer: SurfaceRenderer, tmp_path: Path
+) -> None:
+    gcc = shutil.which("gcc")
+    assert gcc is not None, "gcc is needed (.ci/run installs gcc and libc6-dev)"
+    binary = tmp_path / "sphr_client"
+    subprocess.run([gcc, *FLAGS, "-o", str(binary), str(SOURCE)], check=True, timeout=120)
+    prefix = tmp_path / "out"
+    result = subprocess.run(
+        [str(binary), "127.0.0.1", str(service.stream_port), str(prefix)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    lines = result.stdout.splitlines()
+    assert lines[0] == "WELCOME max_in_flight=8"
+    assert lines[1] == f"IMAGE id=1 format=raw 64x48 bytes={64 * 48 * 4}"
+    assert lines[2].startswith("IMAGE id=2 format=jpeg 64x48 bytes=")
+    assert lines[3] == "JPEG markers ok"
+    assert lines[4] == "ERROR id=3 code=bad_input field=radii[17] fatal=false"
+    assert lines[5:] == ["GOODBYE reason=bye", "OK"]
+
+    positions = np.fromfile(prefix.with_suffix(".positions"), dtype="<f8").reshape(300, 3)
+    assert np.all(np.linalg.norm(positions, axis=1) <= 0.15)
+    radii = np.full(300, 0.02, np.float32)
+    scene = scene_from_dict(SCENE)
+    rendered, _ = renderer.render(make_frame(positions, radii=radii), scene)
+    expected = encode_for_scene(rendered, scene, "raw")
+    got = prefix.with_suffix(".rgba").read_bytes()
+    assert np.count_nonzero(np.frombuffer(expected, np.uint8)[3::4]) > 100  # a visible ball
+    assert got == expected
+    jpeg = prefix.with_suffix(".jpg").read_bytes()
+    assert jpeg[:2] == b"\xff\xd8" and jpeg[-2:] == b"\xff\xd9"

@@ -1,0 +1,92 @@
+"""Each fact PROTOCOL.md §9 states about `.npz` bodies, checked on the decoder the server uses
+(`decode_npz_frame`): entry names with or without `.npy`, stored or deflated entries, the scene
+as `<U` or `|S`, big-endian and integer arrays, NPY format versions 1.0-3.0 (others refused),
+Fortran order, object arrays refused, unknown entries ignored."""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+
+import numpy as np
+import pytest
+
+from sphrender.client.errors import InputError
+from sphrender.client.protocol import decode_npz_frame
+
+POSITIONS = np.arange(12, dtype=np.float64).reshape(4, 3) / 10
+SCENE = {"image": {"width": 32, "height": 24}}
+
+
+def npy(array: np.ndarray, version: tuple[int, int] | None = None) -> bytes:
+    out = io.BytesIO()
+    np.lib.format.write_array(out, array, version=version, allow_pickle=False)
+    return out.getvalue()
+
+
+def archive(entries: dict[str, bytes], compression: int = zipfile.ZIP_STORED) -> bytes:
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w", compression=compression) as zf:
+        for name, data in entries.items():
+            zf.writestr(name, data)
+    return out.getvalue()
+
+
+def decode(body: bytes) -> tuple[dict[str, np.ndarray], str | None]:
+    frame = decode_npz_frame(body, max_particles=1000, max_uncompressed_bytes=1 << 20)
+    return frame.arrays, frame.scene_json
+
+
+@pytest.mark.parametrize("suffix", [".npy", ""])
+@pytest.mark.parametrize("compression", [zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED])
+def test_names_and_compression(suffix: str, compression: int) -> None:
+    body = archive({f"positions{suffix}": npy(POSITIONS)}, compression)
+    arrays, scene = decode(body)
+    assert np.array_equal(arrays["positions"], POSITIONS) and scene is None
+
+
+@pytest.mark.parametrize("dtype", ["<U", "|S"])
+def test_scene_as_unicode_or_bytes(dtype: str) -> None:
+    text = json.dumps(SCENE)
+    value = np.array(text) if dtype == "<U" else np.array(text.encode("utf-8"))
+    assert value.dtype.str.startswith(dtype)
+    _arrays, scene = decode(archive({"positions.npy": npy(POSITIONS), "scene.npy": npy(value)}))
+    assert scene is not None and json.loads(scene) == SCENE
+
+
+@pytest.mark.parametrize("dtype", [">f8", ">f4", "<f4", "<i4", ">i2", "|u1"])
+def test_numeric_dtypes_any_byte_order(dtype: str) -> None:
+    arrays, _ = decode(archive({"positions.npy": npy(POSITIONS.astype(dtype))}))
+    assert np.array_equal(arrays["positions"], POSITIONS.astype(dtype))
+
+
+@pytest.mark.parametrize("version", [(1, 0), (2, 0), (3, 0)])
+def test_npy_versions_accepted(version: tuple[int, int]) -> None:
+    arrays, _ = decode(archive({"positions.npy": npy(POSITIONS, version)}))
+    assert np.array_equal(arrays["positions"], POSITIONS)
+
+
+def test_other_npy_versions_refused() -> None:
+    data = bytearray(npy(POSITIONS, (1, 0)))
+    data[6] = 4  # major version byte
+    with pytest.raises(InputError) as caught:
+        decode(archive({"positions.npy": bytes(data)}))
+    assert caught.value.field == "positions"
+    assert "NPY version 4.0 is not supported (1.0, 2.0 and 3.0 are)" in caught.value.message
+
+
+def test_fortran_order_and_extra_entries() -> None:
+    body = archive(
+        {"positions.npy": npy(np.asfortranarray(POSITIONS)), "velocities.npy": b"not even npy"}
+    )
+    arrays, _ = decode(body)
+    assert np.array_equal(arrays["positions"], POSITIONS) and "velocities" not in arrays
+
+
+def test_object_arrays_refused() -> None:
+    header = "{'descr': '|O', 'fortran_order': False, 'shape': (4, 3), }"
+    data = b"\x93NUMPY\x01\x00" + len(header.ljust(117) + "\n").to_bytes(2, "little")
+    data += (header.ljust(117) + "\n").encode() + bytes(96)
+    with pytest.raises(InputError, match="not allowed"):
+        decode(archive({"positions.npy": data}))
