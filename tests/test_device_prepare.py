@@ -28,6 +28,7 @@ from sphrender.server.engine.gpu.draw import FullscreenTriangle, read_image
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.programs import ProgramCache
 from sphrender.server.engine.passes.context import PassContext
+from sphrender.server.engine.passes.device_culling import DeviceCullInput
 from sphrender.server.engine.passes.device_prepare import DevicePrepare
 from sphrender.server.engine.passes.prepare_stage import resolve_mode
 from sphrender.server.engine.passes.splat import SplatPass
@@ -97,7 +98,8 @@ def test_ball_with_temperatures_matches_the_host_prepare(
     positions = jittered_lattice_ball(0.2, R, seed=3) + shift
     kelvin = np.linspace(300.0, 2200.0, len(positions)).astype(np.float32)
     host, device = both(renderers, scene_at(shift), positions, temperatures=kelvin)
-    assert host[1].particles_splatted < host[1].particles_drawn  # the host path did cull
+    for _, stats in (host, device):  # both culled (the device's aligned pyramid a bit less)
+        assert stats.particles_splatted < 0.8 * stats.particles_drawn
     assert_same_image(host, device)
 
 
@@ -146,8 +148,9 @@ def test_nothing_to_draw(renderers: tuple[SurfaceRenderer, SurfaceRenderer]) -> 
 
 def test_ellipsoids_match_the_host_prepare(gl_context: GLContext) -> None:
     """Fixed tilted ellipsoids (2 : 1 : 0.5 r) at 1e5 through both prepares, the splat alone:
-    the same depth image (the device computes the bounding radius from the axes itself)."""
-    positions = jittered_lattice_ball(0.12, R, seed=5)
+    the same depth image (the device computes the bounding radius from the axes itself), with
+    and without the device's occlusion culling."""
+    positions = jittered_lattice_ball(0.18, R, seed=5)  # > MIN_PARTICLES: culled
     rotations = np.linalg.qr(np.random.default_rng(2).normal(size=(len(positions), 3, 3)))[0]
     axes = (rotations * np.array([2 * R, R, 0.5 * R])).astype(np.float32)
     scene = scene_at(1e5)
@@ -168,6 +171,10 @@ def test_ellipsoids_match_the_host_prepare(gl_context: GLContext) -> None:
         got = read_image(
             splat.run(camera, device.bulk, bounds=None, box=device.box).depth.read(), 160, 96
         )
+        cull = DeviceCullInput(device.bulk.count, device.nearest, device.bulk.far, R)
+        culled_out = splat.run(camera, device.bulk, bounds=None, box=device.box, device_cull=cull)
+        culled = read_image(culled_out.depth.read(), 160, 96)
+        assert splat.splatted(device.visible) < device.visible  # it did cull
     finally:
         splat.release()
         context.fullscreen.release()
@@ -179,6 +186,10 @@ def test_ellipsoids_match_the_host_prepare(gl_context: GLContext) -> None:
     # ~2000 pixels, 1-2 ulps).
     assert np.array_equal(got > 0, host > 0)
     np.testing.assert_allclose(got, host, rtol=4 * 2.0**-23, atol=0)
+    # Culled on the device (bounding spheres, aligned pyramid): the same draws' depth, up to
+    # depth-buffer ties of the changed draw order.
+    assert np.array_equal(culled > 0, got > 0)
+    np.testing.assert_allclose(culled, got, rtol=0, atol=device.bulk.far * TIE * 2)
 
 
 def test_host_ms_is_reported(renderers: tuple[SurfaceRenderer, SurfaceRenderer]) -> None:

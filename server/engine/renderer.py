@@ -158,9 +158,14 @@ class SurfaceRenderer:
         with self._stage(stats, "splat"):
             antialias = scene.quality.antialias
             splat = self._splat.run(
-                camera, prepared.bulk, bounds=prepared.bounds, box=box, antialias=antialias
+                camera,
+                prepared.bulk,
+                bounds=prepared.bounds,
+                box=box,
+                antialias=antialias,
+                device_cull=prepared.device_cull,
             )
-            stats.particles_splatted = splat.splatted if splat.splatted >= 0 else prepared.visible
+            bulk_splatted = splat.splatted  # -1: counted on the device, read after the frame
 
         px_per_unit = camera.pixels_per_unit_at_unit_depth
         surface = splat.depth
@@ -181,7 +186,7 @@ class SurfaceRenderer:
                         camera, drops, surface, splat.temperature, splat.coverage
                     )
                     surface = splat.depth
-                    stats.particles_splatted += max(splat.splatted, 0)
+                    stats.particles_splatted += max(splat.splatted, 0)  # host prepare
 
         with self._stage(stats, "normals"):
             normal_depth = self._normals.run(surface, camera, box, prepared.reference_radius)
@@ -207,6 +212,9 @@ class SurfaceRenderer:
                 surface_box=box,
                 clock=self._gl.clock,
             )
+        if bulk_splatted < 0:  # after the read-back, so asking waits for nothing
+            bulk_splatted = self._splat.splatted(prepared.visible)
+        stats.particles_splatted += bulk_splatted
         wall_ms = (time.perf_counter() - start) * 1e3
         device_ms = (self._gl.clock.seconds - in_gl) * 1e3
         stats.host_ms = max(wall_ms - device_ms - stats.stage_ms.get("sph", 0.0), 0.0)

@@ -28,6 +28,7 @@ from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.prepare import PreparedParticles, prepare_particles
 from sphrender.server.engine.geometry.screen_box import ScreenBox, screen_box
 from sphrender.server.engine.passes.context import PassContext
+from sphrender.server.engine.passes.device_culling import DeviceCullInput
 from sphrender.server.engine.passes.device_prepare import DevicePrepare
 from sphrender.server.engine.passes.splat import SplatBatch, SplatPass
 from sphrender.server.engine.sph.frame import SphOutcome
@@ -46,6 +47,7 @@ class PreparedFrame:
     #: `PrepareStage.droplets` once the bulk is drawn); None when there are none.
     droplets: SplatBatch | PreparedParticles | None
     bounds: occlusion.SphereBounds | None  # host prepare: the bulk's rectangles (culling)
+    device_cull: DeviceCullInput | None  # device prepare with occlusion culling
     box: ScreenBox | None
     visible: int
     far: float
@@ -94,10 +96,16 @@ class PrepareStage:
             droplets=sph.droplets,
             ellipsoids=sph.ellipsoids,
         )
+        cull = None
+        if scene.quality.occlusion_culling and device.visible:
+            cull = DeviceCullInput(
+                device.bulk.count, device.nearest, device.bulk.far, device.reference_radius
+            )
         return PreparedFrame(
             device.bulk,
             device.droplets,
             None,
+            cull,
             device.box,
             device.visible,
             device.bulk.far,
@@ -125,6 +133,7 @@ class PrepareStage:
             self._splat.upload(bulk),
             drops,
             bounds if scene.quality.occlusion_culling else None,
+            None,
             box,
             int(prepared.center_radius.shape[0]),
             prepared.far,

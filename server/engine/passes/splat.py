@@ -38,6 +38,13 @@ from sphrender.server.engine.gpu.draw import (
 )
 from sphrender.server.engine.gpu.gl_clock import GLClock
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
+from sphrender.server.engine.passes.device_culling import (
+    COVER,
+    FRONT,
+    SECOND,
+    DeviceCulling,
+    DeviceCullInput,
+)
 from sphrender.server.engine.passes.splat_buffers import (
     AXES,
     IDS,
@@ -155,6 +162,8 @@ class SplatPass:
         # particles cost ~70 ms of pure per-instance overhead. The vertex stage pulls its
         # particle from storage buffers (splat_buffers.py), so nothing is repeated per corner.
         self.buffers = SplatBuffers(context.gl.ctx, context.gl.clock)
+        self._culling = DeviceCulling(context, self.buffers, (COVERAGE_REACH_PX, INTERIOR_REACH_PX))
+        self._culled_on_device = False
         # Keyed by (ellipsoid, has temperature, coverage).
         self._vaos: dict[tuple[bool, bool, bool], moderngl.VertexArray] = {}
         self._targets = PerSize(lambda size: SplatTargets(context.gl.ctx, size))
@@ -187,10 +196,13 @@ class SplatPass:
         bounds: occlusion.SphereBounds | None,
         box: ScreenBox | None,
         antialias: bool = False,
+        device_cull: DeviceCullInput | None = None,
     ) -> SplatOutput:
-        """Splat `batch`; `bounds` (None: no occlusion culling; host prepare only) are the
-        spheres' screen rectangles, `box` the screen box holding them (where the front layer is
-        read back). `antialias`: also draw the splatted spheres' sub-pixel coverage."""
+        """Splat `batch`; `bounds` (host prepare) or `device_cull` (device prepare), None for
+        neither: no occlusion culling; `bounds` are the spheres' screen rectangles, `box` the
+        screen box holding them (where the front layer is read back or its pyramid built).
+        `antialias`: also draw the splatted spheres' sub-pixel coverage."""
+        self._culled_on_device = False
         targets = self.targets((camera.width, camera.height))
         temperature: moderngl.Texture | None = None
         fbo = targets.fbo
@@ -214,8 +226,13 @@ class SplatPass:
         ctx.enable(moderngl.DEPTH_TEST)
         try:
             coverage_ids = None  # None: every quad drawn needs its coverage
+            coverage_mask = 0
             host = batch.host
-            if host is None or bounds is None or batch.count < occlusion.MIN_PARTICLES:
+            few = batch.count < occlusion.MIN_PARTICLES
+            if host is None and device_cull is not None and not few:
+                self._draw_culled_on_device(vao, camera, device_cull, targets, box, antialias)
+                splatted, coverage_mask = -1, COVER
+            elif host is None or bounds is None or few:
                 _render(vao, 0, batch.count, use_ids=False, clock=self._context.gl.clock)
                 splatted = batch.count
             else:
@@ -228,7 +245,9 @@ class SplatPass:
             splatted = -1  # the device prepare counts what it drew
         if coverage is not None:
             if coverage_ids is None:
-                self._draw_coverage(coverage, camera, batch, 0, batch.count, use_ids=False)
+                self._draw_coverage(
+                    coverage, camera, batch, 0, batch.count, use_ids=False, flag_mask=coverage_mask
+                )
             elif coverage_ids[1]:
                 self._draw_coverage(coverage, camera, batch, *coverage_ids, use_ids=True)
         return SplatOutput(targets.depth, temperature, splatted, _texture(coverage))
@@ -295,6 +314,7 @@ class SplatPass:
         count: int,
         *,
         use_ids: bool,
+        flag_mask: int = 0,
     ) -> None:
         """Coverage of quads `first` .. `first + count` (of the id list when `use_ids`), into
         `target` with blending MAX and no depth test (see splat_coverage.frag.glsl)."""
@@ -313,7 +333,9 @@ class SplatPass:
         ctx.enable(moderngl.BLEND)
         ctx.blend_equation = moderngl.MAX  # type: ignore[assignment]  # the stub wants a pair
         try:
-            _render(vao, first, count, use_ids=use_ids, clock=self._context.gl.clock)
+            _render(
+                vao, first, count, use_ids=use_ids, clock=self._context.gl.clock, mask=flag_mask
+            )
         finally:
             ctx.blend_equation = moderngl.FUNC_ADD  # type: ignore[assignment]
             ctx.disable(moderngl.BLEND)
@@ -376,6 +398,29 @@ class SplatPass:
         self.buffers.write(IDS, edge, offset_items=drawn)
         return drawn, (drawn, int(edge.size))
 
+    def splatted(self, visible: int) -> int:
+        """Particles the last `run` rasterised, when it answered -1 (device prepare): all
+        `visible` ones, or what the device culling counted (waits for the GPU)."""
+        return self._culling.drawn() if self._culled_on_device else visible
+
+    def _draw_culled_on_device(
+        self,
+        vao: moderngl.VertexArray,
+        camera: Camera,
+        cull: DeviceCullInput,
+        targets: SplatTargets,
+        box: ScreenBox | None,
+        antialias: bool,
+    ) -> None:
+        """Front layer, its max-depth pyramid, then the rest (device_culling.py); the
+        particles' flags select each draw's quads."""
+        clock = self._context.gl.clock
+        self._culling.mark_front(camera, cull, antialias)
+        _render(vao, 0, cull.count, use_ids=False, clock=clock, mask=FRONT)
+        self._culling.mark_rest(camera, cull, targets.depth, box, antialias)
+        _render(vao, 0, cull.count, use_ids=False, clock=clock, mask=SECOND)
+        self._culled_on_device = True
+
     def _vertex_array(
         self, ellipsoid: bool, has_temperature: bool, *, coverage: bool = False
     ) -> tuple[moderngl.Program, moderngl.VertexArray]:
@@ -420,11 +465,19 @@ def _set_particle_uniforms(program: moderngl.Program, camera: Camera, batch: Spl
 
 
 def _render(
-    vao: moderngl.VertexArray, first: int, count: int, *, use_ids: bool, clock: GLClock
+    vao: moderngl.VertexArray,
+    first: int,
+    count: int,
+    *,
+    use_ids: bool,
+    clock: GLClock,
+    mask: int = 0,
 ) -> None:
-    """Draw quads `first` .. `first + count` (ids[first ..] when `use_ids`)."""
+    """Draw quads `first` .. `first + count` (ids[first ..] when `use_ids`; only particles
+    with one of the device culling's flags in `mask`, when not 0)."""
     if count:
         set_if_used(vao.program, "u_use_ids", use_ids)
+        set_if_used(vao.program, "u_flag_mask", mask)
         with clock:
             vao.render(moderngl.TRIANGLES, vertices=6 * count, first=6 * first)
 
