@@ -188,7 +188,9 @@ class SurfaceRenderer:
                 stats.particles_splatted += splat.splatted
 
         with self._stage(stats, "normals"):
-            normal_depth = self._normals.run(surface, camera, box, prepared.reference_radius)
+            normal_depth = self._normals.run(
+                surface, camera, box, prepared.reference_radius, scene.quality
+            )
 
         with self._stage(stats, "shade"):
             temperature = splat.temperature

@@ -149,6 +149,19 @@ class QualityConfig:
         "Experimental: on the reference scenes neither beat none (exact_droplets is what keeps "
         "droplets round)",
     )
+    normal_stencil: float = spec(
+        0.0,
+        "normals from a central difference over +-normal_stencil projected particle radii "
+        "(at least 1 pixel, at most normal_stencil_max_px) where the stencil stays on one "
+        "surface without a kink, else the 1-pixel one-sided difference; averages the ripple "
+        "the smoothing leaves, which a 1-pixel difference turns into flicker. 0: always the "
+        "1-pixel one-sided difference",
+        low=0.0,
+        high=4.0,
+    )
+    normal_stencil_max_px: int = spec(
+        4, "cap on the normal_stencil half-width in pixels", low=1, high=16
+    )
     antialias: bool = spec(
         True,
         "silhouette anti-aliasing: alpha is each edge pixel's sub-pixel coverage (analytic, from "
