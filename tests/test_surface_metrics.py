@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from sphrender.server.bench.scenes import sphere_truth
+from sphrender.server.bench.scenes import Truth, sphere_truth
 from sphrender.server.bench.surface_bench import SurfaceRow, surface_front
 from sphrender.server.bench.surface_quality import (
     band_error_deg,
@@ -23,7 +23,7 @@ CAMERA = Camera.from_config(CameraConfig(eye=(0.0, 0.0, 1.0), target=(0.0, 0.0, 
 R = 0.2
 
 
-def as_frame(truth) -> RenderedFrame:  # type: ignore[no-untyped-def]
+def as_frame(truth: Truth) -> RenderedFrame:
     rgba = np.zeros((*truth.hit.shape, 4), np.float32)
     depth = np.where(truth.hit, truth.depth, np.inf).astype(np.float32)
     return RenderedFrame(rgba, depth, truth.normals.astype(np.float32))
@@ -50,6 +50,11 @@ def test_shift_tolerance_forgives_a_one_pixel_rim_and_nothing_else() -> None:
     bad = RenderedFrame(same.rgba, same.depth, flipped.astype(np.float32))
     assert shift_tolerant_band_error_deg(bad, truth, band) > 0.5 * band_error_deg(bad, truth, band)
     assert shift_tolerant_band_error_deg(bad, truth, band) > 60.0
+    # Reversed normals: each truth normal within one pixel turns by at most a few degrees from
+    # its neighbour's (the rim's steepest turn per pixel at R_px ~ 27: ~15 deg), so the error
+    # stays above 180 - 15; a match against the truth's background (zero normals) would give 90.
+    reversed_ = RenderedFrame(same.rgba, same.depth, -truth.normals.astype(np.float32))
+    assert shift_tolerant_band_error_deg(reversed_, truth, band) > 150.0
 
 
 def test_truth_flicker_of_a_moved_sphere_is_its_normal_turn() -> None:
@@ -70,6 +75,7 @@ def test_surface_front_keeps_rows_not_beaten_on_every_column() -> None:
         return SurfaceRow(name, ms, 1.0, 0.05, flicker, 3.0, ball_mean_deg=ball)
 
     rows = [row("fast", 10, 3.0), row("slow", 20, 1.0), row("worse", 20, 3.0), row("nan", 30, 0.5)]
-    rows.append(row("ball", 20, 1.0, ball=0.5))
+    rows += [row("ball", 20, 1.0, ball=0.5), row("ball again", 20, 1.0, ball=0.5)]
     names = [r.setting for r in surface_front(rows)]
-    assert names == ["fast", "nan", "ball"]  # slow: beaten by ball; worse: by fast
+    # slow: beaten by ball; worse: by fast; two equal rows do not beat each other
+    assert names == ["fast", "nan", "ball", "ball again"]
