@@ -49,7 +49,7 @@ SETTINGS = {
     "previous_default": Setting(
         "previous_default",
         preset="balanced",
-        overrides={"quality": {"exact_droplets": False, "antialias": False}},
+        overrides={"quality": {"exact_droplets": False, "antialias": False, "kernel_max_px": 32}},
     ),
     "fast": Setting("fast", preset="fast"),
     "balanced": Setting("balanced", preset="balanced"),

@@ -19,6 +19,7 @@ import pytest
 
 from sphrender.client.errors import InputError
 from sphrender.server.bench.run import CSV_COLUMNS
+from sphrender.server.bench.surface_bench import QUICK_SURFACE_SETTINGS, SurfaceRow
 from sphrender.server.bench.sweep import QUICK_SWEEP
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.output.encoders import read_exr
@@ -34,7 +35,7 @@ def test_bench_quick_writes_the_table(tmp_path: Path) -> None:
         [*CLI, "bench", "--quick", "--out", str(out)],
         capture_output=True,
         text=True,
-        timeout=120,
+        timeout=300,
     )
     assert done.returncode == 0, done.stderr
     with open(out / "bench-table.csv", newline="") as handle:
@@ -62,6 +63,24 @@ def test_bench_quick_writes_the_table(tmp_path: Path) -> None:
         assert depth["filter none"] > 0.0
         for setting, value in depth.items():
             assert 0.0 < value <= depth["filter none"] + 2.0, (scene, setting, value)
+    # The real-SPH-surface table (issue 12): one row per quick setting, every column; the
+    # report carries its section and the before/after crops it names.
+    with open(out / "surface-table.csv", newline="") as handle:
+        surface = list(csv.DictReader(handle))
+    assert [r["setting"] for r in surface] == [s.name for s in QUICK_SURFACE_SETTINGS]
+    assert tuple(surface[0].keys()) == tuple(f.name for f in fields(SurfaceRow))
+    by_name = {r["setting"]: r for r in surface}
+    # Exact droplets: the default's droplet error equals the unfiltered splat's (the same
+    # spheres), and the pre-issue filter flattens them (measured 32 vs 4 deg).
+    balanced, before = by_name["preset balanced"], by_name["pre-issue default"]
+    assert float(balanced["droplet_deg"]) == pytest.approx(
+        float(by_name["unfiltered"]["droplet_deg"])
+    )
+    assert float(before["droplet_deg"]) > 2 * float(balanced["droplet_deg"])
+    report = (out / "REPORT.md").read_text()
+    assert "## Real SPH surfaces" in report
+    for name in ("spatter", "demo"):
+        assert f"(crop-{name}.png)" in report and (out / f"crop-{name}.png").stat().st_size > 0
 
 
 def test_balanced_preset_is_the_builtin_default() -> None:

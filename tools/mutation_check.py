@@ -388,6 +388,44 @@ MUTATIONS: tuple[Mutation, ...] = (
         ),
         description="a normal differenced into a farther surface across a depth step",
     ),
+    # -- issue 12b: the wide normal stencil and the surface bench's metrics ----------------
+    Mutation(
+        name="normal-stencil-no-kink-test",
+        path="shaders/normals/surface_normals.frag.glsl",
+        old="if (same && abs(d_plus - d_minus) <= limit) {",
+        new="if (same) {",
+        tests=(
+            "tests/test_normals_stencil.py::test_normals_match_numpy_reference",
+            "tests/test_normals_stencil.py::test_wide_stencil_on_a_sphere_stays_within_the_chord_bound",
+        ),
+        description="the wide central difference taken across a kink (crease, rim)",
+    ),
+    Mutation(
+        name="normal-stencil-one-sided-scale",
+        path="shaders/normals/surface_normals.frag.glsl",
+        old="int s = u_stencil_radii > 0.0",
+        new="int s = u_stencil_radii < 0.0",
+        tests=("tests/test_normals_stencil.py::test_wide_stencil_averages_ripple_on_a_plane",),
+        description="the normal_stencil setting ignored (always the 1-pixel difference)",
+    ),
+    Mutation(
+        name="shift-tolerant-band-ignores-truth-coverage",
+        path="server/bench/surface_quality.py",
+        old="angle = np.where(hit[window], np.degrees(np.arccos(cos)), np.inf)",
+        new="angle = np.degrees(np.arccos(cos))",
+        tests=(
+            "tests/test_surface_metrics.py::test_shift_tolerance_forgives_a_one_pixel_rim_and_nothing_else",
+        ),
+        description="the tolerant band matching a render normal with the truth's background",
+    ),
+    Mutation(
+        name="surface-front-ties-dominate",
+        path="server/bench/surface_bench.py",
+        old="return all(x <= y for x, y in pairs) and any(x < y for x, y in pairs)",
+        new="return all(x <= y for x, y in pairs)",
+        tests=("tests/test_surface_metrics.py::test_surface_front_keeps_rows_not_beaten_on_every_column",),
+        description="a row equal on every column counted as beaten (the front empties)",
+    ),
 )
 # fmt: on
 

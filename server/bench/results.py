@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sphrender.server.bench import peers
+from sphrender.server.bench.surface_bench import SurfaceResults
 from sphrender.server.bench.sweep import SweepRow
 
 
@@ -21,6 +22,7 @@ class BenchResults:
     cpu_peers: list[tuple[str, float | None, str]] = field(default_factory=list)
     scaling_particles: list[tuple[int, float]] = field(default_factory=list)
     scaling_resolution: list[tuple[int, int, float]] = field(default_factory=list)
+    surfaces: SurfaceResults | None = None
 
 
 def growth_exponent(xs: list[float], ys: list[float]) -> float:

@@ -16,6 +16,7 @@ import os
 import platform
 import time
 from collections.abc import Callable
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +34,14 @@ from sphrender.server.bench.scenes import (
     dambreak_scene,
     droplets_scene,
     slab_scene,
+)
+from sphrender.server.bench.surface_bench import (
+    QUICK_SURFACE_SETTINGS,
+    SURFACE_SETTINGS,
+    SurfaceResults,
+    SurfaceRow,
+    run_surface_bench,
+    write_crops,
 )
 from sphrender.server.bench.sweep import (
     QUICK_SWEEP,
@@ -95,6 +104,22 @@ def write_csv(rows: list[SweepRow], path: Path) -> None:
             )
 
 
+def write_surface_csv(surfaces: SurfaceResults | None, path: Path) -> None:
+    if surfaces is None:
+        return
+    names = [f.name for f in fields(SurfaceRow)]
+    with open(path, "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(names)
+        for row in surfaces.rows:
+            writer.writerow(
+                [
+                    v if isinstance(v, str) else f"{v:.4f}"
+                    for v in (getattr(row, name) for name in names)
+                ]
+            )
+
+
 def _median_frame_ms(renderer: SurfaceRenderer, scene: BenchScene, w: int, h: int) -> float:
     frame = make_frame(scene.positions)
     render_scene = scene_for(Setting("balanced", preset="balanced"), bench_scene_dict(scene, w, h))
@@ -127,6 +152,8 @@ def run_bench(
         scenes.append(droplets_scene(150))
         settings = SWEEP
     mesh_note = ""
+    # The surface figures of issue 12 were measured at 960x540; quick runs use a quarter.
+    surface_w, surface_h = (480, 270) if quick else (960, 540)
     with GLContext() as gl:
         results.machine.insert(0, f"GL: {gl.renderer}")
         renderer = SurfaceRenderer(gl)
@@ -160,6 +187,18 @@ def run_bench(
                     )
                 except ImportError as exc:
                     log(f"  {scene.name} skipped: {exc}")
+            log(f"real SPH surfaces (spatter, dam break, ball), {surface_w}x{surface_h}")
+            results.surfaces = run_surface_bench(
+                gl,
+                renderer,
+                QUICK_SURFACE_SETTINGS if quick else SURFACE_SETTINGS,
+                width=surface_w,
+                height=surface_h,
+                cache=out / ".reference-cache",
+                log=log,
+            )
+            log(f"  {results.surfaces.dam_note}")
+            write_crops(renderer, out, results.surfaces, cache=out / ".reference-cache", gl=gl)
             if not quick:
                 log("scaling (balanced preset)")
                 for count in (10_000, 100_000, 1_000_000):
@@ -184,8 +223,8 @@ def run_bench(
     plot = write_plot(results.rows, out / "pareto.png")
     if plot is not None:
         log(plot)
-    if not quick:
-        write_report(results, out / "REPORT.md", plot_name="pareto.png")
+    write_surface_csv(results.surfaces, out / "surface-table.csv")
+    write_report(results, out / "REPORT.md", plot_name="pareto.png")
     log(f"wrote {out / 'bench-table.csv'}")
     return results
 

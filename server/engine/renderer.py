@@ -189,7 +189,9 @@ class SurfaceRenderer:
                     stats.particles_splatted += max(splat.splatted, 0)  # host prepare
 
         with self._stage(stats, "normals"):
-            normal_depth = self._normals.run(surface, camera, box, prepared.reference_radius)
+            normal_depth = self._normals.run(
+                surface, camera, box, prepared.reference_radius, scene.quality
+            )
 
         with self._stage(stats, "shade"):
             temperature = splat.temperature

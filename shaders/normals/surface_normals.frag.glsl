@@ -1,9 +1,18 @@
 #version 330 core
 // Normals from the smoothed depth (thesis §3.2): view positions through the inverse projection,
-// then per axis the one-sided difference with the smaller depth change (so silhouettes do not
-// smear), cross product, rotated to world space. A neighbour is never differenced across a
-// depth discontinuity: background, or a jump of more than u_edge_jump (a farther or nearer
-// surface); with no usable neighbour along an axis the depth is taken as constant along it.
+// then per axis a difference of neighbouring positions, cross product, rotated to world space.
+// Per axis:
+// * wide central difference (quality.normal_stencil > 0): over +-s pixels, s = the stencil in
+//   projected particle radii (capped at u_stencil_max_px), when every pixel of the stencil is
+//   the same surface (no discontinuity, see below) and the surface has no kink across it (the
+//   two one-sided slopes over s pixels differ by at most u_kink times the larger, or than one
+//   pixel footprint on a surface facing the camera). A central difference over s pixels is
+//   second-order accurate on a smooth surface and averages the residual per-particle ripple of
+//   the smoothed depth, which the 1-pixel difference turns into normal noise (flicker);
+// * otherwise the one-sided difference with the smaller depth change (so silhouettes do not
+//   smear). A neighbour is never differenced across a depth discontinuity: background, or a jump
+//   of more than u_edge_jump (a farther or nearer surface); with no usable neighbour along an
+//   axis the depth is taken as constant along it.
 // Output: world normal (xyz), eye depth (w); all zero where there is no surface.
 
 #include "common/depth_image.glsl"
@@ -14,6 +23,10 @@ uniform mat3 u_view_to_world;
 uniform float u_edge_jump;       // largest depth step between neighbours of one surface
 uniform float u_edge_jump_px;    // ... per unit of pixel footprint (z / focal length)
 uniform float u_focal_px;        // pixels per unit at eye depth 1
+uniform float u_particle_radius; // scene units
+uniform float u_stencil_radii;   // wide stencil half-width in projected radii; 0 = 1-pixel only
+uniform int u_stencil_max_px;
+uniform float u_kink;            // largest relative difference of the two one-sided slopes
 
 layout(location = 0) out vec4 out_normal_depth;
 
@@ -33,6 +46,35 @@ vec3 one_sided_difference(ivec2 center, vec3 position, float zc, ivec2 step, ive
     return view_position(center + step, size, u_tan_half_fov, zc) - position;
 }
 
+// The central difference over +-s pixels, or the one-sided one where the stencil crosses a
+// discontinuity or a kink (see the header).
+vec3 axis_difference(ivec2 center, vec3 position, float zc, ivec2 step, ivec2 size, int s) {
+    if (s >= 1) {
+        float jump = max(u_edge_jump, u_edge_jump_px * zc / u_focal_px);
+        bool same = true;
+        float z_prev_plus = zc;
+        float z_prev_minus = zc;
+        for (int k = 1; k <= s; ++k) {
+            float zp = fetch_depth(u_depth, center + k * step);
+            float zm = fetch_depth(u_depth, center - k * step);
+            same = same && zp > 0.0 && zm > 0.0 && abs(zp - z_prev_plus) <= jump
+                && abs(zm - z_prev_minus) <= jump;
+            z_prev_plus = zp;
+            z_prev_minus = zm;
+        }
+        float d_plus = z_prev_plus - zc;
+        float d_minus = zc - z_prev_minus;
+        float floor_depth = float(s) * zc / u_focal_px;  // s pixel footprints
+        float limit = u_kink * max(max(abs(d_plus), abs(d_minus)), floor_depth);
+        if (same && abs(d_plus - d_minus) <= limit) {
+            vec3 a = view_position(center + s * step, size, u_tan_half_fov, z_prev_plus);
+            vec3 b = view_position(center - s * step, size, u_tan_half_fov, z_prev_minus);
+            return (a - b) / (2.0 * float(s));
+        }
+    }
+    return one_sided_difference(center, position, zc, step, size);
+}
+
 void main() {
     ivec2 center = ivec2(gl_FragCoord.xy);
     ivec2 size = textureSize(u_depth, 0);
@@ -42,8 +84,11 @@ void main() {
         return;
     }
     vec3 position = view_position(center, size, u_tan_half_fov, zc);
-    vec3 ddx = one_sided_difference(center, position, zc, ivec2(1, 0), size);
-    vec3 ddy = one_sided_difference(center, position, zc, ivec2(0, 1), size);
+    float radius_px = u_particle_radius * u_focal_px / zc;
+    int s = u_stencil_radii > 0.0
+        ? clamp(int(round(u_stencil_radii * radius_px)), 1, max(u_stencil_max_px, 1)) : 0;
+    vec3 ddx = axis_difference(center, position, zc, ivec2(1, 0), size, s);
+    vec3 ddy = axis_difference(center, position, zc, ivec2(0, 1), size, s);
     vec3 normal = cross(ddx, ddy);
     float len = length(normal);
     normal = len > 0.0 ? normal / len : -normalize(position);

@@ -21,12 +21,16 @@ from sphrender.server.engine.gpu.draw import (
     write_matrix,
 )
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
+from sphrender.server.scene import QualityConfig
 
 SHADER = "normals/surface_normals.frag.glsl"
 #: A depth step between neighbouring pixels larger than this many particle radii, or than
 #: EDGE_JUMP_FOOTPRINTS pixel footprints (grazing surfaces far away), is an edge, not a slope.
 EDGE_JUMP_RADII = 4.0
 EDGE_JUMP_FOOTPRINTS = 8.0
+#: The wide stencil's kink test: the two one-sided slopes over the stencil may differ by this
+#: fraction of the larger (a crease, a rim or a junction differs by more).
+KINK = 0.5
 
 
 class NormalsPass:
@@ -44,9 +48,11 @@ class NormalsPass:
         camera: Camera,
         box: ScreenBox | None,
         particle_radius: float = 0.0,
+        quality: QualityConfig | None = None,
     ) -> Target:
         """Normals of the eye-depth image `surface`, inside `box` (None: everywhere);
-        `particle_radius` sizes the largest depth step that still counts as one surface."""
+        `particle_radius` sizes the largest depth step that still counts as one surface;
+        `quality` gives the wide stencil (`normal_stencil`, off without it)."""
         target = self.target(surface.size)
         program = self._context.programs.get(FULLSCREEN_VERT, SHADER)
         surface.use(0)
@@ -56,6 +62,10 @@ class NormalsPass:
         program["u_edge_jump"] = EDGE_JUMP_RADII * particle_radius
         program["u_edge_jump_px"] = EDGE_JUMP_FOOTPRINTS
         program["u_focal_px"] = camera.pixels_per_unit_at_unit_depth
+        program["u_particle_radius"] = particle_radius
+        program["u_stencil_radii"] = quality.normal_stencil if quality is not None else 0.0
+        program["u_stencil_max_px"] = quality.normal_stencil_max_px if quality is not None else 1
+        program["u_kink"] = KINK
         clear_and_scissor(target.fbo, box)
         target.fbo.use()
         self._context.fullscreen.draw(program)

@@ -1,0 +1,158 @@
+"""The normals pass's wide stencil (`quality.normal_stencil`): against a float64 numpy
+reference of the shader on synthetic depth images, and against analytic shapes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from reference_normals import reference_normals
+
+from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.gpu.draw import FullscreenTriangle, Target
+from sphrender.server.engine.gpu.gl_context import GLContext
+from sphrender.server.engine.gpu.programs import ProgramCache
+from sphrender.server.engine.passes import normals as normals_pass
+from sphrender.server.engine.passes.context import PassContext
+from sphrender.server.engine.passes.normals import NormalsPass
+from sphrender.server.scene import CameraConfig, QualityConfig
+
+W, H = 96, 64
+R = 0.02
+CAMERA = Camera.from_config(CameraConfig(eye=(0.0, 0.0, 0.6), target=(0.0, 0.0, 0.0)), W, H)
+
+
+def gl_normals(gl: GLContext, depth: np.ndarray, quality: QualityConfig) -> np.ndarray:
+    """The normals pass alone on an eye-depth image (rows bottom first, as GL stores it);
+    view-space normals (the camera's rotation undone), rows bottom first."""
+    context = PassContext(gl, ProgramCache(gl), FullscreenTriangle(gl))
+    nrm = NormalsPass(context)
+    source = Target.float(gl.ctx, (W, H), 1)
+    try:
+        source.texture.write(np.ascontiguousarray(depth, np.float32).tobytes())
+        out = nrm.run(source.texture, CAMERA, None, R, quality)
+        pixels = np.frombuffer(out.texture.read(), np.float32).reshape(H, W, 4)
+        return pixels[..., :3].astype(np.float64) @ CAMERA.rotation.T
+    finally:
+        source.release()
+        nrm.release()
+        context.fullscreen.release()
+        context.programs.release()
+
+
+def reference(depth: np.ndarray, quality: QualityConfig) -> np.ndarray:
+    t = CAMERA.tan_half_fov_y
+    return reference_normals(
+        depth.astype(np.float64),
+        (t * CAMERA.aspect, t),
+        CAMERA.pixels_per_unit_at_unit_depth,
+        R,
+        normals_pass.EDGE_JUMP_RADII * R,
+        normals_pass.EDGE_JUMP_FOOTPRINTS,
+        quality.normal_stencil,
+        quality.normal_stencil_max_px,
+        normals_pass.KINK,
+    )
+
+
+def rippled_plane_with_steps(seed: int) -> np.ndarray:
+    """A tilted plane with a ripple and noise of a few hundredths of r, a nearer block (a
+    depth step), a background hole and a kink (two slopes meeting)."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:H, 0:W].astype(np.float64)
+    z = 0.6 + 0.002 * x + 0.001 * y + 0.01 * R * np.sin(x / 2.3) * np.cos(y / 3.1)
+    z += rng.normal(0.0, 0.02 * R, z.shape)
+    z[40:52, 10:30] -= 6 * R  # a nearer surface: a discontinuity
+    z[5:9, 60:66] = 0.0  # background
+    z[:, 70:] += 0.004 * (x[:, 70:] - 70)  # a kink along x = 70
+    return z.astype(np.float32)
+
+
+@pytest.mark.parametrize(
+    "quality",
+    [
+        QualityConfig(),
+        QualityConfig(normal_stencil=1.0),
+        QualityConfig(normal_stencil=2.0, normal_stencil_max_px=3),
+    ],
+    ids=["one-pixel", "stencil 1 r", "stencil 2 r capped 3 px"],
+)
+def test_normals_match_numpy_reference(gl_context: GLContext, quality: QualityConfig) -> None:
+    """Bound: float32 positions of depths ~0.6 differenced over >= 1 pixel (footprint 1e-3):
+    relative rounding ~1e-7 / 1e-3 = 1e-4 rad on the chord; 1e-3 rad (0.06 deg) leaves margin.
+    A pixel where a test (jump, kink) decides differently within rounding would differ by much
+    more; the images keep every such comparison well away from its threshold except by noise,
+    so at most 0.5 % of the pixels may differ beyond the bound."""
+    depth = rippled_plane_with_steps(3)
+    got = gl_normals(gl_context, depth, quality)
+    want = reference(depth, quality)
+    angle = np.arccos(np.clip(np.sum(got * want, axis=2), -1.0, 1.0))
+    covered = depth > 0
+    assert (np.abs(got[~covered]) == 0).all()
+    assert np.mean(angle[covered] > 1e-3) <= 0.005, np.sort(angle[covered])[-10:]
+
+
+def sphere_depth(center_z: float, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Eye depth (rows bottom first) and view-space normals of a sphere on the view axis."""
+    y, x = np.mgrid[0:H, 0:W].astype(np.float64)
+    t = CAMERA.tan_half_fov_y
+    d = np.stack(
+        [
+            ((x + 0.5) / W * 2 - 1) * t * CAMERA.aspect,
+            ((y + 0.5) / H * 2 - 1) * t,
+            -np.ones_like(x),
+        ],
+        axis=2,
+    )
+    d /= np.linalg.norm(d, axis=2, keepdims=True)
+    c = np.array([0.0, 0.0, -center_z])
+    b = d @ c
+    disc = b * b - (c @ c - radius * radius)
+    hit = disc >= 0
+    t_hit = np.where(hit, b - np.sqrt(np.maximum(disc, 0)), 0.0)
+    p = d * t_hit[..., None]
+    n = np.where(hit[..., None], (p - c) / radius, 0.0)
+    return np.where(hit, -p[..., 2], 0.0).astype(np.float32), n
+
+
+def test_wide_stencil_on_a_sphere_stays_within_the_chord_bound(gl_context: GLContext) -> None:
+    """A central difference over +-s pixels measures the chord between two surface points whose
+    normals lie within s pixels of the centre's: on a sphere of projected radius R_px at angle
+    theta <= 60 deg from the view, each axis turns by at most asin(sin theta + s / R_px) -
+    theta, both together sqrt(2) times that (the 1-pixel one-sided bound of
+    test_normals_beside_a_nearer_surface_come_from_their_own_surface with s pixels)."""
+    radius = 0.1
+    depth, truth = sphere_depth(0.6, radius)
+    quality = QualityConfig(normal_stencil=1.0, normal_stencil_max_px=4)
+    got = gl_normals(gl_context, depth, quality)
+    facing = truth[..., 2]
+    mask = (depth > 0) & (facing >= 0.5)
+    errors = np.degrees(np.arccos(np.clip(np.sum(got * truth, axis=2), -1, 1)))[mask]
+    radius_px = CAMERA.projected_radius_px(radius, 0.6 - radius)
+    s = 4  # R * focal / z = 0.02 * 87.9 / 0.5 = 3.5 pixels -> 4 (the cap)
+    theta = math.acos(0.5)
+    bound = math.degrees(
+        math.sqrt(2) * (math.asin(min(1.0, math.sin(theta) + s / radius_px)) - theta)
+    )
+    assert errors.max() <= bound, (errors.max(), bound)
+
+
+def test_wide_stencil_averages_ripple_on_a_plane(gl_context: GLContext) -> None:
+    """A plane facing the camera with white depth noise of sigma = 0.05 footprints: the
+    1-pixel difference of two noisy samples has slope noise ~ sqrt(2) sigma / footprint, the
+    central difference over +-s pixels sqrt(2) sigma / (2 s footprints): s = 3 (stencil 1 r,
+    R_px = 2.9 -> 3) must lower the mean normal error at least 2x (expected ~4x; the
+    1-pixel one also picks the smaller of two differences, which lowers its noise somewhat)."""
+    rng = np.random.default_rng(7)
+    footprint = 0.6 / CAMERA.pixels_per_unit_at_unit_depth
+    depth = (0.6 + rng.normal(0.0, 0.05 * footprint, (H, W))).astype(np.float32)
+
+    def mean_error(quality: QualityConfig) -> float:
+        n = gl_normals(gl_context, depth, quality)[4:-4, 4:-4]
+        return float(np.degrees(np.arccos(np.clip(n[..., 2], -1, 1))).mean())
+
+    one = mean_error(QualityConfig())
+    wide = mean_error(QualityConfig(normal_stencil=1.0))
+    print(f"1-pixel {one:.3f} deg, stencil {wide:.3f} deg")
+    assert wide * 2.0 <= one, (one, wide)

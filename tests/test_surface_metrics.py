@@ -1,0 +1,81 @@
+"""The surface bench's metrics against analytic cases: the shift-tolerant band error, the
+truth's own flicker, and the multi-metric front."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sphrender.server.bench.scenes import Truth, sphere_truth
+from sphrender.server.bench.surface_bench import SurfaceRow, surface_front
+from sphrender.server.bench.surface_quality import (
+    band_error_deg,
+    shift_tolerant_band_error_deg,
+    silhouette_band,
+    truth_flicker_deg,
+)
+from sphrender.server.engine.frame_output import RenderedFrame
+from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.scene import CameraConfig
+
+CAMERA = Camera.from_config(CameraConfig(eye=(0.0, 0.0, 1.0), target=(0.0, 0.0, 0.0)), 120, 90)
+R = 0.2
+
+
+def as_frame(truth: Truth) -> RenderedFrame:
+    rgba = np.zeros((*truth.hit.shape, 4), np.float32)
+    depth = np.where(truth.hit, truth.depth, np.inf).astype(np.float32)
+    return RenderedFrame(rgba, depth, truth.normals.astype(np.float32))
+
+
+def test_shift_tolerance_forgives_a_one_pixel_rim_and_nothing_else() -> None:
+    """The exact sphere shifted by one pixel: the plain band error is large (the normal turns
+    by tens of degrees within a pixel of the rim), the tolerant one is 0 up to float32
+    rounding, since every shifted pixel's normal is the truth's one pixel away. Normals
+    flipped to face away from the rim (mirrored in the image plane) match nothing: the tolerant
+    error stays at least half the plain one. The identical render scores 0 on both."""
+    truth = sphere_truth(CAMERA, np.zeros(3), R)
+    band = silhouette_band(truth, R / 10)
+    same = as_frame(truth)
+    assert band_error_deg(same, truth, band) < 0.05
+    assert shift_tolerant_band_error_deg(same, truth, band) < 0.05
+    pixel = 1.0 / CAMERA.pixels_per_unit_at_unit_depth  # one pixel at eye depth 1
+    shifted = sphere_truth(CAMERA, np.array([pixel, 0.0, 0.0]), R)
+    frame = as_frame(shifted)
+    plain = band_error_deg(frame, truth, band)
+    tolerant = shift_tolerant_band_error_deg(frame, truth, band)
+    assert plain > 3.0 and tolerant < 0.25 * plain, (plain, tolerant)  # measured 5.6 / 0.57
+    flipped = truth.normals * np.array([-1.0, -1.0, 1.0])
+    bad = RenderedFrame(same.rgba, same.depth, flipped.astype(np.float32))
+    assert shift_tolerant_band_error_deg(bad, truth, band) > 0.5 * band_error_deg(bad, truth, band)
+    assert shift_tolerant_band_error_deg(bad, truth, band) > 60.0
+    # Reversed normals: each truth normal within one pixel turns by at most a few degrees from
+    # its neighbour's (the rim's steepest turn per pixel at R_px ~ 27: ~15 deg), so the error
+    # stays above 180 - 15; a match against the truth's background (zero normals) would give 90.
+    reversed_ = RenderedFrame(same.rgba, same.depth, -truth.normals.astype(np.float32))
+    assert shift_tolerant_band_error_deg(reversed_, truth, band) > 150.0
+
+
+def test_truth_flicker_of_a_moved_sphere_is_its_normal_turn() -> None:
+    """A sphere moved sideways by d: at a pixel well inside the rim the normal turns by about
+    d / R radians (for the ray through the centre exactly asin(d / R)); the mean over the
+    covered pixels lies between that and a few times it (the turn grows towards the rim)."""
+    d = 0.01 * R
+    a = sphere_truth(CAMERA, np.zeros(3), R)
+    b = sphere_truth(CAMERA, np.array([d, 0.0, 0.0]), R)
+    flicker = truth_flicker_deg(a, b)
+    turn = math.degrees(math.asin(d / R))
+    assert turn <= flicker <= 4 * turn, (flicker, turn)
+    assert truth_flicker_deg(a, a) < 1e-5  # arccos rounding
+
+
+def test_surface_front_keeps_rows_not_beaten_on_every_column() -> None:
+    def row(name: str, ms: float, flicker: float, ball: float = 1.0) -> SurfaceRow:
+        return SurfaceRow(name, ms, 1.0, 0.05, flicker, 3.0, ball_mean_deg=ball)
+
+    rows = [row("fast", 10, 3.0), row("slow", 20, 1.0), row("worse", 20, 3.0), row("nan", 30, 0.5)]
+    rows += [row("ball", 20, 1.0, ball=0.5), row("ball again", 20, 1.0, ball=0.5)]
+    names = [r.setting for r in surface_front(rows)]
+    # slow: beaten by ball; worse: by fast; two equal rows do not beat each other
+    assert names == ["fast", "nan", "ball", "ball again"]
