@@ -17,7 +17,13 @@ from __future__ import annotations
 import moderngl
 
 from sphrender.server.engine.geometry.screen_box import ScreenBox, packed_box
-from sphrender.server.engine.gpu.draw import PerSize, Target, clear_and_scissor, set_scissor
+from sphrender.server.engine.gpu.draw import (
+    PerSize,
+    Target,
+    clear_and_scissor,
+    set_if_used,
+    set_scissor,
+)
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 from sphrender.server.scene import QualityConfig
 
@@ -173,5 +179,4 @@ def _filter_uniforms(
 
 def _set_uniforms(program: moderngl.Program, uniforms: dict[str, float]) -> None:
     for name, value in uniforms.items():
-        if name in program:  # the GLSL compiler drops uniforms the chosen filter never reads
-            program[name] = value
+        set_if_used(program, name, value)  # the compiler drops uniforms a filter never reads
