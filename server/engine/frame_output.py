@@ -46,6 +46,8 @@ class RenderedFrame:
     rgba: Float32Array
     depth: Float32Array | None = None
     normals: Float32Array | None = None
+    #: The engine's display codes, when the render was asked for them (`DisplayRequest`).
+    display: DisplayCodes | None = None
 
     def __post_init__(self) -> None:
         rgba = _as_float32("rgba", self.rgba, 3, 4)
@@ -73,6 +75,43 @@ class RenderedFrame:
     @property
     def height(self) -> int:
         return int(self.rgba.shape[0])
+
+
+@dataclass(frozen=True)
+class DisplayRequest:
+    """Ask the engine for 8-bit display codes too (passes/display.py), so PNG, JPEG and raw
+    rgba8 encoders skip the CPU display transform: the scene's exposure (stops) and tone mapper,
+    the OETF thresholds that define the codes (`server/output/display.py` owns them: per code
+    k = 1..255 the first float32 bit pattern of display-linear value with code >= k), and for
+    JPEG the opaque background (0-1 per channel) the codes are composited over."""
+
+    exposure: float
+    tone_mapper: str
+    thresholds: npt.NDArray[np.uint64]
+    background: tuple[float, float, float] | None = None
+
+    def matches(
+        self, exposure: float, tone_mapper: str, background: tuple[float, float, float] | None
+    ) -> bool:
+        """Whether codes made for this request are the ones an encoder with these settings
+        computes."""
+        def floats(v: tuple[float, float, float] | None) -> tuple[float, ...] | None:
+            return None if v is None else tuple(float(c) for c in v)
+
+        return (
+            self.exposure == exposure
+            and self.tone_mapper == tone_mapper
+            and floats(self.background) == floats(background)
+        )
+
+
+@dataclass(frozen=True)
+class DisplayCodes:
+    """8-bit sRGB codes of a frame, (H, W, 4) uint8 rows top first (alpha 255 when
+    composited over `request.background`), made by the engine for `request`."""
+
+    codes: npt.NDArray[np.uint8]
+    request: DisplayRequest
 
 
 @dataclass

@@ -25,6 +25,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -32,12 +33,18 @@ import numpy.typing as npt
 
 from sphrender.client.errors import InputError
 from sphrender.client.frame import ParticleFrame
-from sphrender.server.engine.frame_output import RenderedFrame, RenderStats
+from sphrender.server.engine.frame_output import (
+    DisplayCodes,
+    DisplayRequest,
+    RenderedFrame,
+    RenderStats,
+)
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.gpu.draw import FullscreenTriangle, image_bytes, read_image
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.programs import ProgramCache
 from sphrender.server.engine.passes.context import PassContext
+from sphrender.server.engine.passes.display import DisplayPass
 from sphrender.server.engine.passes.normals import NormalsPass
 from sphrender.server.engine.passes.prepare_stage import PrepareMode, PrepareStage
 from sphrender.server.engine.passes.readback import read_frame
@@ -76,6 +83,7 @@ class SurfaceRenderer:
         self._normals = NormalsPass(self._context)
         self._temperature = TemperaturePass(self._context)
         self._shade = ShadePass(self._context, environment_dirs)
+        self._display = DisplayPass(self._context)
 
     @property
     def gl(self) -> GLContext:
@@ -134,8 +142,10 @@ class SurfaceRenderer:
         *,
         depth: bool = False,
         normals: bool = False,
+        display: DisplayRequest | None = None,
     ) -> tuple[RenderedFrame, RenderStats]:
-        """Render one frame; `depth` / `normals` ask for those AOVs to be read back."""
+        """Render one frame; `depth` / `normals` ask for those AOVs to be read back, `display`
+        for the 8-bit display codes an encoder would compute (passes/display.py)."""
         self._gl.check_owner()
         start, in_gl = time.perf_counter(), self._gl.clock.seconds
         self.check_image_size(scene)
@@ -214,6 +224,9 @@ class SurfaceRenderer:
                 surface_box=box,
                 clock=self._gl.clock,
             )
+            if display is not None:
+                codes = self._display.run(color.texture, display)
+                rendered = replace(rendered, display=DisplayCodes(codes, display))
         if bulk_splatted < 0:  # after the read-back, so asking waits for nothing
             bulk_splatted = self._splat.splatted(prepared.visible)
         stats.particles_splatted += bulk_splatted
@@ -289,7 +302,8 @@ class SurfaceRenderer:
     def release(self) -> None:
         """Release every GPU object this renderer owns (on the owner thread)."""
         self._gl.check_owner()
-        for gpu_pass in (self._splat, self._smooth, self._normals, self._temperature, self._shade):
+        passes = (self._splat, self._smooth, self._normals, self._temperature, self._shade)
+        for gpu_pass in (*passes, self._display):
             gpu_pass.release()
         self._context.fullscreen.release()
         self._context.programs.release()

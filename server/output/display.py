@@ -20,9 +20,13 @@ from typing import Literal, TypeAlias
 import numpy as np
 import numpy.typing as npt
 
+from sphrender.server.engine.frame_output import RenderedFrame
+
 __all__ = [
+    "OETF8_THRESHOLDS",
     "TONE_MAPPERS",
     "display_codes",
+    "engine_codes",
     "srgb_oetf",
     "tone_map_aces",
     "tone_map_clamp",
@@ -260,3 +264,21 @@ class _Oetf8:
 
 
 _OETF8 = _Oetf8()
+#: Per 8-bit code k = 1..255 the first float32 bit pattern of display-linear value whose code is
+#: >= k (and 2**32 after the last): what defines the codes, handed to the engine's display pass
+#: (`DisplayRequest.thresholds`) so the GPU's codes are these.
+OETF8_THRESHOLDS: npt.NDArray[np.uint64] = _OETF8.threshold
+
+
+def engine_codes(
+    frame: RenderedFrame,
+    exposure: float,
+    tone_mapper: str,
+    background: tuple[float, float, float] | None = None,
+) -> npt.NDArray[np.uint8] | None:
+    """The 8-bit codes the engine made for this frame (passes/display.py) when they were made
+    with these settings, else None (the caller runs `display_codes`)."""
+    made = frame.display
+    if made is None or not made.request.matches(exposure, tone_mapper, background):
+        return None
+    return made.codes

@@ -51,6 +51,7 @@ from sphrender.server.engine.frame_output import RenderedFrame
 from sphrender.server.output.display import (
     TONE_MAPPERS,
     display_codes,
+    engine_codes,
     srgb_oetf,
     tone_map_aces,
     tone_map_clamp,
@@ -194,7 +195,12 @@ class ExrOptions:
 
 
 def _png_pixels(frame: RenderedFrame, options: PngOptions) -> npt.NDArray[np.uint8 | np.uint16]:
-    """Code values per pixel (`display.display_codes`)."""
+    """Code values per pixel: the engine's (8 bits, when it made them) or
+    `display.display_codes`."""
+    if options.bits == 8:
+        codes = engine_codes(frame, options.exposure, options.tone_mapper)
+        if codes is not None:
+            return codes
     return display_codes(frame.rgba, options.bits, options.exposure, options.tone_mapper)
 
 

@@ -31,7 +31,7 @@ import numpy.typing as npt
 import simplejpeg
 
 from sphrender.server.engine.frame_output import RenderedFrame
-from sphrender.server.output.display import TONE_MAPPERS, display_codes
+from sphrender.server.output.display import TONE_MAPPERS, display_codes, engine_codes
 
 __all__ = [
     "JPEG_SUBSAMPLING",
@@ -123,10 +123,15 @@ def composite_codes(
 def encode_jpeg(frame: RenderedFrame, options: JpegOptions | None = None) -> bytes:
     """Baseline JPEG bytes of the frame composited over the background (module docstring)."""
     options = options or JpegOptions()
-    codes = display_codes(frame.rgba, 8, options.exposure, options.tone_mapper)
-    rgb = composite_codes(codes.astype(np.uint8, copy=False), options.background)
+    composited = engine_codes(frame, options.exposure, options.tone_mapper, options.background)
+    if composited is not None:  # the engine composited them: RGB + opaque alpha, as they are
+        pixels, colorspace = composited, "RGBX"
+    else:
+        codes = display_codes(frame.rgba, 8, options.exposure, options.tone_mapper)
+        pixels = composite_codes(codes.astype(np.uint8, copy=False), options.background)
+        colorspace = "RGB"
     data: bytes = simplejpeg.encode_jpeg(
-        rgb, quality=options.quality, colorspace="RGB", colorsubsampling=options.subsampling
+        pixels, quality=options.quality, colorspace=colorspace, colorsubsampling=options.subsampling
     )
     return data
 
@@ -147,6 +152,9 @@ def encode_raw(frame: RenderedFrame, options: RawOptions | None = None) -> bytes
     """The frame's arrays as little-endian bytes in `raw_arrays` order (module docstring)."""
     options = options or RawOptions()
     if options.type == "rgba8":
+        made = engine_codes(frame, options.exposure, options.tone_mapper)
+        if made is not None:
+            return made.tobytes()
         codes = display_codes(frame.rgba, 8, options.exposure, options.tone_mapper)
         return codes.astype(np.uint8, copy=False).tobytes()
     pixel: Literal["<f2", "<f4"] = "<f2" if options.type == "float16" else "<f4"

@@ -12,10 +12,11 @@ from typing import Any
 
 from sphrender.client.frame import ParticleFrame
 from sphrender.client.protocol import ImageFormat
-from sphrender.server.engine.frame_output import RenderedFrame, RenderStats
+from sphrender.server.engine.frame_output import DisplayRequest, RenderedFrame, RenderStats
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.output import encoders
+from sphrender.server.output.display import OETF8_THRESHOLDS
 from sphrender.server.scene import Scene
 
 __all__ = [
@@ -36,12 +37,33 @@ def aovs_for_output(scene: Scene, fmt: ImageFormat) -> tuple[str, ...]:
     return ()
 
 
+def display_request(scene: Scene, fmt: ImageFormat) -> DisplayRequest | None:
+    """For the 8-bit display-referred outputs (PNG at 8 bits, JPEG, raw rgba8), what the engine
+    needs to make their codes on the GPU (passes/display.py); None for the others."""
+    out = scene.output
+    if fmt == "jpeg":
+        background = tuple(float(c) for c in out.jpeg_background)
+        return DisplayRequest(
+            out.exposure, out.tone_mapper, OETF8_THRESHOLDS, background  # type: ignore[arg-type]
+        )
+    if (fmt == "png" and out.png_bits == 8) or (fmt == "raw" and out.raw_type == "rgba8"):
+        return DisplayRequest(out.exposure, out.tone_mapper, OETF8_THRESHOLDS)
+    return None
+
+
 def render_for_output(
     renderer: SurfaceRenderer, frame: ParticleFrame, scene: Scene, fmt: ImageFormat
 ) -> tuple[RenderedFrame, RenderStats]:
-    """Render, reading back Z / N only when the output format will carry them."""
+    """Render, reading back Z / N only when the output format will carry them, and the 8-bit
+    display codes when it is display-referred."""
     aovs = aovs_for_output(scene, fmt)
-    return renderer.render(frame, scene, depth="Z" in aovs, normals="N" in aovs)
+    return renderer.render(
+        frame,
+        scene,
+        depth="Z" in aovs,
+        normals="N" in aovs,
+        display=display_request(scene, fmt),
+    )
 
 
 def encoder_options(scene: Scene, fmt: ImageFormat) -> encoders.Options:

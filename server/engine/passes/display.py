@@ -1,0 +1,85 @@
+"""Display pass: the shaded frame's 8-bit sRGB codes, made on the GPU and read back as bytes.
+
+PNG (8-bit), JPEG and raw rgba8 all start from the display transform (exposure, tone mapper,
+sRGB OETF, quantisation), which costs the CPU far more than the compression itself (~100-400 ms
+per 1280x720 frame against ~10 ms for libjpeg-turbo). `shaders/display/display_codes.frag.glsl`
+computes the same codes as `server/output/display.py` (the CPU's own OETF thresholds, the same
+float32 operation order; tests/test_display_pass.py compares them) and writes them top row first
+into an RGBA8 target, so the read-back is the encoder's input as it is: 4 bytes a pixel, no
+per-pixel work on the host. With a JPEG background the codes are composited over it there too.
+
+Owns: the program variants (through the ProgramCache), the RGBA8 target per image size and the
+threshold buffer; released with the renderer.
+"""
+
+from __future__ import annotations
+
+import moderngl
+import numpy as np
+import numpy.typing as npt
+
+from sphrender.server.engine.frame_output import DisplayRequest
+from sphrender.server.engine.gpu.draw import PerSize, set_if_used
+from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
+
+FRAGMENT_SHADER = "display/display_codes.frag.glsl"
+TONE_MAPPER_DEFINES = {"clamp": 0, "aces": 1}
+
+
+class _Target:
+    def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
+        self.texture = ctx.texture(size, 4, dtype="f1")
+        self.fbo = ctx.framebuffer([self.texture])
+
+    def release(self) -> None:
+        self.fbo.release()
+        self.texture.release()
+
+
+class DisplayPass:
+    def __init__(self, context: PassContext) -> None:
+        self._context = context
+        self._thresholds = context.gl.ctx.buffer(reserve=256 * 4)
+        self._uploaded: bytes | None = None
+        self._targets = PerSize(lambda size: _Target(context.gl.ctx, size))
+
+    def run(self, color: moderngl.Texture, request: DisplayRequest) -> npt.NDArray[np.uint8]:
+        """(H, W, 4) uint8 codes of the straight linear RGBA `color`, rows top first."""
+        if request.tone_mapper not in TONE_MAPPER_DEFINES:
+            raise ValueError(f"tone mapper must be one of {', '.join(TONE_MAPPER_DEFINES)}")
+        width, height = color.size
+        target = self._targets.get((width, height))
+        defines = {
+            "TONE_MAPPER": TONE_MAPPER_DEFINES[request.tone_mapper],
+            "COMPOSITE": request.background is not None,
+        }
+        program = self._context.programs.get(FULLSCREEN_VERT, FRAGMENT_SHADER, defines)
+        set_if_used(program, "u_color", 0)
+        set_if_used(program, "u_scale", float(np.float32(np.exp2(np.float64(request.exposure)))))
+        set_if_used(program, "u_height", height)
+        if request.background is not None:
+            codes = tuple(int(np.floor(c * 255.0 + 0.5)) for c in request.background)
+            set_if_used(program, "u_background", codes)
+        color.use(0)
+        table = _threshold_table(request.thresholds)
+        if table != self._uploaded:  # the output layer's table: the same one every frame
+            self._thresholds.write(table)
+            self._uploaded = table
+        self._thresholds.bind_to_storage_buffer(0)
+        target.fbo.use()
+        self._context.fullscreen.draw(program)
+        out = np.empty((height, width, 4), np.uint8)
+        with self._context.gl.clock:
+            target.fbo.read_into(out, components=4, dtype="f1")
+        return out
+
+    def release(self) -> None:
+        self._targets.release()
+        self._thresholds.release()
+
+
+def _threshold_table(thresholds: npt.NDArray[np.integer]) -> bytes:
+    """The 255 thresholds as the shader's uint[256] (the last entry never reached)."""
+    table = np.full(256, 0xFFFFFFFF, np.uint32)
+    table[:255] = np.minimum(np.asarray(thresholds)[:255], 0xFFFFFFFF).astype(np.uint32)
+    return table.tobytes()
