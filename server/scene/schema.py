@@ -21,6 +21,8 @@ from typing import Any, Literal
 MAX_IMAGE_SIDE = 16384
 #: Largest image area accepted (pixels).
 MAX_IMAGE_PIXELS = 8192 * 8192
+#: Longest string value (characters); strings must not contain NUL either.
+MAX_STRING_LENGTH = 4096
 
 Vec3 = tuple[float, float, float]
 
@@ -33,9 +35,19 @@ def spec(
     high: float | None = None,
     low_open: bool = False,
     high_open: bool = False,
+    unit: str | None = None,
 ) -> Any:
-    """A dataclass field with its documentation and numeric range (closed unless *_open)."""
-    meta = {"doc": doc, "low": low, "high": high, "low_open": low_open, "high_open": high_open}
+    """A dataclass field with its documentation, numeric range (closed unless *_open; for a
+    vector, the range of each component) and unit. The validator (`validate.py`) and the JSON
+    Schema (`json_schema.py`) both read this metadata, so a field's rules are written once."""
+    meta = {
+        "doc": doc,
+        "low": low,
+        "high": high,
+        "low_open": low_open,
+        "high_open": high_open,
+        "unit": unit,
+    }
     if isinstance(default, list | tuple) or default is MISSING:
         if default is MISSING:
             return field(metadata=meta)
@@ -45,14 +57,20 @@ def spec(
 
 @dataclass(frozen=True)
 class ImageConfig:
-    width: int = spec(640, "image width in pixels", low=1, high=MAX_IMAGE_SIDE)
-    height: int = spec(360, "image height in pixels", low=1, high=MAX_IMAGE_SIDE)
+    """The rendered image's size."""
+
+    width: int = spec(640, "image width in pixels", low=1, high=MAX_IMAGE_SIDE, unit="px")
+    height: int = spec(360, "image height in pixels", low=1, high=MAX_IMAGE_SIDE, unit="px")
 
 
 @dataclass(frozen=True)
 class CameraConfig:
-    eye: Vec3 = spec((0.0, 1.0, 3.0), "camera position, scene units (float64 precision)")
-    target: Vec3 = spec((0.0, 0.0, 0.0), "point the camera looks at")
+    """A perspective pinhole camera looking from eye at target."""
+
+    eye: Vec3 = spec(
+        (0.0, 1.0, 3.0), "camera position, scene units (float64 precision)", unit="scene units"
+    )
+    target: Vec3 = spec((0.0, 0.0, 0.0), "point the camera looks at", unit="scene units")
     up: Vec3 = spec((0.0, 1.0, 0.0), "up direction; must not be parallel to target - eye")
     fov_y: float = spec(
         45.0,
@@ -61,23 +79,34 @@ class CameraConfig:
         high=180.0,
         low_open=True,
         high_open=True,
+        unit="degrees",
     )
-    near: float = spec(0.01, "near clipping distance along the view axis", low=0.0, low_open=True)
+    near: float = spec(
+        0.01,
+        "near clipping distance along the view axis",
+        low=0.0,
+        low_open=True,
+        unit="scene units",
+    )
     far: float | None = spec(
         None,
         "far clipping distance; absent = just beyond the farthest particle",
         low=0.0,
         low_open=True,
+        unit="scene units",
     )
 
 
 @dataclass(frozen=True)
 class ParticlesConfig:
+    """Defaults for the particles of a frame."""
+
     radius: float = spec(
         0.015,
         "particle radius in scene units, used when a frame has no radii",
         low=0.0,
         low_open=True,
+        unit="scene units",
     )
 
 
@@ -86,6 +115,8 @@ FilterName = Literal["narrow_range", "bilateral", "gaussian", "none"]
 
 @dataclass(frozen=True)
 class QualityConfig:
+    """Depth smoothing, anti-aliasing and the speed/error trade-offs of the surface."""
+
     filter: FilterName = spec(
         "narrow_range",
         "depth smoothing filter: narrow_range (Truong & Yuksel 2018), bilateral (eq 22-24), "
@@ -106,39 +137,57 @@ class QualityConfig:
         low=0.0,
         high=16.0,
         low_open=True,
+        unit="projected particle radii",
     )
     kernel_max_px: int = spec(
         32,
         "cap on the kernel radius in pixels (sigma shrinks to keep 3 sigma inside)",
         low=1,
         high=128,
+        unit="px",
     )
     kernel_min_px: int = spec(
-        1, "smallest kernel radius in pixels (eq 25's ks_min)", low=0, high=64
+        1, "smallest kernel radius in pixels (eq 25's ks_min)", low=0, high=64, unit="px"
     )
     eq25_sigma_px: float = spec(
-        6.0, "eq 25: sigma in pixels up to the threshold distance", low=0.0, low_open=True
+        6.0,
+        "eq 25: sigma in pixels up to the threshold distance",
+        low=0.0,
+        low_open=True,
+        unit="px",
     )
     eq25_threshold: float = spec(
-        1.0, "eq 25: eye depth (scene units) beyond which the kernel shrinks", low=0.0
+        1.0,
+        "eq 25: eye depth (scene units) beyond which the kernel shrinks",
+        low=0.0,
+        unit="scene units",
     )
     eq25_decline: float = spec(
-        2.0, "eq 25: k, kernel radius lost per scene unit beyond the threshold (px)", low=0.0
+        2.0,
+        "eq 25: k, kernel radius lost per scene unit beyond the threshold (px)",
+        low=0.0,
+        unit="px per scene unit",
     )
     bilateral_depth_sigma: float = spec(
         6.0,
         "bilateral range sigma in particle radii (eq 24); smaller keeps the per-particle bumps",
         low=0.0,
         low_open=True,
+        unit="particle radii",
     )
     narrow_range_threshold: float = spec(
         10.0,
         "narrow-range lambda: samples farther than lambda*r from the centre are dropped",
         low=0.0,
         low_open=True,
+        unit="particle radii",
     )
     narrow_range_clamp: float = spec(
-        1.0, "narrow-range mu: nearer samples are clamped to z - mu*r", low=0.0, low_open=True
+        1.0,
+        "narrow-range mu: nearer samples are clamped to z - mu*r",
+        low=0.0,
+        low_open=True,
+        unit="particle radii",
     )
     keep_features: Literal["none", "truncate", "blend", "both"] = spec(
         "none",
@@ -178,6 +227,7 @@ class QualityConfig:
         "jittered lattice ball >= 0.47, a slab's corner 0.61, edge 0.72, face 0.85)",
         low=0.0,
         high=1.0,
+        unit="fraction of sph.rest_density",
     )
     occlusion_culling: bool = spec(
         True,
@@ -193,19 +243,25 @@ class SphConfig:
     other SPH tools (cubic spline, support 4 r, m = rest_density (2 r)^3, as splashsurf)."""
 
     rest_density: float = spec(
-        1000.0, "rest density rho_0 (kg/m^3 in SI scenes)", low=0.0, low_open=True
+        1000.0,
+        "rest density rho_0 (kg/m^3 in SI scenes)",
+        low=0.0,
+        low_open=True,
+        unit="mass per scene unit^3",
     )
     support_radius: float | None = spec(
         None,
         "kernel support h (W = 0 beyond); absent = 4 * particles.radius",
         low=0.0,
         low_open=True,
+        unit="scene units",
     )
     mass: float | None = spec(
         None,
         "particle mass m; absent = rest_density * (2 * particles.radius)^3",
         low=0.0,
         low_open=True,
+        unit="mass units",
     )
     surface_threshold: float = spec(
         0.5,
@@ -213,6 +269,7 @@ class SphConfig:
         "surface_threshold / support_radius (|n| h is about 1 on a flat surface, 0 inside)",
         low=0.0,
         low_open=True,
+        unit="1 / support_radius",
     )
     adaptive_radius: bool = spec(
         False,
@@ -225,6 +282,7 @@ class SphConfig:
         low=0.0,
         high=1.0,
         low_open=True,
+        unit="fraction of the particle radius",
     )
     radius_decline: float = spec(
         0.25,
@@ -245,6 +303,7 @@ class SphConfig:
         "h / 2, at sqrt(3) h / 2; less opens holes between the outer particles)",
         low=0.0,
         high=1.0,
+        unit="support radii",
     )
     sparse_density: float = spec(
         0.75,
@@ -252,6 +311,7 @@ class SphConfig:
         "sparse_density * rest_density is sparse (droplet, thin sheet) and always splatted",
         low=0.0,
         high=1.0,
+        unit="fraction of sph.rest_density",
     )
     anisotropy: bool = spec(
         False,
@@ -267,6 +327,7 @@ class SphConfig:
         "and ~63 on its surface (1.0 gives ~29 and ~19: at or below min_neighbours)",
         low=0.25,
         high=4.0,
+        unit="support radii",
     )
     anisotropy_max_ratio: float = spec(
         4.0,
@@ -282,6 +343,7 @@ class SphConfig:
         "N_eps / 2 more neighbours, so shapes change continuously between frames",
         low=1,
         high=10000,
+        unit="particles",
     )
     anisotropy_smoothing: float = spec(
         0.5,
@@ -372,7 +434,9 @@ class LightConfig:
     direction: Vec3 | None = spec(
         None, "directional only: the direction the light travels (from the light to the scene)"
     )
-    position: Vec3 | None = spec(None, "point only: world position (float64 precision)")
+    position: Vec3 | None = spec(
+        None, "point only: world position (float64 precision)", unit="scene units"
+    )
 
 
 EnvironmentPreset = Literal["workshop", "overcast", "studio"]
@@ -400,12 +464,18 @@ class EnvironmentConfig:
     )
     intensity: float = spec(1.0, "radiance multiplier", low=0.0, high=1e9)
     rotation_deg: float = spec(
-        0.0, "rotation of the environment about the world +y axis, degrees", low=-360, high=360
+        0.0,
+        "rotation of the environment about the world +y axis, degrees",
+        low=-360,
+        high=360,
+        unit="degrees",
     )
 
 
 @dataclass(frozen=True)
 class ShadingConfig:
+    """How the surface is lit: BRDF terms, image-based light, emission, background."""
+
     g_term: Literal["smith_height_correlated", "eq37"] = spec(
         "smith_height_correlated",
         "microfacet shadowing: Smith height-correlated GGX (validates against the furnace table "
@@ -417,12 +487,15 @@ class ShadingConfig:
         "GGX importance sampling with ibl_samples Hammersley points (thesis §4.2.2), or none "
         "(no environment light at all, diffuse included)",
     )
-    ibl_samples: int = spec(64, "samples per pixel for ibl_mode = sampled", low=1, high=4096)
+    ibl_samples: int = spec(
+        64, "samples per pixel for ibl_mode = sampled", low=1, high=4096, unit="samples per pixel"
+    )
     prefilter_samples: int = spec(
         512,
         "GGX samples per texel when prefiltering an environment (once per environment)",
         low=16,
         high=16384,
+        unit="samples per texel",
     )
     multiple_scattering: bool = spec(
         False,
@@ -447,6 +520,7 @@ class ShadingConfig:
         low=0.0,
         low_open=True,
         high=1e6,
+        unit="scene-linear value per cd/m^2",
     )
     debug_view: Literal[
         "none", "direct", "diffuse_ibl", "specular_ibl", "emission", "irradiance"
@@ -462,6 +536,8 @@ AovName = Literal["Z", "N"]
 
 @dataclass(frozen=True)
 class OutputConfig:
+    """The image the client gets back: format, layers, bit depth, tone mapping."""
+
     format: Literal["png", "exr"] = spec("png", "image format")
     aovs: tuple[AovName, ...] = spec(
         ("Z", "N"), "extra EXR layers: Z (eye depth) and N (world normal); ignored for PNG"
@@ -471,8 +547,10 @@ class OutputConfig:
         "EXR colour/normal precision (Z is always float32): half, float, or auto = half unless "
         "a colour exceeds half's 65504 (molten metal does), then float",
     )
-    png_bits: Literal[8, 16] = spec(8, "PNG bit depth")
-    exposure: float = spec(0.0, "PNG exposure in stops (EXR stays scene-linear)", low=-32, high=32)
+    png_bits: Literal[8, 16] = spec(8, "PNG bit depth", unit="bits per channel")
+    exposure: float = spec(
+        0.0, "PNG exposure in stops (EXR stays scene-linear)", low=-32, high=32, unit="stops"
+    )
     tone_mapper: Literal["aces", "clamp"] = spec(
         "aces",
         "PNG tone mapper: aces (Hill's fit of the ACES RRT + sRGB ODT: filmic toe and "
@@ -483,6 +561,8 @@ class OutputConfig:
 
 @dataclass(frozen=True)
 class Scene:
+    """A scene: what to render and how (TOML file or JSON over the wire)."""
+
     image: ImageConfig = field(default_factory=ImageConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     particles: ParticlesConfig = field(default_factory=ParticlesConfig)
