@@ -29,9 +29,10 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from sphrender.client.frame import ParticleFrame
 from sphrender.client.protocol import LimitError, parse_json_object
 from sphrender.server.engine.lighting.environment import EnvironmentLibrary
-from sphrender.server.scene import Scene, scene_from_dict
+from sphrender.server.scene import Scene, scene_from_dict, scene_to_dict
 
 
 class SessionLimitReached(Exception):
@@ -48,6 +49,9 @@ class Session:
     last_used: float = field(default_factory=time.monotonic)
     frames: int = 0
     active: int = 0  # HTTP frames in progress; a busy session is never reaped
+    #: Particles the server holds for this session (demo sessions): its frames may then be
+    #: JSON bodies with only a partial scene (a camera), rendered with these particles.
+    particles: ParticleFrame | None = None
 
     def describe(self) -> dict[str, Any]:
         now = time.monotonic()
@@ -57,7 +61,8 @@ class Session:
             "frames": self.frames,
             "age_s": round(now - self.created_at, 3),
             "idle_s": round(now - self.last_used, 3),
-            "scene": self.raw_scene,
+            "demo": self.particles is not None,
+            "scene": scene_to_dict(self.scene),
         }
 
 
