@@ -305,3 +305,8 @@ def test_both_name_the_key_they_reject(data: dict[str, Any], path: str, field: s
     error = best_match(VALIDATOR.iter_errors(data))
     assert error is not None and error.json_path == path, error
     assert server_accepts(data) == (False, field)
+
+
+def test_the_cli_names_an_unwritable_output(tmp_path: Path) -> None:
+    result = run_sphrender("schema", "-o", str(tmp_path / "missing" / "s.json"))
+    assert result.returncode == 2 and "output" in result.stderr and "Traceback" not in result.stderr

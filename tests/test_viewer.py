@@ -266,3 +266,19 @@ def test_the_page_in_chromium_shows_the_servers_status_and_frames(
         if os.environ.get("SPHRENDER_UPDATE_DOCS") == "1":
             SCREENSHOT.parent.mkdir(exist_ok=True)
             SCREENSHOT.write_bytes(browser.screenshot(format="jpeg", quality=80))
+
+
+def test_the_pages_files_are_package_data() -> None:
+    """A non-editable install carries every file of server/service/viewer/ (pyproject's
+    package-data globs), and the server serves each of them."""
+    import fnmatch
+    import tomllib
+
+    globs = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"][
+        "package-data"
+    ]["sphrender.server.service"]
+    files = sorted(p.relative_to(REPO / "server/service").as_posix()
+                   for p in (REPO / "server/service/viewer").iterdir())  # fmt: skip
+    assert files == ["viewer/index.html", "viewer/viewer.css", "viewer/viewer.js"]
+    for name in files:
+        assert any(fnmatch.fnmatch(name, glob) for glob in globs), name
