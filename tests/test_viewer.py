@@ -30,8 +30,9 @@ from typing import Any
 import numpy as np
 import pytest
 from browser_harness import Browser
-from service_harness import ServerProcess, png_pixels
+from service_harness import SMALL_SCENE, ServerProcess, ball, png_pixels
 
+from sphrender.client.protocol import MessageType
 from sphrender.server.scene import Scene, scene_to_dict
 from sphrender.server.scene.json_schema import scene_json_schema_text
 
@@ -44,6 +45,8 @@ CONFIG: dict[str, dict[str, Any]] = {"limits": {"max_sessions": 16}}
 #: Where the README's screenshot lives; rewritten when SPHRENDER_UPDATE_DOCS=1.
 SCREENSHOT = REPO / "docs" / "viewer.jpg"
 PAGE_BACKGROUND = (0x16, 0x18, 0x1C)  # --bg in viewer.css
+#: A stream client's scene; the environment behind it keeps alpha at 255 (see above).
+STREAM_SCENE = {**SMALL_SCENE, "shading": {"background": "environment"}}
 
 
 @pytest.fixture(scope="module")
@@ -194,6 +197,20 @@ def canvas_state(browser: Browser) -> dict[str, Any]:
     )
 
 
+def check_screenshot(browser: Browser, rect: list[float], tmp_path: Path) -> None:
+    shot = browser.screenshot(format="png")
+    image = png_pixels(shot, tmp_path)[..., :3].astype(int)
+    left, top, width, height = (round(v) for v in rect)
+    region = image[top : top + height, left : left + width]
+    assert region.shape[0] > 100 and region.shape[1] > 100
+    assert region.std() > 8
+    background = (np.abs(region - np.array(PAGE_BACKGROUND)).sum(axis=-1) <= 3).mean()
+    assert background < 0.05, background
+    if os.environ.get("SPHRENDER_UPDATE_DOCS") == "1":
+        SCREENSHOT.parent.mkdir(exist_ok=True)
+        SCREENSHOT.write_bytes(browser.screenshot(format="jpeg", quality=80))
+
+
 def test_the_page_in_chromium_shows_the_servers_status_and_frames(
     server: ServerProcess, tmp_path: Path
 ) -> None:
@@ -227,7 +244,6 @@ def test_the_page_in_chromium_shows_the_servers_status_and_frames(
             timeout=150,
             what="the orbited frame",
         )
-        browser.evaluate("window.sphrenderViewer.stop()")
         moved = canvas_state(browser)
         assert moved["error"] == "", moved["error"]
         assert (
@@ -249,23 +265,40 @@ def test_the_page_in_chromium_shows_the_servers_status_and_frames(
         assert pixels[..., :3].std() > 8  # a picture, not a flat fill
         assert fnv1a(pixels.tobytes()) == moved["fnv1a"]
 
-        shown_status = check_status_matches(browser, server)
-        info = server.json("GET", "/v1/info", headers=AUTH)[1]
-        assert shown_status["renderer"] == info["gl"]["renderer"]
-        assert shown_status["frames_total"]["image"] >= 3  # two on the page, one here
-        assert shown_status["sessions"]["http"] >= 1  # the page's demo session
+        check_screenshot(browser, moved["rect"], tmp_path)
 
-        shot = browser.screenshot(format="png")
-        image = png_pixels(shot, tmp_path)[..., :3].astype(int)
-        left, top, width, height = (round(v) for v in moved["rect"])
-        region = image[top : top + height, left : left + width]
-        assert region.shape[0] > 100 and region.shape[1] > 100
-        assert region.std() > 8
-        background = (np.abs(region - np.array(PAGE_BACKGROUND)).sum(axis=-1) <= 3).mean()
-        assert background < 0.05, background
-        if os.environ.get("SPHRENDER_UPDATE_DOCS") == "1":
-            SCREENSHOT.parent.mkdir(exist_ok=True)
-            SCREENSHOT.write_bytes(browser.screenshot(format="jpeg", quality=80))
+        # Another client's session, here a stream connection: the page lists it and shows
+        # its latest image, byte for byte.
+        with server.stream() as client:
+            client.hello(STREAM_SCENE, token=TOKEN)
+            client.frame(7, ball(1500, seed=5))
+            kind, header, payload = client.receive()
+            assert kind == MessageType.IMAGE and header["format"] == "png", header
+            stream_pixels = png_pixels(payload, tmp_path)
+            assert (stream_pixels[..., 3] == 255).all()
+            stream_id = server.json("GET", "/v1/status", headers=AUTH)[1]["session_list"][0]
+            assert stream_id["transport"] == "stream" and stream_id["images"] == 1
+            browser.evaluate("window.sphrenderViewer.refreshStatus()")
+            options = browser.evaluate(
+                "[...document.getElementById('source').options].map((o) => o.value)"
+            )
+            assert options == ["demo", stream_id["id"]]
+            browser.evaluate(f"window.sphrenderViewer.watch({json.dumps(stream_id['id'])})")
+            watched = browser.wait_for(
+                f"(() => {{ const c = document.getElementById('live');"
+                f" return c.dataset.source === {json.dumps(stream_id['id'])}"
+                f" && c.dataset.image === '1' && c.dataset.fnv1a; }})()",
+                timeout=60,
+                what="the stream session's image on the page",
+            )
+            assert watched == fnv1a(stream_pixels.tobytes())
+
+            browser.evaluate("window.sphrenderViewer.stop()")
+            shown_status = check_status_matches(browser, server)
+            info = server.json("GET", "/v1/info", headers=AUTH)[1]
+            assert shown_status["renderer"] == info["gl"]["renderer"]
+            assert shown_status["frames_total"]["image"] >= 4  # page 2+, here 1, stream 1
+            assert shown_status["sessions"] == {"http": 1, "stream": 1}  # the demo + ours
 
 
 def test_the_pages_files_are_package_data() -> None:
@@ -282,3 +315,22 @@ def test_the_pages_files_are_package_data() -> None:
     assert files == ["viewer/index.html", "viewer/viewer.css", "viewer/viewer.js"]
     for name in files:
         assert any(fnmatch.fnmatch(name, glob) for glob in globs), name
+
+
+def test_recent_frames_percentiles_and_rate() -> None:
+    """Nearest-rank percentiles over the last `size` images, and the rate over the images that
+    finished within the window (timestamps given, so nothing here depends on the clock)."""
+    from sphrender.server.service.metrics import RecentFrames
+
+    recent = RecentFrames(size=100, window_s=10.0)
+    assert recent.summary(now=0.0) == {
+        "frames_per_s": 0.0, "p50_ms": 0.0, "p90_ms": 0.0, "p99_ms": 0.0, "frames": 0,
+    }  # fmt: skip
+    for i in range(150):  # latencies 1..150 ms, one frame every 0.5 s
+        recent.add((i + 1) / 1000, now=i * 0.5)
+    summary = recent.summary(now=74.5)
+    # The last 100 are 51..150 ms: rank ceil(0.5 * 100) = 50 -> 100 ms, 90 -> 140, 99 -> 149.
+    assert (summary["p50_ms"], summary["p90_ms"], summary["p99_ms"]) == (100.0, 140.0, 149.0)
+    assert summary["frames"] == 100
+    assert summary["frames_per_s"] == 2.0  # 21 frames in [64.5, 74.5]: 20 intervals / 10 s
+    assert recent.summary(now=84.6)["frames_per_s"] == 0.0  # all older than the window

@@ -265,8 +265,11 @@ class RenderService:
         self.metrics.frames.inc(job.transport, kind)
         latency = time.perf_counter() - job.received_at
         self.metrics.frame_seconds.observe(latency, job.transport)
-        if kind == "image":
+        if isinstance(outcome, ImageOutcome):
             self.metrics.recent.add(latency)
+            session = self.sessions.get(job.key, touch=False)
+            if session is not None:
+                session.keep_latest(outcome.format, outcome.data, outcome.width, outcome.height)
 
     def record_invalid_frame(self, transport: str, code: str) -> None:
         """A frame rejected before it became a job (bad arrays, NaN, too large)."""
@@ -335,6 +338,7 @@ class RenderService:
             "ready": ready,
             "renderer": self.worker.gl_renderer,
             "sessions": self.sessions.counts(),
+            "session_list": self.sessions.listing(),
             "queue_depth": self.scheduler.depth,
             "in_flight": int(self.metrics.in_flight.value()),
             "frames_total": {

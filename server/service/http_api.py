@@ -10,7 +10,7 @@ Routes::
     DELETE /v1/sessions/{id}          204
     POST   /v1/demo/sessions          optional partial scene over the demo's -> 201 {"id", "scene"}
     GET    /healthz  /readyz  /v1/info  /metrics
-    GET    /  /viewer/*  /v1/status  /v1/schema   (http_viewer.py)
+    GET    /  /viewer/*  /v1/status  /v1/schema  /v1/sessions/{id}/latest   (http_viewer.py)
 
 ``POST /v1/sessions`` and ``GET /v1/sessions/{id}`` return the resolved scene (every default
 filled in, `scene_to_dict`); frame overrides are merged onto the scene as the client sent it.
@@ -51,6 +51,7 @@ from sphrender.server.service.facade import ServiceFacade
 from sphrender.server.service.http_base import (
     HEALTH_ROUTES,
     SESSION_FRAMES_PATH,
+    SESSION_LATEST_PATH,
     SESSION_PATH,
 )
 from sphrender.server.service.http_errors import HttpError
@@ -167,6 +168,9 @@ class ApiHandler(ViewerRoutes):
         for asset_path in ASSETS:
             table[asset_path] = {"GET": lambda p=asset_path: self._viewer_asset(p)}
         routes = table.get(path)
+        if routes is None and (match := SESSION_LATEST_PATH.match(path)):
+            sid = match.group(1)
+            routes = {"GET": lambda: self._latest_image(sid)}
         if routes is None and (match := SESSION_FRAMES_PATH.match(path)):
             sid = match.group(1)
             routes = {"POST": lambda: self._session_frame(sid)}

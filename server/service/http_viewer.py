@@ -6,6 +6,9 @@ Routes::
     GET /viewer/viewer.js      its script, /viewer/viewer.css its style sheet
     GET /v1/status             live numbers: sessions, frames/s, queue, latency percentiles
     GET /v1/schema             the scene's JSON Schema (generated, = schema/scene.schema.json)
+    GET /v1/sessions/{id}/latest   the last image any session (HTTP or stream) was answered,
+                               if its format is one a browser shows; ETag = its number, so a
+                               poll with If-None-Match costs a 304 until the next frame
 
 The page is plain HTML, CSS and JavaScript shipped as package data (no framework, no build
 step), served from memory. It is behind the same token rule as the API: with a token configured,
@@ -21,8 +24,12 @@ import functools
 import importlib.resources
 from urllib.parse import quote, urlencode
 
+from sphrender.client.protocol import ErrorCode
 from sphrender.server.scene.json_schema import scene_json_schema_text
 from sphrender.server.service.http_base import VIEWER_COOKIE, HandlerBase
+from sphrender.server.service.http_errors import HttpError
+from sphrender.server.service.jobs import CONTENT_TYPES
+from sphrender.server.service.sessions import MAX_KEPT_IMAGE_BYTES, VIEWABLE_FORMATS
 
 #: Path -> (file under viewer/, content type).
 ASSETS = {
@@ -81,6 +88,34 @@ class ViewerRoutes(HandlerBase):
 
     def _service_status(self) -> None:
         self._send_json(200, self.service.status(), {"Cache-Control": "no-store"})
+
+    def _latest_image(self, session_id: str) -> None:
+        session = self.service.sessions.get(session_id, touch=False)
+        if session is None:
+            raise HttpError(
+                404, ErrorCode.NOT_FOUND, "no such session (closed or expired)", "session"
+            )
+        latest = session.latest
+        if latest is None:
+            raise HttpError(404, ErrorCode.NOT_FOUND, "the session has no image yet", "frame")
+        if latest.data is None:
+            raise HttpError(
+                404,
+                ErrorCode.NOT_FOUND,
+                f"the session's latest image is {latest.format}, which is not kept for viewers "
+                f"(kept: {', '.join(VIEWABLE_FORMATS)} up to {MAX_KEPT_IMAGE_BYTES} bytes)",
+                "frame",
+            )
+        etag = f'"{latest.seq}"'
+        headers = {
+            "ETag": etag,
+            "Cache-Control": "no-cache",
+            "X-Sphrender-Image": str(latest.seq),
+        }
+        if self.headers.get("If-None-Match", "").strip() == etag:
+            self._send(304, b"", CONTENT_TYPES.get(latest.format, "image/png"), headers)
+            return
+        self._send(200, latest.data, CONTENT_TYPES.get(latest.format, "image/png"), headers)
 
     def _schema(self) -> None:
         self._send(200, _schema_body(), "application/schema+json")

@@ -6,6 +6,8 @@
 //   POST /v1/sessions/{id}/frames?format=png         body {"scene": {"camera": {"eye": [...]}}}:
 //        a per-frame camera override, merged onto the session's scene like an .npz frame's
 //   DELETE /v1/sessions/{id}                         when the page goes away
+//   GET  /v1/sessions/{id}/latest                    another session's latest image (any
+//        transport), polled with If-None-Match while that session is the one watched
 // With a token, open /?token=...: the server sets a cookie that authorises these requests (the
 // X-Sphrender-Viewer header is required with it on POST and DELETE).
 //
@@ -36,6 +38,9 @@
     stopped: false,
     lastBody: null,
     timer: null,
+    watch: null, // the id of the session watched instead of the demo, or null
+    watchTag: null,
+    watchTimer: null,
   };
   const $ = (id) => document.getElementById(id);
 
@@ -93,6 +98,7 @@
     show("frames-image", doc.frames_total.image);
     show("frames-error", doc.frames_total.error);
     show("frames-dropped", doc.frames_total.dropped);
+    listSessions(doc.session_list || []);
     state.statusUpdates += 1;
     document.body.dataset.statusUpdates = String(state.statusUpdates);
     return doc;
@@ -105,6 +111,73 @@
       const badge = $("state");
       badge.textContent = "unreachable";
       badge.className = "badge down";
+    }
+  }
+
+  // -- watching another session ----------------------------------------------------------------
+
+  function listSessions(sessions) {
+    const select = $("source");
+    const wanted = sessions.filter((s) => !s.demo && s.latest_format);
+    const ids = new Set(wanted.map((s) => s.id));
+    for (const option of [...select.options]) {
+      if (option.value !== "demo" && !ids.has(option.value)) option.remove();
+    }
+    const present = new Set([...select.options].map((o) => o.value));
+    for (const s of wanted) {
+      if (present.has(s.id)) continue;
+      const option = document.createElement("option");
+      option.value = s.id;
+      option.textContent = `${s.transport} ${s.id.slice(0, 8)} (${s.latest_format})`;
+      select.append(option);
+    }
+  }
+
+  async function pollWatched() {
+    const id = state.watch;
+    if (!id || state.stopped) return;
+    try {
+      const headers = { ...HEADERS };
+      if (state.watchTag) headers["If-None-Match"] = state.watchTag;
+      const response = await fetch(`/v1/sessions/${id}/latest`, {
+        headers,
+        cache: "no-store",
+        credentials: "same-origin",
+      });
+      if (id !== state.watch) return;
+      if (response.status === 200) {
+        const blob = await response.blob();
+        await draw(blob);
+        state.watchTag = response.headers.get("ETag");
+        const canvas = $("live");
+        canvas.dataset.source = id;
+        canvas.dataset.image = response.headers.get("X-Sphrender-Image") || "";
+        $("frame-info").textContent =
+          `session ${id.slice(0, 8)}, image ${canvas.dataset.image}: ` +
+          `${canvas.width}x${canvas.height}, ${blob.size} bytes`;
+        showError("");
+      } else if (response.status !== 304) {
+        const error = await response.json();
+        showError(`${error.field ? error.field + ": " : ""}${error.error}`);
+      }
+    } catch (error) {
+      showError(String(error.message || error));
+    }
+  }
+
+  async function watch(id) {
+    state.watch = id === "demo" ? null : id;
+    state.watchTag = null;
+    clearInterval(state.watchTimer);
+    $("hint").hidden = state.watch !== null;
+    $("source").value = id;
+    if (state.watch) {
+      if (state.inFlight) await state.inFlight;
+      state.watchTimer = setInterval(pollWatched, 250);
+      await pollWatched();
+    } else {
+      $("live").dataset.source = "demo";
+      await renderFrame();
     }
   }
 
@@ -175,6 +248,7 @@
   }
 
   async function renderFrame() {
+    if (state.watch) return; // another session is shown
     if (state.inFlight || state.stopped) {
       state.dirty = true;
       return;
@@ -207,6 +281,7 @@
         const canvas = $("live");
         canvas.dataset.frames = String(state.frames);
         canvas.dataset.session = state.session;
+        canvas.dataset.source = "demo";
         const timing = response.headers.get("Server-Timing") || "";
         const render = timing
           .split(",")
@@ -238,7 +313,7 @@
       canvas.classList.add("dragging");
     });
     canvas.addEventListener("pointermove", (event) => {
-      if (!last || !state.orbit) return;
+      if (!last || !state.orbit || state.watch) return;
       const [dx, dy] = [event.clientX - last[0], event.clientY - last[1]];
       last = [event.clientX, event.clientY];
       state.orbit.yaw -= dx * 0.01;
@@ -254,7 +329,7 @@
     canvas.addEventListener(
       "wheel",
       (event) => {
-        if (!state.orbit) return;
+        if (!state.orbit || state.watch) return;
         event.preventDefault();
         const o = state.orbit;
         o.radius = Math.min(o.maxRadius, Math.max(o.minRadius, o.radius * Math.exp(event.deltaY * 1e-3)));
@@ -263,6 +338,7 @@
       { passive: false },
     );
     $("spin").addEventListener("change", () => renderFrame());
+    $("source").addEventListener("change", (event) => watch(event.target.value));
   }
 
   async function chooseFormats() {
@@ -288,6 +364,7 @@
   async function stop() {
     state.stopped = true;
     clearInterval(state.timer);
+    clearInterval(state.watchTimer);
     if (state.inFlight) await state.inFlight;
   }
 
@@ -298,7 +375,7 @@
   });
 
   // For tests and the console: the page's state and its two actions.
-  window.sphrenderViewer = { state, refreshStatus, renderFrame, stop };
+  window.sphrenderViewer = { state, refreshStatus, renderFrame, stop, watch, pollWatched };
 
   async function start() {
     $("spin").checked = params.get("spin") === "1";
