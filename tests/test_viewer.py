@@ -334,3 +334,30 @@ def test_recent_frames_percentiles_and_rate() -> None:
     assert summary["frames"] == 100
     assert summary["frames_per_s"] == 2.0  # 21 frames in [64.5, 74.5]: 20 intervals / 10 s
     assert recent.summary(now=84.6)["frames_per_s"] == 0.0  # all older than the window
+
+
+def test_latest_image_of_a_session(server: ServerProcess) -> None:
+    from sphrender.client.protocol import encode_npz_frame
+
+    status, created = server.json("POST", "/v1/sessions", SMALL_SCENE, headers=AUTH)
+    assert status == 201
+    latest = f"/v1/sessions/{created['id']}/latest"
+    status, _h, error = server.request("GET", latest, headers=AUTH)
+    assert status == 404 and json.loads(error)["field"] == "frame"
+    assert server.request("GET", f"/v1/sessions/{'0' * 32}/latest", headers=AUTH)[0] == 404
+    frames = f"/v1/sessions/{created['id']}/frames"
+    npz = {**AUTH, "Content-Type": "application/x-npz"}
+    status, _h, image = server.request("POST", frames, encode_npz_frame(ball(500)), npz)
+    assert status == 200
+    status, headers, kept = server.request("GET", latest, headers=AUTH)
+    assert status == 200 and kept == image and headers["ETag"] == '"1"'
+    assert headers["Content-Type"] == "image/png"
+    status, headers, body = server.request("GET", latest, headers={**AUTH, "If-None-Match": '"1"'})
+    assert status == 304 and body == b""
+    status, _h, _exr = server.request(
+        "POST", frames + "?format=exr", encode_npz_frame(ball(500)), npz
+    )
+    assert status == 200
+    status, _h, error = server.request("GET", latest, headers=AUTH)
+    assert status == 404 and "exr" in json.loads(error)["error"]
+    assert server.request("DELETE", f"/v1/sessions/{created['id']}", headers=AUTH)[0] == 204
