@@ -264,8 +264,17 @@ class ApiHandler(ViewerRoutes):
         except InputError as exc:
             service.record_invalid_frame("http", _code(exc))
             raise HttpError.from_input(exc) from None
-        job = FrameJob(session.id, session.particles, scene, self._format(scene), "http")
-        self._render_and_answer(job)
+        # Held from the memory budget like an .npz frame (no particle copy, but the render's
+        # buffers and the image are as large).
+        count = int(session.particles.positions.shape[0])
+        pixels = scene.image.width * scene.image.height
+        what = f"{count} particles at {scene.image.width}x{scene.image.height}"
+        reservation = self._reserve(frame_estimate(len(body), count, pixels), what, "image")
+        try:
+            job = FrameJob(session.id, session.particles, scene, self._format(scene), "http")
+            self._render_and_answer(job)
+        finally:
+            reservation.release()
 
     def _reserve(self, amount: int, what: str, field: str) -> Reservation:
         try:
