@@ -8,6 +8,11 @@ times each encoding of the same RenderedFrame ``--repeat`` times (median) and re
 frame, and for the 8-bit encodings the display transform (tone map + sRGB codes) apart from the
 compression. Also measures Pillow's JPEG encoder against simplejpeg's (both libjpeg-turbo) when
 Pillow is installed (the [bench] extra).
+
+Then the same encodings of frames that carry the engine's display codes (passes/display.py: the
+display transform on the GPU, read back as bytes), which is how `render`, `submit` and the
+service encode PNG, JPEG and raw rgba8: the encoder then only compresses. The display pass's own
+cost is reported as the read-back stage with and without it (here llvmpipe: the CPU again).
 """
 
 from __future__ import annotations
@@ -28,7 +33,10 @@ from sphrender.server.engine.frame_output import RenderedFrame
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.output import display, encoders, frame_formats
+from sphrender.server.output.local import display_request
 from sphrender.server.scene import Scene, merge_scene_dicts, scene_from_dict, scene_to_dict
+
+FrameSet = tuple[str, RenderedFrame, dict[str, RenderedFrame], float]
 
 
 def timed(function: Callable[[], Any], repeat: int) -> tuple[float, Any]:
@@ -41,7 +49,28 @@ def timed(function: Callable[[], Any], repeat: int) -> tuple[float, Any]:
     return statistics.median(times), out
 
 
-def frames(width: int, height: int) -> list[tuple[str, RenderedFrame]]:
+def with_codes(
+    renderer: SurfaceRenderer, frame: Any, scene: Scene
+) -> tuple[RenderedFrame, dict[str, RenderedFrame], float]:
+    """The frame plain (Z, N read back), per 8-bit format the frame with the engine's codes
+    (aces, as the encodings below), and the display pass's median cost in ms."""
+    aces = scene_from_dict(
+        merge_scene_dicts(scene_to_dict(scene), {"output": {"tone_mapper": "aces"}})
+    )
+    plain, _ = renderer.render(frame, aces, depth=True, normals=True)
+    made: dict[str, RenderedFrame] = {}
+    for fmt in ("png", "jpeg", "raw"):
+        request = display_request(aces, fmt)  # type: ignore[arg-type]
+        made[fmt], _ = renderer.render(frame, aces, depth=True, normals=True, display=request)
+    request = display_request(aces, "jpeg")  # type: ignore[arg-type]
+    without = [renderer.render(frame, aces)[1].stage_ms["readback"] for _ in range(5)]
+    with_pass = [
+        renderer.render(frame, aces, display=request)[1].stage_ms["readback"] for _ in range(5)
+    ]
+    return plain, made, statistics.median(with_pass) - statistics.median(without)
+
+
+def frames(width: int, height: int) -> list[FrameSet]:
     size = {"image": {"width": width, "height": height}}
     ball_scene = scene_from_dict(
         {
@@ -56,10 +85,15 @@ def frames(width: int, height: int) -> list[tuple[str, RenderedFrame]]:
         renderer = SurfaceRenderer(gl)
         try:
             ball = make_frame(jittered_lattice_ball(0.58, 0.01))
-            rendered, _ = renderer.render(ball, ball_scene, depth=True, normals=True)
-            out.append((f"ball {ball.count} particles, transparent", rendered))
-            rendered, _ = renderer.render(demo_frame(), demo, depth=True, normals=True)
-            out.append(("weld demo, environment background", rendered))
+            out.append(
+                (
+                    f"ball {ball.count} particles, transparent",
+                    *with_codes(renderer, ball, ball_scene),
+                )
+            )
+            out.append(
+                ("weld demo, environment background", *with_codes(renderer, demo_frame(), demo))
+            )
         finally:
             renderer.release()
     return out
@@ -75,11 +109,36 @@ def main() -> None:
         import PIL.Image
     except ImportError:
         PIL = None
-    for name, frame in frames(width, height):
-        bench_frame(name, frame, args.repeat, PIL)
+    for name, frame, made, display_ms in frames(width, height):
+        png = bench_frame(name, frame, args.repeat, PIL)
+        bench_engine_codes(made, display_ms, png, args.repeat)
 
 
-def bench_frame(name: str, frame: RenderedFrame, repeat: int, PIL: Any) -> None:
+def bench_engine_codes(
+    made: dict[str, RenderedFrame], display_ms: float, png_cpu: float, repeat: int
+) -> None:
+    """The 8-bit encodings from the engine's codes, against the CPU-path PNG of the same frame."""
+    aces = {"tone_mapper": "aces"}
+    cases: list[tuple[str, Callable[[], bytes]]] = [
+        ("png 8-bit", lambda: encoders.encode_png(made["png"], encoders.PngOptions(**aces))),
+        ("jpeg q90", lambda: encoders.encode_jpeg(made["jpeg"], encoders.JpegOptions(**aces))),
+        ("raw rgba8", lambda: encoders.encode_raw(made["raw"], encoders.RawOptions(**aces))),
+    ]
+    print(f"  with the engine's display codes (display pass {display_ms:.1f} ms on this GL):")
+    results = {}
+    for label, function in cases:
+        ms, data = timed(function, repeat)
+        results[label] = ms
+        print(f"  {label:<20} {ms:8.1f} ms  {len(data) / 1e3:9.1f} kB", flush=True)
+    for label in ("jpeg q90", "raw rgba8"):
+        print(
+            f"  {label} / png (CPU path) = {results[label] / png_cpu:.3f}; "
+            f"/ png (engine codes) = {results[label] / results['png 8-bit']:.3f}"
+        )
+
+
+def bench_frame(name: str, frame: RenderedFrame, repeat: int, PIL: Any) -> float:
+    """The encodings of `frame` on the CPU path; returns the PNG's median ms."""
     covered = float(np.mean(frame.rgba[..., 3] > 0))
     print(f"\n{frame.width}x{frame.height}, {name} ({covered:.0%} of pixels covered)", flush=True)
     aces = {"tone_mapper": "aces"}
@@ -127,6 +186,7 @@ def bench_frame(name: str, frame: RenderedFrame, repeat: int, PIL: Any) -> None:
 
         pil_ms, _ = timed(pillow, repeat)
         print(f"  Pillow JPEG q90 on the same codes: {pil_ms:.1f} ms")
+    return png
 
 
 if __name__ == "__main__":

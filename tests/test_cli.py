@@ -60,7 +60,7 @@ def read_png(path: Path) -> np.ndarray:
     return np.asarray(pixels)
 
 
-@pytest.mark.parametrize("command", [[], ["render"], ["sph"], ["demo"], ["info"]])
+@pytest.mark.parametrize("command", [[], ["render"], ["sph"], ["demo"], ["info"], ["schema"]])
 def test_help(command: list[str]) -> None:
     result = run_sphrender(*command, "--help")
     assert result.returncode == 0

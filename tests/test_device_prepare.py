@@ -174,7 +174,7 @@ def test_ellipsoids_match_the_host_prepare(gl_context: GLContext) -> None:
         cull = DeviceCullInput(device.bulk.count, device.nearest, device.bulk.far, R)
         culled_out = splat.run(camera, device.bulk, bounds=None, box=device.box, device_cull=cull)
         culled = read_image(culled_out.depth.read(), 160, 96)
-        assert splat.splatted(device.visible) < device.visible  # it did cull
+        assert splat.splatted(culled_out.splatted, device.visible) < device.visible  # it did cull
     finally:
         splat.release()
         context.fullscreen.release()

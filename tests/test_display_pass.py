@@ -71,7 +71,9 @@ def test_rendered_frames_get_the_cpu_codes(
                 assert_codes_agree(gl_context, out.display.codes, cpu)
             else:
                 assert (out.display.codes[..., 3] == 255).all()
-                assert_codes_agree(gl_context, out.display.codes[..., :3], composite_codes(cpu, over))
+                assert_codes_agree(
+                    gl_context, out.display.codes[..., :3], composite_codes(cpu, over)
+                )
 
 
 def hard_image(width: int = 64, height: int = 48) -> np.ndarray:
@@ -117,11 +119,11 @@ def test_encoders_give_the_same_bytes_from_engine_codes(renderer: SurfaceRendere
     base = scene(background="environment")
     plain, _ = renderer.render(frame, base)
     for fmt in ("png", "jpeg", "raw"):
-        request = display_request(base, fmt)  # type: ignore[arg-type]
+        request = display_request(base, fmt)
         assert request is not None
         made, _ = renderer.render(frame, base, display=request)
         np.testing.assert_array_equal(made.rgba, plain.rgba)
-        options = encoder_options(base, fmt)  # type: ignore[arg-type]
+        options = encoder_options(base, fmt)
         assert encoders.encode(made, fmt, options) == encoders.encode(plain, fmt, options)
     jpeg = JpegOptions(exposure=1.0)  # not what the codes were made for
     made, _ = renderer.render(frame, base, display=display_request(base, "jpeg"))

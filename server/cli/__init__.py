@@ -1,4 +1,4 @@
-"""The `sphrender` command line: render, sph, demo, submit, serve, bench, info.
+"""The `sphrender` command line: render, sph, demo, submit, serve, bench, info, schema.
 
 One module per subcommand, each with `add_parser` (its options) and `run` (what it does); this
 module assembles the parser from them and maps errors to exit statuses (`options.py`).
@@ -17,11 +17,11 @@ import sys
 from collections.abc import Callable, Sequence
 
 from sphrender.client.errors import InputError
-from sphrender.server.cli import bench, demo, info, render, serve, sph, submit
+from sphrender.server.cli import bench, demo, info, render, schema, serve, sph, submit
 from sphrender.server.cli.options import EXIT_BAD_INPUT, EXIT_NO_GPU_STACK
 
 #: In the order `sphrender --help` lists them.
-SUBCOMMANDS = (render, sph, demo, submit, serve, bench, info)
+SUBCOMMANDS = (render, sph, demo, submit, serve, bench, info, schema)
 
 
 def build_parser() -> argparse.ArgumentParser:

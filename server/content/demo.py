@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import importlib.resources
 import tomllib
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -81,9 +82,14 @@ def weld_temperatures(positions: npt.NDArray[np.float64]) -> npt.NDArray[np.floa
     return kelvin.astype(np.float32)
 
 
-def demo_scene() -> Scene:
+def demo_scene_dict() -> dict[str, Any]:
+    """``configs/demo.toml`` as a mapping (unvalidated)."""
     text = importlib.resources.files("sphrender.configs").joinpath("demo.toml").read_text()
-    return scene_from_dict(tomllib.loads(text))
+    return tomllib.loads(text)
+
+
+def demo_scene() -> Scene:
+    return scene_from_dict(demo_scene_dict())
 
 
 def demo_frame() -> ParticleFrame:

@@ -95,6 +95,7 @@ class DisplayRequest:
     ) -> bool:
         """Whether codes made for this request are the ones an encoder with these settings
         computes."""
+
         def floats(v: tuple[float, float, float] | None) -> tuple[float, ...] | None:
             return None if v is None else tuple(float(c) for c in v)
 

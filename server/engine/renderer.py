@@ -1,19 +1,11 @@
-"""The screen-space surface renderer: particles in, colour + depth + normals out.
+"""The screen-space surface renderer: particles in, colour (+ depth, normals, 8-bit codes) out.
 
-`SurfaceRenderer` orchestrates a frame; each pass owns its programs, targets and uniforms
-(`passes/`), and the geometry it needs is plain numpy (`geometry/`):
-
-    sph       OpenCL, only when the scene asks for adaptive radii (eq 29) or surface-only
-              splatting: per-particle radii and/or fewer particles      [sph/frame.py SphStage]
-    prepare   float64 eye-relative view-space positions, culled, then float32; the spheres'
-              screen rectangles and the screen box that holds them
-                                          [geometry/prepare.py, occlusion.py, screen_box.py]
-    splat     sphere impostors -> eye depth (+ front temperature)       [passes/splat.py]
-    smooth    gaussian | bilateral | narrow_range, separable or 2-D     [passes/smooth.py]
-    normals   one-sided differences of the smoothed depth -> world normals [passes/normals.py]
-    shade     temperature blur [passes/temperature.py], then physically based metal: direct
-              lights, SH + specular IBL, hot-metal emission             [passes/shade.py]
-    readback  colour always; depth and normals only when asked for      [passes/readback.py]
+`SurfaceRenderer` orchestrates a frame and holds no GL code; each pass owns its programs,
+targets and uniforms (`passes/`): sph (OpenCL, only when the scene asks) -> prepare (host or
+device, `passes/prepare_stage.py`) -> splat (+ occlusion culling, coverage) -> smooth ->
+droplets -> normals -> shade (temperature blur, PBR + IBL + emission) -> readback (+ display
+codes). ARCHITECTURE.md "Data flow of one frame" has each step. `RenderStats.host_ms` is the
+frame's work outside GL calls (`gpu/gl_clock.py`).
 
 One renderer belongs to one `GLContext` and is used only on that context's owner thread. It owns
 the passes and what they share (`PassContext`: program cache, full-screen triangle) and releases
@@ -88,11 +80,6 @@ class SurfaceRenderer:
     @property
     def gl(self) -> GLContext:
         return self._gl
-
-    @property
-    def prepare_mode(self) -> str:
-        """Where this renderer culls and transforms particles: "host" or "device"."""
-        return self._prepare.mode
 
     @property
     def programs(self) -> ProgramCache:
@@ -227,9 +214,8 @@ class SurfaceRenderer:
             if display is not None:
                 codes = self._display.run(color.texture, display)
                 rendered = replace(rendered, display=DisplayCodes(codes, display))
-        if bulk_splatted < 0:  # after the read-back, so asking waits for nothing
-            bulk_splatted = self._splat.splatted(prepared.visible)
-        stats.particles_splatted += bulk_splatted
+        # After the read-back, so a count the device kept waits for nothing.
+        stats.particles_splatted += self._splat.splatted(bulk_splatted, prepared.visible)
         wall_ms = (time.perf_counter() - start) * 1e3
         device_ms = (self._gl.clock.seconds - in_gl) * 1e3
         stats.host_ms = max(wall_ms - device_ms - stats.stage_ms.get("sph", 0.0), 0.0)

@@ -44,7 +44,10 @@ def display_request(scene: Scene, fmt: ImageFormat) -> DisplayRequest | None:
     if fmt == "jpeg":
         background = tuple(float(c) for c in out.jpeg_background)
         return DisplayRequest(
-            out.exposure, out.tone_mapper, OETF8_THRESHOLDS, background  # type: ignore[arg-type]
+            out.exposure,
+            out.tone_mapper,
+            OETF8_THRESHOLDS,
+            background,  # type: ignore[arg-type]
         )
     if (fmt == "png" and out.png_bits == 8) or (fmt == "raw" and out.raw_type == "rgba8"):
         return DisplayRequest(out.exposure, out.tone_mapper, OETF8_THRESHOLDS)

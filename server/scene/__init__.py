@@ -3,18 +3,17 @@
 * `schema.py`: every section and field, typed and documented in one place (the reference for
   TOML files and for JSON scenes over the wire);
 * `validate.py`: mappings -> dataclasses, errors that name the dotted key and the allowed range;
-* `files.py`: TOML files, layering one scene mapping over another, `Scene` -> mapping;
+* `files.py`: TOML files, layering one scene mapping over another;
+* `export.py`: `Scene` -> plain JSON-safe mapping, defaults filled (`scene_to_dict`);
+* `json_schema.py`: the scene's JSON Schema (2020-12), generated from `schema.py`
+  (committed as ``schema/scene.schema.json``, served at ``GET /v1/schema``);
 * `presets.py`: the quality presets of `configs/quality-*.toml` laid under a scene file.
 
 Import from the package: ``from sphrender.server.scene import Scene, scene_from_dict``.
 """
 
-from sphrender.server.scene.files import (
-    load_scene,
-    merge_scene_dicts,
-    read_scene_toml,
-    scene_to_dict,
-)
+from sphrender.server.scene.export import scene_to_dict
+from sphrender.server.scene.files import load_scene, merge_scene_dicts, read_scene_toml
 from sphrender.server.scene.schema import (
     MAX_IMAGE_PIXELS,
     MAX_IMAGE_SIDE,

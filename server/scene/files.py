@@ -1,12 +1,11 @@
-"""Scene files and scene mappings: TOML reading, layering (presets, per-frame partial
-scenes) and the way back from a `Scene` to a plain mapping."""
+"""Scene files and scene mappings: TOML reading and layering (presets, per-frame partial
+scenes); the way back from a `Scene` to a mapping is `export.scene_to_dict`."""
 
 from __future__ import annotations
 
 import copy
 import tomllib
 from collections.abc import Mapping
-from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
@@ -44,23 +43,3 @@ def merge_scene_dicts(base: Mapping[str, Any], top: Mapping[str, Any]) -> dict[s
         else:
             merged[key] = copy.deepcopy(value)
     return merged
-
-
-def scene_to_dict(scene: Scene) -> dict[str, Any]:
-    """The scene as a plain mapping (for JSON over the wire and for `scene_from_dict`)."""
-
-    def table(value: Any) -> dict[str, Any]:
-        return {
-            f.name: list(v) if isinstance(v := getattr(value, f.name), tuple) else v
-            for f in fields(value)
-            if getattr(value, f.name) is not None
-        }
-
-    out: dict[str, Any] = {}
-    for section in fields(Scene):
-        value = getattr(scene, section.name)
-        if isinstance(value, tuple):
-            out[section.name] = [table(item) for item in value]
-        else:
-            out[section.name] = table(value)
-    return out

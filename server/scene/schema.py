@@ -14,47 +14,47 @@ could list. Adding a field means adding one line here. Validation lives in `vali
 
 from __future__ import annotations
 
-from dataclasses import MISSING, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 from sphrender.client.protocol import ImageFormat
+from sphrender.server.scene.fields import (
+    MAX_IMAGE_PIXELS,
+    MAX_IMAGE_SIDE,
+    MAX_STRING_LENGTH,
+    Vec3,
+    spec,
+)
+from sphrender.server.scene.schema_quality import FilterName, QualityConfig, SphConfig
 
-#: Largest image side accepted by the configuration; the GL context may lower it further.
-MAX_IMAGE_SIDE = 16384
-#: Largest image area accepted (pixels).
-MAX_IMAGE_PIXELS = 8192 * 8192
-
-Vec3 = tuple[float, float, float]
-
-
-def spec(
-    default: Any = MISSING,
-    doc: str = "",
-    *,
-    low: float | None = None,
-    high: float | None = None,
-    low_open: bool = False,
-    high_open: bool = False,
-) -> Any:
-    """A dataclass field with its documentation and numeric range (closed unless *_open)."""
-    meta = {"doc": doc, "low": low, "high": high, "low_open": low_open, "high_open": high_open}
-    if isinstance(default, list | tuple) or default is MISSING:
-        if default is MISSING:
-            return field(metadata=meta)
-        return field(default=tuple(default), metadata=meta)
-    return field(default=default, metadata=meta)
+__all__ = [
+    "MAX_IMAGE_PIXELS",
+    "MAX_IMAGE_SIDE",
+    "MAX_STRING_LENGTH",
+    "FilterName",
+    "QualityConfig",
+    "SphConfig",
+    "Vec3",
+    "spec",
+]
 
 
 @dataclass(frozen=True)
 class ImageConfig:
-    width: int = spec(640, "image width in pixels", low=1, high=MAX_IMAGE_SIDE)
-    height: int = spec(360, "image height in pixels", low=1, high=MAX_IMAGE_SIDE)
+    """The rendered image's size."""
+
+    width: int = spec(640, "image width in pixels", low=1, high=MAX_IMAGE_SIDE, unit="px")
+    height: int = spec(360, "image height in pixels", low=1, high=MAX_IMAGE_SIDE, unit="px")
 
 
 @dataclass(frozen=True)
 class CameraConfig:
-    eye: Vec3 = spec((0.0, 1.0, 3.0), "camera position, scene units (float64 precision)")
-    target: Vec3 = spec((0.0, 0.0, 0.0), "point the camera looks at")
+    """A perspective pinhole camera looking from eye at target."""
+
+    eye: Vec3 = spec(
+        (0.0, 1.0, 3.0), "camera position, scene units (float64 precision)", unit="scene units"
+    )
+    target: Vec3 = spec((0.0, 0.0, 0.0), "point the camera looks at", unit="scene units")
     up: Vec3 = spec((0.0, 1.0, 0.0), "up direction; must not be parallel to target - eye")
     fov_y: float = spec(
         45.0,
@@ -63,250 +63,34 @@ class CameraConfig:
         high=180.0,
         low_open=True,
         high_open=True,
+        unit="degrees",
     )
-    near: float = spec(0.01, "near clipping distance along the view axis", low=0.0, low_open=True)
+    near: float = spec(
+        0.01,
+        "near clipping distance along the view axis",
+        low=0.0,
+        low_open=True,
+        unit="scene units",
+    )
     far: float | None = spec(
         None,
         "far clipping distance; absent = just beyond the farthest particle",
         low=0.0,
         low_open=True,
+        unit="scene units",
     )
 
 
 @dataclass(frozen=True)
 class ParticlesConfig:
+    """Defaults for the particles of a frame."""
+
     radius: float = spec(
         0.015,
         "particle radius in scene units, used when a frame has no radii",
         low=0.0,
         low_open=True,
-    )
-
-
-FilterName = Literal["narrow_range", "bilateral", "gaussian", "none"]
-
-
-@dataclass(frozen=True)
-class QualityConfig:
-    filter: FilterName = spec(
-        "narrow_range",
-        "depth smoothing filter: narrow_range (Truong & Yuksel 2018), bilateral (eq 22-24), "
-        "gaussian (eq 17-21) or none",
-    )
-    separable: bool = spec(True, "filter rows then columns (1-D kernels) instead of one 2-D kernel")
-    iterations: int = spec(2, "how many times the whole filter is applied", low=1, high=16)
-    kernel_size: Literal["projected_radius", "eq25"] = spec(
-        "projected_radius",
-        "how the kernel follows depth: projected_radius (sigma = kernel_scale * r_px(z)) or "
-        "eq25 (the thesis's linear decline: eq25_sigma_px up to eq25_threshold, then minus "
-        "eq25_decline px per unit)",
-    )
-    kernel_scale: float = spec(
-        2.0,
-        "Gaussian sigma in projected particle radii (sigma_px = kernel_scale * r_px(z)); the "
-        "kernel reaches 3 sigma",
-        low=0.0,
-        high=16.0,
-        low_open=True,
-    )
-    kernel_max_px: int = spec(
-        64,
-        "cap on the kernel radius in pixels (sigma shrinks to keep 3 sigma inside); a cap "
-        "below 3 kernel_scale projected radii leaves per-particle ripple on close-ups, which "
-        "flickers (spatter pool at 16 px per radius: 1.45 deg at 32, 0.92 at 64, 0.82 at 96)",
-        low=1,
-        high=128,
-    )
-    kernel_min_px: int = spec(
-        1, "smallest kernel radius in pixels (eq 25's ks_min)", low=0, high=64
-    )
-    eq25_sigma_px: float = spec(
-        6.0, "eq 25: sigma in pixels up to the threshold distance", low=0.0, low_open=True
-    )
-    eq25_threshold: float = spec(
-        1.0, "eq 25: eye depth (scene units) beyond which the kernel shrinks", low=0.0
-    )
-    eq25_decline: float = spec(
-        2.0, "eq 25: k, kernel radius lost per scene unit beyond the threshold (px)", low=0.0
-    )
-    bilateral_depth_sigma: float = spec(
-        6.0,
-        "bilateral range sigma in particle radii (eq 24); smaller keeps the per-particle bumps",
-        low=0.0,
-        low_open=True,
-    )
-    narrow_range_threshold: float = spec(
-        10.0,
-        "narrow-range lambda: samples farther than lambda*r from the centre are dropped",
-        low=0.0,
-        low_open=True,
-    )
-    narrow_range_clamp: float = spec(
-        1.0, "narrow-range mu: nearer samples are clamped to z - mu*r", low=0.0, low_open=True
-    )
-    keep_features: Literal["none", "truncate", "blend", "both"] = spec(
-        "none",
-        "keep features smaller than the kernel (droplets, thin edges; separable narrow_range "
-        "only): truncate (the kernel ends at the first sample pair it rejects, so it never "
-        "reaches across a discontinuity), blend (the result moves back towards the unfiltered "
-        "depth by the weight share of rejected samples, as NVIDIA FleX does), both, or none. "
-        "Experimental: on the reference scenes neither beat none (exact_droplets is what keeps "
-        "droplets round)",
-    )
-    normal_stencil: float = spec(
-        0.0,
-        "normals from a central difference over +-normal_stencil projected particle radii "
-        "(at least 1 pixel, at most normal_stencil_max_px) where the stencil stays on one "
-        "surface without a kink, else the 1-pixel one-sided difference; averages the ripple "
-        "the smoothing leaves, which a 1-pixel difference turns into flicker. 0: always the "
-        "1-pixel one-sided difference",
-        low=0.0,
-        high=4.0,
-    )
-    normal_stencil_max_px: int = spec(
-        4, "cap on the normal_stencil half-width in pixels", low=1, high=16
-    )
-    antialias: bool = spec(
-        True,
-        "silhouette anti-aliasing: alpha is each edge pixel's sub-pixel coverage (analytic, from "
-        "the ray's angular distance to the sphere's silhouette) and the pixels just outside a "
-        "silhouette show the surface next to them; off: alpha is 1 where a pixel centre hits",
-    )
-    exact_droplets: bool = spec(
-        True,
-        "droplets (particles whose kernel density is below droplet_density * sph.rest_density: "
-        "isolated particles and pairs) are not smoothed: they are splatted "
-        "as exact spheres over the smoothed surface, so a kernel wider than a droplet neither "
-        "flattens it nor blends it into the pool behind. Uses the frame's densities (the "
-        "client's, or those an [sph] feature computed); frames without them are split only "
-        "with droplet_density_pass",
-    )
-    droplet_density_pass: bool = spec(
-        False,
-        "exact_droplets on frames that carry no densities: compute them with an SPH density "
-        "pass (OpenCL; measured ~100 ms at 100k particles on a 2-core CPU); off: such frames "
-        "render without the droplet split",
-    )
-    droplet_density: float = spec(
-        0.45,
-        "exact_droplets: the density, as a fraction of sph.rest_density, below which a "
-        "particle is a droplet (cubic spline, support 4 r, measured: a lone particle 0.32, a "
-        "pair 0.40, the inside of a one-particle filament 0.48, the outer particles of a "
-        "jittered lattice ball >= 0.47, a slab's corner 0.61, edge 0.72, face 0.85)",
-        low=0.0,
-        high=1.0,
-    )
-    occlusion_culling: bool = spec(
-        True,
-        "splat the front layer first and skip particles hidden behind it (exact: the depth "
-        "image is unchanged; off only to measure it)",
-    )
-
-
-@dataclass(frozen=True)
-class SphConfig:
-    """SPH quantities computed on OpenCL (thesis section 3.3.4). The pass runs only when a
-    feature below asks for it; kernel, support and mass are pinned so results compare with
-    other SPH tools (cubic spline, support 4 r, m = rest_density (2 r)^3, as splashsurf)."""
-
-    rest_density: float = spec(
-        1000.0, "rest density rho_0 (kg/m^3 in SI scenes)", low=0.0, low_open=True
-    )
-    support_radius: float | None = spec(
-        None,
-        "kernel support h (W = 0 beyond); absent = 4 * particles.radius",
-        low=0.0,
-        low_open=True,
-    )
-    mass: float | None = spec(
-        None,
-        "particle mass m; absent = rest_density * (2 * particles.radius)^3",
-        low=0.0,
-        low_open=True,
-    )
-    surface_threshold: float = spec(
-        0.5,
-        "eq 28 (corrected): a particle is on the surface where |n| > t, with t = "
-        "surface_threshold / support_radius (|n| h is about 1 on a flat surface, 0 inside)",
-        low=0.0,
-        low_open=True,
-    )
-    adaptive_radius: bool = spec(
-        False,
-        "eq 29: particles less dense than the surface average shrink toward min_radius "
-        "(thins splashes and droplets)",
-    )
-    min_radius: float = spec(
-        0.5,
-        "eq 29 r_min as a fraction of the particle's radius",
-        low=0.0,
-        high=1.0,
-        low_open=True,
-    )
-    radius_decline: float = spec(
-        0.25,
-        "eq 29 k, dimensionless: r = r_body (1 - ((d_surface - d) / d_surface)^2 / "
-        "radius_decline), i.e. the thesis's k = radius_decline * d_surface^2 / r_body",
-        low=0.0,
-        low_open=True,
-    )
-    surface_only: bool = spec(
-        False,
-        "splat only surface particles, sparse ones and a safety layer; hidden interior "
-        "particles are skipped",
-    )
-    safety_layer: float = spec(
-        0.9,
-        "surface_only: also splat particles within safety_layer * support_radius of a "
-        "surface or sparse particle (0.9 reaches all 26 lattice neighbours at spacing 2 r = "
-        "h / 2, at sqrt(3) h / 2; less opens holes between the outer particles)",
-        low=0.0,
-        high=1.0,
-    )
-    sparse_density: float = spec(
-        0.75,
-        "surface_only: a particle whose kernel density (eq 2 from positions) is below "
-        "sparse_density * rest_density is sparse (droplet, thin sheet) and always splatted",
-        low=0.0,
-        high=1.0,
-    )
-    anisotropy: bool = spec(
-        False,
-        "anisotropic particles (Yu & Turk 2013): each particle becomes an ellipsoid of its "
-        "sphere's volume, stretched along its neighbourhood's principal axes (flat on flat "
-        "surfaces, long along filaments), at a smoothed centre; particles with few neighbours "
-        "stay spheres of their radius at their position",
-    )
-    anisotropy_radius: float = spec(
-        1.5,
-        "anisotropy: neighbourhood radius R as a multiple of support_radius (weights 1 - "
-        "(d/R)^3); 1.5 = 6 r gives ~107 neighbours inside a jittered lattice of spacing 2 r "
-        "and ~63 on its surface (1.0 gives ~29 and ~19: at or below min_neighbours)",
-        low=0.25,
-        high=4.0,
-    )
-    anisotropy_max_ratio: float = spec(
-        4.0,
-        "anisotropy: k_r, largest ratio of the longest to the shortest axis (the covariance's "
-        "eigenvalues are clamped to >= largest / k_r; axes follow the eigenvalues, as Yu & Turk)",
-        low=1.0,
-        high=32.0,
-    )
-    anisotropy_min_neighbours: int = spec(
-        25,
-        "anisotropy: N_eps, particles with fewer neighbours within R stay exact spheres "
-        "(droplets do not shrink or move); above it anisotropy and smoothing ramp in over "
-        "N_eps / 2 more neighbours, so shapes change continuously between frames",
-        low=1,
-        high=10000,
-    )
-    anisotropy_smoothing: float = spec(
-        0.5,
-        "anisotropy: lambda, centres move to (1 - lambda) x + lambda (weighted neighbourhood "
-        "mean), ramped like the shape; Yu & Turk use 0.9-1, which also pulls the surface "
-        "inwards by lambda * ~0.25 R (up to 0.4 R)",
-        low=0.0,
-        high=1.0,
+        unit="scene units",
     )
 
 
@@ -389,7 +173,9 @@ class LightConfig:
     direction: Vec3 | None = spec(
         None, "directional only: the direction the light travels (from the light to the scene)"
     )
-    position: Vec3 | None = spec(None, "point only: world position (float64 precision)")
+    position: Vec3 | None = spec(
+        None, "point only: world position (float64 precision)", unit="scene units"
+    )
 
 
 EnvironmentPreset = Literal["workshop", "overcast", "studio"]
@@ -417,12 +203,18 @@ class EnvironmentConfig:
     )
     intensity: float = spec(1.0, "radiance multiplier", low=0.0, high=1e9)
     rotation_deg: float = spec(
-        0.0, "rotation of the environment about the world +y axis, degrees", low=-360, high=360
+        0.0,
+        "rotation of the environment about the world +y axis, degrees",
+        low=-360,
+        high=360,
+        unit="degrees",
     )
 
 
 @dataclass(frozen=True)
 class ShadingConfig:
+    """How the surface is lit: BRDF terms, image-based light, emission, background."""
+
     g_term: Literal["smith_height_correlated", "eq37"] = spec(
         "smith_height_correlated",
         "microfacet shadowing: Smith height-correlated GGX (validates against the furnace table "
@@ -434,12 +226,15 @@ class ShadingConfig:
         "GGX importance sampling with ibl_samples Hammersley points (thesis §4.2.2), or none "
         "(no environment light at all, diffuse included)",
     )
-    ibl_samples: int = spec(64, "samples per pixel for ibl_mode = sampled", low=1, high=4096)
+    ibl_samples: int = spec(
+        64, "samples per pixel for ibl_mode = sampled", low=1, high=4096, unit="samples per pixel"
+    )
     prefilter_samples: int = spec(
         512,
         "GGX samples per texel when prefiltering an environment (once per environment)",
         low=16,
         high=16384,
+        unit="samples per texel",
     )
     multiple_scattering: bool = spec(
         False,
@@ -464,6 +259,7 @@ class ShadingConfig:
         low=0.0,
         low_open=True,
         high=1e6,
+        unit="scene-linear value per cd/m^2",
     )
     debug_view: Literal[
         "none", "direct", "diffuse_ibl", "specular_ibl", "emission", "irradiance"
@@ -480,6 +276,8 @@ ImageFormatName = ImageFormat  # png | exr | jpeg | raw, from the wire codec
 
 @dataclass(frozen=True)
 class OutputConfig:
+    """The image the client gets back: format, layers, bit depth, tone mapping."""
+
     format: ImageFormatName = spec(
         "png",
         "image format: png (8/16-bit sRGB, alpha), exr (scene-linear + AOVs), jpeg (8-bit sRGB "
@@ -495,13 +293,14 @@ class OutputConfig:
         "EXR colour/normal precision (Z is always float32): half, float, or auto = half unless "
         "a colour exceeds half's 65504 (molten metal does), then float",
     )
-    png_bits: Literal[8, 16] = spec(8, "PNG bit depth")
+    png_bits: Literal[8, 16] = spec(8, "PNG bit depth", unit="bits per channel")
     jpeg_quality: int = spec(
         90,
         "JPEG quality (libjpeg scale, 4:2:0 chroma); 90 measured 31.6-37 dB PSNR against the PNG "
         "over the same background (tests/test_encodings.py)",
         low=1,
         high=100,
+        unit="libjpeg quality",
     )
     jpeg_background: Vec3 = spec(
         (0.0, 0.0, 0.0),
@@ -520,6 +319,7 @@ class OutputConfig:
         "exposure in stops for png, jpeg and raw rgba8 (scene-linear outputs keep none)",
         low=-32,
         high=32,
+        unit="stops",
     )
     tone_mapper: Literal["aces", "clamp"] = spec(
         "aces",
@@ -531,6 +331,8 @@ class OutputConfig:
 
 @dataclass(frozen=True)
 class Scene:
+    """A scene: what to render and how (TOML file or JSON over the wire)."""
+
     image: ImageConfig = field(default_factory=ImageConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     particles: ParticlesConfig = field(default_factory=ParticlesConfig)

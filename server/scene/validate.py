@@ -15,7 +15,13 @@ from dataclasses import fields
 from typing import Any, Literal, TypeVar, get_args, get_origin
 
 from sphrender.client.errors import InputError, kind_of, show
-from sphrender.server.scene.schema import MAX_IMAGE_PIXELS, LightConfig, Scene, Vec3
+from sphrender.server.scene.schema import (
+    MAX_IMAGE_PIXELS,
+    MAX_STRING_LENGTH,
+    LightConfig,
+    Scene,
+    Vec3,
+)
 
 T = TypeVar("T")
 
@@ -55,18 +61,21 @@ def _convert(key: str, value: Any, annotation: Any, meta: Mapping[str, Any]) -> 
             raise InputError(
                 key, f"must be one of {', '.join(map(show, allowed))}, got {show(value)}"
             )
-        return value
+        return allowed[allowed.index(value)]  # 16.0 (JSON has one number type) -> 16
     if annotation is str:
         if not isinstance(value, str):
             raise InputError(key, f"must be a string, got {show(value)}")
-        if len(value) > 4096 or "\x00" in value:
-            raise InputError(key, "must be at most 4096 characters without NUL")
+        if len(value) > MAX_STRING_LENGTH or "\x00" in value:
+            raise InputError(key, f"must be at most {MAX_STRING_LENGTH} characters without NUL")
         return value
     if annotation is bool:
         if not isinstance(value, bool):
             raise InputError(key, f"must be true or false, got {show(value)}")
         return value
     if annotation is int:
+        # JSON has one number type: 640.0 is the integer 640 (as JSON Schema's "integer" says).
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
         if isinstance(value, bool) or not isinstance(value, int):
             raise InputError(key, f"must be an integer, got {show(value)}")
         _check_range(key, value, meta)

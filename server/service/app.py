@@ -28,6 +28,7 @@ from typing import Any, Literal
 from sphrender.client.frame import ParticleFrame, make_frame
 from sphrender.client.protocol import VERSION as PROTOCOL_VERSION
 from sphrender.client.protocol import ErrorCode, LimitError
+from sphrender.server.content.demo import demo_frame
 from sphrender.server.service.admission import MemoryBudget, decoding
 from sphrender.server.service.config import (
     ServerConfig,
@@ -106,6 +107,8 @@ class RenderService:
         self.http_server: Any = None
         self.stream_server: Any = None
         self._threads: list[threading.Thread] = []
+        self._demo_lock = threading.Lock()
+        self._demo: ParticleFrame | None = None
         self.metrics.queue_depth.set_callback(lambda: [((), float(self.scheduler.depth))])
         self.metrics.sessions.set_callback(
             lambda: [((k,), float(v)) for k, v in self.sessions.counts().items()]
@@ -260,7 +263,13 @@ class RenderService:
             kind = "error"
             self.metrics.errors.inc(job.transport, outcome.code)
         self.metrics.frames.inc(job.transport, kind)
-        self.metrics.frame_seconds.observe(time.perf_counter() - job.received_at, job.transport)
+        latency = time.perf_counter() - job.received_at
+        self.metrics.frame_seconds.observe(latency, job.transport)
+        if isinstance(outcome, ImageOutcome):
+            self.metrics.recent.add(latency)
+            session = self.sessions.get(job.key, touch=False)
+            if session is not None:
+                session.keep_latest(outcome.format, outcome.data, outcome.width, outcome.height)
 
     def record_invalid_frame(self, transport: str, code: str) -> None:
         """A frame rejected before it became a job (bad arrays, NaN, too large)."""
@@ -318,6 +327,34 @@ class RenderService:
         if not self.worker.healthy:
             return False, "gl_unavailable"
         return True, "ready"
+
+    def status(self) -> dict[str, Any]:
+        """The live numbers of ``GET /v1/status`` (the viewer page shows them)."""
+        frames = self.metrics.frames
+        outcomes = ("image", "error", "dropped", "rejected")
+        ready, state = self.readiness()
+        return {
+            "state": state,
+            "ready": ready,
+            "renderer": self.worker.gl_renderer,
+            "sessions": self.sessions.counts(),
+            "session_list": self.sessions.listing(),
+            "queue_depth": self.scheduler.depth,
+            "in_flight": int(self.metrics.in_flight.value()),
+            "frames_total": {
+                kind: int(sum(frames.value(t, kind) for t in ("http", "stream")))
+                for kind in outcomes
+            },
+            "recent": self.metrics.recent.summary(),
+            "uptime_s": round(time.time() - self.started_at, 1),
+        }
+
+    def demo_particles(self) -> ParticleFrame:
+        """The built-in weld bead's particles (made once, on first use)."""
+        with self._demo_lock:
+            if self._demo is None:
+                self._demo = demo_frame()
+            return self._demo
 
     def info(self) -> dict[str, Any]:
         return {

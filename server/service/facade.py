@@ -80,3 +80,11 @@ class ServiceFacade(Protocol):
     def info(self) -> dict[str, Any]:
         """The /v1/info document."""
         ...
+
+    def status(self) -> dict[str, Any]:
+        """The /v1/status document (live numbers for the viewer page)."""
+        ...
+
+    def demo_particles(self) -> ParticleFrame:
+        """The built-in demo's particles, for demo sessions."""
+        ...

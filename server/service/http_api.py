@@ -5,9 +5,17 @@ Routes::
     POST   /v1/render                 .npz body (arrays + optional `scene` JSON entry) -> image
     POST   /v1/sessions               scene JSON -> 201 {"id", "scene"}; the scene is warmed here
     GET    /v1/sessions/{id}          session description
-    POST   /v1/sessions/{id}/frames   .npz body (arrays + optional partial `scene` override)
+    POST   /v1/sessions/{id}/frames   .npz body (arrays + optional partial `scene` override);
+                                      for a demo session also a JSON body {"scene": {...}}
     DELETE /v1/sessions/{id}          204
+    POST   /v1/demo/sessions          optional partial scene over the demo's -> 201 {"id", "scene"}
     GET    /healthz  /readyz  /v1/info  /metrics
+    GET    /  /viewer/*  /v1/status  /v1/schema  /v1/sessions/{id}/latest   (http_viewer.py)
+
+``POST /v1/sessions`` and ``GET /v1/sessions/{id}`` return the resolved scene (every default
+filled in, `scene_to_dict`); frame overrides are merged onto the scene as the client sent it.
+A demo session holds the built-in weld bead's particles on the server, so its frames need only
+a camera: that is how the viewer page orbits it.
 
 Images come back as ``image/png``, ``image/x-exr``, ``image/jpeg`` or, for raw arrays,
 ``application/octet-stream`` with ``X-Sphrender-Arrays`` (the scene's ``[output] format``, or
@@ -31,6 +39,7 @@ from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 from sphrender.client.errors import InputError
+from sphrender.client.frame import ParticleFrame
 from sphrender.client.protocol import (
     IMAGE_FORMATS,
     ErrorCode,
@@ -39,17 +48,19 @@ from sphrender.client.protocol import (
     decode_npz_frame,
     parse_json_object,
 )
-from sphrender.server.scene import Scene, merge_scene_dicts
+from sphrender.server.content.demo import demo_scene_dict
+from sphrender.server.scene import Scene, merge_scene_dicts, scene_to_dict
 from sphrender.server.service.admission import Busy, Reservation, decoding, frame_estimate
 from sphrender.server.service.facade import ServiceFacade
 from sphrender.server.service.http_base import (
     HEALTH_ROUTES,
     SESSION_FRAMES_PATH,
+    SESSION_LATEST_PATH,
     SESSION_PATH,
-    HandlerBase,
 )
 from sphrender.server.service.http_errors import HttpError
 from sphrender.server.service.http_server import SphrenderHttpServer
+from sphrender.server.service.http_viewer import ASSETS, ViewerRoutes
 from sphrender.server.service.jobs import (
     CONTENT_TYPES,
     DroppedOutcome,
@@ -64,7 +75,7 @@ from sphrender.server.service.sessions import Session, SessionLimitReached
 log = logging.getLogger("sphrender.service.http")
 
 
-class ApiHandler(HandlerBase):
+class ApiHandler(ViewerRoutes):
     """Request handler (routes and their work); `service` is bound by `make_handler`."""
 
     def do_GET(self) -> None:
@@ -153,8 +164,16 @@ class ApiHandler(HandlerBase):
             "/metrics": {"GET": self._metrics},
             "/v1/render": {"POST": self._render},
             "/v1/sessions": {"POST": self._create_session},
+            "/v1/demo/sessions": {"POST": self._create_demo_session},
+            "/v1/status": {"GET": self._service_status},
+            "/v1/schema": {"GET": self._schema},
         }
+        for asset_path in ASSETS:
+            table[asset_path] = {"GET": lambda p=asset_path: self._viewer_asset(p)}
         routes = table.get(path)
+        if routes is None and (match := SESSION_LATEST_PATH.match(path)):
+            sid = match.group(1)
+            routes = {"GET": lambda: self._latest_image(sid)}
         if routes is None and (match := SESSION_FRAMES_PATH.match(path)):
             sid = match.group(1)
             routes = {"POST": lambda: self._session_frame(sid)}
@@ -217,9 +236,50 @@ class ApiHandler(HandlerBase):
         sessions = self.service.sessions
         sessions.begin_frame(session)
         try:
-            self._frame_request(session)
+            content_type = self.headers.get("Content-Type", "").partition(";")[0].strip()
+            if content_type.lower() == "application/json":
+                self._json_frame(session)
+            else:
+                self._frame_request(session)
         finally:
             sessions.end_frame(session)
+
+    def _json_frame(self, session: Session) -> None:
+        """A frame of a session whose particles the server holds (a demo session): the body is
+        ``{"scene": {...}}``, a partial scene merged onto the session's, as in an .npz frame."""
+        service = self.service
+        body = self._read_body(self._content_length(limit=service.config.limits.max_scene_bytes))
+        try:
+            if session.particles is None:
+                raise InputError(
+                    "body",
+                    "a JSON frame needs a session whose particles the server holds (a demo "
+                    "session, POST /v1/demo/sessions); send this session's frames as .npz",
+                )
+            with decoding("body", "http"):
+                document = parse_json_object(body, "body") if body.strip() else {}
+            for key in document:
+                if key != "scene":
+                    raise InputError(f"body.{key}", "unknown key; allowed: scene")
+            override = document.get("scene", {})
+            if not isinstance(override, dict):
+                raise InputError("scene", f"must be a JSON object, got {type(override).__name__}")
+            scene = service.scenes.from_dict(merge_scene_dicts(session.raw_scene, override))
+            service.worker.check_image_size(scene)
+        except InputError as exc:
+            service.record_invalid_frame("http", _code(exc))
+            raise HttpError.from_input(exc) from None
+        # Held from the memory budget like an .npz frame (no particle copy, but the render's
+        # buffers and the image are as large).
+        count = int(session.particles.positions.shape[0])
+        pixels = scene.image.width * scene.image.height
+        what = f"{count} particles at {scene.image.width}x{scene.image.height}"
+        reservation = self._reserve(frame_estimate(len(body), count, pixels), what, "image")
+        try:
+            job = FrameJob(session.id, session.particles, scene, self._format(scene), "http")
+            self._render_and_answer(job)
+        finally:
+            reservation.release()
 
     def _reserve(self, amount: int, what: str, field: str) -> Reservation:
         try:
@@ -358,11 +418,37 @@ class ApiHandler(HandlerBase):
     # -- sessions -------------------------------------------------------------------------------
 
     def _create_session(self) -> None:
-        service = self.service
-        body = self._read_body(self._content_length(limit=service.config.limits.max_scene_bytes))
+        raw = self._scene_body()
+        session = self._open_session(raw)
+        self._answer_session(session)
+
+    def _create_demo_session(self) -> None:
+        """A session of the built-in demo (the weld bead of `sphrender demo`), whose particles
+        the server holds; the body, if any, is a partial scene laid over the demo's."""
+        raw = merge_scene_dicts(demo_scene_dict(), self._scene_body())
+        session = self._open_session(raw, self.service.demo_particles())
+        self._answer_session(session)
+
+    def _scene_body(self) -> dict[str, Any]:
+        body = self._read_body(
+            self._content_length(limit=self.service.config.limits.max_scene_bytes)
+        )
         try:
             with decoding("scene", "http"):
-                raw = parse_json_object(body, "scene") if body.strip() else {}
+                return parse_json_object(body, "scene") if body.strip() else {}
+        except InputError as exc:
+            raise HttpError.from_input(exc) from None
+
+    def _answer_session(self, session: Session) -> None:
+        self._send_json(
+            201,
+            {"id": session.id, "scene": scene_to_dict(session.scene)},
+            {"Location": f"/v1/sessions/{session.id}"},
+        )
+
+    def _open_session(self, raw: dict[str, Any], particles: ParticleFrame | None = None) -> Session:
+        service = self.service
+        try:
             session = service.create_session(raw, "http")
         except InputError as exc:
             raise HttpError.from_input(exc) from None
@@ -387,11 +473,8 @@ class ApiHandler(HandlerBase):
             raise HttpError(
                 500, ErrorCode.RENDER_FAILED, f"preparing the scene failed: {exc}"
             ) from None
-        self._send_json(
-            201,
-            {"id": session.id, "scene": session.raw_scene},
-            {"Location": f"/v1/sessions/{session.id}"},
-        )
+        session.particles = particles  # before anyone knows the id
+        return session
 
     def _get_session(self, session_id: str) -> None:
         self._send_json(200, self._session(session_id, touch=False).describe())

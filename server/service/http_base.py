@@ -18,7 +18,7 @@ import re
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler
 from typing import Any, ClassVar
-from urllib.parse import urlsplit
+from urllib.parse import parse_qs, unquote, urlsplit
 
 from sphrender.client.protocol import ErrorCode
 from sphrender.server.service.facade import ServiceFacade
@@ -33,13 +33,31 @@ log = logging.getLogger("sphrender.service.http")
 
 SESSION_PATH = re.compile(r"^/v1/sessions/([0-9a-f]{32})$")
 SESSION_FRAMES_PATH = re.compile(r"^/v1/sessions/([0-9a-f]{32})/frames$")
+SESSION_LATEST_PATH = re.compile(r"^/v1/sessions/([0-9a-f]{32})/latest$")
 #: Fixed routes; anything else is reported as "other" so metric labels stay bounded.
-_ROUTES = ("/healthz", "/readyz", "/v1/info", "/metrics", "/v1/render", "/v1/sessions")
+_ROUTES = (
+    "/healthz",
+    "/readyz",
+    "/v1/info",
+    "/metrics",
+    "/v1/render",
+    "/v1/sessions",
+    "/v1/status",
+    "/v1/schema",
+    "/v1/demo/sessions",
+    "/",
+    "/viewer/viewer.js",
+    "/viewer/viewer.css",
+)
 #: Routes a health-reserve connection may use (see http_server).
 HEALTH_ROUTES = ("/healthz", "/readyz", "/metrics")
 #: The head of a health-reserve connection must arrive within this (seconds).
 _HEALTH_HEAD_TIMEOUT_S = 2.0
 _CONTENT_LENGTH = re.compile(r"[0-9]{1,19}")
+#: The viewer page's credential: the token, percent-encoded (`http_viewer` sets it).
+VIEWER_COOKIE = "sphrender_token"
+#: Sent by the viewer's scripts with every request that is not a GET (see `_check_auth`).
+VIEWER_HEADER = "X-Sphrender-Viewer"
 #: What the standard library's own errors mean in this API's codes.
 #: 501 (unknown method) and 505 (HTTP version) are answered 405 and 400: a client's mistake
 #: is never a 5xx here.
@@ -52,9 +70,21 @@ _STDLIB_CODES = {
 }
 
 
+def viewer_cookie(headers: list[str]) -> str | None:
+    """The value of the viewer's cookie among ``Cookie`` headers (percent-decoded), or None."""
+    for header in headers:
+        for part in header.split(";"):
+            name, sep, value = part.strip().partition("=")
+            if sep and name == VIEWER_COOKIE:
+                return unquote(value.strip().strip('"'), errors="surrogateescape")
+    return None
+
+
 def route_label(path: str) -> str:
     if SESSION_FRAMES_PATH.match(path):
         return "/v1/sessions/{id}/frames"
+    if SESSION_LATEST_PATH.match(path):
+        return "/v1/sessions/{id}/latest"
     if SESSION_PATH.match(path):
         return "/v1/sessions/{id}"
     return path if path in _ROUTES else "other"
@@ -156,14 +186,28 @@ class HandlerBase(BaseHTTPRequestHandler):
         self.service.metrics.http_requests.inc(self.command or "other", route, str(status))
 
     def _check_auth(self) -> None:
+        """With a token configured, a request needs one of: ``Authorization: Bearer <token>``;
+        the viewer's cookie (set by ``GET /?token=<token>``, see `http_viewer`) on a GET/HEAD,
+        or on another method together with the ``X-Sphrender-Viewer`` header (which a page of
+        another site cannot send without the CORS preflight this server never grants); or the
+        ``token`` query parameter itself on ``GET /`` (the viewer's entry, which trades it for
+        the cookie at once)."""
         token = self.service.config.security.token
         if not token:
             return
+        expected = token.encode("utf-8")
+
+        def same(value: str) -> bool:
+            return hmac.compare_digest(value.encode("utf-8", errors="surrogateescape"), expected)
+
         presented = self.headers.get("Authorization", "")
         scheme, _, value = presented.partition(" ")
-        ok = scheme.lower() == "bearer" and hmac.compare_digest(
-            value.strip().encode("utf-8", errors="surrogateescape"), token.encode("utf-8")
-        )
+        ok = scheme.lower() == "bearer" and same(value.strip())
+        if not ok and (cookie := viewer_cookie(self.headers.get_all("Cookie") or [])) is not None:
+            ok = same(cookie) and (self.command in ("GET", "HEAD") or VIEWER_HEADER in self.headers)
+        url = urlsplit(getattr(self, "path", ""))
+        if not ok and self.command == "GET" and url.path == "/":
+            ok = any(same(v) for v in parse_qs(url.query).get("token", []))
         if not ok:
             raise HttpError(
                 401,

@@ -11,8 +11,10 @@ frame, so contention is negligible.
 from __future__ import annotations
 
 import bisect
+import collections
 import math
 import threading
+import time
 from collections.abc import Callable, Iterable, Sequence
 
 LabelValues = tuple[str, ...]
@@ -142,6 +144,11 @@ class Gauge(_Family):
         with self._lock:
             self._values[key] = self._values.get(key, 0.0) + amount
 
+    def value(self, *labels: str) -> float:
+        """The stored value (not the callback's)."""
+        with self._lock:
+            return self._values.get(self._key(labels), 0.0)
+
     def samples(self) -> list[str]:
         if self._callback is not None:
             items = sorted((self._key(k), v) for k, v in self._callback())
@@ -246,6 +253,50 @@ class Registry:
 CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
 
 
+class RecentFrames:
+    """Finish times and latencies of the last images answered, for ``GET /v1/status``.
+
+    The histograms above answer "how many frames were slower than a bucket"; a status page wants
+    percentiles and a frame rate now, so the last `size` images are kept exactly. Both numbers
+    depend only on the recorded frames (not on when they are read), except that frames older
+    than `window_s` no longer count towards the rate, so an idle service reads 0 frames/s."""
+
+    def __init__(self, size: int = 256, window_s: float = 10.0) -> None:
+        self.window_s = window_s
+        self._lock = threading.Lock()
+        self._frames: collections.deque[tuple[float, float]] = collections.deque(maxlen=size)
+
+    def add(self, latency_s: float, now: float | None = None) -> None:
+        with self._lock:
+            self._frames.append((time.monotonic() if now is None else now, latency_s))
+
+    def summary(self, now: float | None = None) -> dict[str, float | int]:
+        """frames_per_s: (n - 1) / (last - first finish) over the images of the last window_s
+        (0 with fewer than two); p50/p90/p99_ms: nearest-rank percentiles of the latencies of
+        the last `size` images (0 with none), milliseconds rounded to 0.1; frames: their count."""
+        now = time.monotonic() if now is None else now
+        with self._lock:
+            frames = list(self._frames)
+        recent = [t for t, _latency in frames if now - t <= self.window_s]
+        span = recent[-1] - recent[0] if len(recent) >= 2 else 0.0
+        rate = (len(recent) - 1) / span if span > 0 else 0.0
+        latencies = sorted(latency for _t, latency in frames)
+
+        def percentile(q: float) -> float:
+            if not latencies:
+                return 0.0
+            rank = max(1, math.ceil(q * len(latencies)))  # nearest rank
+            return round(latencies[rank - 1] * 1e3, 1)
+
+        return {
+            "frames_per_s": round(rate, 2),
+            "p50_ms": percentile(0.50),
+            "p90_ms": percentile(0.90),
+            "p99_ms": percentile(0.99),
+            "frames": len(latencies),
+        }
+
+
 class ServiceMetrics:
     """The service's metric families, named once here so every part records the same names."""
 
@@ -316,6 +367,8 @@ class ServiceMetrics:
         self.worker_rss = registry.gauge(
             "sphrender_worker_rss_bytes", "Resident memory of the renderer process"
         )
+        #: Not exposed in /metrics: the exact recent latencies behind /v1/status.
+        self.recent = RecentFrames()
         self.memory_reserved = registry.gauge(
             "sphrender_memory_reserved_bytes",
             "Estimated memory held by frames in progress (limits.memory_budget_bytes)",

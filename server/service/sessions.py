@@ -29,13 +29,32 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from sphrender.client.frame import ParticleFrame
 from sphrender.client.protocol import LimitError, parse_json_object
 from sphrender.server.engine.lighting.environment import EnvironmentLibrary
-from sphrender.server.scene import Scene, scene_from_dict
+from sphrender.server.scene import Scene, scene_from_dict, scene_to_dict
 
 
 class SessionLimitReached(Exception):
     """``limits.max_sessions`` sessions are open."""
+
+
+#: Formats whose latest image a session keeps for viewers (what a browser can show), and the
+#: largest image kept: a viewer's live view must not hold a server's memory hostage.
+VIEWABLE_FORMATS = ("png", "jpeg")
+MAX_KEPT_IMAGE_BYTES = 8 << 20
+
+
+@dataclass(frozen=True)
+class LatestImage:
+    """The last image a session answered (any transport), for ``GET /v1/sessions/{id}/latest``;
+    `data` is None when it was not kept (a format a browser cannot show, or too large)."""
+
+    seq: int
+    format: str
+    width: int
+    height: int
+    data: bytes | None
 
 
 @dataclass(eq=False)
@@ -48,6 +67,17 @@ class Session:
     last_used: float = field(default_factory=time.monotonic)
     frames: int = 0
     active: int = 0  # HTTP frames in progress; a busy session is never reaped
+    #: Particles the server holds for this session (demo sessions): its frames may then be
+    #: JSON bodies with only a partial scene (a camera), rendered with these particles.
+    particles: ParticleFrame | None = None
+    latest: LatestImage | None = None
+    images: int = 0
+
+    def keep_latest(self, fmt: str, data: bytes, width: int, height: int) -> None:
+        """Record an answered image (called once per image, from the answering thread)."""
+        self.images += 1
+        kept = data if fmt in VIEWABLE_FORMATS and len(data) <= MAX_KEPT_IMAGE_BYTES else None
+        self.latest = LatestImage(self.images, fmt, width, height, kept)
 
     def describe(self) -> dict[str, Any]:
         now = time.monotonic()
@@ -57,7 +87,8 @@ class Session:
             "frames": self.frames,
             "age_s": round(now - self.created_at, 3),
             "idle_s": round(now - self.last_used, 3),
-            "scene": self.raw_scene,
+            "demo": self.particles is not None,
+            "scene": scene_to_dict(self.scene),
         }
 
 
@@ -119,6 +150,21 @@ class SessionRegistry:
             for session in idle:
                 del self._sessions[session.id]
         return idle
+
+    def listing(self, limit: int = 64) -> list[dict[str, Any]]:
+        """The open sessions, newest first (at most `limit`), for the viewer."""
+        with self._lock:
+            sessions = sorted(self._sessions.values(), key=lambda s: s.created_at, reverse=True)
+        return [
+            {
+                "id": s.id,
+                "transport": s.transport,
+                "demo": s.particles is not None,
+                "images": s.images,
+                "latest_format": None if s.latest is None else s.latest.format,
+            }
+            for s in sessions[:limit]
+        ]
 
     def counts(self) -> dict[str, int]:
         with self._lock:

@@ -398,9 +398,11 @@ class SplatPass:
         self.buffers.write(IDS, edge, offset_items=drawn)
         return drawn, (drawn, int(edge.size))
 
-    def splatted(self, visible: int) -> int:
-        """Particles the last `run` rasterised, when it answered -1 (device prepare): all
-        `visible` ones, or what the device culling counted (waits for the GPU)."""
+    def splatted(self, answered: int, visible: int) -> int:
+        """Particles the last `run` rasterised: what it `answered`, or when that is -1 (device
+        prepare) all `visible` ones or what the device culling counted (waits for the GPU)."""
+        if answered >= 0:
+            return answered
         return self._culling.drawn() if self._culled_on_device else visible
 
     def _draw_culled_on_device(

@@ -1,0 +1,270 @@
+"""The scene's surface-quality sections: `[quality]` (depth smoothing, anti-aliasing, culling)
+and `[sph]` (the OpenCL SPH quantities). Part of the scene schema (`schema.py` re-exports them):
+every field typed and documented here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from sphrender.server.scene.fields import spec
+
+FilterName = Literal["narrow_range", "bilateral", "gaussian", "none"]
+
+
+@dataclass(frozen=True)
+class QualityConfig:
+    """Depth smoothing, anti-aliasing and the speed/error trade-offs of the surface."""
+
+    filter: FilterName = spec(
+        "narrow_range",
+        "depth smoothing filter: narrow_range (Truong & Yuksel 2018), bilateral (eq 22-24), "
+        "gaussian (eq 17-21) or none",
+    )
+    separable: bool = spec(True, "filter rows then columns (1-D kernels) instead of one 2-D kernel")
+    iterations: int = spec(2, "how many times the whole filter is applied", low=1, high=16)
+    kernel_size: Literal["projected_radius", "eq25"] = spec(
+        "projected_radius",
+        "how the kernel follows depth: projected_radius (sigma = kernel_scale * r_px(z)) or "
+        "eq25 (the thesis's linear decline: eq25_sigma_px up to eq25_threshold, then minus "
+        "eq25_decline px per unit)",
+    )
+    kernel_scale: float = spec(
+        2.0,
+        "Gaussian sigma in projected particle radii (sigma_px = kernel_scale * r_px(z)); the "
+        "kernel reaches 3 sigma",
+        low=0.0,
+        high=16.0,
+        low_open=True,
+        unit="projected particle radii",
+    )
+    kernel_max_px: int = spec(
+        64,
+        "cap on the kernel radius in pixels (sigma shrinks to keep 3 sigma inside); a cap "
+        "below 3 kernel_scale projected radii leaves per-particle ripple on close-ups, which "
+        "flickers (spatter pool at 16 px per radius: 1.45 deg at 32, 0.92 at 64, 0.82 at 96)",
+        low=1,
+        high=128,
+        unit="px",
+    )
+    kernel_min_px: int = spec(
+        1, "smallest kernel radius in pixels (eq 25's ks_min)", low=0, high=64, unit="px"
+    )
+    eq25_sigma_px: float = spec(
+        6.0,
+        "eq 25: sigma in pixels up to the threshold distance",
+        low=0.0,
+        low_open=True,
+        unit="px",
+    )
+    eq25_threshold: float = spec(
+        1.0,
+        "eq 25: eye depth (scene units) beyond which the kernel shrinks",
+        low=0.0,
+        unit="scene units",
+    )
+    eq25_decline: float = spec(
+        2.0,
+        "eq 25: k, kernel radius lost per scene unit beyond the threshold (px)",
+        low=0.0,
+        unit="px per scene unit",
+    )
+    bilateral_depth_sigma: float = spec(
+        6.0,
+        "bilateral range sigma in particle radii (eq 24); smaller keeps the per-particle bumps",
+        low=0.0,
+        low_open=True,
+        unit="particle radii",
+    )
+    narrow_range_threshold: float = spec(
+        10.0,
+        "narrow-range lambda: samples farther than lambda*r from the centre are dropped",
+        low=0.0,
+        low_open=True,
+        unit="particle radii",
+    )
+    narrow_range_clamp: float = spec(
+        1.0,
+        "narrow-range mu: nearer samples are clamped to z - mu*r",
+        low=0.0,
+        low_open=True,
+        unit="particle radii",
+    )
+    keep_features: Literal["none", "truncate", "blend", "both"] = spec(
+        "none",
+        "keep features smaller than the kernel (droplets, thin edges; separable narrow_range "
+        "only): truncate (the kernel ends at the first sample pair it rejects, so it never "
+        "reaches across a discontinuity), blend (the result moves back towards the unfiltered "
+        "depth by the weight share of rejected samples, as NVIDIA FleX does), both, or none. "
+        "Experimental: on the reference scenes neither beat none (exact_droplets is what keeps "
+        "droplets round)",
+    )
+    normal_stencil: float = spec(
+        0.0,
+        "normals from a central difference over +-normal_stencil projected particle radii "
+        "(at least 1 pixel, at most normal_stencil_max_px) where the stencil stays on one "
+        "surface without a kink, else the 1-pixel one-sided difference; averages the ripple "
+        "the smoothing leaves, which a 1-pixel difference turns into flicker. 0: always the "
+        "1-pixel one-sided difference",
+        low=0.0,
+        high=4.0,
+    )
+    normal_stencil_max_px: int = spec(
+        4, "cap on the normal_stencil half-width in pixels", low=1, high=16
+    )
+    antialias: bool = spec(
+        True,
+        "silhouette anti-aliasing: alpha is each edge pixel's sub-pixel coverage (analytic, from "
+        "the ray's angular distance to the sphere's silhouette) and the pixels just outside a "
+        "silhouette show the surface next to them; off: alpha is 1 where a pixel centre hits",
+    )
+    exact_droplets: bool = spec(
+        True,
+        "droplets (particles whose kernel density is below droplet_density * sph.rest_density: "
+        "isolated particles and pairs) are not smoothed: they are splatted "
+        "as exact spheres over the smoothed surface, so a kernel wider than a droplet neither "
+        "flattens it nor blends it into the pool behind. Uses the frame's densities (the "
+        "client's, or those an [sph] feature computed); frames without them are split only "
+        "with droplet_density_pass",
+    )
+    droplet_density_pass: bool = spec(
+        False,
+        "exact_droplets on frames that carry no densities: compute them with an SPH density "
+        "pass (OpenCL; measured ~100 ms at 100k particles on a 2-core CPU); off: such frames "
+        "render without the droplet split",
+    )
+    droplet_density: float = spec(
+        0.45,
+        "exact_droplets: the density, as a fraction of sph.rest_density, below which a "
+        "particle is a droplet (cubic spline, support 4 r, measured: a lone particle 0.32, a "
+        "pair 0.40, the inside of a one-particle filament 0.48, the outer particles of a "
+        "jittered lattice ball >= 0.47, a slab's corner 0.61, edge 0.72, face 0.85)",
+        low=0.0,
+        high=1.0,
+        unit="fraction of sph.rest_density",
+    )
+    occlusion_culling: bool = spec(
+        True,
+        "splat the front layer first and skip particles hidden behind it (exact: the depth "
+        "image is unchanged; off only to measure it)",
+    )
+
+
+@dataclass(frozen=True)
+class SphConfig:
+    """SPH quantities computed on OpenCL (thesis section 3.3.4). The pass runs only when a
+    feature below asks for it; kernel, support and mass are pinned so results compare with
+    other SPH tools (cubic spline, support 4 r, m = rest_density (2 r)^3, as splashsurf)."""
+
+    rest_density: float = spec(
+        1000.0,
+        "rest density rho_0 (kg/m^3 in SI scenes)",
+        low=0.0,
+        low_open=True,
+        unit="mass per scene unit^3",
+    )
+    support_radius: float | None = spec(
+        None,
+        "kernel support h (W = 0 beyond); absent = 4 * particles.radius",
+        low=0.0,
+        low_open=True,
+        unit="scene units",
+    )
+    mass: float | None = spec(
+        None,
+        "particle mass m; absent = rest_density * (2 * particles.radius)^3",
+        low=0.0,
+        low_open=True,
+        unit="mass units",
+    )
+    surface_threshold: float = spec(
+        0.5,
+        "eq 28 (corrected): a particle is on the surface where |n| > t, with t = "
+        "surface_threshold / support_radius (|n| h is about 1 on a flat surface, 0 inside)",
+        low=0.0,
+        low_open=True,
+        unit="1 / support_radius",
+    )
+    adaptive_radius: bool = spec(
+        False,
+        "eq 29: particles less dense than the surface average shrink toward min_radius "
+        "(thins splashes and droplets)",
+    )
+    min_radius: float = spec(
+        0.5,
+        "eq 29 r_min as a fraction of the particle's radius",
+        low=0.0,
+        high=1.0,
+        low_open=True,
+        unit="fraction of the particle radius",
+    )
+    radius_decline: float = spec(
+        0.25,
+        "eq 29 k, dimensionless: r = r_body (1 - ((d_surface - d) / d_surface)^2 / "
+        "radius_decline), i.e. the thesis's k = radius_decline * d_surface^2 / r_body",
+        low=0.0,
+        low_open=True,
+    )
+    surface_only: bool = spec(
+        False,
+        "splat only surface particles, sparse ones and a safety layer; hidden interior "
+        "particles are skipped",
+    )
+    safety_layer: float = spec(
+        0.9,
+        "surface_only: also splat particles within safety_layer * support_radius of a "
+        "surface or sparse particle (0.9 reaches all 26 lattice neighbours at spacing 2 r = "
+        "h / 2, at sqrt(3) h / 2; less opens holes between the outer particles)",
+        low=0.0,
+        high=1.0,
+        unit="support radii",
+    )
+    sparse_density: float = spec(
+        0.75,
+        "surface_only: a particle whose kernel density (eq 2 from positions) is below "
+        "sparse_density * rest_density is sparse (droplet, thin sheet) and always splatted",
+        low=0.0,
+        high=1.0,
+        unit="fraction of sph.rest_density",
+    )
+    anisotropy: bool = spec(
+        False,
+        "anisotropic particles (Yu & Turk 2013): each particle becomes an ellipsoid of its "
+        "sphere's volume, stretched along its neighbourhood's principal axes (flat on flat "
+        "surfaces, long along filaments), at a smoothed centre; particles with few neighbours "
+        "stay spheres of their radius at their position",
+    )
+    anisotropy_radius: float = spec(
+        1.5,
+        "anisotropy: neighbourhood radius R as a multiple of support_radius (weights 1 - "
+        "(d/R)^3); 1.5 = 6 r gives ~107 neighbours inside a jittered lattice of spacing 2 r "
+        "and ~63 on its surface (1.0 gives ~29 and ~19: at or below min_neighbours)",
+        low=0.25,
+        high=4.0,
+        unit="support radii",
+    )
+    anisotropy_max_ratio: float = spec(
+        4.0,
+        "anisotropy: k_r, largest ratio of the longest to the shortest axis (the covariance's "
+        "eigenvalues are clamped to >= largest / k_r; axes follow the eigenvalues, as Yu & Turk)",
+        low=1.0,
+        high=32.0,
+    )
+    anisotropy_min_neighbours: int = spec(
+        25,
+        "anisotropy: N_eps, particles with fewer neighbours within R stay exact spheres "
+        "(droplets do not shrink or move); above it anisotropy and smoothing ramp in over "
+        "N_eps / 2 more neighbours, so shapes change continuously between frames",
+        low=1,
+        high=10000,
+        unit="particles",
+    )
+    anisotropy_smoothing: float = spec(
+        0.5,
+        "anisotropy: lambda, centres move to (1 - lambda) x + lambda (weighted neighbourhood "
+        "mean), ramped like the shape; Yu & Turk use 0.9-1, which also pulls the surface "
+        "inwards by lambda * ~0.25 R (up to 0.4 R)",
+        low=0.0,
+        high=1.0,
+    )
