@@ -33,10 +33,10 @@ from sphrender.server.engine.frame_output import RenderedFrame
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.output import display, encoders, frame_formats
-from sphrender.server.output.local import display_request
+from sphrender.server.output.local import display_request, encoder_options
 from sphrender.server.scene import Scene, merge_scene_dicts, scene_from_dict, scene_to_dict
 
-FrameSet = tuple[str, RenderedFrame, dict[str, RenderedFrame], float]
+FrameSet = tuple[str, RenderedFrame, dict[str, RenderedFrame], float, Scene]
 
 
 def timed(function: Callable[[], Any], repeat: int) -> tuple[float, Any]:
@@ -51,7 +51,7 @@ def timed(function: Callable[[], Any], repeat: int) -> tuple[float, Any]:
 
 def with_codes(
     renderer: SurfaceRenderer, frame: Any, scene: Scene
-) -> tuple[RenderedFrame, dict[str, RenderedFrame], float]:
+) -> tuple[RenderedFrame, dict[str, RenderedFrame], float, Scene]:
     """The frame plain (Z, N read back), per 8-bit format the frame with the engine's codes
     (aces, as the encodings below), and the display pass's median cost in ms."""
     aces = scene_from_dict(
@@ -67,7 +67,7 @@ def with_codes(
     with_pass = [
         renderer.render(frame, aces, display=request)[1].stage_ms["readback"] for _ in range(5)
     ]
-    return plain, made, statistics.median(with_pass) - statistics.median(without)
+    return plain, made, statistics.median(with_pass) - statistics.median(without), aces
 
 
 def frames(width: int, height: int) -> list[FrameSet]:
@@ -109,20 +109,19 @@ def main() -> None:
         import PIL.Image
     except ImportError:
         PIL = None
-    for name, frame, made, display_ms in frames(width, height):
+    for name, frame, made, display_ms, scene in frames(width, height):
         png = bench_frame(name, frame, args.repeat, PIL)
-        bench_engine_codes(made, display_ms, png, args.repeat)
+        bench_engine_codes(made, display_ms, png, scene, args.repeat)
 
 
 def bench_engine_codes(
-    made: dict[str, RenderedFrame], display_ms: float, png_cpu: float, repeat: int
+    made: dict[str, RenderedFrame], display_ms: float, png_cpu: float, scene: Scene, repeat: int
 ) -> None:
-    """The 8-bit encodings from the engine's codes, against the CPU-path PNG of the same frame."""
-    aces = {"tone_mapper": "aces"}
+    """The 8-bit encodings from the engine's codes (the scene's encoder options, which the codes
+    were made for), against the CPU-path PNG of the same frame."""
     cases: list[tuple[str, Callable[[], bytes]]] = [
-        ("png 8-bit", lambda: encoders.encode_png(made["png"], encoders.PngOptions(**aces))),
-        ("jpeg q90", lambda: encoders.encode_jpeg(made["jpeg"], encoders.JpegOptions(**aces))),
-        ("raw rgba8", lambda: encoders.encode_raw(made["raw"], encoders.RawOptions(**aces))),
+        (label, lambda fmt=fmt: encoders.encode(made[fmt], fmt, encoder_options(scene, fmt)))  # type: ignore[misc]
+        for label, fmt in (("png 8-bit", "png"), ("jpeg q90", "jpeg"), ("raw rgba8", "raw"))
     ]
     print(f"  with the engine's display codes (display pass {display_ms:.1f} ms on this GL):")
     results = {}

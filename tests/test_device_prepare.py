@@ -103,6 +103,19 @@ def test_ball_with_temperatures_matches_the_host_prepare(
     assert_same_image(host, device)
 
 
+def test_sparse_cloud_matches_the_host_prepare(
+    renderers: tuple[SurfaceRenderer, SurfaceRenderer],
+) -> None:
+    """A gaussian cloud of 3000 particles: culled (> MIN_PARTICLES) but most are drawn and most
+    reach an edge, so the host path's coverage id list runs past the particle count (it once
+    ran past the quad index buffer and lost the coverage of 650 silhouette pixels)."""
+    positions = np.random.default_rng(0).normal(size=(3000, 3)) * 0.15
+    host, device = both(renderers, scene_at(), positions)
+    alpha = host[0].rgba[..., 3]
+    assert host[0].depth is not None and (alpha[np.isfinite(host[0].depth)] > 0).all()
+    assert_same_image(host, device)
+
+
 def test_near_plane_eye_plane_and_eye_inside(
     renderers: tuple[SurfaceRenderer, SurfaceRenderer],
 ) -> None:

@@ -88,7 +88,7 @@ def _ms(value: float | None) -> str:
 
 
 def markdown_table(rows: list[SweepRow]) -> list[str]:
-    head = ["scene", "setting", *STAGES, "total", "normal mean°", "p95°", "depth err (r)"]
+    head = ["scene", "setting", *STAGES, "total", "host", "normal mean°", "p95°", "depth err (r)"]
     head += ["IoU", "PSNR dB"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     front = {(r.scene, r.setting) for r in pareto_front(rows)}
@@ -96,6 +96,7 @@ def markdown_table(rows: list[SweepRow]) -> list[str]:
         m = r.metrics
         name = f"**{r.setting}**" if (r.scene, r.setting) in front else r.setting
         cells = [r.scene, name, *(f"{r.stage_ms[s]:.1f}" for s in STAGES), f"{r.total_ms:.1f}"]
+        cells.append(f"{r.host_ms:.2f}")
         cells += [f"{m.normal_mean_deg:.2f}", f"{m.normal_p95_deg:.2f}"]
         cells += [f"{m.depth_err_radii:.2f}", f"{m.silhouette_iou:.3f}", f"{r.psnr_db:.1f}"]
         lines.append("| " + " | ".join(cells) + " |")
@@ -158,7 +159,9 @@ def write_report(results: BenchResults, path: Path, *, plot_name: str) -> None:
         "## Sweep",
         "",
         "Milliseconds per engine stage (median of the timed frames; `readback` includes the "
-        "depth and normal AOVs the metrics need) and error against each scene's truth. Normal "
+        "depth and normal AOVs the metrics need), `host` = the render thread's work outside GL "
+        "calls (`RenderStats.host_ms`: on a GPU, the frame time's floor), and error against each "
+        "scene's truth. Normal "
         "error over pixels where the true surface faces the camera (n.v >= 0.3); depth error "
         "= mean |z - z_true| / r there; IoU of the coverage; PSNR of the tone-mapped image "
         "against the `best` preset with 1024-sample specular IBL. **Bold** = on the scene's "

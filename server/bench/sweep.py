@@ -89,6 +89,8 @@ class SweepRow:
     total_ms: float
     metrics: SurfaceMetrics
     psnr_db: float
+    #: Median render-thread work outside GL calls (RenderStats.host_ms): a GPU frame's floor.
+    host_ms: float = 0.0
 
 
 def bench_scene_dict(scene: BenchScene, width: int, height: int) -> dict[str, dict[str, Any]]:
@@ -136,6 +138,7 @@ def run_sweep(
             for stage in STAGES
         }
         total = statistics.median(stats.total_ms for _, stats in runs)
+        host = statistics.median(stats.host_ms for _, stats in runs)
         rendered = runs[-1][0]
         metrics = surface_metrics(rendered, camera, truth, scene.radius)
         row = SweepRow(
@@ -148,9 +151,10 @@ def run_sweep(
             total,
             metrics,
             psnr_db(display_rgb(rendered), reference_rgb),
+            host,
         )
         log(
-            f"  {scene.name:9} {setting.name:27} {total:8.1f} ms  normal "
+            f"  {scene.name:9} {setting.name:27} {total:8.1f} ms (host {host:5.2f})  normal "
             f"{metrics.normal_mean_deg:5.2f}/{metrics.normal_p95_deg:5.2f} deg  depth "
             f"{metrics.depth_err_radii:5.2f} r  IoU {metrics.silhouette_iou:.3f}  "
             f"PSNR {row.psnr_db:5.1f} dB"

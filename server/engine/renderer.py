@@ -212,7 +212,7 @@ class SurfaceRenderer:
                 clock=self._gl.clock,
             )
             if display is not None:
-                codes = self._display.run(color.texture, display)
+                codes = self._display.run(color.texture, display, box if transparent else None)
                 rendered = replace(rendered, display=DisplayCodes(codes, display))
         # After the read-back, so a count the device kept waits for nothing.
         stats.particles_splatted += self._splat.splatted(bulk_splatted, prepared.visible)

@@ -61,16 +61,17 @@ float sanitize(float mapped, float source) {
     return isnan(mapped) ? 0.0 : clamp(mapped, 0.0, 1.0);
 }
 
+// The code is the number of thresholds at or below the value's bit pattern. The GPU's pow gives
+// it to within one; the thresholds then settle it exactly (one or two loads, not a search).
 uint oetf_code(float display_linear) {
     uint pattern = floatBitsToUint(display_linear);
     if (pattern > 0x3f800000u) pattern = 0u;  // -0.0 (and anything negative) -> 0
-    uint lo = 0u;
-    uint hi = 255u;
-    while (lo < hi) {  // the number of thresholds at or below the pattern: the code
-        uint mid = (lo + hi + 1u) / 2u;
-        if (thresholds[mid - 1u] <= pattern) lo = mid; else hi = mid - 1u;
-    }
-    return lo;
+    float v = uintBitsToFloat(pattern);
+    float encoded = v <= 0.0031308 ? 12.92 * v : 1.055 * pow(v, 1.0 / 2.4) - 0.055;
+    uint code = uint(clamp(floor(encoded * 255.0 + 0.5), 0.0, 255.0));
+    while (code < 255u && pattern >= thresholds[code]) ++code;
+    while (code > 0u && pattern < thresholds[code - 1u]) --code;
+    return code;
 }
 
 void main() {

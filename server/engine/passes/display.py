@@ -19,7 +19,8 @@ import numpy as np
 import numpy.typing as npt
 
 from sphrender.server.engine.frame_output import DisplayRequest
-from sphrender.server.engine.gpu.draw import PerSize, set_if_used
+from sphrender.server.engine.geometry.screen_box import ScreenBox
+from sphrender.server.engine.gpu.draw import PerSize, set_if_used, set_scissor
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
 FRAGMENT_SHADER = "display/display_codes.frag.glsl"
@@ -43,8 +44,12 @@ class DisplayPass:
         self._uploaded: bytes | None = None
         self._targets = PerSize(lambda size: _Target(context.gl.ctx, size))
 
-    def run(self, color: moderngl.Texture, request: DisplayRequest) -> npt.NDArray[np.uint8]:
-        """(H, W, 4) uint8 codes of the straight linear RGBA `color`, rows top first."""
+    def run(
+        self, color: moderngl.Texture, request: DisplayRequest, box: ScreenBox | None = None
+    ) -> npt.NDArray[np.uint8]:
+        """(H, W, 4) uint8 codes of the straight linear RGBA `color`, rows top first. `box`:
+        where `color` can be non-zero (a transparent background); outside it every pixel gets
+        the code of a zero pixel (0, or the opaque background), written by a clear."""
         if request.tone_mapper not in TONE_MAPPER_DEFINES:
             raise ValueError(f"tone mapper must be one of {', '.join(TONE_MAPPER_DEFINES)}")
         width, height = color.size
@@ -67,7 +72,17 @@ class DisplayPass:
             self._uploaded = table
         self._thresholds.bind_to_storage_buffer(0)
         target.fbo.use()
+        if box is not None:
+            x, y, w, h = box
+            zero = (0.0, 0.0, 0.0, 0.0)
+            if request.background is not None:  # what the shader composites a zero pixel to
+                zero = (*(c / 255.0 for c in codes), 1.0)
+            set_scissor(target.fbo, None)
+            with self._context.gl.clock:
+                target.fbo.clear(*zero)
+            set_scissor(target.fbo, (x, height - y - h, w, h))  # the image is written top first
         self._context.fullscreen.draw(program)
+        set_scissor(target.fbo, None)
         out = np.empty((height, width, 4), np.uint8)
         with self._context.gl.clock:
             target.fbo.read_into(out, components=4, dtype="f1")

@@ -359,7 +359,9 @@ class SplatPass:
         in_front = occlusion.front_layer(bounds, radius, (camera.width, camera.height))
         front = np.flatnonzero(in_front).astype(np.uint32)
         count = int(radius.size)
-        self.buffers.reserve(IDS, 2 * count + 1)  # front + others + coverage rows <= 2 count
+        # front + others + the coverage rows after them: at most 2 count ids, and quads
+        self.buffers.reserve(IDS, 2 * count + 1)
+        self.buffers.ensure_quads(2 * count)
         self.buffers.write(IDS, front)
         _render(vao, 0, front.size, use_ids=True, clock=self._context.gl.clock)
         others = np.flatnonzero(~in_front)
