@@ -116,6 +116,20 @@ def test_sparse_cloud_matches_the_host_prepare(
     assert_same_image(host, device)
 
 
+def test_dense_wall_behind_spatter(renderers: tuple[SurfaceRenderer, SurfaceRenderer]) -> None:
+    """A dense slab (spacing 1 r, so the front layer covers it without gaps) with small droplets
+    8 r in front of it: the droplets pull their tiles' front forward, so the slab particles in
+    those tiles miss the front band and are drawn only by the occlusion test's second draw."""
+    slab = lattice_slab(0.3, 0.3, 8, R / 2)  # spacing r: 8 layers are 7 r deep
+    drops = np.random.default_rng(6).uniform([-0.12, 8 * R, -0.12], [0.12, 8 * R, 0.12], (40, 3))
+    radii = np.concatenate([np.full(len(slab), R, np.float32), np.full(40, 0.3 * R, np.float32)])
+    scene = scene_at(image={"width": 480, "height": 288})  # particles ~5 px: the tests bite
+    host, device = both(renderers, scene, np.concatenate([slab, drops]), radii=radii)
+    assert host[1].particles_splatted < host[1].particles_drawn  # both cull
+    assert device[1].particles_splatted < device[1].particles_drawn
+    assert_same_image(host, device)
+
+
 def test_near_plane_eye_plane_and_eye_inside(
     renderers: tuple[SurfaceRenderer, SurfaceRenderer],
 ) -> None:

@@ -109,12 +109,9 @@ MUTATIONS: tuple[Mutation, ...] = (
     ),
     Mutation(
         name="occlusion-second-pass-takes-temperatures-in-upload-order",
-        path="server/engine/passes/splat.py",
-        old="kelvin = prepared.temperatures if rows is None else prepared.temperatures[rows]",
-        new=(
-            "kelvin = prepared.temperatures if rows is None"
-            " else prepared.temperatures[first : first + rows.size]"
-        ),
+        path="shaders/common/splat_particles.glsl",
+        old="return u_has_temperature ? splat_temperatures[particle] : 0.0;",
+        new="return u_has_temperature ? splat_temperatures[uint(gl_VertexID) >> 2] : 0.0;",
         tests=(
             "tests/test_shading_emission.py::test_each_pixel_shows_the_temperature_of_its_front_particle",
         ),
@@ -259,10 +256,10 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         name="float32-before-the-eye-subtraction",
         path="server/engine/geometry/camera.py",
-        old="return (positions - self.eye) @ self.rotation.T",
+        old="offset = positions - self.eye",
         new=(
-            "return (positions.astype(np.float32) - self.eye.astype(np.float32))"
-            ".astype(np.float64) @ self.rotation.T"
+            "offset = (positions.astype(np.float32) - self.eye.astype(np.float32))"
+            ".astype(np.float64)"
         ),
         tests=(
             "tests/test_engine_groundtruth.py::test_ball_renders_identically_after_translation",
@@ -425,6 +422,38 @@ MUTATIONS: tuple[Mutation, ...] = (
         new="return all(x <= y for x, y in pairs)",
         tests=("tests/test_surface_metrics.py::test_surface_front_keeps_rows_not_beaten_on_every_column",),
         description="a row equal on every column counted as beaten (the front empties)",
+    ),
+    Mutation(
+        name="coverage-ids-past-the-quads",
+        path="server/engine/passes/splat.py",
+        old="        self.buffers.ensure_quads(2 * count)\n",
+        new="",
+        tests=("tests/test_device_prepare.py::test_sparse_cloud_matches_the_host_prepare",),
+        description="the host culling's coverage rows drawn past the quad index buffer",
+    ),
+    Mutation(
+        name="device-prepare-float-subtraction",
+        path="shaders/splat/particles_to_view.comp.glsl",
+        old="dvec3 v = u_rotation * (world - u_eye);",
+        new="dvec3 v = dvec3(mat3(u_rotation) * (vec3(world) - vec3(u_eye)));",
+        tests=("tests/test_device_prepare.py::test_ball_with_temperatures_matches_the_host_prepare",),
+        description="the device prepare subtracting the eye in float32 (1e5 coordinates break)",
+    ),
+    Mutation(
+        name="device-culling-drops-visible",
+        path="shaders/splat/occlusion_cull.comp.glsl",
+        old="bool hidden = largest >= 0.0 && near > largest;",
+        new="bool hidden = largest >= 0.0 && near > 0.5 * largest;",
+        tests=("tests/test_device_prepare.py::test_dense_wall_behind_spatter",),
+        description="the device occlusion test culling particles in front of the front layer",
+    ),
+    Mutation(
+        name="display-pass-fused-rounding",
+        path="shaders/display/display_codes.frag.glsl",
+        old="    while (code < 255u && pattern >= thresholds[code]) ++code;\n",
+        new="",
+        tests=("tests/test_display_pass.py::test_hard_values_get_the_cpu_codes",),
+        description="the display pass trusting the GPU's pow without the CPU's thresholds",
     ),
 )
 # fmt: on

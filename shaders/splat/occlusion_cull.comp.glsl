@@ -13,8 +13,8 @@
 //      also covers the rectangle grown by the coverage reach), and COVER for drawn particles
 //      that can reach a silhouette (not covered all over within the interior reach).
 // The pyramid's blocks are aligned (not occlusion.DepthMaxTable's sparse table), so a rectangle
-// is tested against the up to 2 x 2 blocks of the first level at least as large as its longer
-// side: a superset of its pixels, which keeps the culling exact (it culls a little less).
+// is tested against the blocks that hold it (`largest_depth`): a superset of its pixels, which
+// keeps the culling exact (it culls a little less).
 
 layout(local_size_x = 256) in;
 
@@ -57,26 +57,33 @@ int tile_key(ivec4 rect) {
 }
 
 // The largest front-layer depth over `rect` (+inf where no surface), or -1 when the rectangle
-// leaves the pyramid or is longer than its last level's blocks (counted as visible).
+// leaves the pyramid or is longer than its last level's blocks (counted as visible). Tested at
+// the level two below the first whose block holds the rectangle's longer side: at most 5 x 5
+// blocks, a superset of the rectangle at most a block wider on each side (a quarter of it).
 float largest_depth(ivec4 rect) {
     ivec4 r = rect - ivec4(u_box.xy, u_box.xy);
     if (r.x < 0 || r.y < 0 || r.z >= u_box.z || r.w >= u_box.w || r.z < r.x || r.w < r.y) {
         return -1.0;
     }
     int side = max(r.z - r.x, r.w - r.y) + 1;
-    int level = 0;
-    while ((1 << level) < side) {
-        ++level;
+    int fits = 0;
+    while ((1 << fits) < side) {
+        ++fits;
     }
-    if (level >= u_levels) {
+    if (fits >= u_levels) {
         return -1.0;
     }
+    int level = max(fits - 2, 0);
     ivec4 b = r >> level;
     int width = u_dims[level].x;
     int base = u_offsets[level];
-    float largest = max(pyramid[base + b.y * width + b.x], pyramid[base + b.y * width + b.z]);
-    largest = max(largest, pyramid[base + b.w * width + b.x]);
-    return max(largest, pyramid[base + b.w * width + b.z]);
+    float largest = 0.0;
+    for (int y = b.y; y <= b.w; ++y) {
+        for (int x = b.x; x <= b.z; ++x) {
+            largest = max(largest, pyramid[base + y * width + x]);
+        }
+    }
+    return largest;
 }
 
 bool covered(ivec4 rect, int grow) {
