@@ -74,12 +74,13 @@ class DisplayPass:
         target.fbo.use()
         if box is not None:
             x, y, w, h = box
-            zero = (0.0, 0.0, 0.0, 0.0)
+            red = green = blue = alpha = 0.0
             if request.background is not None:  # what the shader composites a zero pixel to
-                zero = (*(c / 255.0 for c in codes), 1.0)
+                red, green, blue = (c / 255.0 for c in codes)
+                alpha = 1.0
             set_scissor(target.fbo, None)
             with self._context.gl.clock:
-                target.fbo.clear(*zero)
+                target.fbo.clear(red, green, blue, alpha)
             set_scissor(target.fbo, (x, height - y - h, w, h))  # the image is written top first
         self._context.fullscreen.draw(program)
         set_scissor(target.fbo, None)
