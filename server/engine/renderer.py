@@ -202,13 +202,16 @@ class SurfaceRenderer:
 
         with self._stage(stats, "readback"):
             transparent = scene.shading.background == "transparent"
+            # Device prepare (a GPU): the driver copies whole images, the host zeroes nothing;
+            # host prepare (llvmpipe): only the box's rows are read, the rest memset to 0.
+            read_box = None if self._prepare.mode == "device" else box
             rendered = read_frame(
                 color,
                 normal_depth,
                 want_depth=depth,
                 want_normals=normals,
-                color_box=box if transparent else None,
-                surface_box=box,
+                color_box=read_box if transparent else None,
+                surface_box=read_box,
                 clock=self._gl.clock,
             )
             if display is not None:

@@ -8,6 +8,7 @@ depth" is the positive distance along the view axis (``-z_view``).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -30,6 +31,12 @@ class Camera:
 
     @classmethod
     def from_config(cls, config: CameraConfig, width: int, height: int) -> Camera:
+        """The camera of `config` at `width` x `height` (cached: a stream of frames with one
+        camera builds its basis once)."""
+        return _camera(cls, config, width, height)
+
+    @classmethod
+    def build(cls, config: CameraConfig, width: int, height: int) -> Camera:
         eye = np.asarray(config.eye, dtype=np.float64)
         forward = np.asarray(config.target, dtype=np.float64) - eye
         forward /= np.linalg.norm(forward)
@@ -102,3 +109,11 @@ class Camera:
                 dist = (t * depth - sign * view_positions[:, axis]) / norm
                 keep &= dist > -r
         return keep
+
+
+@functools.lru_cache(maxsize=64)
+def _camera(cls: type[Camera], config: CameraConfig, width: int, height: int) -> Camera:
+    camera = cls.build(config, width, height)
+    camera.eye.flags.writeable = False  # shared by every frame with this camera
+    camera.rotation.flags.writeable = False
+    return camera

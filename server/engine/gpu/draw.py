@@ -130,13 +130,32 @@ def uses(program: moderngl.Program, name: str) -> bool:
     return program.get(name, None) is not None
 
 
-def set_if_used(program: moderngl.Program, name: str, value: object) -> None:
-    """Set a uniform if the compiled variant uses it (the GLSL compiler drops unused ones).
+def set_if_used(
+    program: moderngl.Program | moderngl.ComputeShader, name: str, value: object
+) -> None:
+    """Set a uniform if the compiled variant uses it (the GLSL compiler drops unused ones), and
+    only when its value changed since this function last set it: a stream of frames with one
+    scene then writes almost none (each write packs the value in Python). A uniform set here
+    must not also be written directly (`program[name] = ...`), or the cache would be stale.
     `program.get`, not `name in program`: moderngl's Program has no __contains__, so `in`
-    walks every member (a measurable share of a frame's host work)."""
+    walks every member."""
+    cache = program.extra
+    if cache is None:
+        cache = program.extra = {}
+    if name in cache and _same(cache[name], value):
+        return
     uniform = program.get(name, None)
     if uniform is not None:
         uniform.value = value  # type: ignore[union-attr]
+    cache[name] = value
+
+
+def _same(a: object, b: object) -> bool:
+    """Equal uniform values (numbers, bools, tuples of numbers); anything else counts as new."""
+    try:
+        return type(a) is type(b) and bool(a == b)
+    except (TypeError, ValueError):
+        return False
 
 
 def image_bytes(image: npt.NDArray[np.floating]) -> bytes:

@@ -25,6 +25,7 @@ import numpy as np
 from sphrender.server.engine.geometry import occlusion
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.screen_box import ScreenBox
+from sphrender.server.engine.gpu.draw import set_if_used
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.splat_buffers import (
     COUNTS,
@@ -81,8 +82,8 @@ class DeviceCulling:
         with self._context.gl.clock:
             buffers.buffer(COUNTS).write(np.zeros(4, np.uint32))
         shader = self._shader(camera, frame, antialias)
-        shader["u_tile"] = float(tile)
-        shader["u_tiles_x"] = tiles_x
+        set_if_used(shader, "u_tile", float(tile))
+        set_if_used(shader, "u_tiles_x", tiles_x)
         self._run(shader, 0, frame.count)
         self._run(shader, 1, frame.count)
 
@@ -98,11 +99,10 @@ class DeviceCulling:
         x, y, width, height = box if box is not None else (0, 0, camera.width, camera.height)
         dims, offsets = _levels(width, height)
         self._buffers.reserve(PYRAMID, offsets[-1] + dims[-1][0] * dims[-1][1])
-        self._buffers.bind()
         self._build_pyramid(depth, (x, y), dims, offsets)
         shader = self._shader(camera, frame, antialias)
-        shader["u_box"] = (x, y, width, height)
-        shader["u_levels"] = len(dims)
+        set_if_used(shader, "u_box", (x, y, width, height))
+        set_if_used(shader, "u_levels", len(dims))
         _write_array(shader, "u_offsets", np.array(offsets, np.int32))
         _write_array(shader, "u_dims", np.array(dims, np.int32))
         self._run(shader, 2, frame.count)
@@ -128,18 +128,15 @@ class DeviceCulling:
             "u_interior_reach": self._interior_reach,
         }
         for name, value in values.items():
-            uniform = shader.get(name, None)
-            if uniform is not None:
-                uniform.value = value  # type: ignore[union-attr]
+            set_if_used(shader, name, value)
         return shader
 
     def _run(self, shader: moderngl.ComputeShader, phase: int, count: int) -> None:
-        shader["u_phase"] = phase
-        self._buffers.bind()
+        set_if_used(shader, "u_phase", phase)
         per_dispatch = GROUP_SIZE * MAX_GROUPS
         with self._context.gl.clock:
             for first in range(0, count, per_dispatch):
-                shader["u_first"] = first
+                set_if_used(shader, "u_first", first)
                 shader.run(group_x=math.ceil(min(per_dispatch, count - first) / GROUP_SIZE))
             self._context.gl.ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
 
@@ -151,17 +148,17 @@ class DeviceCulling:
         offsets: list[int],
     ) -> None:
         shader = self._context.programs.compute(PYRAMID_SHADER)
-        shader["u_depth"] = 0
-        shader["u_origin"] = origin
+        set_if_used(shader, "u_depth", 0)
+        set_if_used(shader, "u_origin", origin)
         depth.use(0)
         with self._context.gl.clock:
             for level, (w, h) in enumerate(dims):
-                shader["u_level"] = level
-                shader["u_offset"] = offsets[level]
-                shader["u_dims"] = (w, h)
+                set_if_used(shader, "u_level", level)
+                set_if_used(shader, "u_offset", offsets[level])
+                set_if_used(shader, "u_dims", (w, h))
                 if level:
-                    shader["u_source_offset"] = offsets[level - 1]
-                    shader["u_source_dims"] = dims[level - 1]
+                    set_if_used(shader, "u_source_offset", offsets[level - 1])
+                    set_if_used(shader, "u_source_dims", dims[level - 1])
                 shader.run(group_x=math.ceil(w / 16), group_y=math.ceil(h / 16))
                 self._context.gl.ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
 

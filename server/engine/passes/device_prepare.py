@@ -23,6 +23,7 @@ from sphrender.client.frame import ParticleFrame
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.prepare import typical_radius
 from sphrender.server.engine.geometry.screen_box import ScreenBox, clip_box
+from sphrender.server.engine.gpu.draw import set_if_used
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.splat import SplatBatch
 from sphrender.server.engine.passes.splat_buffers import (
@@ -152,16 +153,14 @@ class DevicePrepare:
             "u_size": (camera.width, camera.height),
         }
         for name, value in uniforms.items():
-            uniform = shader.get(name, None)  # the compiler drops the unused ones
-            if uniform is not None:
-                uniform.value = value  # type: ignore[union-attr]
+            set_if_used(shader, name, value)
         self._buffers.bind()
         per_dispatch = GROUP_SIZE * MAX_GROUPS
         ctx = self._context.gl.ctx
         with self._context.gl.clock:
             for first in range(0, count, per_dispatch):
-                shader["u_first"] = first
-                shader["u_count"] = count
+                set_if_used(shader, "u_first", first)
+                set_if_used(shader, "u_count", count)
                 groups = math.ceil(min(per_dispatch, count - first) / GROUP_SIZE)
                 shader.run(group_x=groups)
             ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)

@@ -17,6 +17,7 @@ from sphrender.server.engine.gpu.draw import (
     PerSize,
     Target,
     clear_and_scissor,
+    set_if_used,
     set_scissor,
     write_matrix,
 )
@@ -56,16 +57,24 @@ class NormalsPass:
         target = self.target(surface.size)
         program = self._context.programs.get(FULLSCREEN_VERT, SHADER)
         surface.use(0)
-        program["u_depth"] = 0
-        program["u_tan_half_fov"] = (camera.tan_half_fov_y * camera.aspect, camera.tan_half_fov_y)
+        set_if_used(program, "u_depth", 0)
+        set_if_used(
+            program,
+            "u_tan_half_fov",
+            (camera.tan_half_fov_y * camera.aspect, camera.tan_half_fov_y),
+        )
         write_matrix(program, "u_view_to_world", camera.rotation.T)
-        program["u_edge_jump"] = EDGE_JUMP_RADII * particle_radius
-        program["u_edge_jump_px"] = EDGE_JUMP_FOOTPRINTS
-        program["u_focal_px"] = camera.pixels_per_unit_at_unit_depth
-        program["u_particle_radius"] = particle_radius
-        program["u_stencil_radii"] = quality.normal_stencil if quality is not None else 0.0
-        program["u_stencil_max_px"] = quality.normal_stencil_max_px if quality is not None else 1
-        program["u_kink"] = KINK
+        set_if_used(program, "u_edge_jump", EDGE_JUMP_RADII * particle_radius)
+        set_if_used(program, "u_edge_jump_px", EDGE_JUMP_FOOTPRINTS)
+        set_if_used(program, "u_focal_px", camera.pixels_per_unit_at_unit_depth)
+        set_if_used(program, "u_particle_radius", particle_radius)
+        set_if_used(
+            program, "u_stencil_radii", quality.normal_stencil if quality is not None else 0.0
+        )
+        set_if_used(
+            program, "u_stencil_max_px", quality.normal_stencil_max_px if quality is not None else 1
+        )
+        set_if_used(program, "u_kink", KINK)
         clear_and_scissor(target.fbo, box)
         target.fbo.use()
         self._context.fullscreen.draw(program)

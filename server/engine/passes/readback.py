@@ -17,21 +17,23 @@ from sphrender.server.engine.gpu.gl_clock import GLClock
 def read_region(
     fbo: moderngl.Framebuffer, size: tuple[int, int], box: ScreenBox | None, clock: GLClock
 ) -> npt.NDArray[np.float32]:
-    """The RGBA float target of `fbo` as (H, W, 4), rows top first, reading only the rows of
-    `box` (the rest is known to be zero) or everything (None).
+    """The RGBA float target of `fbo` as (H, W, 4), rows top first. With a `box` only its rows
+    are read and the others zeroed (the target is known to be zero there); None reads all.
 
-    The driver writes the rows straight into the returned array (GL rows are bottom first, so
-    whole rows of the box, contiguous there); the array handed back is its flipped view, so the
-    render thread copies nothing per pixel (an encoder that needs C order copies on its own
-    thread). Zeros outside the rows come from `np.zeros` (pages the OS zeroes on first touch)."""
+    The driver writes straight into the returned array (GL rows are bottom first; the rows of a
+    box are contiguous there) and the array handed back is its flipped view: the render thread
+    copies nothing per pixel (an encoder that needs C order copies on its own thread). The
+    zeroing is a memset of the rows outside the box only: `np.zeros` of the whole image is a
+    1.6 ms memset at 1280x720 whenever glibc serves it from its heap rather than fresh pages."""
     width, height = size
+    bottom_first = np.empty((height, width, 4), dtype=np.float32)
     if box is None:
-        bottom_first = np.empty((height, width, 4), dtype=np.float32)
         with clock:
             fbo.read_into(bottom_first, components=4, dtype="f4")
         return bottom_first[::-1]
     _, y, _, h = box
-    bottom_first = np.zeros((height, width, 4), dtype=np.float32)
+    bottom_first[:y] = 0.0
+    bottom_first[y + h :] = 0.0
     with clock:
         fbo.read_into(bottom_first[y : y + h], viewport=(0, y, width, h), components=4, dtype="f4")
     return bottom_first[::-1]

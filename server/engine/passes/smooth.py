@@ -91,7 +91,7 @@ class SmoothPass:
     ) -> moderngl.Texture:
         program = self._context.programs.get(FULLSCREEN_VERT, TWO_D_SHADER, defines)
         _set_uniforms(program, uniforms)
-        program["u_depth"] = 0
+        set_if_used(program, "u_depth", 0)
         for target in targets.ping:
             clear_and_scissor(target.fbo, box)
         source = depth
@@ -121,7 +121,7 @@ class SmoothPass:
         for target in packed:
             clear_and_scissor(target.fbo, packed_scissor)
         pack = programs.get(FULLSCREEN_VERT, PACK_SHADER)
-        pack["u_image"] = 0
+        set_if_used(pack, "u_image", 0)
         depth.use(0)
         packed[0].fbo.use()
         draw(pack)
@@ -131,7 +131,7 @@ class SmoothPass:
         }
         for program in passes.values():
             _set_uniforms(program, uniforms)
-            program["u_packed_depth"] = 0
+            set_if_used(program, "u_packed_depth", 0)
         read_index = 0
         for iteration in range(iterations):
             # The passes alternate their order (x y, y x, ...): the nonlinear filters leave
@@ -144,7 +144,7 @@ class SmoothPass:
         for target in packed:
             set_scissor(target.fbo, None)
         unpack = programs.get(FULLSCREEN_VERT, UNPACK_SHADER)
-        unpack["u_packed"] = 0
+        set_if_used(unpack, "u_packed", 0)
         packed[read_index].texture.use(0)
         result = targets.ping[0]
         clear_and_scissor(result.fbo, box)

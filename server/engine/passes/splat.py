@@ -273,8 +273,8 @@ class SplatPass:
         with self._context.gl.clock:
             seed_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         seed = self._context.programs.get(FULLSCREEN_VERT, SEED_SHADER)
-        seed["u_depth"] = 0
-        seed["u_far"] = droplets.far
+        set_if_used(seed, "u_depth", 0)
+        set_if_used(seed, "u_far", droplets.far)
         surface.use(0)
         count = droplets.count
         ctx.enable(moderngl.DEPTH_TEST)
@@ -300,8 +300,8 @@ class SplatPass:
         program, vao = self._vertex_array(batch.ellipsoid, batch.has_temperature)
         _set_particle_uniforms(program, camera, batch)
         write_matrix(program, "u_projection", camera.projection_matrix(batch.far))
-        program["u_near"] = camera.near
-        program["u_far"] = batch.far
+        set_if_used(program, "u_near", camera.near)
+        set_if_used(program, "u_far", batch.far)
         set_if_used(program, "u_margin", 0.0)
         return vao
 
@@ -325,8 +325,8 @@ class SplatPass:
         _set_particle_uniforms(program, camera, replace(batch, has_temperature=False))
         focal_px = camera.pixels_per_unit_at_unit_depth
         write_matrix(program, "u_projection", camera.projection_matrix(batch.far))
-        program["u_margin"] = COVERAGE_MARGIN_PX / focal_px
-        program["u_near"] = camera.near
+        set_if_used(program, "u_margin", COVERAGE_MARGIN_PX / focal_px)
+        set_if_used(program, "u_near", camera.near)
         set_if_used(program, "u_focal_px", focal_px)
         set_if_used(program, "u_far", batch.far)
         target.fbo.use()

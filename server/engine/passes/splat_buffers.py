@@ -53,7 +53,8 @@ class SplatBuffers:
         return self._buffers[binding]
 
     def bind(self) -> None:
-        """Bind every buffer to its binding point (storage bindings are context state)."""
+        """Bind every buffer to its binding point (storage bindings are context state, shared
+        with other passes: the splat's draws and dispatches bind before they run)."""
         for binding, buffer in self._buffers.items():
             buffer.bind_to_storage_buffer(binding)
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import moderngl
 
-from sphrender.server.engine.gpu.draw import PerSize, Target
+from sphrender.server.engine.gpu.draw import PerSize, Target, set_if_used
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
 SHADER = "temperature/smooth_temperature.frag.glsl"
@@ -57,7 +57,7 @@ class TemperaturePass:
         blur = self._targets.get(temperature.size)
         programs, draw = self._context.programs, self._context.fullscreen.draw
         pack = programs.get(FULLSCREEN_VERT, PACK_SHADER)
-        pack["u_image"] = 0
+        set_if_used(pack, "u_image", 0)
         for source, target in ((depth, blur.packed_depth), (temperature, blur.packed[0])):
             source.use(0)
             target.fbo.use()
@@ -65,17 +65,17 @@ class TemperaturePass:
         blur.packed_depth.texture.use(1)
         for axis in (0, 1):
             program = programs.get(FULLSCREEN_VERT, SHADER, {"AXIS": axis})
-            program["u_radius_px_at_unit_depth"] = particle_radius * px_per_unit
-            program["u_sigma_radii"] = TEMPERATURE_SIGMA_RADII
-            program["u_max_reach_px"] = TEMPERATURE_MAX_REACH_PX
-            program["u_depth_range"] = TEMPERATURE_DEPTH_RANGE_RADII * particle_radius
-            program["u_packed_temperature"] = 0
-            program["u_packed_depth"] = 1
+            set_if_used(program, "u_radius_px_at_unit_depth", particle_radius * px_per_unit)
+            set_if_used(program, "u_sigma_radii", TEMPERATURE_SIGMA_RADII)
+            set_if_used(program, "u_max_reach_px", TEMPERATURE_MAX_REACH_PX)
+            set_if_used(program, "u_depth_range", TEMPERATURE_DEPTH_RANGE_RADII * particle_radius)
+            set_if_used(program, "u_packed_temperature", 0)
+            set_if_used(program, "u_packed_depth", 1)
             blur.packed[axis].texture.use(0)
             blur.packed[1 - axis].fbo.use()
             draw(program)
         unpack = programs.get(FULLSCREEN_VERT, UNPACK_SHADER)
-        unpack["u_packed"] = 0
+        set_if_used(unpack, "u_packed", 0)
         blur.packed[0].texture.use(0)
         blur.result.fbo.use()
         draw(unpack)
