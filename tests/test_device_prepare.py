@@ -130,6 +130,25 @@ def test_dense_wall_behind_spatter(renderers: tuple[SurfaceRenderer, SurfaceRend
     assert_same_image(host, device)
 
 
+def test_buffers_grown_between_frames(
+    gl_context: GLContext, renderers: tuple[SurfaceRenderer, SurfaceRenderer]
+) -> None:
+    """A fresh device renderer, a small frame, then one 10x larger: every storage buffer grows
+    (a binding made before a buffer grew reads zeros past its old end: the culling flags once
+    did and dropped 472 pixels)."""
+    device = SurfaceRenderer(gl_context, prepare="device")
+    try:
+        small = np.random.default_rng(1).normal(size=(3000, 3)) * 0.15
+        large = np.random.default_rng(2).normal(size=(30000, 3)) * 0.15
+        device.render(make_frame(small), scene_at())
+        frame = make_frame(large)
+        grown = device.render(frame, scene_at(), depth=True, normals=True)
+        host = renderers[0].render(frame, scene_at(), depth=True, normals=True)
+        assert_same_image(host, grown)
+    finally:
+        device.release()
+
+
 def test_near_plane_eye_plane_and_eye_inside(
     renderers: tuple[SurfaceRenderer, SurfaceRenderer],
 ) -> None:

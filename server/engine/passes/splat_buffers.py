@@ -85,6 +85,9 @@ class SplatBuffers:
         nbytes = -(-items * STRIDE[binding] // 16) * 16  # whole vec4s: std430 reads past odd ends
         if nbytes > buffer.size:
             buffer.orphan(max(nbytes, buffer.size * 2))
+            # A storage binding is a range of the size the buffer had when it was bound: a grown
+            # buffer read through the old binding reads zeros past the old end.
+            buffer.bind_to_storage_buffer(binding)
 
     def release(self) -> None:
         for buffer in self._buffers.values():
