@@ -459,7 +459,10 @@ MUTATIONS: tuple[Mutation, ...] = (
         name="storage-binding-not-renewed-on-growth",
         path="server/engine/passes/splat_buffers.py",
         old="            buffer.orphan(max(nbytes, buffer.size * 2))\n            # A storage",
-        new="            buffer.orphan(max(nbytes, buffer.size * 2))\n            return\n            # A storage",
+        new=(
+            "            buffer.orphan(max(nbytes, buffer.size * 2))\n"
+            "            return\n            # A storage"
+        ),
         tests=("tests/test_device_prepare.py::test_buffers_grown_between_frames",),
         description="a grown storage buffer read through its binding of the old size",
     ),

@@ -33,7 +33,7 @@ class Camera:
     def from_config(cls, config: CameraConfig, width: int, height: int) -> Camera:
         """The camera of `config` at `width` x `height` (cached: a stream of frames with one
         camera builds its basis once)."""
-        return _camera(cls, config, width, height)
+        return _camera(config, width, height)
 
     @classmethod
     def build(cls, config: CameraConfig, width: int, height: int) -> Camera:
@@ -112,8 +112,8 @@ class Camera:
 
 
 @functools.lru_cache(maxsize=64)
-def _camera(cls: type[Camera], config: CameraConfig, width: int, height: int) -> Camera:
-    camera = cls.build(config, width, height)
+def _camera(config: CameraConfig, width: int, height: int) -> Camera:
+    camera = Camera.build(config, width, height)
     camera.eye.flags.writeable = False  # shared by every frame with this camera
     camera.rotation.flags.writeable = False
     return camera
