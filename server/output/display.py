@@ -268,6 +268,7 @@ _OETF8 = _Oetf8()
 #: >= k (and 2**32 after the last): what defines the codes, handed to the engine's display pass
 #: (`DisplayRequest.thresholds`) so the GPU's codes are these.
 OETF8_THRESHOLDS: npt.NDArray[np.uint64] = _OETF8.threshold
+OETF8_THRESHOLDS.flags.writeable = False  # the engine uploads it once, keyed by identity
 
 
 def engine_codes(

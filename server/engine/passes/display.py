@@ -41,7 +41,7 @@ class DisplayPass:
     def __init__(self, context: PassContext) -> None:
         self._context = context
         self._thresholds = context.gl.ctx.buffer(reserve=256 * 4)
-        self._uploaded: bytes | None = None
+        self._uploaded: npt.NDArray[np.integer] | None = None  # the table now in the buffer
         self._targets = PerSize(lambda size: _Target(context.gl.ctx, size))
 
     def run(
@@ -66,10 +66,9 @@ class DisplayPass:
             codes = tuple(int(np.floor(c * 255.0 + 0.5)) for c in request.background)
             set_if_used(program, "u_background", codes)
         color.use(0)
-        table = _threshold_table(request.thresholds)
-        if table != self._uploaded:  # the output layer's table: the same one every frame
-            self._thresholds.write(table)
-            self._uploaded = table
+        if request.thresholds is not self._uploaded:  # the output layer's one table: once
+            self._thresholds.write(_threshold_table(request.thresholds))
+            self._uploaded = request.thresholds
         self._thresholds.bind_to_storage_buffer(0)
         target.fbo.use()
         if box is not None:
