@@ -466,6 +466,30 @@ MUTATIONS: tuple[Mutation, ...] = (
         tests=("tests/test_device_prepare.py::test_buffers_grown_between_frames",),
         description="a grown storage buffer read through its binding of the old size",
     ),
+    Mutation(
+        name="display-binds-without-claiming",
+        path="server/engine/passes/display.py",
+        old="        if self._context.gl.claim_storage_bindings(self):\n",
+        new="        if True:\n",
+        tests=("tests/test_gl_state_caches.py::test_frames_keep_their_image_between_display_passes_and_other_renderers",),
+        description="the display pass takes binding 0 and the next frame's splat keeps its claim",
+    ),
+    Mutation(
+        name="pyramid-counts-missing-pixels",
+        path="shaders/splat/depth_pyramid.comp.glsl",
+        old="const float NONE = -1.0;",
+        new="const float NONE = 1.0 / 0.0;",
+        tests=("tests/test_depth_pyramid.py",),
+        description="pixels past the box's odd edge count as background (+inf) in the maxima",
+    ),
+    Mutation(
+        name="uniform-group-ignores-member-writes",
+        path="server/engine/gpu/uniforms.py",
+        old="    cache[name] = value\n    _forget_groups_with(cache, name)",
+        new="    cache[name] = value",
+        tests=("tests/test_gl_state_caches.py::test_a_member_written_elsewhere_makes_its_group_rebuild",),
+        description="a group skips over a member value another path changed",
+    ),
 )
 # fmt: on
 

@@ -15,8 +15,7 @@ them in `release`.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -33,6 +32,7 @@ from sphrender.server.engine.frame_output import (
 )
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.gpu.draw import FullscreenTriangle, image_bytes, read_image
+from sphrender.server.engine.gpu.gl_clock import StageTimer
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.programs import ProgramCache
 from sphrender.server.engine.passes.context import PassContext
@@ -111,14 +111,11 @@ class SurfaceRenderer:
             if value > limit:
                 raise InputError(f"image.{key}", f"must be at most {limit} (GL limit), got {value}")
 
-    @contextmanager
-    def _stage(self, stats: RenderStats, name: str) -> Iterator[None]:
-        start = time.perf_counter()
-        yield
-        if self._stage_timings:
-            with self._gl.clock:
-                self._gl.ctx.finish()
-        stats.stage_ms[name] = (time.perf_counter() - start) * 1e3
+    def _stage(self, stats: RenderStats, name: str) -> StageTimer:
+        """``with self._stage(stats, name):`` times one stage into `stats.stage_ms` (waiting for
+        the GPU at its end when true stage times were asked for)."""
+        finish = self._gl.ctx.finish if self._stage_timings else None
+        return StageTimer(self._gl.clock, finish, stats.stage_ms, name)
 
     # -- frame -----------------------------------------------------------------------------
 

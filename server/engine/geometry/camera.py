@@ -46,11 +46,11 @@ class Camera:
         rotation = np.stack([right, true_up, -forward])
         return cls(eye, rotation, config.fov_y, width / height, config.near, width, height)
 
-    @property
+    @functools.cached_property
     def tan_half_fov_y(self) -> float:
         return math.tan(math.radians(self.fov_y_deg) / 2.0)
 
-    @property
+    @functools.cached_property
     def pixels_per_unit_at_unit_depth(self) -> float:
         """Pixels spanned by one scene unit at eye depth 1: ``(H / 2) / tan(fov_y / 2)``."""
         return (self.height / 2.0) / self.tan_half_fov_y

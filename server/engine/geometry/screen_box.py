@@ -8,8 +8,6 @@ fragments of every full-screen pass.
 
 from __future__ import annotations
 
-import numpy as np
-
 from sphrender.server.engine.geometry import occlusion
 from sphrender.server.engine.geometry.camera import Camera
 
@@ -37,10 +35,11 @@ def screen_box(
 def clip_box(x0: int, x1: int, y0: int, y1: int, camera: Camera, margin_px: int = 2) -> ScreenBox:
     """The inclusive pixel rectangle x0..x1, y0..y1 grown by `margin_px` and clipped to the
     image (the device prepare reduces the rectangles on the GPU and calls this)."""
-    x0 = int(np.clip(x0 - margin_px, 0, camera.width))
-    x1 = int(np.clip(x1 + 1 + margin_px, 0, camera.width))
-    y0 = int(np.clip(y0 - margin_px, 0, camera.height))
-    y1 = int(np.clip(y1 + 1 + margin_px, 0, camera.height))
+    width, height = camera.width, camera.height
+    x0 = min(max(int(x0) - margin_px, 0), width)
+    x1 = min(max(int(x1) + 1 + margin_px, 0), width)
+    y0 = min(max(int(y0) - margin_px, 0), height)
+    y1 = min(max(int(y1) + 1 + margin_px, 0), height)
     if x1 <= x0 or y1 <= y0:
         return (0, 0, 1, 1)  # nothing on screen: a token box keeps the passes trivial
     return (x0, y0, x1 - x0, y1 - y0)

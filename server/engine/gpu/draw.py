@@ -1,5 +1,5 @@
 """Small GL building blocks every pass uses: float render targets, the attribute-less
-full-screen triangle, scissor rectangles, uniform uploads.
+full-screen triangle, scissor rectangles, image bytes (uniform uploads: uniforms.py).
 
 Everything here runs on the GL owner thread; each object is released by whoever created it
 (see ARCHITECTURE.md, "Threads and GPU objects").
@@ -116,46 +116,6 @@ def clear_and_scissor(fbo: moderngl.Framebuffer, box: ScreenBox | None) -> None:
     with thread_clock():
         fbo.clear(0.0, 0.0, 0.0, 0.0)
     set_scissor(fbo, box)
-
-
-def write_matrix(program: moderngl.Program, name: str, matrix: npt.NDArray[np.floating]) -> None:
-    """Upload a row-major numpy matrix to a GLSL matN uniform (GLSL is column-major)."""
-    uniform = program[name]
-    assert isinstance(uniform, moderngl.Uniform), name
-    uniform.write(np.ascontiguousarray(matrix.T, dtype=np.float32).tobytes())
-
-
-def uses(program: moderngl.Program, name: str) -> bool:
-    """Whether the compiled variant has uniform `name` (see `set_if_used`)."""
-    return program.get(name, None) is not None
-
-
-def set_if_used(
-    program: moderngl.Program | moderngl.ComputeShader, name: str, value: object
-) -> None:
-    """Set a uniform if the compiled variant uses it (the GLSL compiler drops unused ones), and
-    only when its value changed since this function last set it: a stream of frames with one
-    scene then writes almost none (each write packs the value in Python). A uniform set here
-    must not also be written directly (`program[name] = ...`), or the cache would be stale.
-    `program.get`, not `name in program`: moderngl's Program has no __contains__, so `in`
-    walks every member."""
-    cache = program.extra
-    if cache is None:
-        cache = program.extra = {}
-    if name in cache and _same(cache[name], value):
-        return
-    uniform = program.get(name, None)
-    if uniform is not None:
-        uniform.value = value  # type: ignore[union-attr]
-    cache[name] = value
-
-
-def _same(a: object, b: object) -> bool:
-    """Equal uniform values (numbers, bools, tuples of numbers); anything else counts as new."""
-    try:
-        return type(a) is type(b) and bool(a == b)
-    except (TypeError, ValueError):
-        return False
 
 
 def image_bytes(image: npt.NDArray[np.floating]) -> bytes:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from types import TracebackType
 
 _thread = threading.local()
@@ -54,3 +55,36 @@ class GLClock:
         self._depth -= 1
         if self._depth == 0:
             self.seconds += time.perf_counter() - self._start
+
+
+class StageTimer:
+    """``with StageTimer(clock, finish, into, name):`` puts the block's wall time in
+    milliseconds into ``into[name]``; with a `finish` (the context's), waits for the GPU at the
+    end, so the time is the stage's own. A class, not a generator context manager: two calls
+    per stage of a frame instead of six."""
+
+    __slots__ = ("_clock", "_finish", "_into", "_name", "_start")
+
+    def __init__(
+        self,
+        clock: GLClock,
+        finish: Callable[[], None] | None,
+        into: dict[str, float],
+        name: str,
+    ) -> None:
+        self._clock, self._finish, self._into, self._name = clock, finish, into, name
+        self._start = time.perf_counter()
+
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(
+        self,
+        kind: type[BaseException] | None,
+        error: BaseException | None,
+        trace: TracebackType | None,
+    ) -> None:
+        if self._finish is not None:
+            with self._clock:
+                self._finish()
+        self._into[self._name] = (time.perf_counter() - self._start) * 1e3

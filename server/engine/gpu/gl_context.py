@@ -59,6 +59,8 @@ class GLContext:
         self._owner = threading.get_ident()
         #: Time inside the GL calls that do the device's work (gl_clock.py).
         self.clock = GLClock()
+        # Who bound the storage-buffer binding points last (see claim_storage_bindings).
+        self._storage_owner: object | None = None
         own_on_this_thread(self.clock)
         info: dict[str, Any] = ctx.info
         self.renderer: str = str(info.get("GL_RENDERER", "unknown"))
@@ -87,6 +89,26 @@ class GLContext:
                 "the GL context was used from a thread that does not own it; "
                 "all GL work must run on the render thread"
             )
+
+    def claim_storage_bindings(self, owner: object) -> bool:
+        """Storage-buffer bindings are context state that several owners use (the splat's
+        buffers, the display pass's table, another renderer on this context): True when
+        `owner` must bind its buffers because someone else bound since its last claim."""
+        if self._storage_owner is owner:
+            return False
+        self._storage_owner = owner
+        return True
+
+    def storage_bindings_disturbed(self, owner: object) -> None:
+        """`owner` rebound one binding point outside a claim (a grown buffer): when that point
+        may have been someone else's, nobody's bindings can be trusted any more."""
+        if self._storage_owner is not owner:
+            self._storage_owner = None
+
+    def release_storage_claim(self, owner: object) -> None:
+        """`owner` releases its buffers: its claim (if it is the latest) ends."""
+        if self._storage_owner is owner:
+            self._storage_owner = None
 
     def release(self) -> None:
         if self._ctx is not None:

@@ -24,6 +24,9 @@ class ProgramCache:
         self._loader = loader or ShaderLoader()
         self._programs: dict[tuple[str, str, tuple[tuple[str, str], ...]], moderngl.Program] = {}
         self._compute: dict[str, moderngl.ComputeShader] = {}
+        # Keyed by the defines' repr as the caller built them (one C call, insertion order
+        # and value types included): the per-frame lookup, in front of the canonical key.
+        self._by_repr: dict[tuple[str, str, str], moderngl.Program] = {}
 
     def get(
         self,
@@ -31,12 +34,17 @@ class ProgramCache:
         fragment: str,
         defines: Mapping[str, DefineValue] | None = None,
     ) -> moderngl.Program:
+        fast = (vertex, fragment, repr(defines) if defines else "")
+        program = self._by_repr.get(fast)
+        if program is not None:
+            return program
         key = (vertex, fragment, tuple(sorted((k, repr(v)) for k, v in (defines or {}).items())))
         program = self._programs.get(key)
         if program is None:
             with self._gl.clock:  # compiling is the driver's work, not the frame's host work
                 program = self._build(vertex, fragment, defines)
             self._programs[key] = program
+        self._by_repr[fast] = program
         return program
 
     def compute(self, name: str) -> moderngl.ComputeShader:
@@ -73,6 +81,7 @@ class ProgramCache:
         for program in self._programs.values():
             program.release()
         self._programs.clear()
+        self._by_repr.clear()
         for shader in self._compute.values():
             shader.release()
         self._compute.clear()

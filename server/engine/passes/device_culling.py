@@ -16,6 +16,7 @@ every particle (equal up to depth-buffer ties, tests/test_device_prepare.py).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -25,7 +26,7 @@ import numpy as np
 from sphrender.server.engine.geometry import occlusion
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.screen_box import ScreenBox
-from sphrender.server.engine.gpu.draw import set_if_used
+from sphrender.server.engine.gpu.uniforms import set_group, set_if_used, write_array
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.splat_buffers import (
     COUNTS,
@@ -41,8 +42,9 @@ FRONT, SECOND, COVER = 1, 2, 4  # the flags of occlusion_cull.comp.glsl
 GROUP_SIZE = 256
 MAX_GROUPS = 65535
 #: Pyramid levels: blocks up to 64 pixels, as occlusion.DepthMaxTable's max_side (larger
-#: rectangles are simply drawn).
+#: rectangles are simply drawn); depth_pyramid.comp.glsl builds a 64-pixel block per group.
 LEVELS = 7
+PYRAMID_BLOCK = 2 ** (LEVELS - 1)
 _INF_BITS = np.uint32(0x7F800000)
 
 
@@ -97,14 +99,12 @@ class DeviceCulling:
     ) -> None:
         """Phase 2 over the front layer's eye depth `depth`: SECOND and COVER flags."""
         x, y, width, height = box if box is not None else (0, 0, camera.width, camera.height)
-        dims, offsets = _levels(width, height)
+        dims, offsets = levels(width, height)
         self._buffers.reserve(PYRAMID, offsets[-1] + dims[-1][0] * dims[-1][1])
-        self._build_pyramid(depth, (x, y), dims, offsets)
+        self.build_pyramid(depth, (x, y), dims, offsets)
         shader = self._shader(camera, frame, antialias)
         set_if_used(shader, "u_box", (x, y, width, height))
-        set_if_used(shader, "u_levels", len(dims))
-        _write_array(shader, "u_offsets", np.array(offsets, np.int32))
-        _write_array(shader, "u_dims", np.array(dims, np.int32))
+        _set_levels(shader, dims, offsets)
         self._run(shader, 2, frame.count)
 
     def drawn(self) -> int:
@@ -117,18 +117,20 @@ class DeviceCulling:
         self, camera: Camera, frame: DeviceCullInput, antialias: bool
     ) -> moderngl.ComputeShader:
         shader = self._context.programs.compute(CULL_SHADER)
-        tan_y = camera.tan_half_fov_y
-        values: dict[str, object] = {
-            "u_count": frame.count,
-            "u_tan_half_fov": (tan_y * camera.aspect, tan_y),
-            "u_size": (camera.width, camera.height),
-            "u_band": occlusion.FRONT_BAND_RADII,
-            "u_antialias": antialias,
-            "u_coverage_reach": self._coverage_reach,
-            "u_interior_reach": self._interior_reach,
-        }
-        for name, value in values.items():
-            set_if_used(shader, name, value)
+        set_if_used(shader, "u_count", frame.count)
+
+        def values() -> dict[str, object]:
+            tan_y = camera.tan_half_fov_y
+            return {
+                "u_tan_half_fov": (tan_y * camera.aspect, tan_y),
+                "u_size": (camera.width, camera.height),
+                "u_band": occlusion.FRONT_BAND_RADII,
+                "u_antialias": antialias,
+                "u_coverage_reach": self._coverage_reach,
+                "u_interior_reach": self._interior_reach,
+            }
+
+        set_group(shader, "camera", (camera, antialias), values)
         return shader
 
     def _run(self, shader: moderngl.ComputeShader, phase: int, count: int) -> None:
@@ -140,42 +142,40 @@ class DeviceCulling:
                 shader.run(group_x=math.ceil(min(per_dispatch, count - first) / GROUP_SIZE))
             self._context.gl.ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
 
-    def _build_pyramid(
+    def build_pyramid(
         self,
         depth: moderngl.Texture,
         origin: tuple[int, int],
-        dims: list[tuple[int, int]],
-        offsets: list[int],
+        dims: tuple[tuple[int, int], ...],
+        offsets: tuple[int, ...],
     ) -> None:
+        """The max-depth pyramid of `depth` from `origin` (levels `_levels(...)` of the box)
+        into the PYRAMID buffer, which must hold them: every level in one dispatch, a work
+        group per 64 x 64 block of level 0."""
         shader = self._context.programs.compute(PYRAMID_SHADER)
         set_if_used(shader, "u_depth", 0)
         set_if_used(shader, "u_origin", origin)
+        _set_levels(shader, dims, offsets)
         depth.use(0)
+        width, height = dims[0]
         with self._context.gl.clock:
-            for level, (w, h) in enumerate(dims):
-                set_if_used(shader, "u_level", level)
-                set_if_used(shader, "u_offset", offsets[level])
-                set_if_used(shader, "u_dims", (w, h))
-                if level:
-                    set_if_used(shader, "u_source_offset", offsets[level - 1])
-                    set_if_used(shader, "u_source_dims", dims[level - 1])
-                shader.run(group_x=math.ceil(w / 16), group_y=math.ceil(h / 16))
-                self._context.gl.ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
+            shader.run(group_x=-(-width // PYRAMID_BLOCK), group_y=-(-height // PYRAMID_BLOCK))
+            self._context.gl.ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
 
 
-def _write_array(shader: moderngl.ComputeShader, name: str, values: np.ndarray) -> None:
-    """Write `values` to the start of an int / ivec2 uniform array; the compiler keeps only
-    the elements it sees used, so the rest of the rows are padded with zeros."""
-    uniform = shader[name]
-    assert isinstance(uniform, moderngl.Uniform), name
-    rows = uniform.array_length
-    padded = np.zeros((rows, *values.shape[1:]), np.int32)
-    padded[: min(rows, len(values))] = values[:rows]
-    uniform.write(padded.tobytes())
+def _set_levels(
+    shader: moderngl.ComputeShader, dims: tuple[tuple[int, int], ...], offsets: tuple[int, ...]
+) -> None:
+    """The pyramid's level table (uniform arrays; rewritten only when the box changed)."""
+    set_if_used(shader, "u_levels", len(dims))
+    write_array(shader, "u_offsets", offsets, np.int32)
+    write_array(shader, "u_dims", dims, np.int32)
 
 
-def _levels(width: int, height: int) -> tuple[list[tuple[int, int]], list[int]]:
-    """Each pyramid level's (width, height) and where it starts in the pyramid buffer."""
+@functools.lru_cache(maxsize=16)
+def levels(width: int, height: int) -> tuple[tuple[tuple[int, int], ...], tuple[int, ...]]:
+    """Each pyramid level's (width, height) and where it starts in the pyramid buffer (cached:
+    a stream's box rarely changes)."""
     dims = [(max(width, 1), max(height, 1))]
     while len(dims) < LEVELS and max(dims[-1]) > 1:
         w, h = dims[-1]
@@ -183,4 +183,4 @@ def _levels(width: int, height: int) -> tuple[list[tuple[int, int]], list[int]]:
     offsets = [0]
     for w, h in dims[:-1]:
         offsets.append(offsets[-1] + w * h)
-    return dims, offsets
+    return tuple(dims), tuple(offsets)

@@ -23,7 +23,7 @@ from sphrender.client.frame import ParticleFrame
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.prepare import typical_radius
 from sphrender.server.engine.geometry.screen_box import ScreenBox, clip_box
-from sphrender.server.engine.gpu.draw import set_if_used
+from sphrender.server.engine.gpu.uniforms import set_group, set_if_used
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.splat import SplatBatch
 from sphrender.server.engine.passes.splat_buffers import (
@@ -76,15 +76,15 @@ class DevicePrepare:
         count = frame.count
         self._upload(frame, droplets, ellipsoids)
         summary = self._dispatch(camera, scene, frame, count, droplets, ellipsoids)
-        box_min_x, box_min_y, neg_max_x, neg_max_y, far_bits, visible, drops, unbounded = (
-            int(v) for v in summary[:8]
-        )
-        nearest = float(summary[8:9].view(np.float32)[0])
+        box_min_x, box_min_y, neg_max_x, neg_max_y, _, visible, drops, unbounded = summary[
+            :8
+        ].tolist()
+        far_reduced, nearest = summary[4:9:4].view(np.float32).tolist()
         far_config = scene.camera.far
         if far_config is not None:
             far = far_config
         elif visible:
-            far = float(np.array(far_bits, np.uint32).view(np.float32)) * 1.001
+            far = far_reduced * 1.001
         else:
             far = camera.near * 2.0
         far = max(far, camera.near * 1.001)
@@ -138,22 +138,26 @@ class DevicePrepare:
     ) -> npt.NDArray[np.int32]:
         """Run the compute shader over every particle; the summary it reduced (read back)."""
         shader = self._context.programs.compute(COMPUTE_SHADER)
-        tan_y = camera.tan_half_fov_y
         far_limit = scene.camera.far
-        uniforms: dict[str, object] = {
-            "u_eye": tuple(float(v) for v in camera.eye),
-            "u_rotation": tuple(float(v) for v in camera.rotation.T.ravel()),  # column-major
-            "u_radius": float(scene.particles.radius),
-            "u_has_radii": frame.radii is not None and ellipsoids is None,
-            "u_has_droplets": droplets is not None,
-            "u_ellipsoid": ellipsoids is not None,
-            "u_near": float(camera.near),
-            "u_far_limit": float(far_limit) if far_limit is not None else -1.0,
-            "u_tan_half_fov": (tan_y * camera.aspect, tan_y),
-            "u_size": (camera.width, camera.height),
-        }
-        for name, value in uniforms.items():
-            set_if_used(shader, name, value)
+        has_radii = frame.radii is not None and ellipsoids is None
+        flags = (has_radii, droplets is not None, ellipsoids is not None)
+
+        def values() -> dict[str, object]:
+            tan_y = camera.tan_half_fov_y
+            return {
+                "u_eye": tuple(float(v) for v in camera.eye),
+                "u_rotation": tuple(float(v) for v in camera.rotation.T.ravel()),  # column-major
+                "u_radius": float(scene.particles.radius),
+                "u_has_radii": flags[0],
+                "u_has_droplets": flags[1],
+                "u_ellipsoid": flags[2],
+                "u_near": float(camera.near),
+                "u_far_limit": float(far_limit) if far_limit is not None else -1.0,
+                "u_tan_half_fov": (tan_y * camera.aspect, tan_y),
+                "u_size": (camera.width, camera.height),
+            }
+
+        set_group(shader, "frame", (camera, scene.particles.radius, far_limit, flags), values)
         self._buffers.bind()
         per_dispatch = GROUP_SIZE * MAX_GROUPS
         ctx = self._context.gl.ctx

@@ -20,7 +20,8 @@ import numpy.typing as npt
 
 from sphrender.server.engine.frame_output import DisplayRequest
 from sphrender.server.engine.geometry.screen_box import ScreenBox
-from sphrender.server.engine.gpu.draw import PerSize, set_if_used, set_scissor
+from sphrender.server.engine.gpu.draw import PerSize, set_scissor
+from sphrender.server.engine.gpu.uniforms import set_if_used
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
 FRAGMENT_SHADER = "display/display_codes.frag.glsl"
@@ -69,7 +70,8 @@ class DisplayPass:
         if request.thresholds is not self._uploaded:  # the output layer's one table: once
             self._thresholds.write(_threshold_table(request.thresholds))
             self._uploaded = request.thresholds
-        self._thresholds.bind_to_storage_buffer(0)
+        if self._context.gl.claim_storage_bindings(self):
+            self._thresholds.bind_to_storage_buffer(0)
         target.fbo.use()
         if box is not None:
             x, y, w, h = box

@@ -13,14 +13,8 @@ import moderngl
 
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.screen_box import ScreenBox
-from sphrender.server.engine.gpu.draw import (
-    PerSize,
-    Target,
-    clear_and_scissor,
-    set_if_used,
-    set_scissor,
-    write_matrix,
-)
+from sphrender.server.engine.gpu.draw import PerSize, Target, clear_and_scissor, set_scissor
+from sphrender.server.engine.gpu.uniforms import set_group, write_matrix
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 from sphrender.server.scene import QualityConfig
 
@@ -57,24 +51,23 @@ class NormalsPass:
         target = self.target(surface.size)
         program = self._context.programs.get(FULLSCREEN_VERT, SHADER)
         surface.use(0)
-        set_if_used(program, "u_depth", 0)
-        set_if_used(
-            program,
-            "u_tan_half_fov",
-            (camera.tan_half_fov_y * camera.aspect, camera.tan_half_fov_y),
-        )
-        write_matrix(program, "u_view_to_world", camera.rotation.T)
-        set_if_used(program, "u_edge_jump", EDGE_JUMP_RADII * particle_radius)
-        set_if_used(program, "u_edge_jump_px", EDGE_JUMP_FOOTPRINTS)
-        set_if_used(program, "u_focal_px", camera.pixels_per_unit_at_unit_depth)
-        set_if_used(program, "u_particle_radius", particle_radius)
-        set_if_used(
-            program, "u_stencil_radii", quality.normal_stencil if quality is not None else 0.0
-        )
-        set_if_used(
-            program, "u_stencil_max_px", quality.normal_stencil_max_px if quality is not None else 1
-        )
-        set_if_used(program, "u_kink", KINK)
+
+        def values() -> dict[str, object]:
+            tan_y = camera.tan_half_fov_y
+            return {
+                "u_depth": 0,
+                "u_tan_half_fov": (tan_y * camera.aspect, tan_y),
+                "u_edge_jump": EDGE_JUMP_RADII * particle_radius,
+                "u_edge_jump_px": EDGE_JUMP_FOOTPRINTS,
+                "u_focal_px": camera.pixels_per_unit_at_unit_depth,
+                "u_particle_radius": particle_radius,
+                "u_stencil_radii": quality.normal_stencil if quality is not None else 0.0,
+                "u_stencil_max_px": quality.normal_stencil_max_px if quality is not None else 1,
+                "u_kink": KINK,
+            }
+
+        set_group(program, "frame", (camera, particle_radius, quality), values)
+        write_matrix(program, "u_view_to_world", lambda: camera.rotation.T, camera)
         clear_and_scissor(target.fbo, box)
         target.fbo.use()
         self._context.fullscreen.draw(program)

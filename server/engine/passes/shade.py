@@ -22,18 +22,11 @@ import numpy as np
 
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.screen_box import ScreenBox
-from sphrender.server.engine.gpu.draw import (
-    PerSize,
-    Target,
-    clear_and_scissor,
-    set_if_used,
-    set_scissor,
-    uses,
-    write_matrix,
-)
+from sphrender.server.engine.gpu.draw import PerSize, Target, clear_and_scissor, set_scissor
+from sphrender.server.engine.gpu.uniforms import set_group, set_if_used, uses, write_matrix
 from sphrender.server.engine.lighting.blackbody import TABLE_MAX_K, TABLE_MIN_K, blackbody_table
 from sphrender.server.engine.lighting.environment import EnvironmentLibrary, rotation_about_y
-from sphrender.server.engine.lighting.ibl import PREFILTER_LEVELS, IblCache
+from sphrender.server.engine.lighting.ibl import PREFILTER_LEVELS, EnvironmentTextures, IblCache
 from sphrender.server.engine.lighting.materials import resolve_material
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 from sphrender.server.scene import MAX_LIGHTS, Scene
@@ -112,68 +105,87 @@ class ShadePass:
         = coverage, and the pixels just outside show their neighbours' surface."""
         program = self.program_for(scene, temperature is not None, coverage is not None)
         shading = scene.shading
+        entry = None
+        if shading.ibl_mode != "none" or shading.background == "environment":
+            entry = self.ibl.environment(self.environments.resolve(scene.environment))
         # Textures are bound only after every resource exists: building one (prefiltering, the
         # BRDF table) runs passes of its own that rebind texture units.
-        textures: list[tuple[str, moderngl.Texture]] = []
-
-        def bind(name: str, texture: moderngl.Texture) -> None:
-            if uses(program, name):
-                textures.append((name, texture))
-
-        bind("u_normal_depth", normal_depth)
-        if coverage is not None:
-            bind("u_coverage", coverage)
-        set_if_used(
+        textures = self._textures(program, scene, entry, normal_depth, temperature, coverage)
+        set_group(
             program,
-            "u_tan_half_fov",
-            (camera.tan_half_fov_y * camera.aspect, camera.tan_half_fov_y),
+            "scene",
+            (scene, camera, entry),
+            lambda: self._scene_uniforms(program, scene, camera, entry),
         )
-        if uses(program, "u_view_to_world"):
-            write_matrix(program, "u_view_to_world", camera.rotation.T)
-
-        material = resolve_material(scene.material)
-        set_if_used(program, "u_f0", material.specular_f0)
-        set_if_used(program, "u_diffuse_albedo", material.diffuse_albedo)
-        set_if_used(program, "u_roughness", material.roughness)
-        self._set_lights(program, scene, camera)
-
-        needs_environment = shading.ibl_mode != "none" or shading.background == "environment"
-        if needs_environment:
-            image = self.environments.resolve(scene.environment)
-            entry = self.ibl.environment(image)
-            world_to_env = rotation_about_y(scene.environment.rotation_deg)
-            if uses(program, "u_world_to_env"):
-                write_matrix(program, "u_world_to_env", world_to_env)
-            set_if_used(program, "u_env_intensity", scene.environment.intensity)
-            bind("u_env_source", entry.source)
-            set_if_used(program, "u_env_source_size", tuple(float(s) for s in entry.source_size))
-            if uses(program, "u_sh"):
-                program["u_sh"].write(entry.sh.astype(np.float32).tobytes())  # type: ignore[union-attr]
-
-            if shading.ibl_mode == "prefiltered":
-                bind("u_env_prefiltered", self.ibl.prefiltered(entry, shading.prefilter_samples))
-                set_if_used(program, "u_prefiltered_max_lod", float(PREFILTER_LEVELS - 1))
-            set_if_used(program, "u_ibl_samples", shading.ibl_samples)
-        if shading.ibl_mode != "none" or shading.multiple_scattering:
-            bind("u_brdf_lut", self.ibl.brdf_lut(shading.g_term))
-        set_if_used(program, "u_eq55_k", shading.eq55_k)
-
-        if temperature is not None:
-            bind("u_temperature", temperature)
-            bind("u_blackbody", self._blackbody_texture())
-            set_if_used(program, "u_blackbody_range", (TABLE_MIN_K, TABLE_MAX_K))
-            set_if_used(program, "u_emissivity", material.normal_emissivity)
-            set_if_used(program, "u_emission_scale", shading.emission_scale)
-
         for unit, (name, texture) in enumerate(textures):
             texture.use(unit)
-            program[name] = unit
+            set_if_used(program, name, unit)
         target = self.target(normal_depth.size)
         clear_and_scissor(target.fbo, box if shading.background == "transparent" else None)
         target.fbo.use()
         self._context.fullscreen.draw(program)
         set_scissor(target.fbo, None)
         return target
+
+    def _textures(
+        self,
+        program: moderngl.Program,
+        scene: Scene,
+        entry: EnvironmentTextures | None,
+        normal_depth: moderngl.Texture,
+        temperature: moderngl.Texture | None,
+        coverage: moderngl.Texture | None,
+    ) -> list[tuple[str, moderngl.Texture]]:
+        """The (sampler, texture) pairs the variant reads, resources built on first use."""
+        shading = scene.shading
+        wanted: list[tuple[str, moderngl.Texture | None]] = [
+            ("u_normal_depth", normal_depth),
+            ("u_coverage", coverage),
+        ]
+        if entry is not None:
+            wanted.append(("u_env_source", entry.source))
+            if shading.ibl_mode == "prefiltered":
+                prefiltered = self.ibl.prefiltered(entry, shading.prefilter_samples)
+                wanted.append(("u_env_prefiltered", prefiltered))
+        if shading.ibl_mode != "none" or shading.multiple_scattering:
+            wanted.append(("u_brdf_lut", self.ibl.brdf_lut(shading.g_term)))
+        if temperature is not None:
+            wanted += [("u_temperature", temperature), ("u_blackbody", self._blackbody_texture())]
+        return [(n, t) for n, t in wanted if t is not None and uses(program, n)]
+
+    def _scene_uniforms(
+        self,
+        program: moderngl.Program,
+        scene: Scene,
+        camera: Camera,
+        entry: EnvironmentTextures | None,
+    ) -> dict[str, object]:
+        """Every uniform that is a function of the scene and the camera; the matrices, arrays
+        and lights are written here too (set_group calls this only when one of them changed)."""
+        shading, material = scene.shading, resolve_material(scene.material)
+        tan_y = camera.tan_half_fov_y
+        values: dict[str, object] = {
+            "u_tan_half_fov": (tan_y * camera.aspect, tan_y),
+            "u_f0": material.specular_f0,
+            "u_diffuse_albedo": material.diffuse_albedo,
+            "u_roughness": material.roughness,
+            "u_eq55_k": shading.eq55_k,
+            "u_blackbody_range": (TABLE_MIN_K, TABLE_MAX_K),
+            "u_emissivity": material.normal_emissivity,
+            "u_emission_scale": shading.emission_scale,
+        }
+        write_matrix(program, "u_view_to_world", lambda: camera.rotation.T, camera)
+        if entry is not None:
+            rotation = scene.environment.rotation_deg
+            write_matrix(program, "u_world_to_env", lambda: rotation_about_y(rotation), rotation)
+            values["u_env_intensity"] = scene.environment.intensity
+            values["u_env_source_size"] = tuple(float(s) for s in entry.source_size)
+            if uses(program, "u_sh"):
+                program["u_sh"].write(entry.sh.astype(np.float32).tobytes())  # type: ignore[union-attr]
+            values["u_prefiltered_max_lod"] = float(PREFILTER_LEVELS - 1)
+            values["u_ibl_samples"] = shading.ibl_samples
+        self._set_lights(program, scene, camera)
+        return values
 
     def _set_lights(self, program: moderngl.Program, scene: Scene, camera: Camera) -> None:
         count = len(scene.lights)

@@ -17,13 +17,8 @@ from __future__ import annotations
 import moderngl
 
 from sphrender.server.engine.geometry.screen_box import ScreenBox, packed_box
-from sphrender.server.engine.gpu.draw import (
-    PerSize,
-    Target,
-    clear_and_scissor,
-    set_if_used,
-    set_scissor,
-)
+from sphrender.server.engine.gpu.draw import PerSize, Target, clear_and_scissor, set_scissor
+from sphrender.server.engine.gpu.uniforms import set_group, set_if_used
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 from sphrender.server.scene import QualityConfig
 
@@ -73,7 +68,7 @@ class SmoothPass:
             "FILTER": _FILTER_DEFINES[quality.filter],
             "KERNEL_SIZE": _KERNEL_SIZE_DEFINES[quality.kernel_size],
         }
-        uniforms = _filter_uniforms(px_per_unit, particle_radius, quality)
+        uniforms = _FilterUniforms(px_per_unit, particle_radius, quality)
         if quality.separable:
             if quality.keep_features != "none":
                 defines["KEEP_FEATURES"] = _KEEP_FEATURES_DEFINES[quality.keep_features]
@@ -85,12 +80,12 @@ class SmoothPass:
         targets: _SmoothTargets,
         depth: moderngl.Texture,
         defines: dict[str, int],
-        uniforms: dict[str, float],
+        uniforms: _FilterUniforms,
         iterations: int,
         box: ScreenBox | None,
     ) -> moderngl.Texture:
         program = self._context.programs.get(FULLSCREEN_VERT, TWO_D_SHADER, defines)
-        _set_uniforms(program, uniforms)
+        uniforms.set(program)
         set_if_used(program, "u_depth", 0)
         for target in targets.ping:
             clear_and_scissor(target.fbo, box)
@@ -111,7 +106,7 @@ class SmoothPass:
         targets: _SmoothTargets,
         depth: moderngl.Texture,
         defines: dict[str, int],
-        uniforms: dict[str, float],
+        uniforms: _FilterUniforms,
         iterations: int,
         box: ScreenBox | None,
     ) -> moderngl.Texture:
@@ -130,7 +125,7 @@ class SmoothPass:
             for axis in (0, 1)
         }
         for program in passes.values():
-            _set_uniforms(program, uniforms)
+            uniforms.set(program)
             set_if_used(program, "u_packed_depth", 0)
         read_index = 0
         for iteration in range(iterations):
@@ -157,26 +152,31 @@ class SmoothPass:
         self._targets.release()
 
 
-def _filter_uniforms(
-    px_per_unit: float, particle_radius: float, quality: QualityConfig
-) -> dict[str, float]:
-    """The uniforms of `common/depth_filter_params.glsl`, lengths in particle radii resolved."""
-    r = particle_radius
-    return {
-        "u_kernel_min_px": quality.kernel_min_px,
-        "u_kernel_max_px": quality.kernel_max_px,
-        "u_particle_radius": r,
-        "u_px_per_unit": px_per_unit,
-        "u_kernel_scale": quality.kernel_scale,
-        "u_eq25_sigma_px": quality.eq25_sigma_px,
-        "u_eq25_threshold": quality.eq25_threshold,
-        "u_eq25_decline": quality.eq25_decline,
-        "u_range_sigma": quality.bilateral_depth_sigma * r,
-        "u_nr_threshold": quality.narrow_range_threshold * r,
-        "u_nr_clamp": quality.narrow_range_clamp * r,
-    }
+class _FilterUniforms:
+    """The uniforms of `common/depth_filter_params.glsl`, lengths in particle radii resolved;
+    set on a program only when one of their inputs changed."""
 
+    __slots__ = ("_key",)
 
-def _set_uniforms(program: moderngl.Program, uniforms: dict[str, float]) -> None:
-    for name, value in uniforms.items():
-        set_if_used(program, name, value)  # the compiler drops uniforms a filter never reads
+    def __init__(self, px_per_unit: float, particle_radius: float, quality: QualityConfig) -> None:
+        self._key = (px_per_unit, particle_radius, quality)
+
+    def set(self, program: moderngl.Program) -> None:
+        # The compiler drops the uniforms a filter never reads; set_if_used skips those.
+        set_group(program, "filter", self._key, self.values)
+
+    def values(self) -> dict[str, float]:
+        px_per_unit, r, quality = self._key
+        return {
+            "u_kernel_min_px": quality.kernel_min_px,
+            "u_kernel_max_px": quality.kernel_max_px,
+            "u_particle_radius": r,
+            "u_px_per_unit": px_per_unit,
+            "u_kernel_scale": quality.kernel_scale,
+            "u_eq25_sigma_px": quality.eq25_sigma_px,
+            "u_eq25_threshold": quality.eq25_threshold,
+            "u_eq25_decline": quality.eq25_decline,
+            "u_range_sigma": quality.bilateral_depth_sigma * r,
+            "u_nr_threshold": quality.narrow_range_threshold * r,
+            "u_nr_clamp": quality.narrow_range_clamp * r,
+        }

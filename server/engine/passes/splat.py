@@ -29,14 +29,9 @@ from sphrender.server.engine.geometry import occlusion
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.prepare import PreparedParticles
 from sphrender.server.engine.geometry.screen_box import ScreenBox
-from sphrender.server.engine.gpu.draw import (
-    PerSize,
-    Target,
-    float_texture,
-    set_if_used,
-    write_matrix,
-)
+from sphrender.server.engine.gpu.draw import PerSize, Target, float_texture
 from sphrender.server.engine.gpu.gl_clock import GLClock
+from sphrender.server.engine.gpu.uniforms import set_group, set_if_used, write_matrix
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 from sphrender.server.engine.passes.device_culling import (
     COVER,
@@ -161,11 +156,13 @@ class SplatPass:
         # draw module runs its vertex pipeline once per instance, which made the splat of 90k
         # particles cost ~70 ms of pure per-instance overhead. The vertex stage pulls its
         # particle from storage buffers (splat_buffers.py), so nothing is repeated per corner.
-        self.buffers = SplatBuffers(context.gl.ctx, context.gl.clock)
+        self.buffers = SplatBuffers(context.gl)
         self._culling = DeviceCulling(context, self.buffers, (COVERAGE_REACH_PX, INTERIOR_REACH_PX))
         self._culled_on_device = False
         # Keyed by (ellipsoid, has temperature, coverage).
-        self._vaos: dict[tuple[bool, bool, bool], moderngl.VertexArray] = {}
+        self._vaos: dict[
+            tuple[bool, bool, bool], tuple[moderngl.Program, moderngl.VertexArray]
+        ] = {}
         self._targets = PerSize(lambda size: SplatTargets(context.gl.ctx, size))
 
     def targets(self, size: tuple[int, int]) -> SplatTargets:
@@ -298,11 +295,12 @@ class SplatPass:
     def _depth_draw(self, camera: Camera, batch: SplatBatch) -> moderngl.VertexArray:
         """The vertex array of `batch`'s depth splat, its uniforms set."""
         program, vao = self._vertex_array(batch.ellipsoid, batch.has_temperature)
-        _set_particle_uniforms(program, camera, batch)
-        write_matrix(program, "u_projection", camera.projection_matrix(batch.far))
-        set_if_used(program, "u_near", camera.near)
-        set_if_used(program, "u_far", batch.far)
-        set_if_used(program, "u_margin", 0.0)
+        set_group(
+            program,
+            "batch",
+            _uniform_key(camera, batch),
+            lambda: _particle_uniforms(program, camera, batch, margin=0.0),
+        )
         return vao
 
     def _draw_coverage(
@@ -322,13 +320,21 @@ class SplatPass:
             return
         ctx = self._context.gl.ctx
         program, vao = self._vertex_array(batch.ellipsoid, False, coverage=True)
-        _set_particle_uniforms(program, camera, replace(batch, has_temperature=False))
         focal_px = camera.pixels_per_unit_at_unit_depth
-        write_matrix(program, "u_projection", camera.projection_matrix(batch.far))
-        set_if_used(program, "u_margin", COVERAGE_MARGIN_PX / focal_px)
-        set_if_used(program, "u_near", camera.near)
-        set_if_used(program, "u_focal_px", focal_px)
-        set_if_used(program, "u_far", batch.far)
+        set_group(
+            program,
+            "batch",
+            _uniform_key(camera, batch),
+            lambda: {
+                **_particle_uniforms(
+                    program,
+                    camera,
+                    replace(batch, has_temperature=False),
+                    margin=COVERAGE_MARGIN_PX / focal_px,
+                ),
+                "u_focal_px": focal_px,
+            },
+        )
         target.fbo.use()
         ctx.enable(moderngl.BLEND)
         ctx.blend_equation = moderngl.MAX  # type: ignore[assignment]  # the stub wants a pair
@@ -431,6 +437,10 @@ class SplatPass:
         """The program and vertex array of one kind of splat draw (spheres or ellipsoids,
         with or without temperatures, depth or coverage). The arrays have no attributes: the
         vertex stage pulls its particle from the storage buffers."""
+        key = (ellipsoid, has_temperature, coverage)
+        known = self._vaos.get(key)
+        if known is not None:
+            return known
         programs = self._context.programs
         if ellipsoid:
             program = programs.get(
@@ -443,29 +453,42 @@ class SplatPass:
         else:
             sphere_defines = {"HAS_TEMPERATURE": True} if has_temperature else None
             program = programs.get(VERTEX_SHADER, FRAGMENT_SHADER, sphere_defines)
-        key = (ellipsoid, has_temperature, coverage)
-        vao = self._vaos.get(key)
-        if vao is None:
-            vao = self._context.gl.ctx.vertex_array(
-                program, [], index_buffer=self.buffers.index_buffer, index_element_size=4
-            )
-            self._vaos[key] = vao
+        vao = self._context.gl.ctx.vertex_array(
+            program, [], index_buffer=self.buffers.index_buffer, index_element_size=4
+        )
+        self._vaos[key] = (program, vao)
         return program, vao
 
     def release(self) -> None:
-        for vao in self._vaos.values():
+        for _, vao in self._vaos.values():
             vao.release()
         self._vaos.clear()
         self._targets.release()
         self.buffers.release()
 
 
-def _set_particle_uniforms(program: moderngl.Program, camera: Camera, batch: SplatBatch) -> None:
-    """The uniforms of common/splat_particles.glsl (u_use_ids is set per draw)."""
-    set_if_used(program, "u_class", -1.0 if batch.droplets else 1.0)
-    set_if_used(program, "u_has_temperature", batch.has_temperature)
+def _uniform_key(camera: Camera, batch: SplatBatch) -> tuple[object, ...]:
+    """What `_particle_uniforms` depends on (not the batch itself: its host arrays would be
+    compared element by element)."""
+    return (camera, batch.far, batch.droplets, batch.has_temperature, batch.ellipsoid)
+
+
+def _particle_uniforms(
+    program: moderngl.Program, camera: Camera, batch: SplatBatch, *, margin: float
+) -> dict[str, object]:
+    """The uniforms of common/splat_particles.glsl and the impostor's projection (u_use_ids and
+    u_flag_mask are set per draw); the matrices are written here."""
+    projection = lambda: camera.projection_matrix(batch.far)  # noqa: E731
+    write_matrix(program, "u_projection", projection, (camera, batch.far))
     if batch.ellipsoid:
-        write_matrix(program, "u_view_rotation", camera.rotation.astype(np.float32))
+        write_matrix(program, "u_view_rotation", lambda: camera.rotation, camera)
+    return {
+        "u_class": -1.0 if batch.droplets else 1.0,
+        "u_has_temperature": batch.has_temperature,
+        "u_near": camera.near,
+        "u_far": batch.far,
+        "u_margin": margin,
+    }
 
 
 def _render(

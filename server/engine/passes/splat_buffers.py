@@ -25,7 +25,7 @@ import moderngl
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.server.engine.gpu.gl_clock import GLClock
+from sphrender.server.engine.gpu.gl_context import GLContext
 
 SPHERES, IDS, TEMPERATURES, AXES, POSITIONS, RADII, DROPLETS, SUMMARY = range(8)
 FLAGS, TILES, PYRAMID, COUNTS = range(8, 12)
@@ -39,9 +39,10 @@ COUNTS_BYTES = 16
 
 
 class SplatBuffers:
-    def __init__(self, ctx: moderngl.Context, clock: GLClock) -> None:
-        self._ctx = ctx
-        self._clock = clock
+    def __init__(self, gl: GLContext) -> None:
+        self._gl = gl
+        ctx = gl.ctx
+        self._clock = gl.clock
         self._buffers = {binding: ctx.buffer(reserve=64 * 1024) for binding in STRIDE}
         self._buffers[SUMMARY] = ctx.buffer(reserve=SUMMARY_BYTES)
         self._buffers[COUNTS] = ctx.buffer(reserve=COUNTS_BYTES)
@@ -53,10 +54,12 @@ class SplatBuffers:
         return self._buffers[binding]
 
     def bind(self) -> None:
-        """Bind every buffer to its binding point (storage bindings are context state, shared
-        with other passes: the splat's draws and dispatches bind before they run)."""
-        for binding, buffer in self._buffers.items():
-            buffer.bind_to_storage_buffer(binding)
+        """Bind every buffer to its binding point, unless they still are: storage bindings are
+        context state shared with other passes (GLContext.claim_storage_bindings), so the
+        splat's draws and dispatches call this before they run."""
+        if self._gl.claim_storage_bindings(self):
+            for binding, buffer in self._buffers.items():
+                buffer.bind_to_storage_buffer(binding)
 
     def ensure_quads(self, count: int) -> None:
         """An index buffer holding at least `count` quads."""
@@ -88,8 +91,10 @@ class SplatBuffers:
             # A storage binding is a range of the size the buffer had when it was bound: a grown
             # buffer read through the old binding reads zeros past the old end.
             buffer.bind_to_storage_buffer(binding)
+            self._gl.storage_bindings_disturbed(self)
 
     def release(self) -> None:
+        self._gl.release_storage_claim(self)
         for buffer in self._buffers.values():
             buffer.release()
         self.index_buffer.release()

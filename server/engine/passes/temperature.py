@@ -13,10 +13,12 @@ from __future__ import annotations
 
 import moderngl
 
-from sphrender.server.engine.gpu.draw import PerSize, Target, set_if_used
+from sphrender.server.engine.gpu.draw import PerSize, Target
+from sphrender.server.engine.gpu.uniforms import set_group, set_if_used
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
 SHADER = "temperature/smooth_temperature.frag.glsl"
+_AXIS_DEFINES = ({"AXIS": 0}, {"AXIS": 1})
 PACK_SHADER = "common/image_pack.frag.glsl"
 UNPACK_SHADER = "common/image_unpack.frag.glsl"
 #: Temperature blur: sigma in projected particle radii, kernel cap, and the depth window (in
@@ -64,13 +66,20 @@ class TemperaturePass:
             draw(pack)
         blur.packed_depth.texture.use(1)
         for axis in (0, 1):
-            program = programs.get(FULLSCREEN_VERT, SHADER, {"AXIS": axis})
-            set_if_used(program, "u_radius_px_at_unit_depth", particle_radius * px_per_unit)
-            set_if_used(program, "u_sigma_radii", TEMPERATURE_SIGMA_RADII)
-            set_if_used(program, "u_max_reach_px", TEMPERATURE_MAX_REACH_PX)
-            set_if_used(program, "u_depth_range", TEMPERATURE_DEPTH_RANGE_RADII * particle_radius)
-            set_if_used(program, "u_packed_temperature", 0)
-            set_if_used(program, "u_packed_depth", 1)
+            program = programs.get(FULLSCREEN_VERT, SHADER, _AXIS_DEFINES[axis])
+            set_group(
+                program,
+                "frame",
+                (particle_radius, px_per_unit),
+                lambda: {
+                    "u_radius_px_at_unit_depth": particle_radius * px_per_unit,
+                    "u_sigma_radii": TEMPERATURE_SIGMA_RADII,
+                    "u_max_reach_px": TEMPERATURE_MAX_REACH_PX,
+                    "u_depth_range": TEMPERATURE_DEPTH_RANGE_RADII * particle_radius,
+                    "u_packed_temperature": 0,
+                    "u_packed_depth": 1,
+                },
+            )
             blur.packed[axis].texture.use(0)
             blur.packed[1 - axis].fbo.use()
             draw(program)
