@@ -1,18 +1,28 @@
 """Host work per frame: what the render thread does outside GL/CL calls (issue 13).
 
-Not a test. Run:  .venv/bin/python benchmarks/bench_host.py [--frames 5] [--sizes 100k,1m]
+Not a test. Run:  .venv/bin/python benchmarks/bench_host.py [--frames 5] [--sizes 100k,1m,4k]
 
 Renders a jittered-lattice ball (the bench headline shape) with the default preset on the main
 thread, as `sphrender render` does, and prints per size: the median wall time of
 `SurfaceRenderer.render`, the time inside moderngl/pyopencl calls and the difference (host work,
 measured with cProfile: `server/bench/host_time.py`), the engine's own `host_ms` estimate, and
 the stage times of an unprofiled frame. On a GPU the host column is the frame time's floor.
+
+On llvmpipe the rasteriser's worker threads run beside the render thread and, on a machine with
+few cores, preempt it: its Python then takes longer in wall time than it would beside a GPU.
+`--lp-threads default,0` measures both: as llvmpipe runs by default, and with
+`LP_NUM_THREADS=0` (llvmpipe rasterises inside the GL calls, so nothing competes with the
+render thread outside them: the closer model of a GPU, whose work runs on its own silicon).
+Each setting runs in its own process (Mesa reads the variable when the context is made).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
+import subprocess
+import sys
 
 import numpy as np
 
@@ -23,8 +33,13 @@ from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import scene_from_dict
 
-#: name -> (ball radius for ~that many particles at r = 0.01, width, height)
-SIZES = {"100k": (0.58, 1280, 720), "1m": (1.25, 1920, 1080)}
+#: name -> (ball radius for ~that many particles at r = 0.01, width, height). "4k" is the
+#: control: the same passes and the same Python calls as "100k" (over the occlusion culling's
+#: 2048-particle threshold), with almost no GL work. On llvmpipe the GL work is the CPU's, and
+#: the render thread's code after each GL call runs on caches the rasteriser has just evicted
+#: (and beside its threads): the control's host time is what the same Python costs beside a
+#: device that does not share the CPU.
+SIZES = {"100k": (0.58, 1280, 720), "1m": (1.25, 1920, 1080), "4k": (0.2, 160, 90)}
 
 
 def measure(renderer: SurfaceRenderer, name: str, frames: int) -> None:
@@ -60,11 +75,27 @@ def measure(renderer: SurfaceRenderer, name: str, frames: int) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--frames", type=int, default=5)
-    parser.add_argument("--sizes", default="100k,1m")
+    parser.add_argument("--sizes", default="100k,1m,4k", help=f"of {', '.join(SIZES)}")
     parser.add_argument(
         "--prepare", default="host,device", help="prepare modes to measure, comma-separated"
     )
+    parser.add_argument(
+        "--lp-threads",
+        default="",
+        help="llvmpipe thread settings to measure, each in its own process: 'default' and/or "
+        "a number for LP_NUM_THREADS (e.g. default,0); empty: this process as it is",
+    )
     args = parser.parse_args()
+    if args.lp_threads:
+        for setting in args.lp_threads.split(","):
+            env = dict(os.environ)
+            env.pop("LP_NUM_THREADS", None)
+            if setting != "default":
+                env["LP_NUM_THREADS"] = setting
+            print(f"--- LP_NUM_THREADS={env.get('LP_NUM_THREADS', '(default)')}", flush=True)
+            same = ["--frames", str(args.frames), "--sizes", args.sizes, "--prepare", args.prepare]
+            subprocess.run([sys.executable, __file__, *same], env=env, check=True)
+        return
     np.random.seed(0)
     with GLContext() as gl:
         print(f"{gl.renderer}")

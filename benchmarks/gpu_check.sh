@@ -60,7 +60,7 @@ section "demo"
 .venv/bin/sphrender demo -o "${TMPDIR:-/tmp}/sphrender-gpu-check-demo.png" -v
 
 section "host work and stage times (ms; host = wall - time inside GL/CL calls)"
-timeout 420 .venv/bin/python benchmarks/bench_host.py --frames 5 --sizes 100k,1m \
+timeout 420 .venv/bin/python benchmarks/bench_host.py --frames 5 --sizes 100k,1m,4k \
     --prepare host,device,auto
 
 section "done"

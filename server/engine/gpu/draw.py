@@ -87,14 +87,14 @@ class FullscreenTriangle:
 
     def __init__(self, gl: GLContext) -> None:
         self._gl = gl
-        self._vaos: dict[int, moderngl.VertexArray] = {}
+        self._vaos: dict[moderngl.Program, moderngl.VertexArray] = {}  # keyed by identity
 
     def draw(self, program: moderngl.Program) -> None:
         """Draw the triangle with `program` into the bound framebuffer."""
-        vao = self._vaos.get(program.glo)
+        vao = self._vaos.get(program)
         if vao is None:
             vao = self._gl.ctx.vertex_array(program, [])
-            self._vaos[program.glo] = vao
+            self._vaos[program] = vao
         with self._gl.clock:
             vao.render(moderngl.TRIANGLES, vertices=3)
 
