@@ -42,6 +42,10 @@ SETTINGS["balanced_aniso"] = Setting(
         "sph": {"anisotropy": True},
     },
 )
+for _gap in (1.0, 2.0, 3.0):
+    SETTINGS[f"balanced_gaps{_gap:g}"] = Setting(
+        f"balanced_gaps{_gap:g}", preset="balanced", overrides={"quality": {"close_gaps": _gap}}
+    )
 SETTINGS["balanced_droplets"] = Setting(
     "balanced_droplets", preset="balanced", overrides={"quality": {"exact_droplets": True}}
 )

@@ -37,6 +37,7 @@ from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.programs import ProgramCache
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.display import DisplayPass
+from sphrender.server.engine.passes.gaps import GapPass
 from sphrender.server.engine.passes.normals import NormalsPass
 from sphrender.server.engine.passes.prepare_stage import PrepareMode, PrepareStage
 from sphrender.server.engine.passes.readback import read_frame
@@ -71,6 +72,7 @@ class SurfaceRenderer:
         self._sph = SphStage(cl_device)  # OpenCL is created on the first frame that needs it
         self._splat = SplatPass(self._context)
         self._prepare = PrepareStage(self._context, self._splat, prepare)
+        self._gaps = GapPass(self._context)
         self._smooth = SmoothPass(self._context)
         self._normals = NormalsPass(self._context)
         self._temperature = TemperaturePass(self._context)
@@ -166,10 +168,19 @@ class SurfaceRenderer:
 
         px_per_unit = camera.pixels_per_unit_at_unit_depth
         surface = splat.depth
+        if scene.quality.close_gaps > 0.0 and stats.particles_drawn:
+            with self._stage(stats, "gaps"):
+                surface = self._gaps.run(
+                    surface,
+                    px_per_unit=px_per_unit,
+                    particle_radius=prepared.reference_radius,
+                    gap_radii=scene.quality.close_gaps,
+                    box=box,
+                )
         if scene.quality.filter != "none" and stats.particles_drawn:
             with self._stage(stats, "smooth"):
                 surface = self._smooth.run(
-                    splat.depth,
+                    surface,
                     px_per_unit=px_per_unit,
                     particle_radius=prepared.reference_radius,
                     quality=scene.quality,
@@ -291,8 +302,8 @@ class SurfaceRenderer:
     def release(self) -> None:
         """Release every GPU object this renderer owns (on the owner thread)."""
         self._gl.check_owner()
-        passes = (self._splat, self._smooth, self._normals, self._temperature, self._shade)
-        for gpu_pass in (*passes, self._display):
+        passes = (self._splat, self._gaps, self._smooth, self._normals, self._temperature)
+        for gpu_pass in (*passes, self._shade, self._display):
             gpu_pass.release()
         self._context.fullscreen.release()
         self._context.programs.release()

@@ -144,6 +144,19 @@ class QualityConfig:
         high=1.0,
         unit="fraction of sph.rest_density",
     )
+    close_gaps: float = spec(
+        0.0,
+        "close the gaps a sparse sheet or spray leaves between its splatted particles, before "
+        "the smoothing (passes/gaps.py): a background pixel enclosed in two of four directions, "
+        "or a pixel of a farther surface enclosed in one, by a nearer surface on both sides at "
+        "most close_gaps particle radii apart (on screen, projected at their depth, and in "
+        "depth) takes the depth interpolated between them; depths only get nearer (no hole "
+        "opens), a notch along a silhouette stays open, particles farther apart stay apart; "
+        "at most 16 pixels. 0: off",
+        low=0.0,
+        high=8.0,
+        unit="particle radii",
+    )
     occlusion_culling: bool = spec(
         True,
         "splat the front layer first and skip particles hidden behind it (exact: the depth "
