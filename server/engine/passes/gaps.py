@@ -13,7 +13,8 @@ cover loses its surface. The rule in full: `shaders/gaps/close_gaps.frag.glsl`.
 
 Shaders: `shaders/gaps/gap_tiles.frag.glsl` (the nearest depth and whether there is a depth
 edge, per 4 x 4 and per 16 x 16 pixels, which bound the search and skip pixels with no edge or
-no nearer surface around: the interior of a surface stops there), `shaders/gaps/close_gaps.frag.glsl`.
+no nearer surface around: the interior of a surface stops there),
+`shaders/gaps/close_gaps.frag.glsl`.
 Owns: the two tile targets and the closed-depth target (R32F), per image size.
 """
 
