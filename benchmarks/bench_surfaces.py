@@ -46,6 +46,17 @@ for _gap in (1.0, 2.0, 3.0):
     SETTINGS[f"balanced_gaps{_gap:g}"] = Setting(
         f"balanced_gaps{_gap:g}", preset="balanced", overrides={"quality": {"close_gaps": _gap}}
     )
+for _rim in (1.0, 2.0, 3.0):
+    SETTINGS[f"balanced_rim{_rim:g}"] = Setting(
+        f"balanced_rim{_rim:g}",
+        preset="balanced",
+        overrides={"quality": {"silhouette_normals": _rim}},
+    )
+    SETTINGS[f"balanced_gaps2_rim{_rim:g}"] = Setting(
+        f"balanced_gaps2_rim{_rim:g}",
+        preset="balanced",
+        overrides={"quality": {"close_gaps": 2.0, "silhouette_normals": _rim}},
+    )
 SETTINGS["balanced_droplets"] = Setting(
     "balanced_droplets", preset="balanced", overrides={"quality": {"exact_droplets": True}}
 )

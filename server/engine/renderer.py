@@ -42,6 +42,7 @@ from sphrender.server.engine.passes.normals import NormalsPass
 from sphrender.server.engine.passes.prepare_stage import PrepareMode, PrepareStage
 from sphrender.server.engine.passes.readback import read_frame
 from sphrender.server.engine.passes.shade import ShadePass
+from sphrender.server.engine.passes.silhouette import SilhouettePass
 from sphrender.server.engine.passes.smooth import SmoothPass
 from sphrender.server.engine.passes.splat import SplatPass
 from sphrender.server.engine.passes.temperature import TemperaturePass
@@ -75,6 +76,7 @@ class SurfaceRenderer:
         self._gaps = GapPass(self._context)
         self._smooth = SmoothPass(self._context)
         self._normals = NormalsPass(self._context)
+        self._silhouette = SilhouettePass(self._context)
         self._temperature = TemperaturePass(self._context)
         self._shade = ShadePass(self._context, environment_dirs)
         self._display = DisplayPass(self._context)
@@ -200,6 +202,13 @@ class SurfaceRenderer:
             normal_depth = self._normals.run(
                 surface, camera, box, prepared.reference_radius, scene.quality
             )
+            normal_depth = self._silhouette.run(
+                normal_depth,
+                camera,
+                particle_radius=prepared.reference_radius,
+                rim_radii=scene.quality.silhouette_normals,
+                box=box,
+            )
 
         with self._stage(stats, "shade"):
             temperature = splat.temperature
@@ -302,8 +311,8 @@ class SurfaceRenderer:
     def release(self) -> None:
         """Release every GPU object this renderer owns (on the owner thread)."""
         self._gl.check_owner()
-        passes = (self._splat, self._gaps, self._smooth, self._normals, self._temperature)
-        for gpu_pass in (*passes, self._shade, self._display):
+        passes = (self._splat, self._gaps, self._smooth, self._normals, self._silhouette)
+        for gpu_pass in (*passes, self._temperature, self._shade, self._display):
             gpu_pass.release()
         self._context.fullscreen.release()
         self._context.programs.release()

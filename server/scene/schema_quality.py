@@ -157,6 +157,17 @@ class QualityConfig:
         high=8.0,
         unit="particle radii",
     )
+    silhouette_normals: float = spec(
+        0.0,
+        "turn the normals near a silhouette towards the silhouette's outward direction "
+        "(passes/silhouette.py): direction and distance to the rim from coverage moments "
+        "over a Gaussian window of half this reach (at most 3 px sigma), blended in by the "
+        "distance to the rim (full on it, none from this many projected particle radii "
+        "inside); removes the sideways flips of a beaded rim without moving it. 0: off",
+        low=0.0,
+        high=8.0,
+        unit="particle radii",
+    )
     occlusion_culling: bool = spec(
         True,
         "splat the front layer first and skip particles hidden behind it (exact: the depth "

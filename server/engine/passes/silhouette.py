@@ -1,0 +1,97 @@
+"""Silhouette pass: normals near a silhouette turned towards the silhouette's own outward
+direction (`[quality] silhouette_normals`), after the normals pass.
+
+Near a silhouette the true normal is almost perpendicular to the view ray, and its direction on
+screen is the outward normal of the silhouette curve. The normals differenced from the depth
+follow the beads a rim of particles leaves and flip sideways there. This pass estimates the
+silhouette's outward direction and the distance to it from coverage moments over a Gaussian
+window (sigma = half the rim reach, in projected particle radii) and blends the depth normal
+towards it by the distance to the rim: it moves no silhouette and changes no depth. The rule
+in full: `shaders/silhouette/silhouette_normals.frag.glsl`.
+
+Shaders: `shaders/silhouette/rim_tiles.frag.glsl` (the farthest depth per 8 x 8 pixels: the
+inside of a surface skips the window), `shaders/silhouette/silhouette_normals.frag.glsl`.
+Owns: the tile target and its RGBA32F normal + depth target (the layout of the normals pass's),
+per image size.
+"""
+
+from __future__ import annotations
+
+import moderngl
+
+from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.geometry.screen_box import ScreenBox
+from sphrender.server.engine.gpu.draw import (
+    PerSize,
+    Target,
+    clear_and_scissor,
+    set_if_used,
+    set_scissor,
+    write_matrix,
+)
+from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
+from sphrender.server.engine.passes.gaps import EDGE_JUMP_RADII
+
+SHADER = "silhouette/silhouette_normals.frag.glsl"
+TILES_SHADER = "silhouette/rim_tiles.frag.glsl"
+
+
+class _RimTargets:
+    def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
+        self.tiles = Target.float(ctx, ((size[0] + 7) // 8, (size[1] + 7) // 8), 1)
+        self.result = Target.float(ctx, size, 4)
+
+    def release(self) -> None:
+        self.tiles.release()
+        self.result.release()
+
+
+class SilhouettePass:
+    def __init__(self, context: PassContext) -> None:
+        self._context = context
+        self._targets = PerSize(lambda size: _RimTargets(context.gl.ctx, size))
+
+    def run(
+        self,
+        normal_depth: Target,
+        camera: Camera,
+        *,
+        particle_radius: float,
+        rim_radii: float,
+        box: ScreenBox | None = None,
+    ) -> Target:
+        """`normal_depth` (the normals pass's target) with the normals near silhouettes turned
+        (`normal_depth` itself when `rim_radii` is 0); inside `box` only, on a target cleared
+        outside it."""
+        if rim_radii <= 0.0:
+            return normal_depth
+        targets = self._targets.get(normal_depth.texture.size)
+        target = targets.result
+        programs, draw = self._context.programs, self._context.fullscreen.draw
+        tiles = programs.get(FULLSCREEN_VERT, TILES_SHADER)
+        set_if_used(tiles, "u_normal_depth", 0)
+        normal_depth.texture.use(0)
+        targets.tiles.fbo.use()
+        draw(tiles)
+        program = programs.get(FULLSCREEN_VERT, SHADER)
+        set_if_used(program, "u_normal_depth", 0)
+        set_if_used(program, "u_tiles", 1)
+        targets.tiles.texture.use(1)
+        set_if_used(
+            program,
+            "u_tan_half_fov",
+            (camera.tan_half_fov_y * camera.aspect, camera.tan_half_fov_y),
+        )
+        write_matrix(program, "u_view_to_world", camera.rotation.T)
+        set_if_used(program, "u_focal_px", camera.pixels_per_unit_at_unit_depth)
+        set_if_used(program, "u_particle_radius", particle_radius)
+        set_if_used(program, "u_rim_radii", rim_radii)
+        set_if_used(program, "u_edge_jump", EDGE_JUMP_RADII * particle_radius)
+        clear_and_scissor(target.fbo, box)
+        target.fbo.use()
+        draw(program)
+        set_scissor(target.fbo, None)
+        return target
+
+    def release(self) -> None:
+        self._targets.release()
