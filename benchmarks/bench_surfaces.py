@@ -57,6 +57,16 @@ for _rim in (1.0, 2.0, 3.0):
         preset="balanced",
         overrides={"quality": {"close_gaps": 2.0, "silhouette_normals": _rim}},
     )
+SETTINGS["best_gaps2_rim2"] = Setting(
+    "best_gaps2_rim2",
+    preset="best",
+    overrides={"quality": {"close_gaps": 2.0, "silhouette_normals": 2.0}},
+)
+SETTINGS["best_no_gaps_rim"] = Setting(
+    "best_no_gaps_rim",
+    preset="best",
+    overrides={"quality": {"close_gaps": 0.0, "silhouette_normals": 0.0}},
+)
 SETTINGS["balanced_droplets"] = Setting(
     "balanced_droplets", preset="balanced", overrides={"quality": {"exact_droplets": True}}
 )
