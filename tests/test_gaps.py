@@ -147,6 +147,15 @@ def test_notch_along_a_silhouette_stays_open(gl_context: GLContext) -> None:
     assert holes.any() and np.all(got[holes] > 0.0)
 
 
+def test_crease_is_no_gap(gl_context: GLContext) -> None:
+    """A steep ridge pointing away from the camera (depth falling 0.05 = 2.5 r per pixel on both
+    sides of a column): nearer than the ridge by more than the edge jump within 2 px either side,
+    but up a slope of one surface, not across a gap: unchanged."""
+    cols = np.arange(W) + 0.5
+    depth = np.broadcast_to(1.6 - 0.05 * np.abs(cols - 40.5), (H, W)).astype(np.float32)
+    np.testing.assert_array_equal(gl_close(gl_context, depth), depth)
+
+
 @pytest.mark.parametrize(
     "depth",
     [
