@@ -37,12 +37,10 @@ from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.programs import ProgramCache
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.display import DisplayPass
-from sphrender.server.engine.passes.gaps import GapPass
 from sphrender.server.engine.passes.normals import NormalsPass
 from sphrender.server.engine.passes.prepare_stage import PrepareMode, PrepareStage
 from sphrender.server.engine.passes.readback import read_frame
 from sphrender.server.engine.passes.shade import ShadePass
-from sphrender.server.engine.passes.silhouette import SilhouettePass
 from sphrender.server.engine.passes.smooth import SmoothPass
 from sphrender.server.engine.passes.splat import SplatPass
 from sphrender.server.engine.passes.temperature import TemperaturePass
@@ -73,10 +71,8 @@ class SurfaceRenderer:
         self._sph = SphStage(cl_device)  # OpenCL is created on the first frame that needs it
         self._splat = SplatPass(self._context)
         self._prepare = PrepareStage(self._context, self._splat, prepare)
-        self._gaps = GapPass(self._context)
         self._smooth = SmoothPass(self._context)
         self._normals = NormalsPass(self._context)
-        self._silhouette = SilhouettePass(self._context)
         self._temperature = TemperaturePass(self._context)
         self._shade = ShadePass(self._context, environment_dirs)
         self._display = DisplayPass(self._context)
@@ -170,19 +166,10 @@ class SurfaceRenderer:
 
         px_per_unit = camera.pixels_per_unit_at_unit_depth
         surface = splat.depth
-        if scene.quality.close_gaps > 0.0 and stats.particles_drawn:
-            with self._stage(stats, "gaps"):
-                surface = self._gaps.run(
-                    surface,
-                    px_per_unit=px_per_unit,
-                    particle_radius=prepared.reference_radius,
-                    gap_radii=scene.quality.close_gaps,
-                    box=box,
-                )
         if scene.quality.filter != "none" and stats.particles_drawn:
             with self._stage(stats, "smooth"):
                 surface = self._smooth.run(
-                    surface,
+                    splat.depth,
                     px_per_unit=px_per_unit,
                     particle_radius=prepared.reference_radius,
                     quality=scene.quality,
@@ -201,13 +188,6 @@ class SurfaceRenderer:
         with self._stage(stats, "normals"):
             normal_depth = self._normals.run(
                 surface, camera, box, prepared.reference_radius, scene.quality
-            )
-            normal_depth = self._silhouette.run(
-                normal_depth,
-                camera,
-                particle_radius=prepared.reference_radius,
-                rim_radii=scene.quality.silhouette_normals,
-                box=box,
             )
 
         with self._stage(stats, "shade"):
@@ -311,8 +291,8 @@ class SurfaceRenderer:
     def release(self) -> None:
         """Release every GPU object this renderer owns (on the owner thread)."""
         self._gl.check_owner()
-        passes = (self._splat, self._gaps, self._smooth, self._normals, self._silhouette)
-        for gpu_pass in (*passes, self._temperature, self._shade, self._display):
+        passes = (self._splat, self._smooth, self._normals, self._temperature, self._shade)
+        for gpu_pass in (*passes, self._display):
             gpu_pass.release()
         self._context.fullscreen.release()
         self._context.programs.release()

@@ -152,7 +152,7 @@ class QualityConfig:
         "most close_gaps particle radii apart (on screen, projected at their depth, and in "
         "depth) takes the depth interpolated between them; depths only get nearer (no hole "
         "opens), a notch along a silhouette stays open, particles farther apart stay apart; "
-        "at most 16 pixels. 0: off",
+        "at most 16 pixels; runs with the smoothing (not with filter none). 0: off",
         low=0.0,
         high=8.0,
         unit="particle radii",

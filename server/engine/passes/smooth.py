@@ -25,6 +25,7 @@ from sphrender.server.engine.gpu.draw import (
     set_scissor,
 )
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
+from sphrender.server.engine.passes.gaps import GapPass
 from sphrender.server.scene import QualityConfig
 
 SEPARABLE_SHADER = "smooth/smooth_depth_separable.frag.glsl"
@@ -52,6 +53,7 @@ class SmoothPass:
     def __init__(self, context: PassContext) -> None:
         self._context = context
         self._targets = PerSize(lambda size: _SmoothTargets(context.gl.ctx, size))
+        self._gaps = GapPass(context)  # quality.close_gaps, before the filter (passes/gaps.py)
 
     def run(
         self,
@@ -62,10 +64,18 @@ class SmoothPass:
         quality: QualityConfig,
         box: ScreenBox | None = None,
     ) -> moderngl.Texture:
-        """Smooth the eye-depth image `depth`; returns the texture holding the result (`depth`
-        itself for ``filter = "none"``). `px_per_unit`: pixels per scene unit at eye depth 1.
+        """Smooth the eye-depth image `depth`, its gaps closed first (`quality.close_gaps`);
+        returns the texture holding the result (`depth` itself for ``filter = "none"`` and no
+        gaps to close). `px_per_unit`: pixels per scene unit at eye depth 1.
         With a `box` (see `screen_box`) the passes run only inside it, on targets cleared
         outside it."""
+        depth = self._gaps.run(
+            depth,
+            px_per_unit=px_per_unit,
+            particle_radius=particle_radius,
+            gap_radii=quality.close_gaps,
+            box=box,
+        )
         if quality.filter == "none":
             return depth
         targets = self._targets.get(depth.size)
@@ -155,6 +165,7 @@ class SmoothPass:
 
     def release(self) -> None:
         self._targets.release()
+        self._gaps.release()
 
 
 def _filter_uniforms(
