@@ -195,3 +195,37 @@ def test_thin_sheet_coverage_never_reduced(renderer: SurfaceRenderer) -> None:
     assert np.all(on.rgba[..., 3][covered] >= off.rgba[..., 3][covered] - 1e-6)
     assert np.isfinite(on.depth).sum() > covered.sum()
     assert np.all(np.isfinite(on.rgba))
+
+
+def test_far_from_the_origin_renders_the_same(renderer: SurfaceRenderer) -> None:
+    """The same sparse sheet and camera shifted by 1e5 with both passes on (close_gaps and
+    silhouette_normals): prepare subtracts the eye in float64, so the passes see the same
+    depth image up to float32 rounding; their decisions (integer steps, thresholds far from
+    the sheet's values) may flip on a few pixels at most."""
+    sheet = lattice_slab(0.3, 0.3, 1, 0.011)
+    shift = np.array([1e5, -1e5, 1e5])
+    sections = {
+        "image": {"width": 96, "height": 64},
+        "particles": {"radius": 0.01},
+        "quality": {"close_gaps": GAP, "silhouette_normals": 2.0},
+    }
+    renders = []
+    for offset in (np.zeros(3), shift):
+        camera = {
+            "eye": list(np.array([0.0, 0.35, 0.35]) + offset),
+            "target": list(offset),
+            "fov_y": 40.0,
+        }
+        scene = scene_from_dict({**sections, "camera": camera})
+        renders.append(
+            renderer.render(make_frame(sheet + offset), scene, depth=True, normals=True)[0]
+        )
+    near, far = renders
+    assert near.depth is not None and far.depth is not None and far.normals is not None
+    assert np.all(np.isfinite(far.rgba)) and np.all(np.isfinite(far.normals))
+    assert np.isfinite(near.depth).mean() > 0.3  # the sheet is in view
+    same = np.isfinite(near.depth) == np.isfinite(far.depth)
+    assert same.mean() >= 0.995
+    both = np.isfinite(near.depth) & np.isfinite(far.depth)
+    close = np.abs(near.depth[both] - far.depth[both]) <= 1e-3 * near.depth[both]
+    assert close.mean() >= 0.995
