@@ -26,7 +26,9 @@ FOCAL = 200.0  # pixels per unit at depth 1: r = 4 px at depth 1
 GAP = 2.0
 
 
-def gl_close(gl: GLContext, depth: np.ndarray, *, focal: float = FOCAL) -> np.ndarray:
+def gl_close(
+    gl: GLContext, depth: np.ndarray, *, focal: float = FOCAL, box: tuple | None = None
+) -> np.ndarray:
     """The gap pass alone on an eye-depth image (0 = background), rows as given (uploaded
     as they are, so the shader's x, y are the array's column, row)."""
     context = PassContext(gl, ProgramCache(gl), FullscreenTriangle(gl))
@@ -35,7 +37,7 @@ def gl_close(gl: GLContext, depth: np.ndarray, *, focal: float = FOCAL) -> np.nd
     source = Target.float(gl.ctx, (width, height), 1)
     try:
         source.texture.write(np.ascontiguousarray(depth, np.float32).tobytes())
-        out = gaps.run(source.texture, px_per_unit=focal, particle_radius=R, gap_radii=GAP)
+        out = gaps.run(source.texture, px_per_unit=focal, particle_radius=R, gap_radii=GAP, box=box)
         return np.frombuffer(out.read(), np.float32).reshape(height, width).astype(np.float64)
     finally:
         source.release()
@@ -98,6 +100,15 @@ def test_matches_reference(gl_context: GLContext, seed: int, behind: float | Non
     assert changed.sum() > 50, "the sheet has gaps to close"
     np.testing.assert_array_equal(got != depth, changed)
     np.testing.assert_allclose(got, expected, rtol=0, atol=4e-7)
+    if behind is None:  # the renderer's screen box: the surface's bounds (+1 px), not tile-aligned
+        rows, cols = np.nonzero(depth > 0)
+        box = (
+            cols.min() - 1,
+            rows.min() - 1,
+            cols.max() - cols.min() + 3,
+            rows.max() - rows.min() + 3,
+        )
+        np.testing.assert_array_equal(gl_close(gl_context, depth, box=box), got)
 
 
 def test_depth_only_gets_nearer(gl_context: GLContext) -> None:

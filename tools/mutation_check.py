@@ -469,8 +469,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         name="gaps-background-needs-one-direction",
         path="shaders/gaps/close_gaps.frag.glsl",
-        old="if (enclosing >= (zc > 0.0 ? 1 : 2)) {",
-        new="if (enclosing >= 1) {",
+        old="int need = zc > 0.0 ? 1 : 2;",
+        new="int need = 1;",
         tests=("tests/test_gaps.py::test_notch_along_a_silhouette_stays_open",),
         description="the gap pass filling notches along a silhouette (one enclosing direction)",
     ),

@@ -17,19 +17,19 @@
 // keeps its depth. So a depth only ever gets nearer (no hole opens where the spheres cover),
 // a notch between two beads at a silhouette (enclosed along the edge only) stays open, and two
 // particles whose silhouettes are farther apart than u_gap_radii radii stay apart.
-// Bounded search (the same result): the tiles of gap_tiles.frag.glsl (nearest depth, edge flag)
-// around the pixel: the 16-pixel ones cover +-16 >= GAP_MAX_PX pixels: without an edge or a
-// pixel nearer than zc - u_edge_jump there (the interior of a surface), nothing to do; else no
-// span can exceed u_gap_radii * r * f / z16 pixels, the reach; the 4-pixel tiles over +-reach
-// then give the same tests and a nearer bound z4, and the walks stop at the reach.
+// Bounded search (the same result): the 4-pixel tiles of gap_tiles.frag.glsl dilated by
+// gap_dilate.frag.glsl hold, for the pixel's tile, the nearest depth z_near and whether there is
+// an edge within +-16 >= GAP_MAX_PX pixels: without an edge or a pixel nearer than
+// zc - u_edge_jump there (the inside of a surface, open background), nothing to do; else no
+// span can exceed u_gap_radii * r * f / z_near pixels, the reach, and the walks stop there; a
+// background pixel stops once too few directions are left to enclose it.
 
 #define GAP_MAX_PX 16
 
 #include "common/depth_image.glsl"
 
 uniform sampler2D u_depth;
-uniform sampler2D u_tiles4;       // nearest depth per 4 x 4 pixels (0: none)
-uniform sampler2D u_tiles16;      // nearest depth per 16 x 16 pixels (0: none)
+uniform sampler2D u_tiles;        // per 4 x 4 pixels: nearest depth (0: none), edge, within 16 px
 uniform float u_focal_px;         // pixels per unit at eye depth 1
 uniform float u_particle_radius;  // scene units
 uniform float u_gap_radii;        // widest gap closed, in particle radii
@@ -63,49 +63,26 @@ int walk(ivec2 p, ivec2 step, float zc, int reach, out float z) {
     return 0;
 }
 
-// Over tiles lo..hi (clamped to the image of tiles): the nearest positive depth (0: none), and
-// whether any holds an edge.
-float nearest_in(sampler2D tiles, ivec2 lo, ivec2 hi, out bool edge) {
-    ivec2 last = textureSize(tiles, 0) - 1;
-    lo = clamp(lo, ivec2(0), last);
-    hi = clamp(hi, ivec2(0), last);
-    float nearest = 0.0;
-    edge = false;
-    for (int y = lo.y; y <= hi.y; ++y) {
-        for (int x = lo.x; x <= hi.x; ++x) {
-            vec2 tile = texelFetch(tiles, ivec2(x, y), 0).rg;
-            float z = tile.r;
-            edge = edge || tile.g > 0.0;
-            if (z > 0.0 && (nearest == 0.0 || z < nearest)) {
-                nearest = z;
-            }
-        }
-    }
-    return nearest;
-}
-
 void main() {
     ivec2 p = ivec2(gl_FragCoord.xy);
     float zc = fetch_depth(u_depth, p);
     float tolerance = u_gap_radii * u_particle_radius;
     float limit_px = tolerance * u_focal_px;  // the gap limit in pixels is limit_px / min(za, zb)
     out_depth = vec4(zc, 0.0, 0.0, 0.0);
-    bool edge;
-    float z16 = nearest_in(u_tiles16, p / 16 - 1, p / 16 + 1, edge);
-    if (!edge || !nearer(z16, zc)) {
+    vec2 tile = texelFetch(u_tiles, p / 4, 0).rg;
+    if (tile.g <= 0.0 || !nearer(tile.r, zc)) {
         return;
     }
-    int reach = min(int(ceil(limit_px / z16)), GAP_MAX_PX);
-    float z4 = nearest_in(u_tiles4, (p - reach) / 4, (p + reach) / 4, edge);
-    if (!edge || !nearer(z4, zc)) {
-        return;
-    }
-    reach = min(reach, int(ceil(limit_px / z4)));
+    int reach = min(int(ceil(limit_px / tile.r)), GAP_MAX_PX);
     ivec2 steps[4] = ivec2[4](ivec2(1, 0), ivec2(0, 1), ivec2(1, 1), ivec2(1, -1));
     int enclosing = 0;
     float best_span = 0.0;
     float fill = zc;
+    int need = zc > 0.0 ? 1 : 2;
     for (int i = 0; i < 4; ++i) {
+        if (enclosing + 4 - i < need) {
+            break;  // too few directions left
+        }
         float za;
         float zb;
         int ka = walk(p, steps[i], zc, reach, za);
@@ -125,7 +102,7 @@ void main() {
             }
         }
     }
-    if (enclosing >= (zc > 0.0 ? 1 : 2)) {
+    if (enclosing >= need) {
         out_depth = vec4(fill, 0.0, 0.0, 0.0);
     }
 }

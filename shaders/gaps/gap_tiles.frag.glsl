@@ -1,15 +1,10 @@
 #version 330 core
-// Tiles for the gap pass's bounds (passes/gaps.py): one fragment per 4 x 4 block of the source,
-// r = the smallest positive depth in it (0: none), g = 1 where it holds an edge, else 0.
-// FROM_DEPTH 1: the source is the eye-depth image; a pixel is an edge when its right or upper
-// neighbour (outside the image: background) differs from it by more than u_edge_jump / 2, or
-// one of the two is background (a jump of u_edge_jump along a diagonal step has a jump of at
-// least half of it along one of its two axis steps). FROM_DEPTH 0: the source is 4-pixel
-// tiles, combined into 16-pixel ones (min of r, max of g).
-// close_gaps.frag.glsl reads them to skip pixels with no edge and no nearer surface within
-// reach, and to bound its walks.
-
-#define FROM_DEPTH 1
+// Tiles for the gap pass's bounds (passes/gaps.py): one fragment per 4 x 4 block of the
+// eye-depth image, r = the smallest positive depth in it (0: none), g = 1 where it holds an
+// edge, else 0: a pixel whose right or upper neighbour (outside the image: background) differs
+// from it by more than u_edge_jump / 2, or one of the two is background (a jump of u_edge_jump
+// along a diagonal step has a jump of at least half of it along one of its two axis steps).
+// gap_dilate.frag.glsl spreads them over +-16 pixels for close_gaps.frag.glsl.
 
 #include "common/depth_image.glsl"
 
@@ -33,17 +28,11 @@ void main() {
             if (any(greaterThanEqual(p, size))) {
                 continue;
             }
-#if FROM_DEPTH
             float z = texelFetch(u_source, p, 0).r;
             if (differs(z, fetch_depth(u_source, p + ivec2(1, 0)))
                 || differs(z, fetch_depth(u_source, p + ivec2(0, 1)))) {
                 edge = 1.0;
             }
-#else
-            vec2 tile = texelFetch(u_source, p, 0).rg;
-            float z = tile.r;
-            edge = max(edge, tile.g);
-#endif
             if (z > 0.0 && (nearest == 0.0 || z < nearest)) {
                 nearest = z;
             }

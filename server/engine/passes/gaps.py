@@ -12,10 +12,11 @@ notch between two beads along a silhouette). Depths only get nearer, so no pixel
 cover loses its surface. The rule in full: `shaders/gaps/close_gaps.frag.glsl`.
 
 Shaders: `shaders/gaps/gap_tiles.frag.glsl` (the nearest depth and whether there is a depth
-edge, per 4 x 4 and per 16 x 16 pixels, which bound the search and skip pixels with no edge or
-no nearer surface around: the interior of a surface stops there),
-`shaders/gaps/close_gaps.frag.glsl`.
-Owns: the two tile targets and the closed-depth target (R32F), per image size.
+edge, per 4 x 4 pixels), `shaders/gaps/gap_dilate.frag.glsl` (the same over +-16 pixels, in two
+1-D passes), which bound the walks and skip pixels with no edge or no nearer surface around:
+the inside of a surface stops there), `shaders/gaps/close_gaps.frag.glsl`.
+Owns: three tile targets (RG32F, a quarter of the image per side) and the closed-depth target
+(R32F), per image size.
 """
 
 from __future__ import annotations
@@ -33,10 +34,12 @@ from sphrender.server.engine.gpu.draw import (
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
 TILES_SHADER = "gaps/gap_tiles.frag.glsl"
+DILATE_SHADER = "gaps/gap_dilate.frag.glsl"
 CLOSE_SHADER = "gaps/close_gaps.frag.glsl"
-#: The widest gap closed, in pixels (close_gaps.frag.glsl's define; its tiles are 4 and 16 px,
-#: so a 16-pixel reach stays within the 3 x 3 coarse tiles around a pixel).
+#: The widest gap closed, in pixels (close_gaps.frag.glsl's define); the 4-pixel tiles are
+#: dilated by GAP_MAX_PX / 4 tiles, so they cover every pixel a walk can reach.
 GAP_MAX_PX = 16
+GAP_DILATE = GAP_MAX_PX // 4
 #: A surface nearer than a pixel's by more than this many particle radii is in front of it (the
 #: normals pass's edge jump: a step beyond it is a discontinuity, not a slope).
 EDGE_JUMP_RADII = 4.0
@@ -44,14 +47,13 @@ EDGE_JUMP_RADII = 4.0
 
 class _GapTargets:
     def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
-        fine = ((size[0] + 3) // 4, (size[1] + 3) // 4)
-        coarse = ((fine[0] + 3) // 4, (fine[1] + 3) // 4)
-        self.tiles4 = Target.float(ctx, fine, 2)  # nearest depth, edge flag
-        self.tiles16 = Target.float(ctx, coarse, 2)
+        tiles = ((size[0] + 3) // 4, (size[1] + 3) // 4)
+        # Nearest depth and edge flag per tile; the same dilated along x; then along y.
+        self.tiles = [Target.float(ctx, tiles, 2) for _ in range(3)]
         self.closed = Target.float(ctx, size, 1)
 
     def release(self) -> None:
-        for target in (self.tiles4, self.tiles16, self.closed):
+        for target in (*self.tiles, self.closed):
             target.release()
 
 
@@ -78,25 +80,32 @@ class GapPass:
         targets = self._targets.get(depth.size)
         programs, draw = self._context.programs, self._context.fullscreen.draw
         edge_jump = EDGE_JUMP_RADII * particle_radius
-        sources = ((depth, targets.tiles4, 1), (targets.tiles4.texture, targets.tiles16, 0))
-        for source, target, from_depth in sources:
-            tiles = programs.get(FULLSCREEN_VERT, TILES_SHADER, {"FROM_DEPTH": from_depth})
-            set_if_used(tiles, "u_source", 0)
-            set_if_used(tiles, "u_edge_jump", edge_jump)
-            source.use(0)
-            target.fbo.use()
-            draw(tiles)
+        tiles = programs.get(FULLSCREEN_VERT, TILES_SHADER)
+        set_if_used(tiles, "u_source", 0)
+        set_if_used(tiles, "u_edge_jump", edge_jump)
+        depth.use(0)
+        tile_box = None if box is None else _tile_box(box, targets.tiles[0].texture.size)
+        clear_and_scissor(targets.tiles[0].fbo, tile_box)
+        targets.tiles[0].fbo.use()
+        draw(tiles)
+        set_scissor(targets.tiles[0].fbo, None)
+        for axis in (0, 1):
+            dilate = programs.get(
+                FULLSCREEN_VERT, DILATE_SHADER, {"AXIS": axis, "GAP_DILATE": GAP_DILATE}
+            )
+            set_if_used(dilate, "u_tiles", 0)
+            targets.tiles[axis].texture.use(0)
+            targets.tiles[axis + 1].fbo.use()
+            draw(dilate)
         close = programs.get(FULLSCREEN_VERT, CLOSE_SHADER, {"GAP_MAX_PX": GAP_MAX_PX})
         set_if_used(close, "u_depth", 0)
-        set_if_used(close, "u_tiles4", 1)
-        set_if_used(close, "u_tiles16", 2)
+        set_if_used(close, "u_tiles", 1)
         set_if_used(close, "u_focal_px", px_per_unit)
         set_if_used(close, "u_particle_radius", particle_radius)
         set_if_used(close, "u_gap_radii", gap_radii)
         set_if_used(close, "u_edge_jump", edge_jump)
         depth.use(0)
-        targets.tiles4.texture.use(1)
-        targets.tiles16.texture.use(2)
+        targets.tiles[2].texture.use(1)
         clear_and_scissor(targets.closed.fbo, box)
         targets.closed.fbo.use()
         draw(close)
@@ -105,3 +114,13 @@ class GapPass:
 
     def release(self) -> None:
         self._targets.release()
+
+
+def _tile_box(box: ScreenBox, tiles: tuple[int, int]) -> ScreenBox:
+    """The tiles covering `box` and one more on each side (the edge between the box's outer
+    pixels and the background next to them is flagged in the outer tiles), clipped."""
+    x, y, width, height = box
+    x0, y0 = max(x // 4 - 1, 0), max(y // 4 - 1, 0)
+    x1 = min((x + width + 3) // 4 + 1, tiles[0])
+    y1 = min((y + height + 3) // 4 + 1, tiles[1])
+    return (x0, y0, x1 - x0, y1 - y0)
