@@ -9,9 +9,9 @@ window (sigma = half the rim reach, in projected particle radii) and blends the 
 towards it by the distance to the rim: it moves no silhouette and changes no depth. The rule
 in full: `shaders/silhouette/silhouette_normals.frag.glsl`.
 
-Shaders: `shaders/silhouette/rim_tiles.frag.glsl` (the farthest depth per 8 x 8 pixels: the
-inside of a surface skips the window), `shaders/silhouette/silhouette_normals.frag.glsl`.
-Owns: the tile target and its RGBA32F normal + depth target (the layout of the normals pass's),
+Shaders: `shaders/silhouette/rim_tiles.frag.glsl` (the farthest depth per 4 x 4 pixels, then
+dilated over +-8 pixels: the inside of a surface skips the window), `shaders/silhouette/silhouette_normals.frag.glsl`.
+Owns: three tile targets (R32F, a quarter of the image per side) and its RGBA32F normal + depth target (the layout of the normals pass's),
 per image size.
 """
 
@@ -38,12 +38,14 @@ TILES_SHADER = "silhouette/rim_tiles.frag.glsl"
 
 class _RimTargets:
     def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
-        self.tiles = Target.float(ctx, ((size[0] + 7) // 8, (size[1] + 7) // 8), 1)
+        tiles = ((size[0] + 3) // 4, (size[1] + 3) // 4)
+        # Farthest depth per 4 x 4 pixels; that dilated along x; then along y.
+        self.tiles = [Target.float(ctx, tiles, 1) for _ in range(3)]
         self.result = Target.float(ctx, size, 4)
 
     def release(self) -> None:
-        self.tiles.release()
-        self.result.release()
+        for target in (*self.tiles, self.result):
+            target.release()
 
 
 class SilhouettePass:
@@ -68,15 +70,19 @@ class SilhouettePass:
         targets = self._targets.get(normal_depth.texture.size)
         target = targets.result
         programs, draw = self._context.programs, self._context.fullscreen.draw
-        tiles = programs.get(FULLSCREEN_VERT, TILES_SHADER)
-        set_if_used(tiles, "u_normal_depth", 0)
-        normal_depth.texture.use(0)
-        targets.tiles.fbo.use()
-        draw(tiles)
+        sources = (normal_depth.texture, targets.tiles[0].texture, targets.tiles[1].texture)
+        for step, source in enumerate(sources):
+            defines = {"RIM_DILATE": int(step > 0), "AXIS": max(step - 1, 0)}
+            tiles = programs.get(FULLSCREEN_VERT, TILES_SHADER, defines)
+            set_if_used(tiles, "u_normal_depth", 0)
+            source.use(0)
+            targets.tiles[step].fbo.use()
+            draw(tiles)
         program = programs.get(FULLSCREEN_VERT, SHADER)
         set_if_used(program, "u_normal_depth", 0)
         set_if_used(program, "u_tiles", 1)
-        targets.tiles.texture.use(1)
+        normal_depth.texture.use(0)
+        targets.tiles[2].texture.use(1)
         set_if_used(
             program,
             "u_tan_half_fov",
