@@ -10,9 +10,10 @@ towards it by the distance to the rim: it moves no silhouette and changes no dep
 in full: `shaders/silhouette/silhouette_normals.frag.glsl`.
 
 Shaders: `shaders/silhouette/rim_tiles.frag.glsl` (the farthest depth per 4 x 4 pixels, then
-dilated over +-8 pixels: the inside of a surface skips the window), `shaders/silhouette/silhouette_normals.frag.glsl`.
-Owns: three tile targets (R32F, a quarter of the image per side) and its RGBA32F normal + depth target (the layout of the normals pass's),
-per image size.
+dilated over +-8 pixels: the inside of a surface skips the window),
+`shaders/silhouette/silhouette_normals.frag.glsl`.
+Owns: three tile targets (R32F, a quarter of the image per side) and its RGBA32F normal + depth
+target (the layout of the normals pass's), per image size.
 """
 
 from __future__ import annotations
