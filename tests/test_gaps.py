@@ -47,7 +47,7 @@ def gl_close(
 
 
 def reference(depth: np.ndarray, *, focal: float = FOCAL) -> tuple[np.ndarray, np.ndarray]:
-    return close_gaps_reference(
+    closed, changed, _ = close_gaps_reference(
         np.asarray(depth, np.float32),
         focal_px=focal,
         particle_radius=R,
@@ -55,6 +55,7 @@ def reference(depth: np.ndarray, *, focal: float = FOCAL) -> tuple[np.ndarray, n
         edge_jump=gaps_pass.EDGE_JUMP_RADII * R,
         max_px=gaps_pass.GAP_MAX_PX,
     )
+    return closed, changed
 
 
 def beads(centers: list[tuple[float, float, float]], shape: tuple[int, int] = (H, W)) -> np.ndarray:
@@ -109,6 +110,46 @@ def test_matches_reference(gl_context: GLContext, seed: int, behind: float | Non
             rows.max() - rows.min() + 3,
         )
         np.testing.assert_array_equal(gl_close(gl_context, depth, box=box), got)
+
+
+def test_kelvin_filled_like_the_depth(gl_context: GLContext) -> None:
+    """With the splat's kelvin image, the closed pixels get the kelvin of the two pixels
+    reached, interpolated alike (the reference's), written back in place; the other pixels keep
+    theirs. Tolerance: one float32 lerp of two stored values (2 ulp of ~1500 K)."""
+    depth = sparse_sheet(5, 1.4).astype(np.float32)
+    rng = np.random.default_rng(7)
+    kelvin = np.where(depth < 1.2, rng.uniform(1200.0, 1800.0, depth.shape), 0.0)
+    kelvin = kelvin.astype(np.float32)
+    _, changed, expected = close_gaps_reference(
+        depth,
+        focal_px=FOCAL,
+        particle_radius=R,
+        gap_radii=GAP,
+        edge_jump=gaps_pass.EDGE_JUMP_RADII * R,
+        max_px=gaps_pass.GAP_MAX_PX,
+        temperature=kelvin,
+    )
+    assert expected is not None and changed.sum() > 50
+    context = PassContext(gl_context, ProgramCache(gl_context), FullscreenTriangle(gl_context))
+    gaps = GapPass(context)
+    source = Target.float(gl_context.ctx, (W, H), 1)
+    temperature = Target.float(gl_context.ctx, (W, H), 1)
+    try:
+        source.texture.write(depth.tobytes())
+        temperature.texture.write(kelvin.tobytes())
+        gaps.run(
+            source.texture,
+            px_per_unit=FOCAL,
+            particle_radius=R,
+            gap_radii=GAP,
+            temperature=temperature.texture,
+        )
+        got = np.frombuffer(temperature.texture.read(), np.float32).reshape(H, W)
+    finally:
+        for obj in (source, temperature, gaps, context.fullscreen, context.programs):
+            obj.release()
+    np.testing.assert_allclose(got, expected, rtol=0, atol=2.5e-4)
+    assert np.all(got[changed & (depth == 1.4)] > 1000.0)  # no cold spots where gaps closed
 
 
 def test_depth_only_gets_nearer(gl_context: GLContext) -> None:
@@ -240,3 +281,25 @@ def test_far_from_the_origin_renders_the_same(renderer: SurfaceRenderer) -> None
     both = np.isfinite(near.depth) & np.isfinite(far.depth)
     close = np.abs(near.depth[both] - far.depth[both]) <= 1e-3 * near.depth[both]
     assert close.mean() >= 0.995
+
+
+def test_closed_gaps_are_not_cold(renderer: SurfaceRenderer) -> None:
+    """A hot sheet with gaps (1500 K) rendered with close_gaps: the splat's kelvin image, which
+    the temperature blur reads, has the sheet's kelvin on the closed pixels (not 0 K)."""
+    sheet = lattice_slab(0.3, 0.3, 1, 0.011)
+    frame = make_frame(sheet, temperatures=np.full(len(sheet), 1500.0, np.float32))
+    sections = {
+        "image": {"width": 96, "height": 64},
+        "camera": {"eye": [0.0, 0.35, 0.35], "target": [0.0, 0.0, 0.0], "fov_y": 40.0},
+        "particles": {"radius": 0.01},
+    }
+    off = renderer.render(frame, scene_from_dict(sections), depth=True)[0]
+    scene = scene_from_dict({**sections, "quality": {"close_gaps": GAP}})
+    on = renderer.render(frame, scene, depth=True)[0]
+    assert off.depth is not None and on.depth is not None
+    closed = np.isfinite(on.depth) & ~np.isfinite(off.depth)
+    assert closed.sum() > 20
+    kelvin_texture, _ = renderer.splat_pass.targets((96, 64)).temperature_targets()
+    kelvin = np.frombuffer(kelvin_texture.read(), np.float32).reshape(64, 96)[::-1]
+    np.testing.assert_allclose(kelvin[closed], 1500.0, rtol=1e-6)
+    assert np.all(np.isfinite(on.rgba))

@@ -483,6 +483,14 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="the gap walk taking a slope up its own surface for a nearer one",
     ),
     Mutation(
+        name="gaps-cold-fill",
+        path="shaders/gaps/close_gaps.frag.glsl",
+        old="float ta = texelFetch(u_temperature, fill_a, 0).r;",
+        new="float ta = 0.0;",
+        tests=("tests/test_gaps.py::test_kelvin_filled_like_the_depth",),
+        description="the gap pass leaving closed gaps half cold in the kelvin image",
+    ),
+    Mutation(
         name="silhouette-border-is-edge",
         path="shaders/silhouette/silhouette_normals.frag.glsl",
         old="        return -1.0;\n    }\n    return texelFetch(u_normal_depth, p, 0).w;",

@@ -14,7 +14,9 @@
 // A background pixel enclosed in at least 2 directions (a hole, a slit), or a pixel of a
 // farther surface enclosed in at least 1, takes the depth interpolated linearly along the
 // enclosing direction of the shortest span (za + (zb - za) k_a / (k_a + k_b)); every other pixel
-// keeps its depth. So a depth only ever gets nearer (no hole opens where the spheres cover),
+// keeps its depth. HAS_TEMPERATURE: the splatted kelvin image is filled the same way (the
+// kelvin of the two pixels reached, interpolated alike; elsewhere copied), so a closed gap is
+// not a cold spot in the temperature blur. So a depth only ever gets nearer (no hole opens where the spheres cover),
 // a notch between two beads at a silhouette (enclosed along the edge only) stays open, and two
 // particles whose silhouettes are farther apart than u_gap_radii radii stay apart.
 // Bounded search (the same result): the 4-pixel tiles of gap_tiles.frag.glsl dilated by
@@ -25,6 +27,7 @@
 // background pixel stops once too few directions are left to enclose it.
 
 #define GAP_MAX_PX 16
+#define HAS_TEMPERATURE 0
 
 #include "common/depth_image.glsl"
 
@@ -36,6 +39,10 @@ uniform float u_gap_radii;        // widest gap closed, in particle radii
 uniform float u_edge_jump;        // a surface nearer by more than this is in front
 
 layout(location = 0) out vec4 out_depth;
+#if HAS_TEMPERATURE
+uniform sampler2D u_temperature;  // the splat's front-sphere kelvin (0 where no sphere)
+layout(location = 1) out vec4 out_temperature;
+#endif
 
 bool nearer(float z, float zc) {
     return z > 0.0 && (zc <= 0.0 || z < zc - u_edge_jump);
@@ -69,6 +76,9 @@ void main() {
     float tolerance = u_gap_radii * u_particle_radius;
     float limit_px = tolerance * u_focal_px;  // the gap limit in pixels is limit_px / min(za, zb)
     out_depth = vec4(zc, 0.0, 0.0, 0.0);
+#if HAS_TEMPERATURE
+    out_temperature = vec4(texelFetch(u_temperature, p, 0).r, 0.0, 0.0, 0.0);
+#endif
     vec2 tile = texelFetch(u_tiles, p / 4, 0).rg;
     if (tile.g <= 0.0 || !nearer(tile.r, zc)) {
         return;
@@ -78,6 +88,9 @@ void main() {
     int enclosing = 0;
     float best_span = 0.0;
     float fill = zc;
+    ivec2 fill_a = p;  // the pixels the fill interpolates between, and the weight of the second
+    ivec2 fill_b = p;
+    float fill_t = 0.0;
     int need = zc > 0.0 ? 1 : 2;
     for (int i = 0; i < 4; ++i) {
         if (enclosing + 4 - i < need) {
@@ -98,11 +111,19 @@ void main() {
             enclosing += 1;
             if (enclosing == 1 || span < best_span) {
                 best_span = span;
-                fill = za + (zb - za) * float(ka) / float(ka + kb);
+                fill_t = float(ka) / float(ka + kb);
+                fill = za + (zb - za) * fill_t;
+                fill_a = p + ka * steps[i];
+                fill_b = p - kb * steps[i];
             }
         }
     }
     if (enclosing >= need) {
         out_depth = vec4(fill, 0.0, 0.0, 0.0);
+#if HAS_TEMPERATURE
+        float ta = texelFetch(u_temperature, fill_a, 0).r;
+        float tb = texelFetch(u_temperature, fill_b, 0).r;
+        out_temperature = vec4(ta + (tb - ta) * fill_t, 0.0, 0.0, 0.0);
+#endif
     }
 }

@@ -51,10 +51,34 @@ class _GapTargets:
         # Nearest depth and edge flag per tile; the same dilated along x; then along y.
         self.tiles = [Target.float(ctx, tiles, 2) for _ in range(3)]
         self.closed = Target.float(ctx, size, 1)
+        self._ctx = ctx
+        self.kelvin: Target | None = None  # the filled kelvin, on the first frame with them
+        self.both: moderngl.Framebuffer | None = None  # closed depth + filled kelvin
+        self._back: tuple[int, moderngl.Framebuffer] | None = None  # onto the splat's kelvin
+
+    def with_kelvin(self) -> tuple[moderngl.Framebuffer, Target]:
+        if self.kelvin is None or self.both is None:
+            self.kelvin = Target.float(self._ctx, self.closed.texture.size, 1)
+            self.both = self._ctx.framebuffer([self.closed.texture, self.kelvin.texture])
+        return self.both, self.kelvin
+
+    def back_into(self, temperature: moderngl.Texture) -> moderngl.Framebuffer:
+        """A framebuffer on `temperature`, to blit the filled kelvin back (float, exact: a copy
+        into the texture itself would convert it), kept while the texture is the same."""
+        if self._back is None or self._back[0] != temperature.glo:
+            if self._back is not None:
+                self._back[1].release()
+            self._back = (temperature.glo, self._ctx.framebuffer([temperature]))
+        return self._back[1]
 
     def release(self) -> None:
-        for target in (*self.tiles, self.closed):
-            target.release()
+        if self._back is not None:
+            self._back[1].release()
+        for target in (*self.tiles, self.closed, self.kelvin):
+            if target is not None:
+                target.release()
+        if self.both is not None:
+            self.both.release()
 
 
 class GapPass:
@@ -70,11 +94,13 @@ class GapPass:
         particle_radius: float,
         gap_radii: float,
         box: ScreenBox | None = None,
+        temperature: moderngl.Texture | None = None,
     ) -> moderngl.Texture:
         """The eye-depth image `depth` (0 = background) with its gaps of at most `gap_radii`
         particle radii closed (`depth` itself when `gap_radii` is 0). With a `box`, only inside
         it, on a target cleared outside it (a closed gap lies between two surface pixels, so
-        inside the box of the surface)."""
+        inside the box of the surface). With the splat's `temperature` (kelvin), the closed
+        pixels get the kelvin interpolated alike, written back into `temperature`."""
         if gap_radii <= 0.0:
             return depth
         targets = self._targets.get(depth.size)
@@ -97,19 +123,27 @@ class GapPass:
             targets.tiles[axis].texture.use(0)
             targets.tiles[axis + 1].fbo.use()
             draw(dilate)
-        close = programs.get(FULLSCREEN_VERT, CLOSE_SHADER, {"GAP_MAX_PX": GAP_MAX_PX})
+        defines = {"GAP_MAX_PX": GAP_MAX_PX, "HAS_TEMPERATURE": int(temperature is not None)}
+        close = programs.get(FULLSCREEN_VERT, CLOSE_SHADER, defines)
         set_if_used(close, "u_depth", 0)
         set_if_used(close, "u_tiles", 1)
+        set_if_used(close, "u_temperature", 2)
         set_if_used(close, "u_focal_px", px_per_unit)
         set_if_used(close, "u_particle_radius", particle_radius)
         set_if_used(close, "u_gap_radii", gap_radii)
         set_if_used(close, "u_edge_jump", edge_jump)
         depth.use(0)
         targets.tiles[2].texture.use(1)
-        clear_and_scissor(targets.closed.fbo, box)
-        targets.closed.fbo.use()
+        fbo, kelvin = targets.closed.fbo, None
+        if temperature is not None:
+            fbo, kelvin = targets.with_kelvin()
+            temperature.use(2)
+        clear_and_scissor(fbo, box)
+        fbo.use()
         draw(close)
-        set_scissor(targets.closed.fbo, None)
+        set_scissor(fbo, None)
+        if temperature is not None and kelvin is not None:
+            self._context.gl.ctx.copy_framebuffer(targets.back_into(temperature), kelvin.fbo)
         return targets.closed.texture
 
     def release(self) -> None:

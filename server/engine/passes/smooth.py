@@ -63,10 +63,12 @@ class SmoothPass:
         particle_radius: float,
         quality: QualityConfig,
         box: ScreenBox | None = None,
+        temperature: moderngl.Texture | None = None,
     ) -> moderngl.Texture:
         """Smooth the eye-depth image `depth`, its gaps closed first (`quality.close_gaps`);
         returns the texture holding the result (`depth` itself for ``filter = "none"`` and no
-        gaps to close). `px_per_unit`: pixels per scene unit at eye depth 1.
+        gaps to close; the splat's kelvin `temperature` is filled alike, in place).
+        `px_per_unit`: pixels per scene unit at eye depth 1.
         With a `box` (see `screen_box`) the passes run only inside it, on targets cleared
         outside it."""
         depth = self._gaps.run(
@@ -75,6 +77,7 @@ class SmoothPass:
             particle_radius=particle_radius,
             gap_radii=quality.close_gaps,
             box=box,
+            temperature=temperature,
         )
         if quality.filter == "none":
             return depth
