@@ -42,6 +42,31 @@ SETTINGS["balanced_aniso"] = Setting(
         "sph": {"anisotropy": True},
     },
 )
+for _gap in (1.0, 2.0, 3.0):
+    SETTINGS[f"balanced_gaps{_gap:g}"] = Setting(
+        f"balanced_gaps{_gap:g}", preset="balanced", overrides={"quality": {"close_gaps": _gap}}
+    )
+for _rim in (1.0, 2.0, 3.0):
+    SETTINGS[f"balanced_rim{_rim:g}"] = Setting(
+        f"balanced_rim{_rim:g}",
+        preset="balanced",
+        overrides={"quality": {"silhouette_normals": _rim}},
+    )
+    SETTINGS[f"balanced_gaps2_rim{_rim:g}"] = Setting(
+        f"balanced_gaps2_rim{_rim:g}",
+        preset="balanced",
+        overrides={"quality": {"close_gaps": 2.0, "silhouette_normals": _rim}},
+    )
+SETTINGS["best_gaps2_rim2"] = Setting(
+    "best_gaps2_rim2",
+    preset="best",
+    overrides={"quality": {"close_gaps": 2.0, "silhouette_normals": 2.0}},
+)
+SETTINGS["best_no_gaps_rim"] = Setting(
+    "best_no_gaps_rim",
+    preset="best",
+    overrides={"quality": {"close_gaps": 0.0, "silhouette_normals": 0.0}},
+)
 SETTINGS["balanced_droplets"] = Setting(
     "balanced_droplets", preset="balanced", overrides={"quality": {"exact_droplets": True}}
 )

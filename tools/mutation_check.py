@@ -490,6 +490,46 @@ MUTATIONS: tuple[Mutation, ...] = (
         tests=("tests/test_gl_state_caches.py::test_a_member_written_elsewhere_makes_its_group_rebuild",),
         description="a group skips over a member value another path changed",
     ),
+    Mutation(
+        name="gaps-background-needs-one-direction",
+        path="shaders/gaps/close_gaps.frag.glsl",
+        old="int need = zc > 0.0 ? 1 : 2;",
+        new="int need = 1;",
+        tests=("tests/test_gaps.py::test_notch_along_a_silhouette_stays_open",),
+        description="the gap pass filling notches along a silhouette (one enclosing direction)",
+    ),
+    Mutation(
+        name="gaps-walk-climbs-slopes",
+        path="shaders/gaps/close_gaps.frag.glsl",
+        old="if (previous <= 0.0 || zk < previous - u_edge_jump) {",
+        new="if (true) {",
+        tests=("tests/test_gaps.py::test_crease_is_no_gap",),
+        description="the gap walk taking a slope up its own surface for a nearer one",
+    ),
+    Mutation(
+        name="gaps-cold-fill",
+        path="shaders/gaps/close_gaps.frag.glsl",
+        old="float ta = texelFetch(u_temperature, fill_a, 0).r;",
+        new="float ta = 0.0;",
+        tests=("tests/test_gaps.py::test_kelvin_filled_like_the_depth",),
+        description="the gap pass leaving closed gaps half cold in the kelvin image",
+    ),
+    Mutation(
+        name="silhouette-border-is-edge",
+        path="shaders/silhouette/silhouette_normals.frag.glsl",
+        old="        return -1.0;\n    }\n    return texelFetch(u_normal_depth, p, 0).w;",
+        new="        return 0.0;\n    }\n    return texelFetch(u_normal_depth, p, 0).w;",
+        tests=("tests/test_silhouette.py::test_surface_filling_the_image_is_untouched",),
+        description="the silhouette pass taking the image border for a silhouette",
+    ),
+    Mutation(
+        name="silhouette-droplets-not-spared",
+        path="shaders/silhouette/silhouette_normals.frag.glsl",
+        old="* edge_like;",
+        new=";",
+        tests=("tests/test_silhouette.py::test_exact_spheres_barely_change",),
+        description="the silhouette pass turning droplets smaller than its window",
+    ),
 )
 # fmt: on
 

@@ -150,13 +150,12 @@ class SurfaceRenderer:
             box = prepared.box
 
         with self._stage(stats, "splat"):
-            antialias = scene.quality.antialias
             splat = self._splat.run(
                 camera,
                 prepared.bulk,
                 bounds=prepared.bounds,
                 box=box,
-                antialias=antialias,
+                antialias=scene.quality.antialias,
                 device_cull=prepared.device_cull,
             )
             bulk_splatted = splat.splatted  # -1: counted on the device, read after the frame
@@ -171,6 +170,7 @@ class SurfaceRenderer:
                     particle_radius=prepared.reference_radius,
                     quality=scene.quality,
                     box=box,
+                    temperature=splat.temperature,  # filled where gaps close
                 )
         if prepared.droplets is not None:
             with self._stage(stats, "droplets"):

@@ -144,6 +144,30 @@ class QualityConfig:
         high=1.0,
         unit="fraction of sph.rest_density",
     )
+    close_gaps: float = spec(
+        0.0,
+        "close the gaps a sparse sheet or spray leaves between its splatted particles, before "
+        "the smoothing (passes/gaps.py): a background pixel enclosed in two of four directions, "
+        "or a pixel of a farther surface enclosed in one, by a nearer surface on both sides at "
+        "most close_gaps particle radii apart (on screen, projected at their depth, and in "
+        "depth) takes the depth interpolated between them; depths only get nearer (no hole "
+        "opens), a notch along a silhouette stays open, particles farther apart stay apart; "
+        "at most 16 pixels; runs with the smoothing (not with filter none). 0: off",
+        low=0.0,
+        high=8.0,
+        unit="particle radii",
+    )
+    silhouette_normals: float = spec(
+        0.0,
+        "turn the normals near a silhouette towards the silhouette's outward direction "
+        "(passes/silhouette.py): direction and distance to the rim from coverage moments "
+        "over a Gaussian window of half this reach (at most 3 px sigma), blended in by the "
+        "distance to the rim (full on it, none from this many projected particle radii "
+        "inside); removes the sideways flips of a beaded rim without moving it. 0: off",
+        low=0.0,
+        high=8.0,
+        unit="particle radii",
+    )
     occlusion_culling: bool = spec(
         True,
         "splat the front layer first and skip particles hidden behind it (exact: the depth "

@@ -16,6 +16,7 @@ from sphrender.server.engine.geometry.screen_box import ScreenBox
 from sphrender.server.engine.gpu.draw import PerSize, Target, clear_and_scissor, set_scissor
 from sphrender.server.engine.gpu.uniforms import set_group, write_matrix
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
+from sphrender.server.engine.passes.silhouette import SilhouettePass
 from sphrender.server.scene import QualityConfig
 
 SHADER = "normals/surface_normals.frag.glsl"
@@ -32,6 +33,7 @@ class NormalsPass:
     def __init__(self, context: PassContext) -> None:
         self._context = context
         self._target = PerSize(lambda size: Target.float(context.gl.ctx, size, 4))
+        self._silhouette = SilhouettePass(context)  # quality.silhouette_normals, after
 
     def target(self, size: tuple[int, int]) -> Target:
         """The normal + depth target for `size` (rebuilt only when the size changes)."""
@@ -47,7 +49,8 @@ class NormalsPass:
     ) -> Target:
         """Normals of the eye-depth image `surface`, inside `box` (None: everywhere);
         `particle_radius` sizes the largest depth step that still counts as one surface;
-        `quality` gives the wide stencil (`normal_stencil`, off without it)."""
+        `quality` gives the wide stencil (`normal_stencil`, off without it) and the silhouette
+        normals (`silhouette_normals`, passes/silhouette.py: then their target is returned)."""
         target = self.target(surface.size)
         program = self._context.programs.get(FULLSCREEN_VERT, SHADER)
         surface.use(0)
@@ -72,7 +75,11 @@ class NormalsPass:
         target.fbo.use()
         self._context.fullscreen.draw(program)
         set_scissor(target.fbo, None)
-        return target
+        rim = quality.silhouette_normals if quality is not None else 0.0
+        return self._silhouette.run(
+            target, camera, particle_radius=particle_radius, rim_radii=rim, box=box
+        )
 
     def release(self) -> None:
         self._target.release()
+        self._silhouette.release()

@@ -20,6 +20,7 @@ from sphrender.server.engine.geometry.screen_box import ScreenBox, packed_box
 from sphrender.server.engine.gpu.draw import PerSize, Target, clear_and_scissor, set_scissor
 from sphrender.server.engine.gpu.uniforms import set_group, set_if_used
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
+from sphrender.server.engine.passes.gaps import GapPass
 from sphrender.server.scene import QualityConfig
 
 SEPARABLE_SHADER = "smooth/smooth_depth_separable.frag.glsl"
@@ -47,6 +48,7 @@ class SmoothPass:
     def __init__(self, context: PassContext) -> None:
         self._context = context
         self._targets = PerSize(lambda size: _SmoothTargets(context.gl.ctx, size))
+        self._gaps = GapPass(context)  # quality.close_gaps, before the filter (passes/gaps.py)
 
     def run(
         self,
@@ -56,11 +58,22 @@ class SmoothPass:
         particle_radius: float,
         quality: QualityConfig,
         box: ScreenBox | None = None,
+        temperature: moderngl.Texture | None = None,
     ) -> moderngl.Texture:
-        """Smooth the eye-depth image `depth`; returns the texture holding the result (`depth`
-        itself for ``filter = "none"``). `px_per_unit`: pixels per scene unit at eye depth 1.
+        """Smooth the eye-depth image `depth`, its gaps closed first (`quality.close_gaps`);
+        returns the texture holding the result (`depth` itself for ``filter = "none"`` and no
+        gaps to close; the splat's kelvin `temperature` is filled alike, in place).
+        `px_per_unit`: pixels per scene unit at eye depth 1.
         With a `box` (see `screen_box`) the passes run only inside it, on targets cleared
         outside it."""
+        depth = self._gaps.run(
+            depth,
+            px_per_unit=px_per_unit,
+            particle_radius=particle_radius,
+            gap_radii=quality.close_gaps,
+            box=box,
+            temperature=temperature,
+        )
         if quality.filter == "none":
             return depth
         targets = self._targets.get(depth.size)
@@ -150,6 +163,7 @@ class SmoothPass:
 
     def release(self) -> None:
         self._targets.release()
+        self._gaps.release()
 
 
 class _FilterUniforms:

@@ -1,0 +1,42 @@
+#version 330 core
+// The farthest depth per 4 x 4 block of the normal + depth image (passes/silhouette.py), with
+// background counted as farther than any surface (3e38); pixels outside the image are left
+// out. RIM_DILATE 1: instead, the farthest of these tiles within +-2 along AXIS (run along x,
+// then along y: a tile then holds the farthest depth within +-8 pixels of any of its pixels,
+// more than the window's reach). silhouette_normals.frag.glsl skips a pixel whose tile holds
+// nothing farther than its own depth + u_edge_jump: no silhouette within reach.
+
+#define RIM_DILATE 0
+#define AXIS 0
+
+uniform sampler2D u_normal_depth;  // or the tiles to dilate
+
+layout(location = 0) out vec4 out_tile;
+
+void main() {
+    ivec2 size = textureSize(u_normal_depth, 0);
+    float farthest = 0.0;
+#if RIM_DILATE
+    ivec2 center = ivec2(gl_FragCoord.xy);
+    ivec2 step = AXIS == 0 ? ivec2(1, 0) : ivec2(0, 1);
+    for (int k = -2; k <= 2; ++k) {
+        ivec2 t = center + k * step;
+        if (all(greaterThanEqual(t, ivec2(0))) && all(lessThan(t, size))) {
+            farthest = max(farthest, texelFetch(u_normal_depth, t, 0).r);
+        }
+    }
+#else
+    ivec2 origin = ivec2(gl_FragCoord.xy) * 4;
+    for (int y = 0; y < 4; ++y) {
+        for (int x = 0; x < 4; ++x) {
+            ivec2 p = origin + ivec2(x, y);
+            if (any(greaterThanEqual(p, size))) {
+                continue;
+            }
+            float z = texelFetch(u_normal_depth, p, 0).w;
+            farthest = max(farthest, z > 0.0 ? z : 3e38);
+        }
+    }
+#endif
+    out_tile = vec4(farthest, 0.0, 0.0, 0.0);
+}
