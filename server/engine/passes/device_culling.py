@@ -149,7 +149,7 @@ class DeviceCulling:
         dims: tuple[tuple[int, int], ...],
         offsets: tuple[int, ...],
     ) -> None:
-        """The max-depth pyramid of `depth` from `origin` (levels `_levels(...)` of the box)
+        """The max-depth pyramid of `depth` from `origin` (the levels `levels(...)` of the box)
         into the PYRAMID buffer, which must hold them: every level in one dispatch, a work
         group per 64 x 64 block of level 0."""
         shader = self._context.programs.compute(PYRAMID_SHADER)
