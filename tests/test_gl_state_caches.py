@@ -19,7 +19,13 @@ from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.frame_output import DisplayRequest
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.gpu.gl_context import GLContext
-from sphrender.server.engine.gpu.uniforms import set_group, set_if_used, write_array, write_matrix
+from sphrender.server.engine.gpu.uniforms import (
+    same,
+    set_group,
+    set_if_used,
+    write_array,
+    write_matrix,
+)
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.output.display import OETF8_THRESHOLDS
 from sphrender.server.scene import CameraConfig, scene_from_dict
@@ -100,8 +106,6 @@ def test_a_member_written_elsewhere_makes_its_group_rebuild(program: moderngl.Pr
 def test_keys_holding_numpy_objects_compare_by_identity() -> None:
     config = CameraConfig(eye=(1.0, 2.0, 3.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0))
     a, b = Camera.build(config, 64, 32), Camera.build(config, 64, 32)
-    from sphrender.server.engine.gpu.uniforms import same
-
     assert same((a, 1.0), (a, 1.0))
     assert not same((a, 1.0), (b, 1.0))  # equal cameras, other objects: rebuilt, never raises
     assert Camera.from_config(config, 64, 32) is Camera.from_config(config, 64, 32)
