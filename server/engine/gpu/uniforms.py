@@ -100,16 +100,14 @@ def write_matrix(
 ) -> None:
     """Upload a row-major matrix to a GLSL matN uniform (GLSL is column-major) when `key`
     changed; `matrix` may be a callable building it, so an unchanged key builds nothing."""
-    cache = _cache(program)
-    slot = "\0matrix " + name
+    cache, slot = _cache(program), "\0matrix " + name
     if slot in cache and same(cache[slot], key):
         return
-    uniform = program.get(name, None)
+    uniform = _uniform(program, name)
     if uniform is not None:
         value = matrix() if callable(matrix) else matrix
-        assert isinstance(uniform, moderngl.Uniform), name
         uniform.write(np.ascontiguousarray(np.asarray(value).T, dtype=np.float32).tobytes())
-    cache[slot] = key
+    cache[slot] = key  # after the write: a failed build leaves the key unknown
 
 
 def write_array(program: Program, name: str, values: npt.ArrayLike, dtype: type) -> None:
@@ -117,19 +115,26 @@ def write_array(program: Program, name: str, values: npt.ArrayLike, dtype: type)
     u_dims[8]``) when they changed (tuples compare by value; arrays always count as changed);
     the compiler keeps only the elements it sees used, so the rows past `values` are padded
     with zeros."""
-    cache = _cache(program)
-    slot = "\0array " + name
+    cache, slot = _cache(program), "\0array " + name
     if slot in cache and same(cache[slot], values):
         return
-    uniform = program.get(name, None)
+    uniform = _uniform(program, name)
     if uniform is not None:
-        assert isinstance(uniform, moderngl.Uniform), name
         array: npt.NDArray[Any] = np.asarray(values, dtype=dtype)
         rows = uniform.array_length
         padded = np.zeros((rows, *array.shape[1:]), dtype)
         padded[: min(rows, len(array))] = array[:rows]
         uniform.write(padded.tobytes())
     cache[slot] = values
+
+
+def _uniform(program: Program, name: str) -> moderngl.Uniform | None:
+    """The plain uniform `name`, None when the variant does not have it."""
+    uniform = program.get(name, None)
+    if uniform is None:
+        return None
+    assert isinstance(uniform, moderngl.Uniform), name
+    return uniform
 
 
 class _Missing:
