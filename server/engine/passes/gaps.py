@@ -50,7 +50,8 @@ class _GapTargets:
         self._ctx = ctx
         self.kelvin: Target | None = None  # the filled kelvin, on the first frame with them
         self.both: moderngl.Framebuffer | None = None  # closed depth + filled kelvin
-        self._back: tuple[int, moderngl.Framebuffer] | None = None  # onto the splat's kelvin
+        # Onto the splat's kelvin texture (keyed by the object: GL names are reused).
+        self._back: tuple[moderngl.Texture, moderngl.Framebuffer] | None = None
 
     def with_kelvin(self) -> tuple[moderngl.Framebuffer, Target]:
         if self.kelvin is None or self.both is None:
@@ -61,10 +62,10 @@ class _GapTargets:
     def back_into(self, temperature: moderngl.Texture) -> moderngl.Framebuffer:
         """A framebuffer on `temperature`, to blit the filled kelvin back (float, exact: a copy
         into the texture itself would convert it), kept while the texture is the same."""
-        if self._back is None or self._back[0] != temperature.glo:
+        if self._back is None or self._back[0] is not temperature:
             if self._back is not None:
                 self._back[1].release()
-            self._back = (temperature.glo, self._ctx.framebuffer([temperature]))
+            self._back = (temperature, self._ctx.framebuffer([temperature]))
         return self._back[1]
 
     def release(self) -> None:
