@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from sphrender.client.errors import InputError
-from sphrender.server.bench.run import CSV_COLUMNS
+from sphrender.server.bench.run import CSV_COLUMNS, DEVICE_PREPARE
 from sphrender.server.bench.surface_bench import QUICK_SURFACE_SETTINGS, SurfaceRow
 from sphrender.server.bench.sweep import QUICK_SWEEP
 from sphrender.server.content.lattice import jittered_lattice_ball
@@ -42,7 +42,16 @@ def test_bench_quick_writes_the_table(tmp_path: Path) -> None:
         rows = list(csv.DictReader(handle))
     assert tuple(rows[0].keys()) == CSV_COLUMNS
     expected = [(scene, s.name) for scene in ("ball", "slab") for s in QUICK_SWEEP]
+    expected.append(("ball", DEVICE_PREPARE.name))  # the GPU server's path, the same image
     assert [(row["scene"], row["setting"]) for row in rows] == expected
+    # The device prepare renders the image of the host prepare (up to depth-buffer ties, which
+    # move a tie pixel's normal by far less than 0.01 degrees on average over the ball).
+    host, device = (
+        next(r for r in rows if r["scene"] == "ball" and r["setting"] == name)
+        for name in ("preset balanced", DEVICE_PREPARE.name)
+    )
+    for column in ("normal_mean_deg", "depth_err_radii", "silhouette_iou"):
+        assert float(device[column]) == pytest.approx(float(host[column]), abs=0.01), column
     for row in rows:
         total = float(row["total_ms"])
         assert math.isfinite(total) and total > 0

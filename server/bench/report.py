@@ -165,7 +165,12 @@ def write_report(results: BenchResults, path: Path, *, plot_name: str) -> None:
         "error over pixels where the true surface faces the camera (n.v >= 0.3); depth error "
         "= mean |z - z_true| / r there; IoU of the coverage; PSNR of the tone-mapped image "
         "against the `best` preset with 1024-sample specular IBL. **Bold** = on the scene's "
-        "Pareto front (no other setting is both faster and more accurate).",
+        "Pareto front (no other setting is both faster and more accurate). Every row uses the "
+        "prepare `auto` picks here (host, on llvmpipe) except `preset balanced, device "
+        "prepare`: the GPU server's path (cull, transform and occlusion-cull in compute "
+        "shaders), the same image; on llvmpipe its splat is slower (three full vertex passes "
+        "in llvmpipe's single-threaded vertex pipeline) and its host column is the one a GPU "
+        "frame is bounded by (benchmarks/bench_host.py measures it with cProfile).",
         "",
         *markdown_table(results.rows),
         "",

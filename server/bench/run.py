@@ -129,6 +129,28 @@ def _median_frame_ms(renderer: SurfaceRenderer, scene: BenchScene, w: int, h: in
     return float(np.median([renderer.render(frame, render_scene)[1].total_ms for _ in range(3)]))
 
 
+#: The sweep's default row again with the device prepare (issue 13): the same image, and the
+#: host column of the path a GPU server takes (`auto` picks the host prepare on llvmpipe).
+DEVICE_PREPARE = Setting("preset balanced, device prepare", preset="balanced")
+
+
+def _device_prepare_rows(
+    gl: GLContext,
+    scene: BenchScene,
+    width: int,
+    height: int,
+    frames: int,
+    log: Callable[[str], None],
+) -> list[SweepRow]:
+    renderer = SurfaceRenderer(gl, prepare="device")
+    try:
+        return run_sweep(
+            renderer, scene, (DEVICE_PREPARE,), width=width, height=height, frames=frames, log=log
+        )
+    finally:
+        renderer.release()
+
+
 def run_bench(
     out: Path,
     *,
@@ -189,6 +211,7 @@ def run_bench(
                     )
                 except ImportError as exc:
                     log(f"  {scene.name} skipped: {exc}")
+            results.rows += _device_prepare_rows(gl, scenes[0], width, height, frames, log)
             log(f"real SPH surfaces (spatter, dam break, ball), {surface_w}x{surface_h}")
             results.surfaces = run_surface_bench(
                 gl,
