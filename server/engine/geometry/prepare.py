@@ -56,6 +56,12 @@ def typical_radius(radii: npt.NDArray[np.floating]) -> float:
     return float(np.median(radii[::step]))
 
 
+def frame_reference_radius(frame: ParticleFrame, default: float) -> float:
+    """The radius the smoothing kernel follows when the SPH stage does not say: the frame's
+    typical radius when it has radii (and particles), else the scene's `default`."""
+    return typical_radius(frame.radii) if frame.radii is not None and frame.count else default
+
+
 def prepare_particles(
     frame: ParticleFrame,
     camera: Camera,
@@ -96,9 +102,7 @@ def prepare_particles(
     center_radius[:, :3] = view
     center_radius[:, 3] = kept_radii
     if reference_radius is None:
-        reference_radius = (
-            typical_radius(frame.radii) if frame.radii is not None and frame.count else radius
-        )
+        reference_radius = frame_reference_radius(frame, radius)
     temperatures = (
         np.ascontiguousarray(frame.temperatures[keep], dtype=np.float32)
         if frame.temperatures is not None

@@ -21,7 +21,7 @@ import numpy.typing as npt
 
 from sphrender.client.frame import ParticleFrame
 from sphrender.server.engine.geometry.camera import Camera
-from sphrender.server.engine.geometry.prepare import typical_radius
+from sphrender.server.engine.geometry.prepare import frame_reference_radius
 from sphrender.server.engine.geometry.screen_box import ScreenBox, clip_box
 from sphrender.server.engine.gpu.uniforms import set_group, set_if_used
 from sphrender.server.engine.passes.context import PassContext
@@ -92,11 +92,7 @@ class DevicePrepare:
         if visible and not unbounded:
             box = clip_box(box_min_x, -neg_max_x, box_min_y, -neg_max_y, camera)
         if reference_radius is None:
-            reference_radius = (
-                typical_radius(frame.radii)
-                if frame.radii is not None and count
-                else scene.particles.radius
-            )
+            reference_radius = frame_reference_radius(frame, scene.particles.radius)
         has_temperature = frame.temperatures is not None
         ellipsoid = ellipsoids is not None
         bulk = SplatBatch(count, far, has_temperature, ellipsoid)
