@@ -5,8 +5,11 @@ Not a test. Run:  .venv/bin/python benchmarks/bench_host.py [--frames 5] [--size
 Renders a jittered-lattice ball (the bench headline shape) with the default preset on the main
 thread, as `sphrender render` does, and prints per size: the median wall time of
 `SurfaceRenderer.render`, the time inside moderngl/pyopencl calls and the difference (host work,
-measured with cProfile: `server/bench/host_time.py`), the engine's own `host_ms` estimate, and
-the stage times of an unprofiled frame. On a GPU the host column is the frame time's floor.
+measured with cProfile: `server/bench/host_time.py`), the engine's own `host_ms` estimate in
+the same profiled frames, then the engine's estimate in unprofiled frames (cProfile's own cost,
+~1 us a call on this VM, is part of the first two; the engine's estimate counts the unwrapped
+GL calls as host work, so it errs high), the same with the Z and N AOVs read back, and the
+stage times of an unprofiled frame. On a GPU the host column is the frame time's floor.
 
 On llvmpipe the rasteriser's worker threads run beside the render thread and, on a machine with
 few cores, preempt it: its Python then takes longer in wall time than it would beside a GPU.
@@ -62,13 +65,16 @@ def measure(renderer: SurfaceRenderer, name: str, frames: int) -> None:
         devices.append(split.device_ms)
         hosts.append(split.host_ms)
         estimates.append(getattr(stats, "host_ms", float("nan")))
-    _, stats = renderer.render(frame, scene)
-    stages = " ".join(f"{k}={v:.1f}" for k, v in stats.stage_ms.items())
+    plain = [renderer.render(frame, scene)[1] for _ in range(frames)]
+    aovs = [renderer.render(frame, scene, depth=True, normals=True)[1] for _ in range(frames)]
+    stages = " ".join(f"{k}={v:.1f}" for k, v in plain[-1].stage_ms.items())
     print(
         f"{name:>5} {frame.count:>8} {width}x{height}  wall {statistics.median(walls):7.1f}  "
         f"in GL/CL {statistics.median(devices):7.1f}  host {statistics.median(hosts):6.2f} ms "
-        f"(engine estimate {statistics.median(estimates):6.2f})  unprofiled total "
-        f"{stats.total_ms:.1f}: {stages}"
+        f"(engine estimate {statistics.median(estimates):6.2f}; unprofiled "
+        f"{statistics.median(s.host_ms for s in plain):6.2f}, with Z+N "
+        f"{statistics.median(s.host_ms for s in aovs):6.2f})  unprofiled total "
+        f"{plain[-1].total_ms:.1f}: {stages}"
     )
 
 

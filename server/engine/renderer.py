@@ -39,7 +39,7 @@ from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.display import DisplayPass
 from sphrender.server.engine.passes.normals import NormalsPass
 from sphrender.server.engine.passes.prepare_stage import PrepareMode, PrepareStage
-from sphrender.server.engine.passes.readback import read_frame
+from sphrender.server.engine.passes.readback import ReadbackPass
 from sphrender.server.engine.passes.shade import ShadePass
 from sphrender.server.engine.passes.smooth import SmoothPass
 from sphrender.server.engine.passes.splat import SplatPass
@@ -76,6 +76,7 @@ class SurfaceRenderer:
         self._temperature = TemperaturePass(self._context)
         self._shade = ShadePass(self._context, environment_dirs)
         self._display = DisplayPass(self._context)
+        self._readback = ReadbackPass(self._context)
 
     @property
     def gl(self) -> GLContext:
@@ -202,14 +203,13 @@ class SurfaceRenderer:
             # Device prepare (a GPU): the driver copies whole images, the host zeroes nothing;
             # host prepare (llvmpipe): only the box's rows are read, the rest memset to 0.
             read_box = None if self._prepare.mode == "device" else box
-            rendered = read_frame(
+            rendered = self._readback.run(
                 color,
                 normal_depth,
                 want_depth=depth,
                 want_normals=normals,
                 color_box=read_box if transparent else None,
                 surface_box=read_box,
-                clock=self._gl.clock,
             )
             if display is not None:
                 codes = self._display.run(color.texture, display, box if transparent else None)
@@ -289,7 +289,7 @@ class SurfaceRenderer:
         """Release every GPU object this renderer owns (on the owner thread)."""
         self._gl.check_owner()
         passes = (self._splat, self._smooth, self._normals, self._temperature, self._shade)
-        for gpu_pass in (*passes, self._display):
+        for gpu_pass in (*passes, self._display, self._readback):
             gpu_pass.release()
         self._context.fullscreen.release()
         self._context.programs.release()
