@@ -170,9 +170,11 @@ def write_report(results: BenchResults, path: Path, *, plot_name: str) -> None:
         "prepare`: the GPU server's path (cull, transform and occlusion-cull in compute "
         "shaders), the same image; on llvmpipe its splat is slower (three full vertex passes "
         "in llvmpipe's single-threaded vertex pipeline) and its host column is the one a GPU "
-        "frame is bounded by. Every host column here includes the numpy post-processing of the "
-        "depth and normal AOVs the metrics read back (~20 ms at 1280x720); "
-        "benchmarks/bench_host.py measures frames without them, the issue's way (cProfile).",
+        "frame is bounded by. The host columns are those of frames that read the depth and "
+        "normal AOVs back (the metrics need them); the driver writes them in the frame's "
+        "formats (passes/readback.py), so they add no per-pixel host work. "
+        "benchmarks/bench_host.py measures host work with and without them, with cProfile "
+        "(the issue's way) and without.",
         "",
         *markdown_table(results.rows),
         "",
