@@ -530,6 +530,22 @@ MUTATIONS: tuple[Mutation, ...] = (
         tests=("tests/test_silhouette.py::test_exact_spheres_barely_change",),
         description="the silhouette pass turning droplets smaller than its window",
     ),
+    Mutation(
+        name="depth-aov-zero-background",
+        path="shaders/readback/depth_aov.frag.glsl",
+        old="depth > 0.0 ? depth :",
+        new="depth >= 0.0 ? depth :",
+        tests=("tests/test_readback.py",),
+        description="the Z AOV keeping the target's 0 where there is no surface (contract: +inf)",
+    ),
+    Mutation(
+        name="depth-aov-box-columns-only",
+        path="server/engine/passes/readback.py",
+        old="(0, box[1], width, box[3])",
+        new="box",
+        tests=("tests/test_readback.py",),
+        description="the Z copy drawn only in the box's columns while the box's full rows are read",
+    ),
 )
 # fmt: on
 
