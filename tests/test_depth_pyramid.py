@@ -30,7 +30,7 @@ F32 = npt.NDArray[np.float32]
 def culling(gl_context: GLContext) -> Iterator[tuple[DeviceCulling, SplatBuffers]]:
     context = PassContext(gl_context, ProgramCache(gl_context), FullscreenTriangle(gl_context))
     buffers = SplatBuffers(gl_context)
-    yield DeviceCulling(context, buffers, (2, 4)), buffers
+    yield DeviceCulling(context, buffers, 0), buffers
     buffers.release()
     context.programs.release()
 

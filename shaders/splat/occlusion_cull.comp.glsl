@@ -9,9 +9,9 @@
 //      those without a rectangle; the splat draws them first;
 //   2  after the front layer's depth became the max-depth pyramid (depth_pyramid.comp.glsl):
 //      SECOND for the others that the front layer does not hide (nearest depth not behind the
-//      largest depth over their rectangle; with anti-aliasing, hidden only when the front layer
-//      also covers the rectangle grown by the coverage reach), and COVER for drawn particles
-//      that can reach a silhouette (not covered all over within the interior reach).
+//      largest depth over their rectangle), and with anti-aliasing COVER for the drawn ones
+//      whose rectangle grown by the coverage need the front layer does not cover all over
+//      (why that is all the coverage the shade pass reads: passes/splat.py COVERAGE_NEED_PX).
 // The pyramid's blocks are aligned (not occlusion.DepthMaxTable's sparse table), so a rectangle
 // is tested against the blocks that hold it (`largest_depth`): a superset of its pixels, which
 // keeps the culling exact (it culls a little less).
@@ -39,8 +39,7 @@ uniform float u_tile;          // tile side in pixels
 uniform int u_tiles_x;         // tiles per row (int(width / tile) + 2, as on the CPU)
 uniform float u_band;          // FRONT_BAND_RADII
 uniform bool u_antialias;
-uniform int u_coverage_reach;  // COVERAGE_REACH_PX
-uniform int u_interior_reach;  // INTERIOR_REACH_PX
+uniform int u_coverage_need;   // COVERAGE_NEED_PX
 uniform ivec4 u_box;           // x, y, width, height of the pyramid's level 0 (window pixels)
 uniform int u_levels;          // levels in the pyramid
 uniform int u_offsets[8];      // where each level starts in `pyramid`
@@ -118,16 +117,13 @@ void main() {
     if (!drawn) {
         float largest = bounded ? largest_depth(rect) : -1.0;
         bool hidden = largest >= 0.0 && near > largest;
-        if (hidden && u_antialias) {
-            hidden = covered(rect, u_coverage_reach);  // a silhouette within reach still shows
-        }
         if (!hidden) {
             flag |= SECOND;
             drawn = true;
             atomicAdd(counts.drawn_second, 1u);
         }
     }
-    if (drawn && u_antialias && !(bounded && covered(rect, u_interior_reach))) {
+    if (drawn && u_antialias && !(bounded && covered(rect, u_coverage_need))) {
         flag |= COVER;
     }
     flags[i] = flag;

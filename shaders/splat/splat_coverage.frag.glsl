@@ -13,10 +13,15 @@ flat in vec4 v_sphere;
 
 uniform float u_near;
 uniform float u_focal_px;   // pixels per unit at eye depth 1 (focal length in pixels)
+uniform sampler2D u_band;   // 1 where the shade pass reads the coverage (coverage_band.frag.glsl)
+uniform bool u_banded;      // false: every pixel (the droplets over the smoothed surface)
 
 layout(location = 0) out float out_coverage;
 
 void main() {
+    if (u_banded && texelFetch(u_band, ivec2(gl_FragCoord.xy), 0).r <= 0.0) {
+        discard;  // the shade pass ignores the coverage here
+    }
     vec3 direction = normalize(v_view_position);
     vec3 center = v_sphere.xyz;
     float radius = v_sphere.w;

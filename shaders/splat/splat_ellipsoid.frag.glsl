@@ -22,6 +22,8 @@ uniform float u_near;
 uniform float u_far;
 
 #if COVERAGE
+uniform sampler2D u_band;   // 1 where the shade pass reads the coverage (coverage_band.frag.glsl)
+uniform bool u_banded;      // false: every pixel (the droplets over the smoothed surface)
 layout(location = 0) out float out_coverage;
 #else
 layout(location = 0) out float out_eye_depth;
@@ -43,6 +45,11 @@ void main() {
     // Distance to the edge in pixels: (1 - miss) / |gradient|; edge normal: the gradient.
     vec2 gradient = vec2(dFdx(miss), dFdy(miss));
     float rate = length(gradient);
+    // After the derivatives (they need the whole 2 x 2 quad): the shade pass ignores the
+    // coverage outside the band.
+    if (u_banded && texelFetch(u_band, ivec2(gl_FragCoord.xy), 0).r <= 0.0) {
+        discard;
+    }
     float coverage = rate > 0.0 ? edge_coverage((1.0 - miss) / rate, gradient / rate)
                                 : (miss <= 1.0 ? 1.0 : 0.0);
     if (coverage <= 0.0 || along <= 0.0) {

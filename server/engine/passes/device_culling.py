@@ -7,7 +7,8 @@ flags that the splat's vertex stage reads (`u_flag_mask`, common/splat_particles
 1. `mark_front`: nearest depth per screen tile, then FRONT for the particles near their tile's
    front (and those without a rectangle) - drawn first;
 2. `mark_rest` (after the front layer's draw): its max-depth pyramid, then SECOND for the other
-   particles it does not hide and COVER for the drawn ones that can reach a silhouette.
+   particles it does not hide and, with anti-aliasing, COVER for the drawn ones whose coverage
+   the shade pass can read.
 
 Nothing is read back in between; the counts of drawn particles are read when asked for
 (`drawn`), after the frame. The test is conservative, so the depth image is that of drawing
@@ -59,13 +60,11 @@ class DeviceCullInput:
 
 
 class DeviceCulling:
-    def __init__(
-        self, context: PassContext, buffers: SplatBuffers, reaches: tuple[int, int]
-    ) -> None:
-        """`reaches`: the splat's coverage and interior reach in pixels (passes/splat.py)."""
+    def __init__(self, context: PassContext, buffers: SplatBuffers, coverage_need: int) -> None:
+        """`coverage_need`: passes/splat.py's COVERAGE_NEED_PX."""
         self._context = context
         self._buffers = buffers
-        self._coverage_reach, self._interior_reach = reaches
+        self._coverage_need = coverage_need
         self._tile_init = np.zeros(0, np.uint32)
 
     def mark_front(self, camera: Camera, frame: DeviceCullInput, antialias: bool) -> None:
@@ -126,8 +125,7 @@ class DeviceCulling:
                 "u_size": (camera.width, camera.height),
                 "u_band": occlusion.FRONT_BAND_RADII,
                 "u_antialias": antialias,
-                "u_coverage_reach": self._coverage_reach,
-                "u_interior_reach": self._interior_reach,
+                "u_coverage_need": self._coverage_need,
             }
 
         set_group(shader, "camera", (camera, antialias), values)

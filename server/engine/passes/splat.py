@@ -33,6 +33,7 @@ from sphrender.server.engine.gpu.draw import PerSize, Target, float_texture
 from sphrender.server.engine.gpu.gl_clock import GLClock
 from sphrender.server.engine.gpu.uniforms import set_group, set_if_used, write_matrix
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
+from sphrender.server.engine.passes.coverage_band import CoverageBand
 from sphrender.server.engine.passes.device_culling import (
     COVER,
     FRONT,
@@ -57,11 +58,18 @@ COVERAGE_VERTEX_SHADER = "splat/splat_coverage.vert.glsl"
 COVERAGE_FRAGMENT_SHADER = "splat/splat_coverage.frag.glsl"
 #: How far past a silhouette the coverage quads reach, in pixels.
 COVERAGE_MARGIN_PX = 1.5
-#: Whole pixels a coverage quad reaches past its sphere's bounds rectangle.
-COVERAGE_REACH_PX = 2
-#: A particle whose rectangle grown by this many pixels is covered all over needs no coverage:
-#: its quads reach COVERAGE_REACH_PX past it, and the shade pass looks 1 pixel further.
-INTERIOR_REACH_PX = COVERAGE_REACH_PX + 1
+#: Which particles' coverage is drawn: those whose bounds rectangle, grown by this many pixels,
+#: the front layer does not cover all over. Why that is every coverage the shade pass reads:
+#: it reads coverage only at a pixel next to one without surface (coverage_band.py), where the
+#: value is the largest of the spheres overlapping it. A sphere covering the pixel's centre
+#: gives at least 1/2 there, one not covering it at most 1/2 (the straight-edge model of
+#: common/edge_coverage.glsl), so at a pixel with a surface only the spheres covering its
+#: centre count: their rectangles hold the pixel and its neighbours (a rectangle is the pixel
+#: centres its sphere covers and one more on each side), among them the one without surface.
+#: A pixel without surface gets the coverage of the spheres overlapping it, whose rectangles
+#: hold it. Either way the rectangle has a pixel without surface. So a hidden particle (every
+#: pixel of its rectangle has a nearer surface) never needs its coverage drawn either.
+COVERAGE_NEED_PX = 0
 
 
 @dataclass(frozen=True)
@@ -157,13 +165,14 @@ class SplatPass:
         # particles cost ~70 ms of pure per-instance overhead. The vertex stage pulls its
         # particle from storage buffers (splat_buffers.py), so nothing is repeated per corner.
         self.buffers = SplatBuffers(context.gl)
-        self._culling = DeviceCulling(context, self.buffers, (COVERAGE_REACH_PX, INTERIOR_REACH_PX))
+        self._culling = DeviceCulling(context, self.buffers, COVERAGE_NEED_PX)
         self._culled_on_device = False
         # Keyed by (ellipsoid, has temperature, coverage).
         self._vaos: dict[
             tuple[bool, bool, bool], tuple[moderngl.Program, moderngl.VertexArray]
         ] = {}
         self._targets = PerSize(lambda size: SplatTargets(context.gl.ctx, size))
+        self._band = CoverageBand(context)  # where the coverage pass does its work
 
     def targets(self, size: tuple[int, int]) -> SplatTargets:
         """The targets for `size` (rebuilt only when the size changes)."""
@@ -241,12 +250,13 @@ class SplatPass:
         if host is None:
             splatted = -1  # the device prepare counts what it drew
         if coverage is not None:
+            band = self._band.run(targets.depth, box)
             if coverage_ids is None:
                 self._draw_coverage(
-                    coverage, camera, batch, 0, batch.count, use_ids=False, flag_mask=coverage_mask
+                    coverage, camera, batch, 0, batch.count, band, flag_mask=coverage_mask
                 )
             elif coverage_ids[1]:
-                self._draw_coverage(coverage, camera, batch, *coverage_ids, use_ids=True)
+                self._draw_coverage(coverage, camera, batch, *coverage_ids, band, use_ids=True)
         return SplatOutput(targets.depth, temperature, splatted, _texture(coverage))
 
     def run_droplets(
@@ -286,9 +296,7 @@ class SplatPass:
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
         if coverage is not None and count:
-            self._draw_coverage(
-                targets.coverage_target(), camera, droplets, 0, count, use_ids=False
-            )
+            self._draw_coverage(targets.coverage_target(), camera, droplets, 0, count, None)
         splatted = count if droplets.host is not None else -1  # -1: the device prepare counts
         return SplatOutput(composite, temperature, splatted, coverage)
 
@@ -310,16 +318,22 @@ class SplatPass:
         batch: SplatBatch,
         first: int,
         count: int,
+        band: moderngl.Texture | None,
         *,
-        use_ids: bool,
+        use_ids: bool = False,
         flag_mask: int = 0,
     ) -> None:
         """Coverage of quads `first` .. `first + count` (of the id list when `use_ids`), into
-        `target` with blending MAX and no depth test (see splat_coverage.frag.glsl)."""
+        `target` with blending MAX and no depth test (see splat_coverage.frag.glsl), only
+        where `band` (passes/coverage_band.py) is set; None: everywhere."""
         if count == 0:
             return
         ctx = self._context.gl.ctx
         program, vao = self._vertex_array(batch.ellipsoid, False, coverage=True)
+        set_if_used(program, "u_band", 0)
+        set_if_used(program, "u_banded", band is not None)
+        if band is not None:
+            band.use(0)
         focal_px = camera.pixels_per_unit_at_unit_depth
         set_group(
             program,
@@ -360,7 +374,8 @@ class SplatPass:
         subset is an id list (splat_buffers.IDS) over the uploaded spheres. Returns how many were
         drawn and, with `antialias`, where in the id list the ones that can reach a silhouette
         are (first, count; None: all): a particle whose surroundings the front layer covers
-        entirely within INTERIOR_REACH_PX adds nothing to the coverage the shade pass keeps."""
+        entirely within COVERAGE_NEED_PX adds nothing to the coverage the shade pass keeps, nor
+        does a hidden one (see COVERAGE_NEED_PX)."""
         radius = prepared.center_radius[:, 3].astype(np.float64)
         in_front = occlusion.front_layer(bounds, radius, (camera.width, camera.height))
         front = np.flatnonzero(in_front).astype(np.uint32)
@@ -380,9 +395,7 @@ class SplatPass:
         depth = np.frombuffer(data, np.float32).reshape(h, w)
         sides = np.minimum(bounds.x1 - bounds.x0, bounds.y1 - bounds.y0) + 1
         if antialias:
-            sides = np.concatenate(
-                [sides, sides + 2 * COVERAGE_REACH_PX, sides + 2 * INTERIOR_REACH_PX]
-            )
+            sides = np.concatenate([sides, sides + 2 * COVERAGE_NEED_PX])
         table = occlusion.DepthMaxTable(depth, (x, y), sides)
         # "Covered all over within k pixels": the front layer's largest depth there is finite.
         infinitely_far = np.full_like(radius, np.inf)
@@ -392,17 +405,14 @@ class SplatPass:
             return table.occluded(grown, rows)
 
         if others.size:
-            hidden = table.occluded(bounds, others)
-            if antialias:  # a silhouette within the coverage reach still shows
-                hidden[hidden] = covered_around(others[hidden], COVERAGE_REACH_PX)
-            others = others[~hidden]
+            others = others[~table.occluded(bounds, others)]
             self.buffers.write(IDS, others.astype(np.uint32), offset_items=front.size)
             _render(vao, front.size, others.size, use_ids=True, clock=self._context.gl.clock)
         drawn = int(front.size + others.size)
         if not antialias:
             return drawn, None
         ids = np.concatenate([front, others.astype(np.uint32)])
-        edge = ids[~covered_around(ids.astype(np.intp), INTERIOR_REACH_PX)]
+        edge = ids[~covered_around(ids.astype(np.intp), COVERAGE_NEED_PX)]
         self.buffers.write(IDS, edge, offset_items=drawn)
         return drawn, (drawn, int(edge.size))
 
@@ -464,6 +474,7 @@ class SplatPass:
             vao.release()
         self._vaos.clear()
         self._targets.release()
+        self._band.release()
         self.buffers.release()
 
 
