@@ -89,10 +89,12 @@ def sparse_sheet(seed: int, behind: float | None) -> np.ndarray:
     return depth
 
 
-@pytest.mark.parametrize("behind", [None, 1.4])
+@pytest.mark.parametrize("behind", [None, 1.4, 1.12])
 @pytest.mark.parametrize("seed", [1, 2])
 def test_matches_reference(gl_context: GLContext, seed: int, behind: float | None) -> None:
-    """Fill mask and depths equal the reference's. Tolerance: the fill is one float32 lerp of
+    """Fill mask and depths equal the reference's, over the background, a plane far behind
+    and one 5-7 r behind (just past the 4 r edge jump: the tiles must not miss those
+    jumps). Tolerance: the fill is one float32 lerp of
     two stored depths (|error| <= 2 ulp of ~1.0); the decisions compare integers and float32
     ratios far from their limits on these images (spans are whole steps, limits 8 / z px)."""
     depth = sparse_sheet(seed, behind).astype(np.float32)

@@ -555,6 +555,22 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="no coverage drawn just outside the silhouettes (no anti-aliased fringe)",
     ),
     Mutation(
+        name="gap-tiles-miss-near-jumps",
+        path="shaders/gaps/gap_tiles.frag.glsl",
+        old="jump = jump || zn <= 0.0 || zq < zn - u_edge_jump;",
+        new="jump = jump || zn <= 0.0 || zq < zn - 3.0 * u_edge_jump;",
+        tests=("tests/test_gaps.py",),
+        description="the gap tiles skipping pixels a walk could stop on (gaps before a surface)",
+    ),
+    Mutation(
+        name="gap-tiles-skip-farther-surfaces",
+        path="shaders/gaps/close_gaps.frag.glsl",
+        old="    if (!nearer(tile.g, zc)) {",
+        new="    if (!nearer(tile.g, zc) || zc > 0.0) {",
+        tests=("tests/test_gaps.py",),
+        description="the gap pass leaving gaps over a farther surface open",
+    ),
+    Mutation(
         name="depth-aov-zero-background",
         path="shaders/readback/depth_aov.frag.glsl",
         old="depth > 0.0 ? depth :",

@@ -20,10 +20,11 @@
 // a notch between two beads at a silhouette (enclosed along the edge only) stays open, and two
 // particles whose silhouettes are farther apart than u_gap_radii radii stay apart.
 // Bounded search (the same result): the 4-pixel tiles of gap_tiles.frag.glsl dilated by
-// gap_dilate.frag.glsl hold, for the pixel's tile, the nearest depth z_near and whether there is
-// an edge within +-16 >= GAP_MAX_PX pixels: without an edge or a pixel nearer than
-// zc - u_edge_jump there (the inside of a surface, open background), nothing to do; else no
-// span can exceed u_gap_radii * r * f / z_near pixels, the reach, and the walks stop there; a
+// gap_dilate.frag.glsl hold, for the pixel's tile, the nearest depth z_near and the nearest jump
+// front (a pixel a walk can stop on: reached from a neighbour by a jump) within +-16 >=
+// GAP_MAX_PX pixels: without a jump front nearer than zc - u_edge_jump there (the inside of a
+// surface, the slope inside a silhouette, open background), nothing to do; else no span can
+// exceed u_gap_radii * r * f / z_near pixels, the reach, and the walks stop there; a
 // background pixel stops once too few directions are left to enclose it.
 
 #define GAP_MAX_PX 16
@@ -80,8 +81,8 @@ void main() {
     out_temperature = vec4(texelFetch(u_temperature, p, 0).r, 0.0, 0.0, 0.0);
 #endif
     vec2 tile = texelFetch(u_tiles, p / 4, 0).rg;
-    if (tile.g <= 0.0 || !nearer(tile.r, zc)) {
-        return;
+    if (!nearer(tile.g, zc)) {
+        return;  // no jump front nearer than this pixel within reach: no walk can stop
     }
     int reach = min(int(ceil(limit_px / tile.r)), GAP_MAX_PX);
     ivec2 steps[4] = ivec2[4](ivec2(1, 0), ivec2(0, 1), ivec2(1, 1), ivec2(1, -1));

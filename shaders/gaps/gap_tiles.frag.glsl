@@ -1,10 +1,11 @@
 #version 330 core
 // Tiles for the gap pass's bounds (passes/gaps.py): one fragment per 4 x 4 block of the
-// eye-depth image, r = the smallest positive depth in it (0: none), g = 1 where it holds an
-// edge, else 0: a pixel whose right or upper neighbour (outside the image: background) differs
-// from it by more than u_edge_jump / 2, or one of the two is background (a jump of u_edge_jump
-// along a diagonal step has a jump of at least half of it along one of its two axis steps).
-// gap_dilate.frag.glsl spreads them over +-16 pixels for close_gaps.frag.glsl.
+// eye-depth image, r = the smallest positive depth in it (0: none; it bounds the walks' reach),
+// g = the smallest depth of its jump fronts (0: none): pixels with a surface that some
+// 8-neighbour (outside the image: background) has none, or is farther than by more than
+// u_edge_jump. A walk of close_gaps.frag.glsl can only stop on such a pixel (it arrives there
+// from its neighbour by a jump), so a pixel with no jump front nearer than itself within reach
+// has nothing to close. gap_dilate.frag.glsl spreads both over +-16 pixels.
 
 #include "common/depth_image.glsl"
 
@@ -13,30 +14,43 @@ uniform float u_edge_jump;
 
 layout(location = 0) out vec4 out_tile;
 
-bool differs(float a, float b) {
-    return (a > 0.0) != (b > 0.0) || abs(a - b) > 0.5 * u_edge_jump;
+float nearest_positive(float a, float b) {
+    return b > 0.0 && (a == 0.0 || b < a) ? b : a;
 }
 
 void main() {
     ivec2 origin = ivec2(gl_FragCoord.xy) * 4;
     ivec2 size = textureSize(u_source, 0);
+    // The block and a one-pixel ring: every depth the 16 pixels' neighbour tests read.
+    float z[36];
+    for (int y = 0; y < 6; ++y) {
+        for (int x = 0; x < 6; ++x) {
+            z[y * 6 + x] = fetch_depth(u_source, origin + ivec2(x - 1, y - 1));
+        }
+    }
     float nearest = 0.0;
-    float edge = 0.0;
-    for (int y = 0; y < 4; ++y) {
-        for (int x = 0; x < 4; ++x) {
-            ivec2 p = origin + ivec2(x, y);
-            if (any(greaterThanEqual(p, size))) {
+    float front = 0.0;
+    for (int y = 1; y <= 4; ++y) {
+        for (int x = 1; x <= 4; ++x) {
+            if (any(greaterThanEqual(origin + ivec2(x - 1, y - 1), size))) {
                 continue;
             }
-            float z = texelFetch(u_source, p, 0).r;
-            if (differs(z, fetch_depth(u_source, p + ivec2(1, 0)))
-                || differs(z, fetch_depth(u_source, p + ivec2(0, 1)))) {
-                edge = 1.0;
+            float zq = z[y * 6 + x];
+            if (zq <= 0.0) {
+                continue;
             }
-            if (z > 0.0 && (nearest == 0.0 || z < nearest)) {
-                nearest = z;
+            nearest = nearest_positive(nearest, zq);
+            bool jump = false;
+            for (int dy = -1; dy <= 1; ++dy) {
+                for (int dx = -1; dx <= 1; ++dx) {
+                    float zn = z[(y + dy) * 6 + x + dx];
+                    jump = jump || zn <= 0.0 || zq < zn - u_edge_jump;
+                }
+            }
+            if (jump) {
+                front = nearest_positive(front, zq);
             }
         }
     }
-    out_tile = vec4(nearest, edge, 0.0, 0.0);
+    out_tile = vec4(nearest, front, 0.0, 0.0);
 }

@@ -11,10 +11,11 @@ background pixel must be enclosed along two of the four directions (a hole or a 
 notch between two beads along a silhouette). Depths only get nearer, so no pixel the spheres
 cover loses its surface. The rule in full: `shaders/gaps/close_gaps.frag.glsl`.
 
-Shaders: `shaders/gaps/gap_tiles.frag.glsl` (the nearest depth and whether there is a depth
-edge, per 4 x 4 pixels), `shaders/gaps/gap_dilate.frag.glsl` (the same over +-16 pixels, in two
-1-D passes), which bound the walks and skip pixels with no edge or no nearer surface around:
-the inside of a surface stops there), `shaders/gaps/close_gaps.frag.glsl`.
+Shaders: `shaders/gaps/gap_tiles.frag.glsl` (the nearest depth and the nearest jump front, a
+pixel a walk can stop on, per 4 x 4 pixels), `shaders/gaps/gap_dilate.frag.glsl` (the same over
++-16 pixels, in two 1-D passes), which bound the walks and skip the pixels with no jump front
+nearer than themselves around (the inside of a surface, the slope inside a silhouette, open
+background: most pixels stop there), `shaders/gaps/close_gaps.frag.glsl`.
 Owns: three tile targets (RG32F, a quarter of the image per side) and the closed-depth target
 (R32F), per image size.
 """
@@ -44,7 +45,7 @@ EDGE_JUMP_RADII = 4.0
 class _GapTargets:
     def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
         tiles = ((size[0] + 3) // 4, (size[1] + 3) // 4)
-        # Nearest depth and edge flag per tile; the same dilated along x; then along y.
+        # Nearest depth and nearest jump front per tile; dilated along x; then along y.
         self.tiles = [Target.float(ctx, tiles, 2) for _ in range(3)]
         self.closed = Target.float(ctx, size, 1)
         self._ctx = ctx
