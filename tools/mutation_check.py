@@ -364,8 +364,8 @@ MUTATIONS: tuple[Mutation, ...] = (
         path="shaders/shade/shade_pbr.frag.glsl",
         old="coverage < 1.0 && !next_to_background(pixel, size)",
         new="coverage < 0.0 && !next_to_background(pixel, size)",
-        tests=("tests/test_occlusion.py",),
-        description="alpha < 1 where two front spheres meet inside a surface (and culling shows)",
+        tests=("tests/test_surfaces.py::test_alpha_is_sub_pixel_coverage_on_every_edge",),
+        description="alpha < 1 inside a surface (the coverage pass writes only the rim band)",
     ),
     Mutation(
         name="ellipsoid-back-surface",

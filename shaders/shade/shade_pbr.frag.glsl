@@ -198,8 +198,9 @@ void main() {
     if (normal_depth.w <= 0.0 && coverage > 0.0) {
         normal_depth = nearest_neighbour_surface(pixel, size, source);
     } else if (normal_depth.w > 0.0 && coverage < 1.0 && !next_to_background(pixel, size)) {
-        // Inside a surface: where the silhouettes of two front spheres meet, the pass keeps
-        // only the larger single coverage, but the union (with the layers behind) covers it.
+        // Inside a surface (no neighbour without one): the union covers the pixel. The coverage
+        // pass writes only next to such neighbours (passes/coverage_band.py), and where two
+        // front spheres meet it would keep only the larger single coverage anyway.
         coverage = 1.0;
     }
 #endif
