@@ -5,11 +5,13 @@
 // shade_pbr.frag.glsl's nearest_neighbour_surface (neighbours outside the image left out) and
 // next_to_background (clamped to the image) look at them. Everywhere else the shade pass
 // ignores the coverage (1 inside a surface, background elsewhere), so the coverage pass
-// discards its fragments there before any work.
+// discards its fragments there before any work. Second output: the coverage target's start,
+// 1 inside a surface (the shade pass then needs no neighbour test there), 0 elsewhere.
 
 uniform sampler2D u_depth;  // the splat's eye depth, 0 = no surface
 
 layout(location = 0) out float out_band;
+layout(location = 1) out float out_coverage;
 
 void main() {
     ivec2 p = ivec2(gl_FragCoord.xy);
@@ -27,4 +29,5 @@ void main() {
         }
     }
     out_band = band ? 1.0 : 0.0;
+    out_coverage = surface && !band ? 1.0 : 0.0;
 }

@@ -250,7 +250,7 @@ class SplatPass:
         if host is None:
             splatted = -1  # the device prepare counts what it drew
         if coverage is not None:
-            band = self._band.run(targets.depth, box)
+            band = self._band.run(targets.depth, coverage.texture, box)
             if coverage_ids is None:
                 self._draw_coverage(
                     coverage, camera, batch, 0, batch.count, band, flag_mask=coverage_mask
