@@ -76,6 +76,8 @@ SURFACE_SETTINGS: tuple[Setting, ...] = (
     Setting("balanced, kernel cap 96 px", {"quality": {"kernel_max_px": 96}}, preset="balanced"),
     Setting("balanced + normal stencil 1 r", {"quality": {"normal_stencil": 1.0}}, "balanced"),
     Setting("balanced + anisotropy", {"sph": {"anisotropy": True}}, preset="balanced"),
+    Setting("balanced + gaps", {"quality": {"close_gaps": 2.0}}, preset="balanced"),
+    Setting("balanced + silhouette normals", {"quality": {"silhouette_normals": 2.0}}, "balanced"),
     Setting(
         "balanced + gaps + silhouette normals",
         {"quality": {"close_gaps": 2.0, "silhouette_normals": 2.0}},
