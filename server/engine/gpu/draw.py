@@ -81,6 +81,33 @@ class PerSize(Generic[R]):
             self._size = None
 
 
+class FramebufferOn:
+    """A framebuffer on textures someone else owns (another pass's target), kept while they are
+    the same objects and rebuilt when one changes (keyed by identity: GL names are reused)."""
+
+    def __init__(self, ctx: moderngl.Context) -> None:
+        self._ctx = ctx
+        self._textures: tuple[moderngl.Texture, ...] = ()
+        self._fbo: moderngl.Framebuffer | None = None
+
+    def get(self, *textures: moderngl.Texture) -> moderngl.Framebuffer:
+        if (
+            self._fbo is None
+            or len(textures) != len(self._textures)
+            or any(a is not b for a, b in zip(textures, self._textures, strict=True))
+        ):
+            self.release()
+            self._fbo = self._ctx.framebuffer(list(textures))
+            self._textures = textures
+        return self._fbo
+
+    def release(self) -> None:
+        if self._fbo is not None:
+            self._fbo.release()
+            self._fbo = None
+            self._textures = ()
+
+
 class FullscreenTriangle:
     """One vertex array per program for the attribute-less full-screen triangle
     (`shaders/common/fullscreen.vert.glsl`), shared by the passes that draw one."""

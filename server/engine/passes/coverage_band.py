@@ -25,7 +25,13 @@ from __future__ import annotations
 import moderngl
 
 from sphrender.server.engine.geometry.screen_box import ScreenBox
-from sphrender.server.engine.gpu.draw import PerSize, Target, clear_and_scissor, set_scissor
+from sphrender.server.engine.gpu.draw import (
+    FramebufferOn,
+    PerSize,
+    Target,
+    clear_and_scissor,
+    set_scissor,
+)
 from sphrender.server.engine.gpu.uniforms import set_if_used
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
@@ -34,22 +40,11 @@ SHADER = "splat/coverage_band.frag.glsl"
 
 class _BandTargets:
     def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
-        self._ctx = ctx
         self.band = Target.float(ctx, size, 1)
-        # mask + the coverage target, keyed by the coverage texture (GL names are reused)
-        self._both: tuple[moderngl.Texture, moderngl.Framebuffer] | None = None
-
-    def with_coverage(self, coverage: moderngl.Texture) -> moderngl.Framebuffer:
-        if self._both is None or self._both[0] is not coverage:
-            if self._both is not None:
-                self._both[1].release()
-            self._both = (coverage, self._ctx.framebuffer([self.band.texture, coverage]))
-        return self._both[1]
+        self.with_coverage = FramebufferOn(ctx)  # the mask + the splat's coverage target
 
     def release(self) -> None:
-        if self._both is not None:
-            self._both[1].release()
-            self._both = None
+        self.with_coverage.release()
         self.band.release()
 
 
@@ -69,7 +64,7 @@ class CoverageBand:
         set_if_used(program, "u_depth", 0)
         depth.use(0)
         clear_and_scissor(targets.band.fbo, box)
-        fbo = targets.with_coverage(coverage)
+        fbo = targets.with_coverage.get(targets.band.texture, coverage)
         set_scissor(fbo, box)
         fbo.use()
         self._context.fullscreen.draw(program)

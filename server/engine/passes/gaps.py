@@ -25,7 +25,13 @@ from __future__ import annotations
 import moderngl
 
 from sphrender.server.engine.geometry.screen_box import ScreenBox
-from sphrender.server.engine.gpu.draw import PerSize, Target, clear_and_scissor, set_scissor
+from sphrender.server.engine.gpu.draw import (
+    FramebufferOn,
+    PerSize,
+    Target,
+    clear_and_scissor,
+    set_scissor,
+)
 from sphrender.server.engine.gpu.uniforms import set_group, set_if_used
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
@@ -51,8 +57,7 @@ class _GapTargets:
         self._ctx = ctx
         self.kelvin: Target | None = None  # the filled kelvin, on the first frame with them
         self.both: moderngl.Framebuffer | None = None  # closed depth + filled kelvin
-        # Onto the splat's kelvin texture (keyed by the object: GL names are reused).
-        self._back: tuple[moderngl.Texture, moderngl.Framebuffer] | None = None
+        self._back = FramebufferOn(ctx)  # onto the splat's kelvin texture
 
     def with_kelvin(self) -> tuple[moderngl.Framebuffer, Target]:
         if self.kelvin is None or self.both is None:
@@ -63,15 +68,10 @@ class _GapTargets:
     def back_into(self, temperature: moderngl.Texture) -> moderngl.Framebuffer:
         """A framebuffer on `temperature`, to blit the filled kelvin back (float, exact: a copy
         into the texture itself would convert it), kept while the texture is the same."""
-        if self._back is None or self._back[0] is not temperature:
-            if self._back is not None:
-                self._back[1].release()
-            self._back = (temperature, self._ctx.framebuffer([temperature]))
-        return self._back[1]
+        return self._back.get(temperature)
 
     def release(self) -> None:
-        if self._back is not None:
-            self._back[1].release()
+        self._back.release()
         for target in (*self.tiles, self.closed, self.kelvin):
             if target is not None:
                 target.release()
