@@ -114,6 +114,48 @@ def test_matches_reference(gl_context: GLContext, seed: int, behind: float | Non
         np.testing.assert_array_equal(gl_close(gl_context, depth, box=box), got)
 
 
+def clutter(seed: int) -> np.ndarray:
+    """Beads scattered at random over the image at depths 0.8-1.6 (several surfaces, overlaps
+    with jumps, gaps of every width and along every direction), over a plane on one side: the
+    walks' direction bounds (axes and quadrants of the tiles) must not drop a closing pixel."""
+    rng = np.random.default_rng(seed)
+    centers = [(rng.uniform(0, W), rng.uniform(0, H), rng.uniform(0.8, 1.6)) for _ in range(70)]
+    depth = beads(sorted(centers, key=lambda c: c[2]))
+    return np.where((depth > 0.0) | (np.arange(W)[None, :] < W // 2), depth, 1.7)
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_clutter_matches_reference(gl_context: GLContext, seed: int) -> None:
+    """As test_matches_reference, on clutter (same tolerance and reasoning)."""
+    depth = clutter(seed).astype(np.float32)
+    expected, changed = reference(depth)
+    got = gl_close(gl_context, depth)
+    assert changed.sum() > 30 and (changed & (depth == 0.0)).sum() > 5
+    np.testing.assert_array_equal(got != depth, changed)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=4e-7)
+
+
+@pytest.mark.parametrize("step", [(1, 0), (0, 1), (1, 1), (1, -1)])
+@pytest.mark.parametrize("corner", [(0, 0), (3, 3)])
+def test_enclosed_along_one_direction_alone(
+    gl_context: GLContext, step: tuple[int, int], corner: tuple[int, int]
+) -> None:
+    """Two beads on either side of a pixel of a plane behind, along one direction only, every
+    other direction free of nearer surface: the gap closes along that direction. Each direction
+    and both extreme positions of the pixel in its 4 x 4 tile (the walks' direction bounds are
+    per tile side and quadrant: a wrong side or quadrant drops this fill)."""
+    dx, dy = step
+    x, y = 40 + corner[0], 28 + corner[1]  # column, row: 40 and 28 start a tile
+    offset = 4 if dx and dy else 5  # silhouettes 2 steps from the pixel either way
+    centers = [(x + 0.5 + s * dx * offset, y + 0.5 + s * dy * offset, 1.0) for s in (-1, 1)]
+    depth = np.where(beads(centers) > 0, beads(centers), 1.5).astype(np.float32)
+    expected, changed = reference(depth)
+    assert changed[y, x], "the reference closes the gap"
+    got = gl_close(gl_context, depth)
+    np.testing.assert_array_equal(got != depth, changed)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=4e-7)
+
+
 def test_kelvin_filled_like_the_depth(gl_context: GLContext) -> None:
     """With the splat's kelvin image, the closed pixels get the kelvin of the two pixels
     reached, interpolated alike (the reference's), written back in place; the other pixels keep

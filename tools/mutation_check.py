@@ -571,6 +571,22 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="the gap pass leaving gaps over a farther surface open",
     ),
     Mutation(
+        name="gap-walks-wrong-quadrant",
+        path="shaders/gaps/close_gaps.frag.glsl",
+        old="        nearer(diagonals.b, zc) && nearer(diagonals.a, zc));",
+        new="        nearer(diagonals.r, zc) && nearer(diagonals.g, zc));",
+        tests=("tests/test_gaps.py::test_enclosed_along_one_direction_alone",),
+        description="the gap pass bounding the (1, -1) walks by the (1, 1) diagonal's quadrants",
+    ),
+    Mutation(
+        name="gap-quadrant-from-the-wrong-side",
+        path="shaders/gaps/gap_dilate.frag.glsl",
+        old="out_diagonals = written(vec4(positive.a, negative.b, negative.a, positive.b));",
+        new="out_diagonals = written(vec4(negative.a, negative.b, negative.a, positive.b));",
+        tests=("tests/test_gaps.py::test_enclosed_along_one_direction_alone",),
+        description="the gap tiles' x+ y+ quadrant taken from below the tile's row",
+    ),
+    Mutation(
         name="depth-aov-zero-background",
         path="shaders/readback/depth_aov.frag.glsl",
         old="depth > 0.0 ? depth :",

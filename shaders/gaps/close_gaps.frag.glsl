@@ -24,8 +24,13 @@
 // front (a pixel a walk can stop on: reached from a neighbour by a jump) within +-16 >=
 // GAP_MAX_PX pixels: without a jump front nearer than zc - u_edge_jump there (the inside of a
 // surface, the slope inside a silhouette, open background), nothing to do; else no span can
-// exceed u_gap_radii * r * f / z_near pixels, the reach, and the walks stop there; a
-// background pixel stops once too few directions are left to enclose it.
+// exceed u_gap_radii * r * f / z_near pixels, the reach, and the walks stop there. A walk can
+// only stop on a jump front nearer than zc - u_edge_jump (its predecessor on the walk is a
+// neighbour that is background or farther by more), so a direction can enclose the pixel only
+// when the tile has such a front on both sides along it (u_axes: along the tile's row and
+// column; u_diagonals: in its quadrants); the other directions are not walked, and a pixel
+// with too few such directions left stops (most of the background beside a silhouette and
+// most of a bumpy surface next to one).
 
 #define GAP_MAX_PX 16
 #define HAS_TEMPERATURE 0
@@ -33,7 +38,9 @@
 #include "common/depth_image.glsl"
 
 uniform sampler2D u_depth;
-uniform sampler2D u_tiles;        // per 4 x 4 pixels: nearest depth (0: none), edge, within 16 px
+uniform sampler2D u_tiles;        // per 4 x 4 pixels: nearest depth (0: none), jump front, within 16 px
+uniform sampler2D u_axes;         // nearest front along the tile's row and column: x-, x+, y+, y-
+uniform sampler2D u_diagonals;    // nearest front of its quadrants: x+y+, x-y-, x+y-, x-y+
 uniform float u_focal_px;         // pixels per unit at eye depth 1
 uniform float u_particle_radius;  // scene units
 uniform float u_gap_radii;        // widest gap closed, in particle radii
@@ -84,6 +91,18 @@ void main() {
     if (!nearer(tile.g, zc)) {
         return;  // no jump front nearer than this pixel within reach: no walk can stop
     }
+    vec4 axes = texelFetch(u_axes, p / 4, 0);
+    vec4 diagonals = texelFetch(u_diagonals, p / 4, 0);
+    bool possible[4] = bool[4](
+        nearer(axes.r, zc) && nearer(axes.g, zc),
+        nearer(axes.b, zc) && nearer(axes.a, zc),
+        nearer(diagonals.r, zc) && nearer(diagonals.g, zc),
+        nearer(diagonals.b, zc) && nearer(diagonals.a, zc));
+    int need = zc > 0.0 ? 1 : 2;
+    int left = int(possible[0]) + int(possible[1]) + int(possible[2]) + int(possible[3]);
+    if (left < need) {
+        return;  // too few directions with a nearer jump front on both sides
+    }
     int reach = min(int(ceil(limit_px / tile.r)), GAP_MAX_PX);
     ivec2 steps[4] = ivec2[4](ivec2(1, 0), ivec2(0, 1), ivec2(1, 1), ivec2(1, -1));
     int enclosing = 0;
@@ -92,11 +111,14 @@ void main() {
     ivec2 fill_a = p;  // the pixels the fill interpolates between, and the weight of the second
     ivec2 fill_b = p;
     float fill_t = 0.0;
-    int need = zc > 0.0 ? 1 : 2;
     for (int i = 0; i < 4; ++i) {
-        if (enclosing + 4 - i < need) {
+        if (!possible[i]) {
+            continue;
+        }
+        if (enclosing + left < need) {
             break;  // too few directions left
         }
+        left -= 1;
         float za;
         float zb;
         int ka = walk(p, steps[i], zc, reach, za);

@@ -16,8 +16,12 @@ pixel a walk can stop on, per 4 x 4 pixels), `shaders/gaps/gap_dilate.frag.glsl`
 +-16 pixels, in two 1-D passes), which bound the walks and skip the pixels with no jump front
 nearer than themselves around (the inside of a surface, the slope inside a silhouette, open
 background: most pixels stop there), `shaders/gaps/close_gaps.frag.glsl`.
-Owns: three tile targets (RG32F, a quarter of the image per side) and the closed-depth target
-(R32F), per image size.
+The y dilation also keeps, per tile, the nearest jump front on each side of it along its row and
+column and in its four quadrants: a direction can enclose a pixel only with a nearer front on
+both sides along it, so only those directions are walked (on the 100k ball at 1280x720, 22k of
+the 81k pixels near a front walk at all, and 51k direction walks remain of ~176k).
+Owns: five tile targets (RG32F and RGBA32F, a quarter of the image per side) and the
+closed-depth target (R32F), per image size.
 """
 
 from __future__ import annotations
@@ -51,8 +55,17 @@ EDGE_JUMP_RADII = 4.0
 class _GapTargets:
     def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
         tiles = ((size[0] + 3) // 4, (size[1] + 3) // 4)
-        # Nearest depth and nearest jump front per tile; dilated along x; then along y.
-        self.tiles = [Target.float(ctx, tiles, 2) for _ in range(3)]
+        # Nearest depth and nearest jump front per tile (`raw`); dilated along x (with the
+        # fronts on either side, `along_x`); then along y (one draw into three targets:
+        # `dilated`, `axes`, `diagonals`; gap_dilate.frag.glsl).
+        self.raw = Target.float(ctx, tiles, 2)
+        self.along_x = Target.float(ctx, tiles, 4)
+        self.dilated = Target.float(ctx, tiles, 2)
+        self.axes = Target.float(ctx, tiles, 4)
+        self.diagonals = Target.float(ctx, tiles, 4)
+        self.along_y = ctx.framebuffer(
+            [self.dilated.texture, self.axes.texture, self.diagonals.texture]
+        )
         self.closed = Target.float(ctx, size, 1)
         self._ctx = ctx
         self.kelvin: Target | None = None  # the filled kelvin, on the first frame with them
@@ -72,7 +85,9 @@ class _GapTargets:
 
     def release(self) -> None:
         self._back.release()
-        for target in (*self.tiles, self.closed, self.kelvin):
+        self.along_y.release()
+        tiles = (self.raw, self.along_x, self.dilated, self.axes, self.diagonals)
+        for target in (*tiles, self.closed, self.kelvin):
             if target is not None:
                 target.release()
         if self.both is not None:
@@ -107,17 +122,22 @@ class GapPass:
         tiles = programs.get(FULLSCREEN_VERT, TILES_SHADER)
         set_group(tiles, "frame", edge_jump, lambda: {"u_source": 0, "u_edge_jump": edge_jump})
         depth.use(0)
-        tile_box = None if box is None else _tile_box(box, targets.tiles[0].texture.size)
-        clear_and_scissor(targets.tiles[0].fbo, tile_box)
-        targets.tiles[0].fbo.use()
+        tile_box = None if box is None else _tile_box(box, targets.raw.texture.size)
+        clear_and_scissor(targets.raw.fbo, tile_box)
+        targets.raw.fbo.use()
         draw(tiles)
-        set_scissor(targets.tiles[0].fbo, None)
-        for axis in (0, 1):
-            dilate = programs.get(FULLSCREEN_VERT, DILATE_SHADER, _DILATE_DEFINES[axis])
-            set_if_used(dilate, "u_tiles", 0)
-            targets.tiles[axis].texture.use(0)
-            targets.tiles[axis + 1].fbo.use()
-            draw(dilate)
+        set_scissor(targets.raw.fbo, None)
+        along_x = programs.get(FULLSCREEN_VERT, DILATE_SHADER, _DILATE_DEFINES[0])
+        set_if_used(along_x, "u_tiles", 0)
+        targets.raw.texture.use(0)
+        targets.along_x.fbo.use()
+        draw(along_x)
+        along_y = programs.get(FULLSCREEN_VERT, DILATE_SHADER, _DILATE_DEFINES[1])
+        set_group(along_y, "units", None, lambda: {"u_tiles": 0, "u_raw": 1})
+        targets.along_x.texture.use(0)
+        targets.raw.texture.use(1)
+        targets.along_y.use()
+        draw(along_y)
         defines = {"GAP_MAX_PX": GAP_MAX_PX, "HAS_TEMPERATURE": int(temperature is not None)}
         close = programs.get(FULLSCREEN_VERT, CLOSE_SHADER, defines)
         set_group(
@@ -128,6 +148,8 @@ class GapPass:
                 "u_depth": 0,
                 "u_tiles": 1,
                 "u_temperature": 2,
+                "u_axes": 3,
+                "u_diagonals": 4,
                 "u_focal_px": px_per_unit,
                 "u_particle_radius": particle_radius,
                 "u_gap_radii": gap_radii,
@@ -135,7 +157,9 @@ class GapPass:
             },
         )
         depth.use(0)
-        targets.tiles[2].texture.use(1)
+        targets.dilated.texture.use(1)
+        targets.axes.texture.use(3)
+        targets.diagonals.texture.use(4)
         fbo, kelvin = targets.closed.fbo, None
         if temperature is not None:
             fbo, kelvin = targets.with_kelvin()
