@@ -23,7 +23,14 @@ SETTINGS = {
     "previous_default": Setting(
         "previous_default",
         preset="balanced",
-        overrides={"quality": {"exact_droplets": False, "antialias": False, "kernel_max_px": 32}},
+        overrides={
+            "quality": {
+                "exact_droplets": False,
+                "antialias": False,
+                "kernel_max_px": 32,
+                "close_gaps": 0.0,
+            }
+        },
     ),
     "fast": Setting("fast", preset="fast"),
     "balanced": Setting("balanced", preset="balanced"),
@@ -42,7 +49,7 @@ SETTINGS["balanced_aniso"] = Setting(
         "sph": {"anisotropy": True},
     },
 )
-for _gap in (1.0, 2.0, 3.0):
+for _gap in (0.0, 1.0, 2.0, 3.0):
     SETTINGS[f"balanced_gaps{_gap:g}"] = Setting(
         f"balanced_gaps{_gap:g}", preset="balanced", overrides={"quality": {"close_gaps": _gap}}
     )
@@ -57,6 +64,14 @@ for _rim in (1.0, 2.0, 3.0):
         preset="balanced",
         overrides={"quality": {"close_gaps": 2.0, "silhouette_normals": _rim}},
     )
+SETTINGS["balanced_gaps2_stencil1"] = Setting(
+    "balanced_gaps2_stencil1",
+    preset="balanced",
+    overrides={"quality": {"close_gaps": 2.0, "normal_stencil": 1.0}},
+)
+SETTINGS["balanced_stencil1"] = Setting(
+    "balanced_stencil1", preset="balanced", overrides={"quality": {"normal_stencil": 1.0}}
+)
 SETTINGS["best_gaps2_rim2"] = Setting(
     "best_gaps2_rim2",
     preset="best",

@@ -273,7 +273,10 @@ def test_hard_cases_are_finite_and_unchanged(gl_context: GLContext, depth: np.nd
 
 def test_thin_sheet_coverage_never_reduced(renderer: SurfaceRenderer) -> None:
     """A one-layer sheet with gaps, rendered with close_gaps on and off: every pixel the
-    spheres cover stays covered (alpha and depth), and the closed render covers more."""
+    spheres cover stays covered (alpha and depth), and the closed render covers more. The
+    closed pixels are opaque (inside the sheet's outline; no sphere's coverage accounts for
+    them, so without the shade pass's rule their alpha would be the spheres' <= 1/2, often 0):
+    alpha 1 there, and >= 1/2 on every pixel with a surface at its centre."""
     sheet = lattice_slab(0.3, 0.3, 1, 0.011)  # spacing 2 x 0.011 > 2 r = 0.02: gaps
     frame = make_frame(sheet)
     sections = {
@@ -281,7 +284,9 @@ def test_thin_sheet_coverage_never_reduced(renderer: SurfaceRenderer) -> None:
         "camera": {"eye": [0.0, 0.35, 0.35], "target": [0.0, 0.0, 0.0], "fov_y": 40.0},
         "particles": {"radius": 0.01},
     }
-    off = renderer.render(frame, scene_from_dict(sections), depth=True)[0]
+    off = renderer.render(
+        frame, scene_from_dict({**sections, "quality": {"close_gaps": 0.0}}), depth=True
+    )[0]
     on = renderer.render(
         frame, scene_from_dict({**sections, "quality": {"close_gaps": GAP}}), depth=True
     )[0]
@@ -291,6 +296,9 @@ def test_thin_sheet_coverage_never_reduced(renderer: SurfaceRenderer) -> None:
     assert np.all(on.rgba[..., 3][covered] >= off.rgba[..., 3][covered] - 1e-6)
     assert np.isfinite(on.depth).sum() > covered.sum()
     assert np.all(np.isfinite(on.rgba))
+    closed = np.isfinite(on.depth) & ~covered
+    assert np.all(on.rgba[..., 3][closed] == 1.0)
+    assert np.all(on.rgba[..., 3][np.isfinite(on.depth)] >= 0.5)
 
 
 def test_far_from_the_origin_renders_the_same(renderer: SurfaceRenderer) -> None:
@@ -337,7 +345,9 @@ def test_closed_gaps_are_not_cold(renderer: SurfaceRenderer) -> None:
         "camera": {"eye": [0.0, 0.35, 0.35], "target": [0.0, 0.0, 0.0], "fov_y": 40.0},
         "particles": {"radius": 0.01},
     }
-    off = renderer.render(frame, scene_from_dict(sections), depth=True)[0]
+    off = renderer.render(
+        frame, scene_from_dict({**sections, "quality": {"close_gaps": 0.0}}), depth=True
+    )[0]
     scene = scene_from_dict({**sections, "quality": {"close_gaps": GAP}})
     on = renderer.render(frame, scene, depth=True)[0]
     assert off.depth is not None and on.depth is not None

@@ -587,6 +587,14 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="the gap tiles' x+ y+ quadrant taken from below the tile's row",
     ),
     Mutation(
+        name="closed-gaps-keep-sphere-alpha",
+        path="shaders/shade/shade_pbr.frag.glsl",
+        old="    } else if (normal_depth.w > 0.0 && coverage < 0.5) {",
+        new="    } else if (normal_depth.w > 0.0 && coverage < -0.5) {",
+        tests=("tests/test_gaps.py::test_thin_sheet_coverage_never_reduced",),
+        description="closed gaps left with the spheres' coverage (surface pixels with alpha 0)",
+    ),
+    Mutation(
         name="depth-aov-zero-background",
         path="shaders/readback/depth_aov.frag.glsl",
         old="depth > 0.0 ? depth :",

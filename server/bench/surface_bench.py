@@ -62,7 +62,14 @@ JITTER = 0.02  # of r
 #: The quality of the images before issue 12 (the old balanced preset).
 PRE_ISSUE = Setting(
     "pre-issue default",
-    {"quality": {"exact_droplets": False, "antialias": False, "kernel_max_px": 32}},
+    {
+        "quality": {
+            "exact_droplets": False,
+            "antialias": False,
+            "kernel_max_px": 32,
+            "close_gaps": 0.0,
+        }
+    },
     preset="balanced",
 )
 UNFILTERED = Setting("unfiltered", {"quality": {"filter": "none", "exact_droplets": False}})
@@ -76,13 +83,8 @@ SURFACE_SETTINGS: tuple[Setting, ...] = (
     Setting("balanced, kernel cap 96 px", {"quality": {"kernel_max_px": 96}}, preset="balanced"),
     Setting("balanced + normal stencil 1 r", {"quality": {"normal_stencil": 1.0}}, "balanced"),
     Setting("balanced + anisotropy", {"sph": {"anisotropy": True}}, preset="balanced"),
-    Setting("balanced + gaps", {"quality": {"close_gaps": 2.0}}, preset="balanced"),
+    Setting("balanced, no gaps", {"quality": {"close_gaps": 0.0}}, preset="balanced"),
     Setting("balanced + silhouette normals", {"quality": {"silhouette_normals": 2.0}}, "balanced"),
-    Setting(
-        "balanced + gaps + silhouette normals",
-        {"quality": {"close_gaps": 2.0, "silhouette_normals": 2.0}},
-        preset="balanced",
-    ),
 )
 QUICK_SURFACE_SETTINGS: tuple[Setting, ...] = (UNFILTERED, PRE_ISSUE, preset_setting("balanced"))
 

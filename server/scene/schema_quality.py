@@ -145,14 +145,15 @@ class QualityConfig:
         unit="fraction of sph.rest_density",
     )
     close_gaps: float = spec(
-        0.0,
+        2.0,
         "close the gaps a sparse sheet or spray leaves between its splatted particles, before "
         "the smoothing (passes/gaps.py): a background pixel enclosed in two of four directions, "
         "or a pixel of a farther surface enclosed in one, by a nearer surface on both sides at "
         "most close_gaps particle radii apart (on screen, projected at their depth, and in "
         "depth) takes the depth interpolated between them; depths only get nearer (no hole "
         "opens), a notch along a silhouette stays open, particles farther apart stay apart; "
-        "at most 16 pixels; runs with the smoothing (not with filter none). 0: off",
+        "at most 16 pixels; runs with the smoothing (not with filter none). 0: off (the fast "
+        "preset; on llvmpipe the pass costs ~9 % of a 100k-particle 1280x720 frame)",
         low=0.0,
         high=8.0,
         unit="particle radii",

@@ -197,6 +197,11 @@ void main() {
     float coverage = texelFetch(u_coverage, pixel, 0).r;
     if (normal_depth.w <= 0.0 && coverage > 0.0) {
         normal_depth = nearest_neighbour_surface(pixel, size, source);
+    } else if (normal_depth.w > 0.0 && coverage < 0.5) {
+        // A surface at the centre that no sphere's coverage accounts for (a sphere covering the
+        // centre gives at least 1/2, splat_coverage.frag.glsl): a gap the gap pass closed
+        // (passes/gaps.py), which lies inside the fluid's outline: covered.
+        coverage = 1.0;
     } else if (normal_depth.w > 0.0 && coverage < 1.0 && !next_to_background(pixel, size)) {
         // Inside a surface (no neighbour without one): the union covers the pixel. The coverage
         // pass writes only next to such neighbours (passes/coverage_band.py), and where two
