@@ -12,7 +12,11 @@
 //   (x-, x+, y+, y-; the tile's own included): a walk from any pixel of the tile along
 //   (+-1, 0) or (0, +-1) only reaches pixels there;
 // * out_diagonals: the nearest front of the four quadrants (x+ y+, x- y-, x+ y-, x- y+), which
-//   hold every pixel a walk along (1, 1), (-1, -1), (1, -1), (-1, 1) reaches.
+//   hold every pixel a walk along (1, 1), (-1, -1), (1, -1), (-1, 1) reaches;
+// * out_tile.b: 1 where some pixel of the tile may be closed: close_gaps.frag.glsl's tests
+//   passed at the tile's most permissive depths (a background pixel of it, and its farthest
+//   surface: "nearer than zc" only admits more as zc grows), so the close pass draws only
+//   those tiles (passes/gaps.py) and copies the rest.
 // A walk can only stop on a jump front nearer than the pixel it starts from, so these bound
 // the directions a pixel can be enclosed along.
 
@@ -21,7 +25,8 @@
 
 uniform sampler2D u_tiles;  // AXIS 0: gap_tiles' output; AXIS 1: this shader's AXIS 0 output
 #if AXIS == 1
-uniform sampler2D u_raw;    // gap_tiles' output (the column's own fronts)
+uniform sampler2D u_raw;    // gap_tiles' output (the column's own fronts, the tile's own depths)
+uniform float u_edge_jump;  // as close_gaps.frag.glsl's
 layout(location = 1) out vec4 out_axes;
 layout(location = 2) out vec4 out_diagonals;
 #endif
@@ -37,6 +42,22 @@ vec4 read_tile(sampler2D tiles, ivec2 t) {
 vec4 written(vec4 nearest) {
     return mix(nearest, vec4(0.0), greaterThanEqual(nearest, vec4(NONE)));
 }
+
+#if AXIS == 1
+bool nearer(float z, float zc) {
+    return z > 0.0 && (zc <= 0.0 || z < zc - u_edge_jump);
+}
+
+// close_gaps.frag.glsl's tests for a pixel of depth zc (0: background) that needs `need`
+// enclosing directions: a nearer front around, and on both sides along `need` directions.
+bool may_close(float front, vec4 axes, vec4 diagonals, float zc, int need) {
+    int directions = int(nearer(axes.r, zc) && nearer(axes.g, zc))
+        + int(nearer(axes.b, zc) && nearer(axes.a, zc))
+        + int(nearer(diagonals.r, zc) && nearer(diagonals.g, zc))
+        + int(nearer(diagonals.b, zc) && nearer(diagonals.a, zc));
+    return nearer(front, zc) && directions >= need;
+}
+#endif
 
 void main() {
     ivec2 center = ivec2(gl_FragCoord.xy);
@@ -75,8 +96,12 @@ void main() {
     out_tile = written(vec4(all_of.r, all_of.g, negative.g, positive.g));
 #else
     vec4 own = read_tile(u_tiles, center);
-    out_tile = written(vec4(all_of.r, all_of.g, NONE, NONE));
+    vec4 tile = written(vec4(all_of.r, all_of.g, NONE, NONE));
     out_axes = written(vec4(own.b, own.a, raw.y, raw.x));
     out_diagonals = written(vec4(positive.a, negative.b, negative.a, positive.b));
+    vec4 depths = texelFetch(u_raw, center, 0);  // b: farthest depth, a: has background
+    bool any_closes = (depths.a > 0.0 && may_close(tile.g, out_axes, out_diagonals, 0.0, 2))
+        || (depths.b > 0.0 && may_close(tile.g, out_axes, out_diagonals, depths.b, 1));
+    out_tile = vec4(tile.r, tile.g, any_closes ? 1.0 : 0.0, 0.0);
 #endif
 }

@@ -5,7 +5,9 @@
 // 8-neighbour (outside the image: background) has none, or is farther than by more than
 // u_edge_jump. A walk of close_gaps.frag.glsl can only stop on such a pixel (it arrives there
 // from its neighbour by a jump), so a pixel with no jump front nearer than itself within reach
-// has nothing to close. gap_dilate.frag.glsl spreads both over +-16 pixels.
+// has nothing to close. gap_dilate.frag.glsl spreads both over +-16 pixels. b = the farthest
+// depth in the block (0: none), a = 1 where the block has a pixel without surface: with them
+// the dilation tells whether any of the block's pixels can be closed at all.
 
 #include "common/depth_image.glsl"
 
@@ -30,6 +32,8 @@ void main() {
     }
     float nearest = 0.0;
     float front = 0.0;
+    float farthest = 0.0;
+    float background = 0.0;
     for (int y = 1; y <= 4; ++y) {
         for (int x = 1; x <= 4; ++x) {
             if (any(greaterThanEqual(origin + ivec2(x - 1, y - 1), size))) {
@@ -37,9 +41,11 @@ void main() {
             }
             float zq = z[y * 6 + x];
             if (zq <= 0.0) {
+                background = 1.0;
                 continue;
             }
             nearest = nearest_positive(nearest, zq);
+            farthest = max(farthest, zq);
             bool jump = false;
             for (int dy = -1; dy <= 1; ++dy) {
                 for (int dx = -1; dx <= 1; ++dx) {
@@ -52,5 +58,5 @@ void main() {
             }
         }
     }
-    out_tile = vec4(nearest, front, 0.0, 0.0);
+    out_tile = vec4(nearest, front, farthest, background);
 }

@@ -20,8 +20,12 @@ The y dilation also keeps, per tile, the nearest jump front on each side of it a
 column and in its four quadrants: a direction can enclose a pixel only with a nearer front on
 both sides along it, so only those directions are walked (on the 100k ball at 1280x720, 22k of
 the 81k pixels near a front walk at all, and 51k direction walks remain of ~176k).
-Owns: five tile targets (RG32F and RGBA32F, a quarter of the image per side) and the
-closed-depth target (R32F), per image size.
+The close pass runs only on the tiles where some pixel may be closed at all (the same tests at
+the tile's most permissive depths, gap_dilate.frag.glsl): the input is copied (a blit), then
+one 4 x 4-pixel point per such tile is drawn (`shaders/gaps/close_tiles.vert.glsl`), so the
+rest of the image costs no shader work.
+Owns: five tile targets (RGBA32F and RG32F, a quarter of the image per side), the closed-depth
+target (R32F) and, on frames with temperatures, the filled kelvin (R32F), per image size.
 """
 
 from __future__ import annotations
@@ -36,12 +40,14 @@ from sphrender.server.engine.gpu.draw import (
     clear_and_scissor,
     set_scissor,
 )
+from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.uniforms import set_group, set_if_used
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
 TILES_SHADER = "gaps/gap_tiles.frag.glsl"
 DILATE_SHADER = "gaps/gap_dilate.frag.glsl"
 CLOSE_SHADER = "gaps/close_gaps.frag.glsl"
+CLOSE_TILES_VERT = "gaps/close_tiles.vert.glsl"
 #: The widest gap closed, in pixels (close_gaps.frag.glsl's define); the 4-pixel tiles are
 #: dilated by GAP_MAX_PX / 4 tiles, so they cover every pixel a walk can reach.
 GAP_MAX_PX = 16
@@ -55,12 +61,12 @@ EDGE_JUMP_RADII = 4.0
 class _GapTargets:
     def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
         tiles = ((size[0] + 3) // 4, (size[1] + 3) // 4)
-        # Nearest depth and nearest jump front per tile (`raw`); dilated along x (with the
-        # fronts on either side, `along_x`); then along y (one draw into three targets:
-        # `dilated`, `axes`, `diagonals`; gap_dilate.frag.glsl).
-        self.raw = Target.float(ctx, tiles, 2)
+        # Per tile: nearest depth, nearest jump front, farthest depth, has background (`raw`);
+        # dilated along x (with the fronts on either side, `along_x`); then along y (one draw
+        # into three targets: `dilated`, `axes`, `diagonals`; gap_dilate.frag.glsl).
+        self.raw = Target.float(ctx, tiles, 4)
         self.along_x = Target.float(ctx, tiles, 4)
-        self.dilated = Target.float(ctx, tiles, 2)
+        self.dilated = Target.float(ctx, tiles, 4)
         self.axes = Target.float(ctx, tiles, 4)
         self.diagonals = Target.float(ctx, tiles, 4)
         self.along_y = ctx.framebuffer(
@@ -71,6 +77,7 @@ class _GapTargets:
         self.kelvin: Target | None = None  # the filled kelvin, on the first frame with them
         self.both: moderngl.Framebuffer | None = None  # closed depth + filled kelvin
         self._back = FramebufferOn(ctx)  # onto the splat's kelvin texture
+        self._input = FramebufferOn(ctx)  # onto the depth to close, to copy it
 
     def with_kelvin(self) -> tuple[moderngl.Framebuffer, Target]:
         if self.kelvin is None or self.both is None:
@@ -79,12 +86,17 @@ class _GapTargets:
         return self.both, self.kelvin
 
     def back_into(self, temperature: moderngl.Texture) -> moderngl.Framebuffer:
-        """A framebuffer on `temperature`, to blit the filled kelvin back (float, exact: a copy
-        into the texture itself would convert it), kept while the texture is the same."""
+        """A framebuffer on `temperature`, to blit the kelvin in and the filled kelvin back
+        (float, exact), kept while the texture is the same."""
         return self._back.get(temperature)
+
+    def input(self, depth: moderngl.Texture) -> moderngl.Framebuffer:
+        """A framebuffer on the input `depth`, to blit it into `closed`."""
+        return self._input.get(depth)
 
     def release(self) -> None:
         self._back.release()
+        self._input.release()
         self.along_y.release()
         tiles = (self.raw, self.along_x, self.dilated, self.axes, self.diagonals)
         for target in (*tiles, self.closed, self.kelvin):
@@ -98,6 +110,7 @@ class GapPass:
     def __init__(self, context: PassContext) -> None:
         self._context = context
         self._targets = PerSize(lambda size: _GapTargets(context.gl.ctx, size))
+        self._points: dict[moderngl.Program, moderngl.VertexArray] = {}  # per close variant
 
     def run(
         self,
@@ -110,71 +123,133 @@ class GapPass:
         temperature: moderngl.Texture | None = None,
     ) -> moderngl.Texture:
         """The eye-depth image `depth` (0 = background) with its gaps of at most `gap_radii`
-        particle radii closed (`depth` itself when `gap_radii` is 0). With a `box`, only inside
-        it, on a target cleared outside it (a closed gap lies between two surface pixels, so
-        inside the box of the surface). With the splat's `temperature` (kelvin), the closed
-        pixels get the kelvin interpolated alike, written back into `temperature`."""
+        particle radii closed (`depth` itself when `gap_radii` is 0). With a `box`, the tiles
+        are built only over it (a closed gap lies between two surface pixels, so inside the box
+        of the surface). With the splat's `temperature` (kelvin), the closed pixels get the
+        kelvin interpolated alike, written back into `temperature`."""
         if gap_radii <= 0.0:
             return depth
         targets = self._targets.get(depth.size)
-        programs, draw = self._context.programs, self._context.fullscreen.draw
         edge_jump = EDGE_JUMP_RADII * particle_radius
+        tiles = targets.raw.texture.size
+        tile_box = (0, 0, *tiles) if box is None else _tile_box(box, tiles)
+        self._build_tiles(targets, depth, edge_jump, tile_box)
+        program = self._close_program(temperature is not None, px_per_unit, particle_radius)
+        set_group(
+            program,
+            "frame",
+            (px_per_unit, particle_radius, gap_radii, tile_box, depth.size),
+            lambda: {
+                "u_focal_px": px_per_unit,
+                "u_particle_radius": particle_radius,
+                "u_gap_radii": gap_radii,
+                "u_edge_jump": edge_jump,
+                "u_tile_box": tile_box,
+                "u_image_size": (float(depth.size[0]), float(depth.size[1])),
+            },
+        )
+        self._close(program, targets, depth, tile_box, temperature)
+        return targets.closed.texture
+
+    def _build_tiles(
+        self, targets: _GapTargets, depth: moderngl.Texture, edge_jump: float, box: ScreenBox
+    ) -> None:
+        """The raw tiles over `box` (cleared outside it), then their dilations over it (what
+        lies outside is never read: the close pass draws only tiles of `box`)."""
+        programs, draw = self._context.programs, self._context.fullscreen.draw
         tiles = programs.get(FULLSCREEN_VERT, TILES_SHADER)
         set_group(tiles, "frame", edge_jump, lambda: {"u_source": 0, "u_edge_jump": edge_jump})
         depth.use(0)
-        tile_box = None if box is None else _tile_box(box, targets.raw.texture.size)
-        clear_and_scissor(targets.raw.fbo, tile_box)
+        clear_and_scissor(targets.raw.fbo, box)
         targets.raw.fbo.use()
         draw(tiles)
         set_scissor(targets.raw.fbo, None)
         along_x = programs.get(FULLSCREEN_VERT, DILATE_SHADER, _DILATE_DEFINES[0])
         set_if_used(along_x, "u_tiles", 0)
         targets.raw.texture.use(0)
+        set_scissor(targets.along_x.fbo, box)
         targets.along_x.fbo.use()
         draw(along_x)
+        set_scissor(targets.along_x.fbo, None)
         along_y = programs.get(FULLSCREEN_VERT, DILATE_SHADER, _DILATE_DEFINES[1])
-        set_group(along_y, "units", None, lambda: {"u_tiles": 0, "u_raw": 1})
+        set_group(
+            along_y,
+            "frame",
+            edge_jump,
+            lambda: {"u_tiles": 0, "u_raw": 1, "u_edge_jump": edge_jump},
+        )
         targets.along_x.texture.use(0)
         targets.raw.texture.use(1)
+        set_scissor(targets.along_y, box)
         targets.along_y.use()
         draw(along_y)
-        defines = {"GAP_MAX_PX": GAP_MAX_PX, "HAS_TEMPERATURE": int(temperature is not None)}
-        close = programs.get(FULLSCREEN_VERT, CLOSE_SHADER, defines)
+        set_scissor(targets.along_y, None)  # before the blits, which the scissor would cut
+
+    def _close_program(
+        self, temperature: bool, px_per_unit: float, particle_radius: float
+    ) -> moderngl.Program:
+        defines = {"GAP_MAX_PX": GAP_MAX_PX, "HAS_TEMPERATURE": int(temperature)}
+        program = self._context.programs.get(CLOSE_TILES_VERT, CLOSE_SHADER, defines)
         set_group(
-            close,
-            "frame",
-            (px_per_unit, particle_radius, gap_radii),
-            lambda: {
-                "u_depth": 0,
-                "u_tiles": 1,
-                "u_temperature": 2,
-                "u_axes": 3,
-                "u_diagonals": 4,
-                "u_focal_px": px_per_unit,
-                "u_particle_radius": particle_radius,
-                "u_gap_radii": gap_radii,
-                "u_edge_jump": edge_jump,
-            },
+            program,
+            "units",
+            None,
+            lambda: {"u_depth": 0, "u_tiles": 1, "u_temperature": 2, "u_axes": 3, "u_diagonals": 4},
         )
+        return program
+
+    def _close(
+        self,
+        program: moderngl.Program,
+        targets: _GapTargets,
+        depth: moderngl.Texture,
+        tile_box: ScreenBox,
+        temperature: moderngl.Texture | None,
+    ) -> None:
+        """Copy `depth` (and the kelvin) into the closed target(s), then draw the close shader
+        on the tiles that may close a pixel; with kelvin, blit the filled kelvin back."""
+        gl = self._context.gl
+        ctx = gl.ctx
+        fbo, kelvin = targets.closed.fbo, None
+        with gl.clock:
+            ctx.copy_framebuffer(targets.closed.fbo, targets.input(depth))
+            if temperature is not None:
+                fbo, kelvin = targets.with_kelvin()
+                ctx.copy_framebuffer(kelvin.fbo, targets.back_into(temperature))
         depth.use(0)
         targets.dilated.texture.use(1)
+        if temperature is not None:
+            temperature.use(2)
         targets.axes.texture.use(3)
         targets.diagonals.texture.use(4)
-        fbo, kelvin = targets.closed.fbo, None
-        if temperature is not None:
-            fbo, kelvin = targets.with_kelvin()
-            temperature.use(2)
-        clear_and_scissor(fbo, box)
         fbo.use()
-        draw(close)
-        set_scissor(fbo, None)
+        _draw_tile_points(gl, self._points, program, tile_box[2] * tile_box[3])
         if temperature is not None and kelvin is not None:
-            with self._context.gl.clock:
-                self._context.gl.ctx.copy_framebuffer(targets.back_into(temperature), kelvin.fbo)
-        return targets.closed.texture
+            with gl.clock:
+                ctx.copy_framebuffer(targets.back_into(temperature), kelvin.fbo)
 
     def release(self) -> None:
+        for vao in self._points.values():
+            vao.release()
+        self._points.clear()
         self._targets.release()
+
+
+def _draw_tile_points(
+    gl: GLContext,
+    vaos: dict[moderngl.Program, moderngl.VertexArray],
+    program: moderngl.Program,
+    count: int,
+) -> None:
+    """`count` attribute-less points (close_tiles.vert.glsl sizes them: program point size)."""
+    vao = vaos.get(program)
+    if vao is None:
+        vao = vaos[program] = gl.ctx.vertex_array(program, [])
+    ctx = gl.ctx
+    ctx.enable(moderngl.PROGRAM_POINT_SIZE)
+    with gl.clock:
+        vao.render(moderngl.POINTS, vertices=count)
+    ctx.disable(moderngl.PROGRAM_POINT_SIZE)
 
 
 def _tile_box(box: ScreenBox, tiles: tuple[int, int]) -> ScreenBox:
