@@ -595,6 +595,22 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="closed gaps left with the spheres' coverage (surface pixels with alpha 0)",
     ),
     Mutation(
+        name="gap-tile-flag-at-nearest-depth",
+        path="shaders/gaps/gap_dilate.frag.glsl",
+        old="may_close(tile.g, out_axes, out_diagonals, depths.b, 1)",
+        new="may_close(tile.g, out_axes, out_diagonals, tile.r, 1)",
+        tests=("tests/test_gaps.py",),
+        description="the close pass skipping tiles whose farther pixels could close",
+    ),
+    Mutation(
+        name="gap-tile-flag-forgets-background",
+        path="shaders/gaps/gap_dilate.frag.glsl",
+        old="(depths.a > 0.0 && may_close(tile.g, out_axes, out_diagonals, 0.0, 2))",
+        new="(depths.a > 1.0 && may_close(tile.g, out_axes, out_diagonals, 0.0, 2))",
+        tests=("tests/test_gaps.py",),
+        description="the close pass skipping tiles whose background pixels could close",
+    ),
+    Mutation(
         name="depth-aov-zero-background",
         path="shaders/readback/depth_aov.frag.glsl",
         old="depth > 0.0 ? depth :",
