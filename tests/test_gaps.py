@@ -135,6 +135,28 @@ def test_clutter_matches_reference(gl_context: GLContext, seed: int) -> None:
     np.testing.assert_allclose(got, expected, rtol=0, atol=4e-7)
 
 
+@pytest.mark.parametrize("shape", [(57, 83), (58, 82), (59, 81)])
+def test_image_sizes_off_the_tile_grid(gl_context: GLContext, shape: tuple[int, int]) -> None:
+    """Images whose sides are not multiples of the 4-pixel tiles, with beads along the last
+    rows and columns: the partial tiles at the far edges are closed like any other (the close
+    pass draws one point per tile; a point whose centre fell outside the image would be
+    clipped whole)."""
+    height, width = shape
+    rng = np.random.default_rng(height * width)
+    centers = [(width - rng.uniform(0, 10), rng.uniform(0, height), 1.0) for _ in range(12)]
+    centers += [(rng.uniform(0, width), height - rng.uniform(0, 10), 1.0) for _ in range(12)]
+    depth = beads(centers, shape)
+    depth = np.where(depth > 0, depth, 1.5).astype(np.float32)
+    expected, changed = reference(depth)
+    edge = np.zeros(shape, bool)
+    edge[:, width - width % 4 :] = True
+    edge[height - height % 4 :, :] = True
+    assert (changed & edge).any(), "gaps to close in the partial tiles"
+    got = gl_close(gl_context, depth)
+    np.testing.assert_array_equal(got != depth, changed)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=4e-7)
+
+
 @pytest.mark.parametrize("step", [(1, 0), (0, 1), (1, 1), (1, -1)])
 @pytest.mark.parametrize("corner", [(0, 0), (3, 3)])
 def test_enclosed_along_one_direction_alone(

@@ -611,6 +611,14 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="the close pass skipping tiles whose background pixels could close",
     ),
     Mutation(
+        name="gap-points-clipped-at-the-far-edge",
+        path="shaders/gaps/close_tiles.vert.glsl",
+        old="vec2 center = min(vec2(tile) * 4.0 + 2.0, u_image_size - 1.5);",
+        new="vec2 center = vec2(tile) * 4.0 + 2.0;",
+        tests=("tests/test_gaps.py::test_image_sizes_off_the_tile_grid",),
+        description="the close pass skipping the partial tiles of images off the 4-px grid",
+    ),
+    Mutation(
         name="depth-aov-zero-background",
         path="shaders/readback/depth_aov.frag.glsl",
         old="depth > 0.0 ? depth :",
