@@ -24,8 +24,9 @@ The close pass runs only on the tiles where some pixel may be closed at all (the
 the tile's most permissive depths, gap_dilate.frag.glsl): the input is copied (a blit), then
 one 4 x 4-pixel point per such tile is drawn (`shaders/gaps/close_tiles.vert.glsl`), so the
 rest of the image costs no shader work.
-Owns: five tile targets (RGBA32F and RG32F, a quarter of the image per side), the closed-depth
-target (R32F) and, on frames with temperatures, the filled kelvin (R32F), per image size.
+Owns: five tile targets (RGBA32F, a quarter of the image per side), the closed-depth target
+(R32F) and, on frames with temperatures, the filled kelvin (R32F), per image size; the
+attribute-less vertex arrays of the tile points.
 """
 
 from __future__ import annotations
@@ -134,7 +135,7 @@ class GapPass:
         tiles = targets.raw.texture.size
         tile_box = (0, 0, *tiles) if box is None else _tile_box(box, tiles)
         self._build_tiles(targets, depth, edge_jump, tile_box)
-        program = self._close_program(temperature is not None, px_per_unit, particle_radius)
+        program = self._close_program(temperature is not None)
         set_group(
             program,
             "frame",
@@ -185,9 +186,7 @@ class GapPass:
         draw(along_y)
         set_scissor(targets.along_y, None)  # before the blits, which the scissor would cut
 
-    def _close_program(
-        self, temperature: bool, px_per_unit: float, particle_radius: float
-    ) -> moderngl.Program:
+    def _close_program(self, temperature: bool) -> moderngl.Program:
         defines = {"GAP_MAX_PX": GAP_MAX_PX, "HAS_TEMPERATURE": int(temperature)}
         program = self._context.programs.get(CLOSE_TILES_VERT, CLOSE_SHADER, defines)
         set_group(
@@ -241,11 +240,12 @@ def _draw_tile_points(
     program: moderngl.Program,
     count: int,
 ) -> None:
-    """`count` attribute-less points (close_tiles.vert.glsl sizes them: program point size)."""
+    """`count` attribute-less points (close_tiles.vert.glsl sizes them: program point size,
+    enabled for this draw only)."""
+    ctx = gl.ctx
     vao = vaos.get(program)
     if vao is None:
-        vao = vaos[program] = gl.ctx.vertex_array(program, [])
-    ctx = gl.ctx
+        vao = vaos[program] = ctx.vertex_array(program, [])
     ctx.enable(moderngl.PROGRAM_POINT_SIZE)
     with gl.clock:
         vao.render(moderngl.POINTS, vertices=count)
