@@ -321,6 +321,18 @@ def test_thin_sheet_coverage_never_reduced(renderer: SurfaceRenderer) -> None:
     closed = np.isfinite(on.depth) & ~covered
     assert np.all(on.rgba[..., 3][closed] == 1.0)
     assert np.all(on.rgba[..., 3][np.isfinite(on.depth)] >= 0.5)
+    # Inside the closed sheet (all 8 neighbours with a surface; clamped at the image border, as
+    # the shade pass looks) alpha is 1, also next to a closed gap, where the coverage pass had
+    # drawn a rim (its neighbour was background when the spheres were splatted).
+    surface = np.pad(np.isfinite(on.depth), 1, mode="edge")
+    rows, cols = covered.shape
+    inside = np.ones_like(covered)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            inside &= surface[1 + dy : 1 + dy + rows, 1 + dx : 1 + dx + cols]
+    beside_closed = inside & covered & (np.pad(closed, 1)[:-2, 1:-1] | np.pad(closed, 1)[2:, 1:-1])
+    assert beside_closed.sum() > 10
+    assert np.all(on.rgba[..., 3][inside] == 1.0)
 
 
 def test_far_from_the_origin_renders_the_same(renderer: SurfaceRenderer) -> None:

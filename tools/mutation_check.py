@@ -364,7 +364,10 @@ MUTATIONS: tuple[Mutation, ...] = (
         path="shaders/shade/shade_pbr.frag.glsl",
         old="coverage < 1.0 && !next_to_background(pixel, size)",
         new="coverage < 0.0 && !next_to_background(pixel, size)",
-        tests=("tests/test_surfaces.py::test_alpha_is_sub_pixel_coverage_on_every_edge",),
+        tests=(
+            "tests/test_surfaces.py::test_alpha_is_sub_pixel_coverage_on_every_edge",
+            "tests/test_gaps.py::test_thin_sheet_coverage_never_reduced",
+        ),
         description="alpha < 1 inside a surface (the coverage pass writes only the rim band)",
     ),
     Mutation(
