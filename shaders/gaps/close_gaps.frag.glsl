@@ -16,9 +16,10 @@
 // enclosing direction of the shortest span (za + (zb - za) k_a / (k_a + k_b)); every other pixel
 // keeps its depth. HAS_TEMPERATURE: the splatted kelvin image is filled the same way (the
 // kelvin of the two pixels reached, interpolated alike; elsewhere copied), so a closed gap is
-// not a cold spot in the temperature blur. So a depth only ever gets nearer (no hole opens where the spheres cover),
-// a notch between two beads at a silhouette (enclosed along the edge only) stays open, and two
-// particles whose silhouettes are farther apart than u_gap_radii radii stay apart.
+// not a cold spot in the temperature blur. So a depth only ever gets nearer (no hole opens
+// where the spheres cover), a notch between two beads at a silhouette (enclosed along the edge
+// only) stays open, and two particles whose silhouettes are farther apart than u_gap_radii
+// radii stay apart.
 // Bounded search (the same result): the 4-pixel tiles of gap_tiles.frag.glsl dilated by
 // gap_dilate.frag.glsl hold, for the pixel's tile, the nearest depth z_near and the nearest jump
 // front (a pixel a walk can stop on: reached from a neighbour by a jump) within +-16 >=
@@ -38,7 +39,7 @@
 #include "common/depth_image.glsl"
 
 uniform sampler2D u_depth;
-uniform sampler2D u_tiles;        // per 4 x 4 pixels: nearest depth (0: none), jump front, within 16 px
+uniform sampler2D u_tiles;        // per 4x4 pixels: nearest depth (0: none), jump front, in 16 px
 uniform sampler2D u_axes;         // nearest front along the tile's row and column: x-, x+, y+, y-
 uniform sampler2D u_diagonals;    // nearest front of its quadrants: x+y+, x-y-, x+y-, x-y+
 uniform float u_focal_px;         // pixels per unit at eye depth 1
