@@ -1,0 +1,80 @@
+"""The default preset's frame time against the pre-issue-12 default, side by side (issue 12's
+"within 1.5x of today's"; `fast` "no slower").
+
+Not a test. Run:  .venv/bin/python benchmarks/bench_frame_ratio.py [--cycles 20]
+
+Renders the bench's jittered-lattice ball (~100k particles, no densities) at 1280x720 with each
+setting in turn, one frame each per cycle, all in one process on one renderer, so the settings
+share every moment of this machine's drift (on these 2-core VMs the speed wanders by +-20 %
+within minutes: separate runs, or blocks of frames per setting, give ratios that swing by
+0.2-0.3). Prints per setting the median frame time, the ratio of the medians to the pre-issue
+setting's and the median of the per-cycle ratios. Wall time of `SurfaceRenderer.render`, no
+stage timings (they add a GPU wait per stage), the prepare `auto` picks (host on llvmpipe).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from typing import Any
+
+from sphrender.client.frame import make_frame
+from sphrender.server.bench.surface_bench import PRE_ISSUE
+from sphrender.server.content.lattice import jittered_lattice_ball
+from sphrender.server.engine.gpu.gl_context import GLContext
+from sphrender.server.engine.renderer import SurfaceRenderer
+from sphrender.server.scene import Scene, merge_scene_dicts, scene_from_dict
+from sphrender.server.scene.presets import preset_sections
+
+VIEW = {
+    "image": {"width": 1280, "height": 720},
+    "camera": {"eye": [1.3, 1.0, 1.7], "fov_y": 40.0},
+    "particles": {"radius": 0.01},
+}
+
+
+def scene_for(preset: str, overrides: dict[str, Any]) -> Scene:
+    return scene_from_dict(merge_scene_dicts(preset_sections(preset), {**overrides, **VIEW}))
+
+
+SETTINGS = {
+    "pre-issue default": scene_for(PRE_ISSUE.preset or "balanced", dict(PRE_ISSUE.overrides)),
+    "balanced (default)": scene_for("balanced", {}),
+    "balanced, no gaps": scene_for("balanced", {"quality": {"close_gaps": 0.0}}),
+    "fast": scene_for("fast", {}),
+}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cycles", type=int, default=20)
+    args = parser.parse_args()
+    frame = make_frame(jittered_lattice_ball(0.58, 0.01, seed=0))
+    with GLContext() as gl:
+        renderer = SurfaceRenderer(gl)
+        try:
+            for scene in SETTINGS.values():  # warm-up: programs, targets, IBL caches
+                renderer.render(frame, scene)
+                renderer.render(frame, scene)
+            times: dict[str, list[float]] = {name: [] for name in SETTINGS}
+            for _ in range(args.cycles):
+                for name, scene in SETTINGS.items():
+                    start = time.perf_counter()
+                    renderer.render(frame, scene)
+                    times[name].append((time.perf_counter() - start) * 1e3)
+        finally:
+            renderer.release()
+    base = times["pre-issue default"]
+    print(f"{gl.renderer}; {frame.count} particles, 1280x720, {args.cycles} cycles")
+    for name, values in times.items():
+        per_cycle = statistics.median(a / b for a, b in zip(values, base, strict=True))
+        print(
+            f"{name:20} median {statistics.median(values):7.1f} ms  ratio of medians "
+            f"{statistics.median(values) / statistics.median(base):.3f}  median per-cycle "
+            f"ratio {per_cycle:.3f}"
+        )
+
+
+if __name__ == "__main__":
+    main()
