@@ -394,7 +394,7 @@ class SplatPass:
             data = fbo.read(viewport=read_box, components=1, attachment=0, dtype="f4")
         depth = np.frombuffer(data, np.float32).reshape(h, w)
         sides = np.minimum(bounds.x1 - bounds.x0, bounds.y1 - bounds.y0) + 1
-        if antialias:
+        if antialias and COVERAGE_NEED_PX:  # rectangles grown for the coverage test
             sides = np.concatenate([sides, sides + 2 * COVERAGE_NEED_PX])
         table = occlusion.DepthMaxTable(depth, (x, y), sides)
         # "Covered all over within k pixels": the front layer's largest depth there is finite.
