@@ -180,3 +180,14 @@ def test_frames_keep_their_image_between_display_passes_and_other_renderers(
     finally:
         one.release()
         two.release()
+
+
+def test_values_that_cannot_be_compared_are_written(program: moderngl.Program) -> None:
+    """A numpy array's == is elementwise (its truth value raises): it counts as changed."""
+    set_if_used(program, "u_b", np.array([1.0, 2.0]))
+    set_if_used(program, "u_b", np.array([3.0, 4.0]))
+    assert value(program, "u_b") == (3.0, 4.0)
+    set_if_used(program, "u_a", 2.0)
+    program["u_a"] = 5.0  # behind the cache's back, as above
+    set_if_used(program, "u_a", 2)  # equal but of another type: written
+    assert value(program, "u_a") == 2.0

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import moderngl
+import numpy as np
 import pytest
 
 from sphrender.server.engine.gpu.gl_context import GLContext
@@ -74,3 +76,44 @@ def test_every_shipped_program_compiles(gl_context: GLContext) -> None:
             {"AXIS": axis},
         )
     cache.release()
+
+
+def test_samplers_are_bound_to_their_units_when_built(
+    tmp_path: Path, gl_context: GLContext
+) -> None:
+    """`samplers` points each sampler at its unit once, at build; later gets (which skip it)
+    find the program still reading the right textures."""
+    (tmp_path / "two.frag.glsl").write_text(
+        "#version 330 core\nuniform sampler2D u_first;\nuniform sampler2D u_second;\n"
+        "out vec4 colour;\nvoid main() {\n"
+        "    colour = vec4(texture(u_first, vec2(0.5)).r, texture(u_second, vec2(0.5)).r, 0, 1);\n"
+        "}\n"
+    )
+    (tmp_path / "tri.vert.glsl").write_text(
+        "#version 330 core\nvoid main() {\n"
+        "    vec2 p = vec2(gl_VertexID == 1 ? 3.0 : -1.0, gl_VertexID == 2 ? 3.0 : -1.0);\n"
+        "    gl_Position = vec4(p, 0.0, 1.0);\n}\n"
+    )
+    ctx = gl_context.ctx
+    cache = ProgramCache(gl_context, ShaderLoader(tmp_path))
+    units = {"u_first": 2, "u_second": 1}
+    textures = [ctx.texture((1, 1), 1, np.float32([v]).tobytes(), dtype="f4") for v in (7, 5, 3)]
+    target = ctx.texture((1, 1), 4, dtype="f4")
+    fbo = ctx.framebuffer([target])
+    try:
+        for unit, texture in enumerate(textures):
+            texture.use(unit)
+        program = cache.get("tri.vert.glsl", "two.frag.glsl", None, units)
+        assert cache.get("tri.vert.glsl", "two.frag.glsl", None, units) is program
+        vao = ctx.vertex_array(program, [])
+        fbo.use()
+        vao.render(moderngl.TRIANGLES, vertices=3)
+        pixel = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32)
+        assert pixel[:2].tolist() == [3.0, 5.0]  # unit 2 holds 3, unit 1 holds 5
+        vao.release()
+    finally:
+        fbo.release()
+        target.release()
+        for texture in textures:
+            texture.release()
+        cache.release()

@@ -122,8 +122,7 @@ class FullscreenTriangle:
         if vao is None:
             vao = self._gl.ctx.vertex_array(program, [])
             self._vaos[program] = vao
-        with self._gl.clock:
-            vao.render(moderngl.TRIANGLES, vertices=3)
+        self._gl.clock.call(vao.render, moderngl.TRIANGLES, vertices=3)
 
     def release(self) -> None:
         for vao in self._vaos.values():
@@ -140,8 +139,7 @@ def set_scissor(fbo: moderngl.Framebuffer, box: ScreenBox | None) -> None:
 def clear_and_scissor(fbo: moderngl.Framebuffer, box: ScreenBox | None) -> None:
     """Clear the whole target, then restrict the next passes into it to `box` (None: all)."""
     set_scissor(fbo, None)
-    with thread_clock():
-        fbo.clear(0.0, 0.0, 0.0, 0.0)
+    thread_clock().call(fbo.clear, 0.0, 0.0, 0.0, 0.0)
     set_scissor(fbo, box)
 
 

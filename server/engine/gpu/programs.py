@@ -12,6 +12,7 @@ import moderngl
 
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.shader_loader import DefineValue, ShaderLoader
+from sphrender.server.engine.gpu.uniforms import set_if_used
 
 
 class ShaderCompileError(RuntimeError):
@@ -33,7 +34,11 @@ class ProgramCache:
         vertex: str,
         fragment: str,
         defines: Mapping[str, DefineValue] | None = None,
+        samplers: Mapping[str, int] | None = None,
     ) -> moderngl.Program:
+        """The program of these shader files and defines. `samplers` (sampler uniform ->
+        texture unit) are set once, when the program is built: a sampler's unit is part of
+        the pass's code, not of its frame, so no frame pays for setting it again."""
         fast = (vertex, fragment, repr(defines) if defines else "")
         program = self._by_repr.get(fast)
         if program is not None:
@@ -44,11 +49,14 @@ class ProgramCache:
             with self._gl.clock:  # compiling is the driver's work, not the frame's host work
                 program = self._build(vertex, fragment, defines)
             self._programs[key] = program
+            _bind_samplers(program, samplers)
         self._by_repr[fast] = program
         return program
 
-    def compute(self, name: str) -> moderngl.ComputeShader:
-        """The compute shader `name` (GL 4.3), compiled on first use."""
+    def compute(
+        self, name: str, samplers: Mapping[str, int] | None = None
+    ) -> moderngl.ComputeShader:
+        """The compute shader `name` (GL 4.3), compiled on first use (`samplers`: as `get`)."""
         shader = self._compute.get(name)
         if shader is None:
             composed = self._loader.compose(name)
@@ -59,6 +67,7 @@ class ProgramCache:
                 translated = self._loader.translate_compile_error(composed, str(exc))
                 raise ShaderCompileError(f"{name}: {translated}") from None
             self._compute[name] = shader
+            _bind_samplers(shader, samplers)
         return shader
 
     def _build(
@@ -85,3 +94,12 @@ class ProgramCache:
         for shader in self._compute.values():
             shader.release()
         self._compute.clear()
+
+
+def _bind_samplers(
+    program: moderngl.Program | moderngl.ComputeShader, samplers: Mapping[str, int] | None
+) -> None:
+    """Point each sampler uniform at its texture unit (through the uniform cache, so a later
+    `set_if_used` with the same unit writes nothing)."""
+    for name, unit in (samplers or {}).items():
+        set_if_used(program, name, unit)

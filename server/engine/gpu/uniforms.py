@@ -68,10 +68,18 @@ def _forget_groups_with(cache: dict[str, Any], name: str) -> None:
 
 def set_if_used(program: Program, name: str, value: object) -> None:
     """Set uniform `name` if the variant uses it and its value changed since the last set."""
-    cache = _cache(program)
+    cache = program.extra  # `_cache` inlined: this runs ~35 times a frame
+    if cache is None:
+        cache = _cache(program)
     old = cache.get(name, _MISSING)
-    if old is value or (old is not _MISSING and same(old, value)):
+    if old is value:
         return
+    if old is not _MISSING:
+        try:  # `same` inlined
+            if type(old) is type(value) and old == value:
+                return
+        except (TypeError, ValueError):
+            pass
     uniform = program.get(name, None)
     if uniform is not None:
         uniform.value = value  # type: ignore[union-attr]
@@ -84,10 +92,14 @@ def set_group(
 ) -> None:
     """Set the uniforms `values()` returns, all functions of `key`; nothing happens when this
     `group` of `program` was last set with the same `key`."""
-    cache = _cache(program)
-    groups: dict[str, tuple[object, frozenset[str]]] = cache.setdefault(_GROUPS, {})
+    cache = program.extra
+    if cache is None:
+        cache = _cache(program)
+    groups: dict[str, tuple[object, frozenset[str]]] | None = cache.get(_GROUPS)
+    if groups is None:
+        groups = cache[_GROUPS] = {}
     entry = groups.get(group)
-    if entry is not None and same(entry[0], key):
+    if entry is not None and (entry[0] is key or same(entry[0], key)):
         return
     uniforms = values()
     for name, value in uniforms.items():

@@ -32,7 +32,6 @@ from sphrender.server.engine.gpu.draw import (
     clear_and_scissor,
     set_scissor,
 )
-from sphrender.server.engine.gpu.uniforms import set_if_used
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
 SHADER = "splat/coverage_band.frag.glsl"
@@ -60,8 +59,7 @@ class CoverageBand:
         inside `box` (which holds every surface pixel and its neighbours), 0 outside it; the
         coverage target `coverage` (cleared to 0) gets 1 inside surfaces, 0 in the mask."""
         targets = self._targets.get(depth.size)
-        program = self._context.programs.get(FULLSCREEN_VERT, SHADER)
-        set_if_used(program, "u_depth", 0)
+        program = self._context.programs.get(FULLSCREEN_VERT, SHADER, samplers={"u_depth": 0})
         depth.use(0)
         clear_and_scissor(targets.band.fbo, box)
         fbo = targets.with_coverage.get(targets.band.texture, coverage)

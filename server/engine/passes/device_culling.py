@@ -150,8 +150,7 @@ class DeviceCulling:
         """The max-depth pyramid of `depth` from `origin` (the levels `levels(...)` of the box)
         into the PYRAMID buffer, which must hold them: every level in one dispatch, a work
         group per 64 x 64 block of level 0."""
-        shader = self._context.programs.compute(PYRAMID_SHADER)
-        set_if_used(shader, "u_depth", 0)
+        shader = self._context.programs.compute(PYRAMID_SHADER, samplers={"u_depth": 0})
         set_if_used(shader, "u_origin", origin)
         _set_levels(shader, dims, offsets)
         depth.use(0)

@@ -59,8 +59,9 @@ class DisplayPass:
             "TONE_MAPPER": TONE_MAPPER_DEFINES[request.tone_mapper],
             "COMPOSITE": request.background is not None,
         }
-        program = self._context.programs.get(FULLSCREEN_VERT, FRAGMENT_SHADER, defines)
-        set_if_used(program, "u_color", 0)
+        program = self._context.programs.get(
+            FULLSCREEN_VERT, FRAGMENT_SHADER, defines, {"u_color": 0}
+        )
         set_if_used(program, "u_scale", float(np.float32(np.exp2(np.float64(request.exposure)))))
         set_if_used(program, "u_height", height)
         if request.background is not None:

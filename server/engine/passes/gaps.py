@@ -42,13 +42,15 @@ from sphrender.server.engine.gpu.draw import (
     set_scissor,
 )
 from sphrender.server.engine.gpu.gl_context import GLContext
-from sphrender.server.engine.gpu.uniforms import set_group, set_if_used
+from sphrender.server.engine.gpu.uniforms import set_group
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
 TILES_SHADER = "gaps/gap_tiles.frag.glsl"
 DILATE_SHADER = "gaps/gap_dilate.frag.glsl"
 CLOSE_SHADER = "gaps/close_gaps.frag.glsl"
 CLOSE_TILES_VERT = "gaps/close_tiles.vert.glsl"
+#: The close shader's texture units (`_close` binds the textures to them).
+_CLOSE_UNITS = {"u_depth": 0, "u_tiles": 1, "u_temperature": 2, "u_axes": 3, "u_diagonals": 4}
 #: The widest gap closed, in pixels (close_gaps.frag.glsl's define); the 4-pixel tiles are
 #: dilated by GAP_MAX_PX / 4 tiles, so they cover every pixel a walk can reach.
 GAP_MAX_PX = 16
@@ -158,27 +160,23 @@ class GapPass:
         """The raw tiles over `box` (cleared outside it), then their dilations over it (what
         lies outside is never read: the close pass draws only tiles of `box`)."""
         programs, draw = self._context.programs, self._context.fullscreen.draw
-        tiles = programs.get(FULLSCREEN_VERT, TILES_SHADER)
-        set_group(tiles, "frame", edge_jump, lambda: {"u_source": 0, "u_edge_jump": edge_jump})
+        tiles = programs.get(FULLSCREEN_VERT, TILES_SHADER, samplers={"u_source": 0})
+        set_group(tiles, "frame", edge_jump, lambda: {"u_edge_jump": edge_jump})
         depth.use(0)
         clear_and_scissor(targets.raw.fbo, box)
         targets.raw.fbo.use()
         draw(tiles)
         set_scissor(targets.raw.fbo, None)
-        along_x = programs.get(FULLSCREEN_VERT, DILATE_SHADER, _DILATE_DEFINES[0])
-        set_if_used(along_x, "u_tiles", 0)
+        along_x = programs.get(FULLSCREEN_VERT, DILATE_SHADER, _DILATE_DEFINES[0], {"u_tiles": 0})
         targets.raw.texture.use(0)
         set_scissor(targets.along_x.fbo, box)
         targets.along_x.fbo.use()
         draw(along_x)
         set_scissor(targets.along_x.fbo, None)
-        along_y = programs.get(FULLSCREEN_VERT, DILATE_SHADER, _DILATE_DEFINES[1])
-        set_group(
-            along_y,
-            "frame",
-            edge_jump,
-            lambda: {"u_tiles": 0, "u_raw": 1, "u_edge_jump": edge_jump},
+        along_y = programs.get(
+            FULLSCREEN_VERT, DILATE_SHADER, _DILATE_DEFINES[1], {"u_tiles": 0, "u_raw": 1}
         )
+        set_group(along_y, "frame", edge_jump, lambda: {"u_edge_jump": edge_jump})
         targets.along_x.texture.use(0)
         targets.raw.texture.use(1)
         set_scissor(targets.along_y, box)
@@ -188,14 +186,7 @@ class GapPass:
 
     def _close_program(self, temperature: bool) -> moderngl.Program:
         defines = {"GAP_MAX_PX": GAP_MAX_PX, "HAS_TEMPERATURE": int(temperature)}
-        program = self._context.programs.get(CLOSE_TILES_VERT, CLOSE_SHADER, defines)
-        set_group(
-            program,
-            "units",
-            None,
-            lambda: {"u_depth": 0, "u_tiles": 1, "u_temperature": 2, "u_axes": 3, "u_diagonals": 4},
-        )
-        return program
+        return self._context.programs.get(CLOSE_TILES_VERT, CLOSE_SHADER, defines, _CLOSE_UNITS)
 
     def _close(
         self,
@@ -247,8 +238,7 @@ def _draw_tile_points(
     if vao is None:
         vao = vaos[program] = ctx.vertex_array(program, [])
     ctx.enable(moderngl.PROGRAM_POINT_SIZE)
-    with gl.clock:
-        vao.render(moderngl.POINTS, vertices=count)
+    gl.clock.call(vao.render, moderngl.POINTS, vertices=count)
     ctx.disable(moderngl.PROGRAM_POINT_SIZE)
 
 

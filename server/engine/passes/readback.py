@@ -23,7 +23,6 @@ from sphrender.server.engine.frame_output import RenderedFrame
 from sphrender.server.engine.geometry.screen_box import ScreenBox
 from sphrender.server.engine.gpu.draw import PerSize, Target, set_scissor
 from sphrender.server.engine.gpu.gl_clock import GLClock
-from sphrender.server.engine.gpu.uniforms import set_if_used
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
 DEPTH_SHADER = "readback/depth_aov.frag.glsl"
@@ -97,8 +96,9 @@ class ReadbackPass:
         (all, or the box's full rows)."""
         width, height = normal_depth.size
         target = self._depth.get((width, height))
-        program = self._context.programs.get(FULLSCREEN_VERT, DEPTH_SHADER)
-        set_if_used(program, "u_normal_depth", 0)
+        program = self._context.programs.get(
+            FULLSCREEN_VERT, DEPTH_SHADER, samplers={"u_normal_depth": 0}
+        )
         normal_depth.use(0)
         target.fbo.use()
         set_scissor(target.fbo, None if box is None else (0, box[1], width, box[3]))

@@ -23,7 +23,7 @@ import moderngl
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.screen_box import ScreenBox
 from sphrender.server.engine.gpu.draw import PerSize, Target, clear_and_scissor, set_scissor
-from sphrender.server.engine.gpu.uniforms import set_group, set_if_used, write_matrix
+from sphrender.server.engine.gpu.uniforms import set_group, write_matrix
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 from sphrender.server.engine.passes.gaps import EDGE_JUMP_RADII
 
@@ -69,8 +69,9 @@ class SilhouettePass:
         programs, draw = self._context.programs, self._context.fullscreen.draw
         sources = (normal_depth.texture, targets.tiles[0].texture, targets.tiles[1].texture)
         for step, source in enumerate(sources):
-            tiles = programs.get(FULLSCREEN_VERT, TILES_SHADER, _TILE_STEPS[step])
-            set_if_used(tiles, "u_normal_depth", 0)
+            tiles = programs.get(
+                FULLSCREEN_VERT, TILES_SHADER, _TILE_STEPS[step], {"u_normal_depth": 0}
+            )
             source.use(0)
             targets.tiles[step].fbo.use()
             draw(tiles)

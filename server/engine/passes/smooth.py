@@ -18,7 +18,7 @@ import moderngl
 
 from sphrender.server.engine.geometry.screen_box import ScreenBox, packed_box
 from sphrender.server.engine.gpu.draw import PerSize, Target, clear_and_scissor, set_scissor
-from sphrender.server.engine.gpu.uniforms import set_group, set_if_used
+from sphrender.server.engine.gpu.uniforms import set_group
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 from sphrender.server.engine.passes.gaps import GapPass
 from sphrender.server.scene import QualityConfig
@@ -97,9 +97,8 @@ class SmoothPass:
         iterations: int,
         box: ScreenBox | None,
     ) -> moderngl.Texture:
-        program = self._context.programs.get(FULLSCREEN_VERT, TWO_D_SHADER, defines)
+        program = self._context.programs.get(FULLSCREEN_VERT, TWO_D_SHADER, defines, {"u_depth": 0})
         uniforms.set(program)
-        set_if_used(program, "u_depth", 0)
         for target in targets.ping:
             clear_and_scissor(target.fbo, box)
         source = depth
@@ -128,18 +127,18 @@ class SmoothPass:
         packed_scissor = None if box is None else packed_box(box)
         for target in packed:
             clear_and_scissor(target.fbo, packed_scissor)
-        pack = programs.get(FULLSCREEN_VERT, PACK_SHADER)
-        set_if_used(pack, "u_image", 0)
+        pack = programs.get(FULLSCREEN_VERT, PACK_SHADER, samplers={"u_image": 0})
         depth.use(0)
         packed[0].fbo.use()
         draw(pack)
         passes = {
-            axis: programs.get(FULLSCREEN_VERT, SEPARABLE_SHADER, {**defines, "AXIS": axis})
+            axis: programs.get(
+                FULLSCREEN_VERT, SEPARABLE_SHADER, {**defines, "AXIS": axis}, {"u_packed_depth": 0}
+            )
             for axis in (0, 1)
         }
         for program in passes.values():
             uniforms.set(program)
-            set_if_used(program, "u_packed_depth", 0)
         read_index = 0
         for iteration in range(iterations):
             # The passes alternate their order (x y, y x, ...): the nonlinear filters leave
@@ -151,8 +150,7 @@ class SmoothPass:
                 read_index = 1 - read_index
         for target in packed:
             set_scissor(target.fbo, None)
-        unpack = programs.get(FULLSCREEN_VERT, UNPACK_SHADER)
-        set_if_used(unpack, "u_packed", 0)
+        unpack = programs.get(FULLSCREEN_VERT, UNPACK_SHADER, samplers={"u_packed": 0})
         packed[read_index].texture.use(0)
         result = targets.ping[0]
         clear_and_scissor(result.fbo, box)

@@ -56,6 +56,7 @@ ELLIPSOID_VERTEX_SHADER = "splat/splat_ellipsoid.vert.glsl"
 ELLIPSOID_FRAGMENT_SHADER = "splat/splat_ellipsoid.frag.glsl"
 COVERAGE_VERTEX_SHADER = "splat/splat_coverage.vert.glsl"
 COVERAGE_FRAGMENT_SHADER = "splat/splat_coverage.frag.glsl"
+_COVERAGE_UNITS = {"u_band": 0}  # the coverage draws' texture unit (the band mask)
 #: How far past a silhouette the coverage quads reach, in pixels.
 COVERAGE_MARGIN_PX = 1.5
 #: Which particles' coverage is drawn: those whose bounds rectangle, grown by this many pixels,
@@ -279,8 +280,7 @@ class SplatPass:
         seed_fbo.use()
         with self._context.gl.clock:
             seed_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        seed = self._context.programs.get(FULLSCREEN_VERT, SEED_SHADER)
-        set_if_used(seed, "u_depth", 0)
+        seed = self._context.programs.get(FULLSCREEN_VERT, SEED_SHADER, samplers={"u_depth": 0})
         set_if_used(seed, "u_far", droplets.far)
         surface.use(0)
         count = droplets.count
@@ -330,7 +330,6 @@ class SplatPass:
             return
         ctx = self._context.gl.ctx
         program, vao = self._vertex_array(batch.ellipsoid, False, coverage=True)
-        set_if_used(program, "u_band", 0)
         set_if_used(program, "u_banded", band is not None)
         if band is not None:
             band.use(0)
@@ -457,9 +456,12 @@ class SplatPass:
                 ELLIPSOID_VERTEX_SHADER,
                 ELLIPSOID_FRAGMENT_SHADER,
                 {"HAS_TEMPERATURE": has_temperature, "COVERAGE": coverage},
+                _COVERAGE_UNITS if coverage else None,
             )
         elif coverage:
-            program = programs.get(COVERAGE_VERTEX_SHADER, COVERAGE_FRAGMENT_SHADER)
+            program = programs.get(
+                COVERAGE_VERTEX_SHADER, COVERAGE_FRAGMENT_SHADER, samplers=_COVERAGE_UNITS
+            )
         else:
             sphere_defines = {"HAS_TEMPERATURE": True} if has_temperature else None
             program = programs.get(VERTEX_SHADER, FRAGMENT_SHADER, sphere_defines)
@@ -516,8 +518,7 @@ def _render(
     if count:
         set_if_used(vao.program, "u_use_ids", use_ids)
         set_if_used(vao.program, "u_flag_mask", mask)
-        with clock:
-            vao.render(moderngl.TRIANGLES, vertices=6 * count, first=6 * first)
+        clock.call(vao.render, moderngl.TRIANGLES, vertices=6 * count, first=6 * first)
 
 
 def _texture(target: Target | None) -> moderngl.Texture | None:

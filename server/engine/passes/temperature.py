@@ -14,11 +14,12 @@ from __future__ import annotations
 import moderngl
 
 from sphrender.server.engine.gpu.draw import PerSize, Target
-from sphrender.server.engine.gpu.uniforms import set_group, set_if_used
+from sphrender.server.engine.gpu.uniforms import set_group
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
 SHADER = "temperature/smooth_temperature.frag.glsl"
 _AXIS_DEFINES = ({"AXIS": 0}, {"AXIS": 1})
+_BLUR_UNITS = {"u_packed_temperature": 0, "u_packed_depth": 1}  # the blur's texture units
 PACK_SHADER = "common/image_pack.frag.glsl"
 UNPACK_SHADER = "common/image_unpack.frag.glsl"
 #: Temperature blur: sigma in projected particle radii, kernel cap, and the depth window (in
@@ -58,15 +59,14 @@ class TemperaturePass:
         (`Camera.pixels_per_unit_at_unit_depth`)."""
         blur = self._targets.get(temperature.size)
         programs, draw = self._context.programs, self._context.fullscreen.draw
-        pack = programs.get(FULLSCREEN_VERT, PACK_SHADER)
-        set_if_used(pack, "u_image", 0)
+        pack = programs.get(FULLSCREEN_VERT, PACK_SHADER, samplers={"u_image": 0})
         for source, target in ((depth, blur.packed_depth), (temperature, blur.packed[0])):
             source.use(0)
             target.fbo.use()
             draw(pack)
         blur.packed_depth.texture.use(1)
         for axis in (0, 1):
-            program = programs.get(FULLSCREEN_VERT, SHADER, _AXIS_DEFINES[axis])
+            program = programs.get(FULLSCREEN_VERT, SHADER, _AXIS_DEFINES[axis], _BLUR_UNITS)
             set_group(
                 program,
                 "frame",
@@ -76,15 +76,12 @@ class TemperaturePass:
                     "u_sigma_radii": TEMPERATURE_SIGMA_RADII,
                     "u_max_reach_px": TEMPERATURE_MAX_REACH_PX,
                     "u_depth_range": TEMPERATURE_DEPTH_RANGE_RADII * particle_radius,
-                    "u_packed_temperature": 0,
-                    "u_packed_depth": 1,
                 },
             )
             blur.packed[axis].texture.use(0)
             blur.packed[1 - axis].fbo.use()
             draw(program)
-        unpack = programs.get(FULLSCREEN_VERT, UNPACK_SHADER)
-        set_if_used(unpack, "u_packed", 0)
+        unpack = programs.get(FULLSCREEN_VERT, UNPACK_SHADER, samplers={"u_packed": 0})
         blur.packed[0].texture.use(0)
         blur.result.fbo.use()
         draw(unpack)
