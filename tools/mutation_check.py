@@ -637,6 +637,22 @@ MUTATIONS: tuple[Mutation, ...] = (
         tests=("tests/test_readback.py",),
         description="the Z copy drawn only in the box's columns while the box's full rows are read",
     ),
+    Mutation(
+        name="rasteriser-threads-left-preempting",
+        path="server/engine/gpu/rasteriser_threads.py",
+        old="os.sched_setscheduler(tid, os.SCHED_BATCH, os.sched_param(0))",
+        new="os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))",
+        tests=("tests/test_rasteriser_threads.py",),
+        description="llvmpipe's workers counted as switched but left under the default policy",
+    ),
+    Mutation(
+        name="samplers-not-bound-at-build",
+        path="server/engine/gpu/programs.py",
+        old="            _bind_samplers(program, samplers)\n",
+        new="",
+        tests=("tests/test_programs.py", "tests/test_gaps.py"),
+        description="the sampler units passed to ProgramCache.get never set (all left at unit 0)",
+    ),
 )
 # fmt: on
 

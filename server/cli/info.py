@@ -40,6 +40,7 @@ def run(_args: argparse.Namespace) -> int:
                 software=gl.is_software,
                 max_image_side=gl.limits.max_image_side,
                 prepare=resolve_mode("auto", gl.is_software),
+                batch_rasteriser_threads=gl.batch_rasteriser_threads,
             )
     except GLUnavailableError as exc:
         gl_error = exc

@@ -18,6 +18,7 @@ import moderngl
 
 from sphrender.server.engine.gpu.gl_clock import GLClock, own_on_this_thread
 from sphrender.server.engine.gpu.gl_libraries import failure_message, resolve_libraries
+from sphrender.server.engine.gpu.rasteriser_threads import batch_rasteriser_threads
 
 
 class GLUnavailableError(RuntimeError):
@@ -70,6 +71,8 @@ class GLContext:
             max_viewport=tuple(int(v) for v in info["GL_MAX_VIEWPORT_DIMS"]),  # type: ignore[arg-type]
             max_renderbuffer_size=int(info["GL_MAX_RENDERBUFFER_SIZE"]),
         )
+        #: llvmpipe worker threads under SCHED_BATCH (rasteriser_threads.py); 0 on a GPU.
+        self.batch_rasteriser_threads = batch_rasteriser_threads() if self.is_software else 0
 
     @property
     def ctx(self) -> moderngl.Context:

@@ -1,0 +1,44 @@
+"""llvmpipe's rasteriser threads run under SCHED_BATCH once a software context exists
+(`gpu/rasteriser_threads.py`), as the kernel reports it, and stay as they were when the
+operator turns it off. Real EGL context, real Mesa threads, real `sphrender` processes."""
+
+from __future__ import annotations
+
+import json
+import os
+
+from cli_harness import run_sphrender
+
+from sphrender.server.engine.gpu.gl_context import GLContext
+from sphrender.server.engine.gpu.rasteriser_threads import ENV, rasteriser_threads
+
+
+def test_the_rasteriser_threads_of_this_process_are_batch(gl_context: GLContext) -> None:
+    threads = rasteriser_threads()
+    if not gl_context.is_software:  # a GPU: no llvmpipe, nothing to change
+        assert gl_context.batch_rasteriser_threads == 0
+        return
+    if os.environ.get("LP_NUM_THREADS") == "0":  # rasterising inside the GL calls: no workers
+        assert threads == []
+        return
+    assert threads, "llvmpipe runs its rasteriser on worker threads named llvmpipe-N"
+    assert gl_context.batch_rasteriser_threads == len(threads)
+    assert {os.sched_getscheduler(tid) for tid in threads} == {os.SCHED_BATCH}
+
+
+def test_a_new_context_keeps_them_batch_and_counts_them(gl_context: GLContext) -> None:
+    """The workers are the process's, shared by every context: a second context finds them
+    already switched and says so (its count is what `sphrender info` prints)."""
+    with GLContext() as second:
+        assert second.batch_rasteriser_threads == gl_context.batch_rasteriser_threads
+        assert {os.sched_getscheduler(tid) for tid in rasteriser_threads()} <= {os.SCHED_BATCH}
+
+
+def test_the_operator_can_turn_it_off() -> None:
+    """`SPHRENDER_LLVMPIPE_BATCH=0`: the new process's threads keep the default policy."""
+    default = json.loads(run_sphrender("info").stdout)
+    off = run_sphrender("info", env={ENV: "0"})
+    assert off.returncode == 0, off.stderr
+    assert json.loads(off.stdout)["batch_rasteriser_threads"] == 0
+    if default["software"] and os.environ.get("LP_NUM_THREADS") != "0":
+        assert default["batch_rasteriser_threads"] >= 1
