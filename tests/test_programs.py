@@ -97,7 +97,9 @@ def test_samplers_are_bound_to_their_units_when_built(
     ctx = gl_context.ctx
     cache = ProgramCache(gl_context, ShaderLoader(tmp_path))
     units = {"u_first": 2, "u_second": 1}
-    textures = [ctx.texture((1, 1), 1, np.float32([v]).tobytes(), dtype="f4") for v in (7, 5, 3)]
+    textures = [
+        ctx.texture((1, 1), 1, np.array([v], np.float32).tobytes(), dtype="f4") for v in (7, 5, 3)
+    ]
     target = ctx.texture((1, 1), 4, dtype="f4")
     fbo = ctx.framebuffer([target])
     try:

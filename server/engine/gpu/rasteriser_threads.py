@@ -13,7 +13,8 @@ SCHED_BATCH leaves a thread's share of the CPU as it is (same nice level) and gi
 preemption: the workers still get their cores whenever the render thread waits in a GL call,
 they just do not take its core mid-statement. Measured on that frame, the two policies
 interleaved frame by frame in one process (`benchmarks/bench_rasteriser_sched.py`): render
-thread host work 2.18 -> 1.31 ms, frame time 0.98-0.99x. (Renicing the threads instead, tried
+thread host work 1.64 -> 1.32 ms (3.05 -> 2.05 ms with cProfile), frame time 0.95x with the
+host prepare, 0.99x with the device prepare. (Renicing the threads instead, tried
 earlier, lowered their share of the CPU and slowed the frame by 10 % at nice 10.)
 
 Any process may move its own threads to SCHED_BATCH (no privilege: it lowers their claim).
