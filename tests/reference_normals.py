@@ -75,4 +75,10 @@ def _axis(z_at, position, y, x, dy, dx, zc, p, jump, s, kink, focal_px):
         return position(y + dy, x + dx, zp) - p
     if has_m:
         return p - position(y - dy, x - dx, zm)
+    # no neighbour of this surface: toward the one nearer neighbour (an edge-on rim behind it)
+    near_p, near_m = 0 < zp < zc, 0 < zm < zc
+    if near_p and not near_m:
+        return position(y + dy, x + dx, zp) - p
+    if near_m and not near_p:
+        return p - position(y - dy, x - dx, zm)
     return position(y + dy, x + dx, zc) - p

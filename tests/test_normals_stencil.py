@@ -158,3 +158,33 @@ def test_wide_stencil_averages_ripple_on_a_plane(gl_context: GLContext) -> None:
     wide = mean_error(QualityConfig(normal_stencil=1.0))
     print(f"1-pixel {one:.3f} deg, stencil {wide:.3f} deg")
     assert wide * 2.0 <= one, (one, wide)
+
+
+def test_a_pixel_with_no_neighbour_of_its_surface_along_an_axis(gl_context: GLContext) -> None:
+    """One-pixel rows that no neighbour continues (every step beyond the edge jump, 4 r):
+    between a nearer block and the farther plane, and against the background behind a nearer
+    plane, the row is a surface seen edge-on behind its nearer neighbour: its normal is
+    differenced toward that neighbour (a steep slope: almost perpendicular to the view), not
+    turned to the camera. A row between two nearer surfaces (a slit) keeps "no depth change".
+    GL against the float64 reference on exactly those pixels (bound as above)."""
+    y, x = np.mgrid[0:H, 0:W].astype(np.float64)
+    depth = 0.6 + 0.002 * x + 0.001 * y
+    depth[21:30, 10:30] -= 12 * R  # a nearer block
+    depth[20, 10:30] -= 6 * R  # its edge-on rim: 6 r behind it, 6 r in front of the plane
+    depth[40:50, 40:60] -= 12 * R  # a second block with a slit row between its halves
+    depth[45, 40:60] += 6 * R
+    depth[56:, 70:90] = 0.0  # background above the plane ...
+    depth[55, 70:90] += 6 * R  # ... and a row 6 r behind the plane's edge before it
+    depth = depth.astype(np.float32)
+    quality = QualityConfig()
+    got, want = gl_normals(gl_context, depth, quality), reference(depth, quality)
+    rows = {"rim": (20, slice(12, 28)), "slit": (45, slice(42, 58)), "edge": (55, slice(72, 88))}
+    for name, (row, cols) in rows.items():
+        angle = np.arccos(np.clip(np.sum(got[row, cols] * want[row, cols], axis=1), -1.0, 1.0))
+        assert angle.max() <= 1e-3, (name, angle.max())
+    # |n_z|: 6 r = 0.12 over one pixel footprint (~0.011 here) is a slope of ~11, |n_z| ~ 0.1
+    # on the axis (the off-axis rows' oblique view and the plane's tilt add up to ~0.4);
+    # "no depth change" along that axis gives the plane's ~0.98.
+    facing = {name: np.abs(got[row, cols, 2]) for name, (row, cols) in rows.items()}
+    assert facing["rim"].max() < 0.5 and facing["edge"].max() < 0.5, facing
+    assert facing["slit"].min() > 0.9, facing["slit"]  # the plane's own normal, about (0, 0, 1)

@@ -638,6 +638,14 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="the Z copy drawn only in the box's columns while the box's full rows are read",
     ),
     Mutation(
+        name="edge-on-rim-turned-to-the-camera",
+        path="shaders/normals/surface_normals.frag.glsl",
+        old="    if (near_plus && !near_minus) {",
+        new="    if (false) {",
+        tests=("tests/test_normals_stencil.py",),
+        description="a pixel with one nearer neighbour and no same-surface one assumed flat",
+    ),
+    Mutation(
         name="rasteriser-threads-left-preempting",
         path="server/engine/gpu/rasteriser_threads.py",
         old="os.sched_setscheduler(tid, os.SCHED_BATCH, os.sched_param(0))",

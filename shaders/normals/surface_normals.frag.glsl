@@ -42,7 +42,19 @@ vec3 one_sided_difference(ivec2 center, vec3 position, float zc, ivec2 step, ive
     if (has_minus) {
         return position - view_position(center - step, size, u_tan_half_fov, z_minus);
     }
-    // Isolated in this direction: assume no depth change across the pixel.
+    // No neighbour of this surface along the axis. With exactly one neighbour nearer (the other
+    // background or farther) the pixel is a surface seen edge-on behind it, the rim of what
+    // runs away from that neighbour: difference toward it, a steep slope. Facing the camera
+    // instead (the fallback below) mirrors what lies behind the camera: sparkles along rims.
+    // A lone pixel, or one between two nearer neighbours (a slit): no depth change across it.
+    bool near_plus = z_plus > 0.0 && z_plus < zc;
+    bool near_minus = z_minus > 0.0 && z_minus < zc;
+    if (near_plus && !near_minus) {
+        return view_position(center + step, size, u_tan_half_fov, z_plus) - position;
+    }
+    if (near_minus && !near_plus) {
+        return position - view_position(center - step, size, u_tan_half_fov, z_minus);
+    }
     return view_position(center + step, size, u_tan_half_fov, zc) - position;
 }
 
