@@ -10,9 +10,10 @@
 //   second-order accurate on a smooth surface and averages the residual per-particle ripple of
 //   the smoothed depth, which the 1-pixel difference turns into normal noise (flicker);
 // * otherwise the one-sided difference with the smaller depth change (so silhouettes do not
-//   smear). A neighbour is never differenced across a depth discontinuity: background, or a jump
-//   of more than u_edge_jump (a farther or nearer surface); with no usable neighbour along an
-//   axis the depth is taken as constant along it.
+//   smear). A neighbour is never differenced across a depth discontinuity (background, or a
+//   jump of more than u_edge_jump) when the pixel has a neighbour of its own surface along the
+//   axis. Without one: toward the single nearer neighbour, if exactly one (a surface seen
+//   edge-on behind it, see one_sided_difference), else the depth is taken as constant along it.
 // Output: world normal (xyz), eye depth (w); all zero where there is no surface.
 
 #include "common/depth_image.glsl"
