@@ -15,8 +15,10 @@ import pytest
 from sphrender.client.errors import InputError
 from sphrender.client.frame import make_frame
 from sphrender.server.bench.analytic import sphere_hits
+from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.frame_output import RenderedFrame
 from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import MAX_IMAGE_SIDE, Scene, scene_from_dict
 
@@ -203,6 +205,37 @@ def test_gl_context_refuses_other_threads(renderer: SurfaceRenderer) -> None:
     thread.join()
     assert len(errors) == 1 and isinstance(errors[0], RuntimeError)
     assert "thread" in str(errors[0])
+
+
+def test_a_second_context_on_the_owner_thread_is_refused_and_another_thread_may_own_one(
+    renderer: SurfaceRenderer,
+) -> None:
+    """A second standalone context made on a thread that owns one would become current and take
+    over the first's calls (and once released leave none: wrong images, a driver crash): it is
+    refused before anything is created. A context on another thread is that thread's; made,
+    used and released there, it leaves this thread's frames byte for byte as they were."""
+    frame = make_frame(jittered_lattice_ball(0.3, 0.05, seed=0))
+    before, _ = renderer.render(frame, scene(), depth=True)
+    with pytest.raises(RuntimeError, match="already owns a GL context"):
+        GLContext()
+    done: list[object] = []
+
+    def own_one() -> None:
+        try:
+            with GLContext() as other:
+                worker = SurfaceRenderer(other, stage_timings=False)
+                done.append(worker.render(frame, scene())[0].rgba.shape)
+                worker.release()
+        except BaseException as exc:
+            done.append(exc)
+
+    thread = threading.Thread(target=own_one)
+    thread.start()
+    thread.join()
+    assert done == [before.rgba.shape], done
+    after, _ = renderer.render(frame, scene(), depth=True)
+    assert np.array_equal(after.rgba, before.rgba)
+    assert np.array_equal(after.depth, before.depth)
 
 
 def test_aovs_are_read_back_only_when_asked(renderer: SurfaceRenderer) -> None:

@@ -646,6 +646,14 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="a pixel with one nearer neighbour and no same-surface one assumed flat",
     ),
     Mutation(
+        name="second-context-on-owner-thread-allowed",
+        path="server/engine/gpu/gl_context.py",
+        old="        if live is not None and live._ctx is not None:",
+        new="        if False:",
+        tests=("tests/test_engine_hard_cases.py",),
+        description="a second GL context made on a thread that owns one (it takes over the first)",
+    ),
+    Mutation(
         name="rasteriser-threads-left-preempting",
         path="server/engine/gpu/rasteriser_threads.py",
         old="os.sched_setscheduler(tid, os.SCHED_BATCH, os.sched_param(0))",

@@ -36,12 +36,26 @@ class GLLimits:
         return min(self.max_texture_size, *self.max_viewport, self.max_renderbuffer_size)
 
 
+#: The live context each thread owns (at most one, see GLContext.__init__).
+_owned = threading.local()
+
+
 class GLContext:
     """Owns a standalone moderngl context created through EGL (no display needed)."""
 
     REQUIRED_VERSION = 430  # storage buffers and compute shaders (the splat pulls its particles)
 
     def __init__(self, device_index: int = 0) -> None:
+        """Raises RuntimeError when this thread already owns a live context: a new standalone
+        context is made current on creation, so the first one's calls would reach the second
+        (and, once that is released, no context at all: wrong images, then a driver crash)."""
+        live: GLContext | None = getattr(_owned, "context", None)
+        if live is not None and live._ctx is not None:
+            raise RuntimeError(
+                "this thread already owns a GL context; release it first (one thread owns at "
+                "most one: a second one would take over the first's calls) or create the new "
+                "one on another thread"
+            )
         libegl, libgl = resolve_libraries()
         try:
             # moderngl's stub types every **setting as a dict; the call takes plain values.
@@ -58,6 +72,7 @@ class GLContext:
             raise GLUnavailableError(failure_message(str(exc), libegl, libgl)) from None
         self._ctx: moderngl.Context | None = ctx
         self._owner = threading.get_ident()
+        _owned.context = self
         #: Time inside the GL calls that do the device's work (gl_clock.py).
         self.clock = GLClock()
         # Who bound the storage-buffer binding points last (see claim_storage_bindings).
@@ -118,6 +133,8 @@ class GLContext:
             self.check_owner()
             self._ctx.release()
             self._ctx = None
+            if getattr(_owned, "context", None) is self:
+                _owned.context = None
 
     def __enter__(self) -> GLContext:
         return self
