@@ -235,6 +235,7 @@ def test_a_second_context_on_the_owner_thread_is_refused_and_another_thread_may_
     assert done == [before.rgba.shape], done
     after, _ = renderer.render(frame, scene(), depth=True)
     assert np.array_equal(after.rgba, before.rgba)
+    assert after.depth is not None and before.depth is not None
     assert np.array_equal(after.depth, before.depth)
 
 
