@@ -11,11 +11,12 @@ the same profiled frames, then the engine's estimate in unprofiled frames (cProf
 GL calls as host work, so it errs high), the same with the Z and N AOVs read back, and the
 stage times of an unprofiled frame. On a GPU the host column is the frame time's floor.
 
-On llvmpipe the rasteriser's worker threads run beside the render thread and, on a machine with
-few cores, preempt it: its Python then takes longer in wall time than it would beside a GPU.
-`--lp-threads default,0` measures both: as llvmpipe runs by default, and with
-`LP_NUM_THREADS=0` (llvmpipe rasterises inside the GL calls, so nothing competes with the
-render thread outside them: the closer model of a GPU, whose work runs on its own silicon).
+On llvmpipe the rasteriser's worker threads run beside the render thread on the same cores
+(under SCHED_BATCH since `gpu/rasteriser_threads.py`, so they no longer preempt it when they
+wake; `SPHRENDER_LLVMPIPE_BATCH=0` measures the old way, `benchmarks/bench_rasteriser_sched.py`
+both side by side). `--lp-threads default,0` measures llvmpipe as it runs by default and with
+`LP_NUM_THREADS=0` (llvmpipe rasterises inside the GL calls, so nothing runs beside the render
+thread outside them).
 Each setting runs in its own process (Mesa reads the variable when the context is made).
 """
 
