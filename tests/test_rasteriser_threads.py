@@ -6,11 +6,29 @@ from __future__ import annotations
 
 import json
 import os
+import threading
 
 from cli_harness import run_sphrender
 
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.rasteriser_threads import ENV, rasteriser_threads
+
+
+def may_set_batch() -> bool:
+    """Whether this process may put a thread under SCHED_BATCH (a throwaway thread tries)."""
+    allowed: list[bool] = []
+
+    def probe() -> None:
+        try:
+            os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))  # 0: this thread
+            allowed.append(True)
+        except OSError:
+            allowed.append(False)
+
+    thread = threading.Thread(target=probe)
+    thread.start()
+    thread.join()
+    return allowed == [True]
 
 
 def test_the_rasteriser_threads_of_this_process_are_batch(gl_context: GLContext) -> None:
@@ -25,8 +43,10 @@ def test_the_rasteriser_threads_of_this_process_are_batch(gl_context: GLContext)
         assert threads == []
         return
     assert threads, "llvmpipe runs its rasteriser on worker threads named llvmpipe-N"
-    assert gl_context.batch_rasteriser_threads == len(threads)
-    assert {os.sched_getscheduler(tid) for tid in threads} == {os.SCHED_BATCH}
+    batch = [tid for tid in threads if os.sched_getscheduler(tid) == os.SCHED_BATCH]
+    assert gl_context.batch_rasteriser_threads == len(batch)  # it reports what it did
+    if may_set_batch():  # a sandbox may forbid the call: then the renderer runs as before
+        assert batch == threads
 
 
 def test_the_operator_can_turn_it_off() -> None:
