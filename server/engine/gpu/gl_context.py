@@ -72,7 +72,6 @@ class GLContext:
             raise GLUnavailableError(failure_message(str(exc), libegl, libgl)) from None
         self._ctx: moderngl.Context | None = ctx
         self._owner = threading.get_ident()
-        _owned.context = self
         #: Time inside the GL calls that do the device's work (gl_clock.py).
         self.clock = GLClock()
         # Who bound the storage-buffer binding points last (see claim_storage_bindings).
@@ -88,6 +87,7 @@ class GLContext:
         )
         #: llvmpipe worker threads under SCHED_BATCH (rasteriser_threads.py); 0 on a GPU.
         self.batch_rasteriser_threads = batch_rasteriser_threads() if self.is_software else 0
+        _owned.context = self
 
     @property
     def ctx(self) -> moderngl.Context:
