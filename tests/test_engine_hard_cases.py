@@ -6,6 +6,8 @@ the geometric expectation of each case is stated next to it.
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import threading
 from typing import Any
 
@@ -290,3 +292,41 @@ def test_sprites_larger_than_point_size_limit_are_whole(renderer: SurfaceRendere
     covered = np.isfinite(frame.depth)  # surface at the pixel centre (alpha is sub-pixel)
     assert hit.any(axis=0).sum() > 500  # wider than any point sprite could be
     assert np.array_equal(covered, hit)
+
+
+def test_a_context_whose_release_fails_still_leaves_its_thread_free() -> None:
+    """The service's render child rebuilds its context after a GL fault, and a broken context
+    may fail to release: the thread must still be free to make the next one. In a child
+    process (a context made here would meet the session's); the release really happens, then
+    raises as a broken driver's would."""
+    script = """
+import numpy as np
+from sphrender.client.frame import make_frame
+from sphrender.server.engine.gpu.gl_context import GLContext
+from sphrender.server.engine.renderer import SurfaceRenderer
+from sphrender.server.scene import scene_from_dict
+
+broken = GLContext()
+real_release = broken._ctx.release
+def failing_release():
+    real_release()
+    raise RuntimeError("driver refused")
+broken._ctx.release = failing_release
+try:
+    broken.release()
+except RuntimeError as exc:
+    assert "driver refused" in str(exc)
+else:
+    raise AssertionError("the release did not fail")
+with GLContext() as fresh:
+    renderer = SurfaceRenderer(fresh)
+    scene = scene_from_dict({"image": {"width": 32, "height": 24}})
+    frame, _ = renderer.render(make_frame(np.zeros((1, 3))), scene)
+    assert frame.rgba.shape == (24, 32, 4)
+    renderer.release()
+print("ok")
+"""
+    result = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=120, check=False
+    )
+    assert result.returncode == 0 and result.stdout.strip() == "ok", result.stderr

@@ -129,12 +129,16 @@ class GLContext:
             self._storage_owner = None
 
     def release(self) -> None:
+        """Release the context. It is this thread's no longer even when the driver's release
+        fails (a broken context is discarded: the service's render child then makes a new one)."""
         if self._ctx is not None:
             self.check_owner()
-            self._ctx.release()
-            self._ctx = None
-            if getattr(_owned, "context", None) is self:
-                _owned.context = None
+            ctx, self._ctx = self._ctx, None
+            try:
+                ctx.release()
+            finally:
+                if getattr(_owned, "context", None) is self:
+                    _owned.context = None
 
     def __enter__(self) -> GLContext:
         return self
