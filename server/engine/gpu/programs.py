@@ -39,7 +39,7 @@ class ProgramCache:
         """The program of these shader files and defines. `samplers` (sampler uniform ->
         texture unit) are set once, when the program is built: a sampler's unit is part of
         the pass's code, not of its frame, so no frame pays for setting it again (callers
-        that share a program must pass the same units: the first build's stand)."""
+        that share a program must pass the same units: the first build's are kept)."""
         fast = (vertex, fragment, repr(defines) if defines else "")
         program = self._by_repr.get(fast)
         if program is not None:
