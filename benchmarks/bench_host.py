@@ -105,7 +105,7 @@ def main() -> None:
         return
     np.random.seed(0)
     with GLContext() as gl:
-        print(f"{gl.renderer}")
+        print(f"{gl.renderer}; llvmpipe threads under SCHED_BATCH: {gl.batch_rasteriser_threads}")
         for mode in args.prepare.split(","):
             renderer = SurfaceRenderer(gl, stage_timings=False, prepare=mode)  # type: ignore[arg-type]
             for name in args.sizes.split(","):
