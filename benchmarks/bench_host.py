@@ -10,6 +10,8 @@ the same profiled frames, then the engine's estimate in unprofiled frames (cProf
 ~1 us a call on this VM, is part of the first two; the engine's estimate counts the unwrapped
 GL calls as host work, so it errs high), the same with the Z and N AOVs read back, and the
 stage times of an unprofiled frame. On a GPU the host column is the frame time's floor.
+`--stage-timing-cost` adds, per prepare mode, the first size's frame with a `finish` after each
+stage (true stage times: what the service runs) against the same without, frame by frame.
 
 On llvmpipe the rasteriser's worker threads run beside the render thread on the same cores
 (under SCHED_BATCH since `gpu/rasteriser_threads.py`, so they no longer preempt it when they
@@ -27,15 +29,16 @@ import os
 import statistics
 import subprocess
 import sys
+import time
 
 import numpy as np
 
-from sphrender.client.frame import make_frame
+from sphrender.client.frame import ParticleFrame, make_frame
 from sphrender.server.bench.host_time import profiled
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
-from sphrender.server.scene import scene_from_dict
+from sphrender.server.scene import Scene, scene_from_dict
 
 #: name -> (ball radius for ~that many particles at r = 0.01, width, height). "4k" is the
 #: control: the same passes and the same Python calls as "100k" (over the occlusion culling's
@@ -46,10 +49,9 @@ from sphrender.server.scene import scene_from_dict
 SIZES = {"100k": (0.58, 1280, 720), "1m": (1.25, 1920, 1080), "4k": (0.2, 160, 90)}
 
 
-def measure(renderer: SurfaceRenderer, name: str, frames: int) -> None:
+def ball_case(name: str) -> tuple[ParticleFrame, Scene]:
     ball, width, height = SIZES[name]
     r = 0.01
-    frame = make_frame(jittered_lattice_ball(ball, r))
     scale = ball / 0.58
     scene = scene_from_dict(
         {
@@ -58,6 +60,12 @@ def measure(renderer: SurfaceRenderer, name: str, frames: int) -> None:
             "particles": {"radius": r},
         }
     )
+    return make_frame(jittered_lattice_ball(ball, r)), scene
+
+
+def measure(renderer: SurfaceRenderer, name: str, frames: int) -> None:
+    frame, scene = ball_case(name)
+    width, height = scene.image.width, scene.image.height
     renderer.render(frame, scene)  # warm-up: compile, allocate
     walls, devices, hosts, estimates = [], [], [], []
     for _ in range(frames):
@@ -79,12 +87,45 @@ def measure(renderer: SurfaceRenderer, name: str, frames: int) -> None:
     )
 
 
+def stage_timing_cost(gl: GLContext, mode: str, name: str, frames: int) -> None:
+    """The frame with true stage times (a `finish` after each stage: what `sphrender serve`
+    and `render -v` run) against the same frame without, alternating frame by frame on two
+    renderers of one context: on a GPU the finishes stop the CPU from running ahead."""
+    frame, scene = ball_case(name)
+    renderers = {
+        timed: SurfaceRenderer(gl, stage_timings=timed, prepare=mode)  # type: ignore[arg-type]
+        for timed in (True, False)
+    }
+    walls: dict[bool, list[float]] = {True: [], False: []}
+    try:
+        for renderer in renderers.values():
+            renderer.render(frame, scene)
+        for _ in range(frames):
+            for timed, renderer in renderers.items():
+                start = time.perf_counter()
+                renderer.render(frame, scene)
+                walls[timed].append((time.perf_counter() - start) * 1e3)
+    finally:
+        for renderer in renderers.values():
+            renderer.release()
+    with_, without = statistics.median(walls[True]), statistics.median(walls[False])
+    print(
+        f"prepare={mode:6} {name:>5} stage timings on (a finish per stage) {with_:7.1f} ms, "
+        f"off {without:7.1f} ms: {with_ / without:.3f}x"
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--frames", type=int, default=5)
     parser.add_argument("--sizes", default="100k,1m,4k", help=f"of {', '.join(SIZES)}")
     parser.add_argument(
         "--prepare", default="host,device", help="prepare modes to measure, comma-separated"
+    )
+    parser.add_argument(
+        "--stage-timing-cost",
+        action="store_true",
+        help="also time the first size's frame with and without a finish per stage",
     )
     parser.add_argument(
         "--lp-threads",
@@ -101,6 +142,7 @@ def main() -> None:
                 env["LP_NUM_THREADS"] = setting
             print(f"--- LP_NUM_THREADS={env.get('LP_NUM_THREADS', '(default)')}", flush=True)
             same = ["--frames", str(args.frames), "--sizes", args.sizes, "--prepare", args.prepare]
+            same += ["--stage-timing-cost"] if args.stage_timing_cost else []
             subprocess.run([sys.executable, __file__, *same], env=env, check=True)
         return
     np.random.seed(0)
@@ -112,6 +154,8 @@ def main() -> None:
                 print(f"prepare={mode:6}", end=" ")
                 measure(renderer, name, args.frames)
             renderer.release()
+            if args.stage_timing_cost:
+                stage_timing_cost(gl, mode, args.sizes.split(",")[0], max(args.frames, 5))
 
 
 if __name__ == "__main__":
