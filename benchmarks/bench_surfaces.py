@@ -4,11 +4,14 @@ lattice ball. The measurements are `sphrender bench`'s own (server/bench/surface
 `run_surface_bench`); this script only offers more settings to run them on.
 
 Usage: python benchmarks/bench_surfaces.py [--width 960 --height 540] [--setting NAME ...]
+       [--preset balanced --set sph.anisotropy=true --set quality.close_gaps=3 ...]
+(`--set` runs one more setting: the preset with those overrides, values parsed as TOML.)
 """
 
 from __future__ import annotations
 
 import argparse
+import tomllib
 from pathlib import Path
 
 from sphrender.server.bench.surface_bench import run_surface_bench
@@ -103,11 +106,25 @@ for _mode in ("truncate", "blend", "both"):
         )
 
 
+def custom_setting(preset: str, assignments: list[str]) -> Setting:
+    """`preset` with `section.key=value` overrides (value in TOML syntax: 3, 0.5, true, "x")."""
+    overrides: dict[str, dict[str, object]] = {}
+    for assignment in assignments:
+        key, sep, value = assignment.partition("=")
+        section, dot, name = key.partition(".")
+        if not sep or not dot:
+            raise SystemExit(f"--set {assignment!r}: expected section.key=value")
+        overrides.setdefault(section, {})[name] = tomllib.loads(f"v = {value}")["v"]
+    return Setting(f"{preset} " + " ".join(assignments), preset=preset, overrides=overrides)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--width", type=int, default=960)
     parser.add_argument("--height", type=int, default=540)
     parser.add_argument("--setting", action="append", choices=sorted(SETTINGS))
+    parser.add_argument("--preset", default="balanced", help="the preset --set starts from")
+    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE")
     parser.add_argument(
         "--cache",
         type=Path,
@@ -115,7 +132,10 @@ def main() -> None:
         help="where the pysplashsurf reference meshes are kept",
     )
     args = parser.parse_args()
-    settings = tuple(SETTINGS[name] for name in (args.setting or list(SETTINGS)))
+    chosen = [SETTINGS[name] for name in args.setting or ([] if args.set else list(SETTINGS))]
+    if args.set:
+        chosen.append(custom_setting(args.preset, args.set))
+    settings = tuple(chosen)
     with GLContext() as gl:
         renderer = SurfaceRenderer(gl)
         try:

@@ -18,6 +18,7 @@ from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.programs import ProgramCache
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.gaps import EDGE_JUMP_RADII
+from sphrender.server.engine.passes.rim_tiles import RimTiles
 from sphrender.server.engine.passes.silhouette import SilhouettePass
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import CameraConfig, scene_from_dict
@@ -35,13 +36,17 @@ def gl_silhouette(gl: GLContext, normal_depth: np.ndarray, *, radius: float = R)
     """The silhouette pass alone on a normal + depth image (rows bottom first, as GL)."""
     context = PassContext(gl, ProgramCache(gl), FullscreenTriangle(gl))
     rim = SilhouettePass(context)
+    tiles = RimTiles(context)
     source = Target.float(gl.ctx, (W, H), 4)
     try:
         source.texture.write(np.ascontiguousarray(normal_depth, np.float32).tobytes())
-        out = rim.run(source, CAMERA, particle_radius=radius, rim_radii=RIM)
+        out = rim.run(
+            source, tiles.build(source.texture), CAMERA, particle_radius=radius, rim_radii=RIM
+        )
         return np.frombuffer(out.texture.read(), np.float32).reshape(H, W, 4).astype(np.float64)
     finally:
         source.release()
+        tiles.release()
         rim.release()
         context.fullscreen.release()
         context.programs.release()

@@ -184,8 +184,10 @@ class SurfaceRenderer:
                     stats.particles_splatted += max(splat.splatted, 0)  # host prepare
 
         with self._stage(stats, "normals"):
+            field = self._prepare.field_particles(prepared) if scene.quality.field_normals else None
+            support = scene.sph.support_radius or 4.0 * prepared.reference_radius
             normal_depth = self._normals.run(
-                surface, camera, box, prepared.reference_radius, scene.quality
+                surface, camera, box, prepared.reference_radius, scene.quality, field, support
             )
 
         with self._stage(stats, "shade"):

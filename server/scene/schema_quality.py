@@ -169,6 +169,18 @@ class QualityConfig:
         high=8.0,
         unit="particle radii",
     )
+    field_normals: int = spec(
+        0,
+        "take the normals within this many pixels of a rim (background or a depth step "
+        "beyond 4 particle radii) towards the normal of the SPH field's iso-surface, "
+        "-grad phi of phi = sum W(|x - x_j|, sph support) at the pixel's own surface point "
+        "(passes/field_normals.py): smooth rims where the particles leave beads, rounded "
+        "edges round a sheet's holes, exact droplet spheres; blended in by the distance to "
+        "the rim, depth unchanged. Builds a particle grid on the device each frame. 0: off",
+        low=0,
+        high=7,
+        unit="pixels",
+    )
     occlusion_culling: bool = spec(
         True,
         "splat the front layer first and skip particles hidden behind it (exact: the depth "

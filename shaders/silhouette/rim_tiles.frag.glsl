@@ -1,10 +1,12 @@
 #version 330 core
-// The farthest depth per 4 x 4 block of the normal + depth image (passes/silhouette.py), with
-// background counted as farther than any surface (3e38); pixels outside the image are left
-// out. RIM_DILATE 1: instead, the farthest of these tiles within +-2 along AXIS (run along x,
-// then along y: a tile then holds the farthest depth within +-8 pixels of any of its pixels,
-// more than the window's reach). silhouette_normals.frag.glsl skips a pixel whose tile holds
-// nothing farther than its own depth + u_edge_jump: no silhouette within reach.
+// The farthest and the nearest depth per 4 x 4 block of the normal + depth image
+// (passes/rim_tiles.py), with background counted as farther than any surface (3e38) and left
+// out of the nearest (3e38 when a block has no surface); pixels outside the image are left
+// out. RIM_DILATE 1: instead, the farthest and the nearest of these tiles within +-2 along AXIS
+// (run along x, then along y: a tile then holds the extremes within +-8 pixels of any of its
+// pixels, more than either reader's reach). silhouette_normals.frag.glsl skips a pixel whose
+// tile holds nothing farther than its own depth + u_edge_jump (no silhouette within reach),
+// field_normals.frag.glsl one whose tile holds nothing beyond the jump either way.
 
 #define RIM_DILATE 0
 #define AXIS 0
@@ -16,13 +18,16 @@ layout(location = 0) out vec4 out_tile;
 void main() {
     ivec2 size = textureSize(u_normal_depth, 0);
     float farthest = 0.0;
+    float nearest = 3e38;
 #if RIM_DILATE
     ivec2 center = ivec2(gl_FragCoord.xy);
     ivec2 step = AXIS == 0 ? ivec2(1, 0) : ivec2(0, 1);
     for (int k = -2; k <= 2; ++k) {
         ivec2 t = center + k * step;
         if (all(greaterThanEqual(t, ivec2(0))) && all(lessThan(t, size))) {
-            farthest = max(farthest, texelFetch(u_normal_depth, t, 0).r);
+            vec2 tile = texelFetch(u_normal_depth, t, 0).rg;
+            farthest = max(farthest, tile.r);
+            nearest = min(nearest, tile.g);
         }
     }
 #else
@@ -35,8 +40,9 @@ void main() {
             }
             float z = texelFetch(u_normal_depth, p, 0).w;
             farthest = max(farthest, z > 0.0 ? z : 3e38);
+            nearest = z > 0.0 ? min(nearest, z) : nearest;
         }
     }
 #endif
-    out_tile = vec4(farthest, 0.0, 0.0, 0.0);
+    out_tile = vec4(farthest, nearest, 0.0, 0.0);
 }

@@ -3,8 +3,12 @@
 Shader: `shaders/normals/surface_normals.frag.glsl`: the view position of each pixel from its
 depth through the inverse projection, the smaller one-sided difference per axis (so a depth
 edge does not bend the normal), their cross product, rotated to world space.
+Then, when the quality asks for them, the field normals (`field_normals.py`) and the silhouette
+normals (`silhouette.py`) rework the normals near rims; both read the rim tiles
+(`rim_tiles.py`), built once.
 Owns: the RGBA32F normal + depth target (xyz = world normal, w = eye depth, 0 = no surface),
-which the shade pass reads and the read-back returns as the Z and N AOVs.
+which the shade pass reads and the read-back returns as the Z and N AOVs; the rim tiles and
+the two rim passes.
 """
 
 from __future__ import annotations
@@ -16,6 +20,9 @@ from sphrender.server.engine.geometry.screen_box import ScreenBox
 from sphrender.server.engine.gpu.draw import PerSize, Target, clear_and_scissor, set_scissor
 from sphrender.server.engine.gpu.uniforms import set_group, write_matrix
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
+from sphrender.server.engine.passes.field_grid import FieldParticles
+from sphrender.server.engine.passes.field_normals import FieldNormalsPass
+from sphrender.server.engine.passes.rim_tiles import RimTiles
 from sphrender.server.engine.passes.silhouette import SilhouettePass
 from sphrender.server.scene import QualityConfig
 
@@ -33,7 +40,9 @@ class NormalsPass:
     def __init__(self, context: PassContext) -> None:
         self._context = context
         self._target = PerSize(lambda size: Target.float(context.gl.ctx, size, 4))
-        self._silhouette = SilhouettePass(context)  # quality.silhouette_normals, after
+        self._tiles = RimTiles(context)
+        self._field = FieldNormalsPass(context)  # quality.field_normals, after
+        self._silhouette = SilhouettePass(context)  # quality.silhouette_normals, then
 
     def target(self, size: tuple[int, int]) -> Target:
         """The normal + depth target for `size` (rebuilt only when the size changes)."""
@@ -46,11 +55,15 @@ class NormalsPass:
         box: ScreenBox | None,
         particle_radius: float = 0.0,
         quality: QualityConfig | None = None,
+        field: FieldParticles | None = None,
+        support: float = 0.0,
     ) -> Target:
         """Normals of the eye-depth image `surface`, inside `box` (None: everywhere);
         `particle_radius` sizes the largest depth step that still counts as one surface;
-        `quality` gives the wide stencil (`normal_stencil`, off without it) and the silhouette
-        normals (`silhouette_normals`, passes/silhouette.py: then their target is returned)."""
+        `quality` gives the wide stencil (`normal_stencil`, off without it), the field normals
+        (`field_normals`, over the particles `field` with SPH support `support`) and the
+        silhouette normals (`silhouette_normals`); the last of them that ran returns its
+        target."""
         target = self.target(surface.size)
         program = self._context.programs.get(FULLSCREEN_VERT, SHADER)
         surface.use(0)
@@ -75,11 +88,30 @@ class NormalsPass:
         target.fbo.use()
         self._context.fullscreen.draw(program)
         set_scissor(target.fbo, None)
-        rim = quality.silhouette_normals if quality is not None else 0.0
+        if quality is None:
+            return target
+        reach = quality.field_normals if field is not None else 0
+        rim = quality.silhouette_normals
+        if reach <= 0 and rim <= 0.0:
+            return target
+        tiles = self._tiles.build(target.texture)
+        if field is not None:
+            target = self._field.run(
+                target,
+                tiles,
+                camera,
+                field,
+                particle_radius=particle_radius,
+                support=support,
+                reach_px=reach,
+                box=box,
+            )
         return self._silhouette.run(
-            target, camera, particle_radius=particle_radius, rim_radii=rim, box=box
+            target, tiles, camera, particle_radius=particle_radius, rim_radii=rim, box=box
         )
 
     def release(self) -> None:
         self._target.release()
+        self._tiles.release()
+        self._field.release()
         self._silhouette.release()

@@ -22,6 +22,9 @@ import os
 from dataclasses import dataclass
 from typing import Literal
 
+import numpy as np
+import numpy.typing as npt
+
 from sphrender.client.frame import ParticleFrame
 from sphrender.server.engine.geometry import occlusion
 from sphrender.server.engine.geometry.camera import Camera
@@ -30,7 +33,9 @@ from sphrender.server.engine.geometry.screen_box import ScreenBox, screen_box
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.device_culling import DeviceCullInput
 from sphrender.server.engine.passes.device_prepare import DevicePrepare
+from sphrender.server.engine.passes.field_grid import FieldParticles
 from sphrender.server.engine.passes.splat import SplatBatch, SplatPass
+from sphrender.server.engine.passes.splat_buffers import SPHERES
 from sphrender.server.engine.sph.frame import SphOutcome
 from sphrender.server.scene import Scene
 
@@ -52,6 +57,8 @@ class PreparedFrame:
     visible: int
     far: float
     reference_radius: float
+    #: Host prepare: every visible particle (bulk and droplets), view space, on the CPU.
+    centres: npt.NDArray[np.float32] | None = None
 
 
 def resolve_mode(mode: str, software: bool) -> PrepareMode:
@@ -86,6 +93,14 @@ class PrepareStage:
         if isinstance(drops, PreparedParticles):
             return self._splat.upload(drops)
         return drops
+
+    def field_particles(self, prepared: PreparedFrame) -> FieldParticles:
+        """Every visible particle's centre for the field grid (passes/field_grid.py): the host's
+        arrays, or the spheres the device prepare wrote (still in the splat's buffers: the
+        device's droplets are marked there, not uploaded over them)."""
+        if prepared.centres is not None:
+            return FieldParticles(arrays=(prepared.centres,))
+        return FieldParticles(buffer=self._splat.buffers.buffer(SPHERES), count=prepared.bulk.count)
 
     def _run_device(self, sph: SphOutcome, camera: Camera, scene: Scene) -> PreparedFrame:
         device = self._device.run(
@@ -138,4 +153,5 @@ class PrepareStage:
             int(prepared.center_radius.shape[0]),
             prepared.far,
             prepared.reference_radius,
+            prepared.center_radius,
         )

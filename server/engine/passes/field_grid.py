@@ -1,0 +1,142 @@
+"""Field grid: the frame's particle centres, counting-sorted into a hashed uniform grid on the
+device, so a shader finds the particles within the SPH support h of any point (the field
+normals pass, `field_normals.py`).
+
+Where the centres come from (`FieldParticles`): with the host prepare, the CPU's view-space
+arrays of the bulk and of the exact droplets (the droplets' upload replaced the bulk's in the
+splat's buffers, so the splat's buffer no longer holds both), uploaded here; with the device
+prepare, the splat's own spheres buffer, which holds every particle (culled ones with radius 0,
+left out). Only the centres are used: the field is phi(x) = sum_j W(|x - x_j|, h) with equal
+weights (on the dam break, per-particle volumes m / rho_j scored no better: 10.9 vs 10.3 deg).
+
+The sort (`shaders/field/field_grid.comp.glsl`, layout in `shaders/common/field_grid.glsl`):
+clear the bucket table, count each centre's rank in its bucket (atomics), prefix-sum the counts
+(chunk sums, one serial scan of the chunks, chunk scans: the SPH engine's scheme), scatter.
+Table size: the power of two >= 2 N (at least 1024), so the 27 cells a reader visits rarely
+share a bucket, and then only cost time (readers visit each distinct bucket once).
+Bindings 12-16 (common/field_grid.glsl); nothing else uses them, so they are bound per build.
+
+Owns: the source (host prepare), rank, bucket, chunk-sum and sorted-centre buffers; grown
+geometrically, never shrunk; released by `release`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import moderngl
+import numpy as np
+import numpy.typing as npt
+
+from sphrender.server.engine.gpu.uniforms import set_if_used
+from sphrender.server.engine.passes.context import PassContext
+
+SHADER = "field/field_grid.comp.glsl"
+GROUP_SIZE = 256  # local_size_x of the shader
+MAX_GROUPS = 65535  # the smallest GL_MAX_COMPUTE_WORK_GROUP_COUNT[0] GL 4.3 allows
+SOURCE, RANKS, BUCKETS, SUMS, SORTED = range(12, 17)
+#: Chunks of the prefix sum (the serial scan over them runs in one invocation).
+SCAN_CHUNKS = 1024
+CLEAR, COUNT, CHUNK_SUMS, SCAN_SUMS, CHUNK_SCAN, SCATTER = range(6)
+
+
+@dataclass(frozen=True)
+class FieldParticles:
+    """The centres the grid sorts: host arrays ((N, 4) float32, view space, w = radius) or the
+    first `count` entries of a device buffer of that layout."""
+
+    arrays: tuple[npt.NDArray[np.float32], ...] = ()
+    buffer: moderngl.Buffer | None = None
+    count: int = 0
+
+    @property
+    def total(self) -> int:
+        return self.count if self.buffer is not None else sum(len(a) for a in self.arrays)
+
+
+@dataclass(frozen=True)
+class BuiltGrid:
+    """What a reader sets: the support and the table mask (common/field_grid.glsl)."""
+
+    support: float
+    bucket_mask: int
+
+
+def table_size(count: int) -> int:
+    return 1 << max(10, math.ceil(math.log2(max(2 * count, 1))))
+
+
+class FieldGrid:
+    def __init__(self, context: PassContext) -> None:
+        self._context = context
+        ctx = context.gl.ctx
+        self._buffers = {binding: ctx.buffer(reserve=64) for binding in range(SOURCE, SORTED + 1)}
+
+    def _reserve(self, binding: int, nbytes: int) -> moderngl.Buffer:
+        buffer = self._buffers[binding]
+        nbytes = max(-(-nbytes // 16) * 16, 16)
+        if nbytes > buffer.size:
+            buffer.orphan(max(nbytes, buffer.size * 2))
+        return buffer
+
+    def build(self, particles: FieldParticles, support: float) -> BuiltGrid:
+        """Sort `particles` into the grid of cell side `support` (view-space units)."""
+        n = particles.total
+        buckets = table_size(n)
+        chunk = max(32, -(-buckets // SCAN_CHUNKS))
+        chunks = -(-buckets // chunk)
+        clock = self._context.gl.clock
+        source = particles.buffer
+        if source is None:
+            source = self._reserve(SOURCE, 16 * n)
+            offset = 0
+            with clock:
+                for array in particles.arrays:
+                    if len(array):
+                        source.write(np.ascontiguousarray(array), offset=offset)
+                    offset += array.nbytes
+        self._reserve(RANKS, 4 * n)
+        self._reserve(BUCKETS, 4 * (buckets + 1))
+        self._reserve(SUMS, 4 * (chunks + 1))
+        self._reserve(SORTED, 16 * n)
+        with clock:
+            source.bind_to_storage_buffer(SOURCE)
+            for binding in range(RANKS, SORTED + 1):
+                self._buffers[binding].bind_to_storage_buffer(binding)
+        shader = self._context.programs.compute(SHADER)
+        set_if_used(shader, "u_support", float(support))
+        set_if_used(shader, "u_bucket_mask", buckets - 1)
+        set_if_used(shader, "u_buckets", buckets)
+        set_if_used(shader, "u_chunk", chunk)
+        self._run(shader, CLEAR, buckets + 1)
+        self._run(shader, COUNT, n)
+        self._run(shader, CHUNK_SUMS, chunks)
+        self._run(shader, SCAN_SUMS, 1, count=chunks)  # one invocation scans `chunks` sums
+        self._run(shader, CHUNK_SCAN, chunks)
+        self._run(shader, SCATTER, n)
+        return BuiltGrid(float(support), buckets - 1)
+
+    def bind_for_reading(self) -> None:
+        """Bind the table and the sorted centres (a reader's bindings 14 and 16)."""
+        with self._context.gl.clock:
+            self._buffers[BUCKETS].bind_to_storage_buffer(BUCKETS)
+            self._buffers[SORTED].bind_to_storage_buffer(SORTED)
+
+    def _run(
+        self, shader: moderngl.ComputeShader, phase: int, items: int, count: int | None = None
+    ) -> None:
+        """Phase `phase` over `items` invocations (`count`: its u_count, default `items`)."""
+        set_if_used(shader, "u_phase", phase)
+        set_if_used(shader, "u_count", items if count is None else count)
+        per_dispatch = GROUP_SIZE * MAX_GROUPS
+        with self._context.gl.clock:
+            for first in range(0, items, per_dispatch):
+                set_if_used(shader, "u_first", first)
+                shader.run(group_x=math.ceil(min(per_dispatch, items - first) / GROUP_SIZE))
+            self._context.gl.ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
+
+    def release(self) -> None:
+        for buffer in self._buffers.values():
+            buffer.release()
+        self._buffers.clear()
