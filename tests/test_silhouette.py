@@ -38,14 +38,17 @@ def gl_silhouette(gl: GLContext, normal_depth: np.ndarray, *, radius: float = R)
     rim = SilhouettePass(context)
     tiles = RimTiles(context)
     source = Target.float(gl.ctx, (W, H), 4)
+    depth = Target.float(gl.ctx, (W, H), 1)  # the rim tiles are built from the eye depth
     try:
         source.texture.write(np.ascontiguousarray(normal_depth, np.float32).tobytes())
+        depth.texture.write(np.ascontiguousarray(normal_depth[..., 3], np.float32).tobytes())
         out = rim.run(
-            source, tiles.build(source.texture), CAMERA, particle_radius=radius, rim_radii=RIM
+            source, tiles.build(depth.texture), CAMERA, particle_radius=radius, rim_radii=RIM
         )
         return np.frombuffer(out.texture.read(), np.float32).reshape(H, W, 4).astype(np.float64)
     finally:
         source.release()
+        depth.release()
         tiles.release()
         rim.release()
         context.fullscreen.release()

@@ -1,4 +1,4 @@
-#version 330 core
+#version 430 core
 // Normals from the smoothed depth (thesis §3.2): view positions through the inverse projection,
 // then per axis a difference of neighbouring positions, cross product, rotated to world space.
 // Per axis:
@@ -14,7 +14,11 @@
 //   jump of more than u_edge_jump) when the pixel has a neighbour of its own surface along the
 //   axis. Without one: toward the single nearer neighbour, if exactly one (a surface seen
 //   edge-on behind it, see one_sided_difference), else the depth is taken as constant along it.
+// FIELD_NORMALS 1 (quality.field_normals): near rims the normal is then taken towards the SPH
+// field's (field/field_normals.glsl).
 // Output: world normal (xyz), eye depth (w); all zero where there is no surface.
+
+#define FIELD_NORMALS 0
 
 #include "common/depth_image.glsl"
 
@@ -30,6 +34,10 @@ uniform int u_stencil_max_px;
 uniform float u_kink;            // largest relative difference of the two one-sided slopes
 
 layout(location = 0) out vec4 out_normal_depth;
+
+#if FIELD_NORMALS
+#include "field/field_normals.glsl"
+#endif
 
 vec3 one_sided_difference(ivec2 center, vec3 position, float zc, ivec2 step, ivec2 size) {
     float z_plus = fetch_depth(u_depth, center + step);
@@ -108,5 +116,8 @@ void main() {
     if (dot(normal, position) > 0.0) {
         normal = -normal;  // face the camera
     }
+#if FIELD_NORMALS
+    normal = field_normal(center, size, zc, position, normal);
+#endif
     out_normal_depth = vec4(normalize(u_view_to_world * normal), zc);
 }

@@ -1,5 +1,5 @@
 #version 330 core
-// The farthest and the nearest depth per 4 x 4 block of the normal + depth image
+// The farthest and the nearest depth per 4 x 4 block of the eye-depth image
 // (passes/rim_tiles.py), with background counted as farther than any surface (3e38) and left
 // out of the nearest (3e38 when a block has no surface); pixels outside the image are left
 // out. RIM_DILATE 1: instead, the farthest and the nearest of these tiles within +-2 along AXIS
@@ -11,12 +11,12 @@
 #define RIM_DILATE 0
 #define AXIS 0
 
-uniform sampler2D u_normal_depth;  // or the tiles to dilate
+uniform sampler2D u_depth;  // R32F eye depth (0 = no surface), or the tiles to dilate
 
 layout(location = 0) out vec4 out_tile;
 
 void main() {
-    ivec2 size = textureSize(u_normal_depth, 0);
+    ivec2 size = textureSize(u_depth, 0);
     float farthest = 0.0;
     float nearest = 3e38;
 #if RIM_DILATE
@@ -25,7 +25,7 @@ void main() {
     for (int k = -2; k <= 2; ++k) {
         ivec2 t = center + k * step;
         if (all(greaterThanEqual(t, ivec2(0))) && all(lessThan(t, size))) {
-            vec2 tile = texelFetch(u_normal_depth, t, 0).rg;
+            vec2 tile = texelFetch(u_depth, t, 0).rg;
             farthest = max(farthest, tile.r);
             nearest = min(nearest, tile.g);
         }
@@ -38,7 +38,7 @@ void main() {
             if (any(greaterThanEqual(p, size))) {
                 continue;
             }
-            float z = texelFetch(u_normal_depth, p, 0).w;
+            float z = texelFetch(u_depth, p, 0).r;
             farthest = max(farthest, z > 0.0 ? z : 3e38);
             nearest = z > 0.0 ? min(nearest, z) : nearest;
         }

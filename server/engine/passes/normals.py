@@ -3,9 +3,9 @@
 Shader: `shaders/normals/surface_normals.frag.glsl`: the view position of each pixel from its
 depth through the inverse projection, the smaller one-sided difference per axis (so a depth
 edge does not bend the normal), their cross product, rotated to world space.
-Then, when the quality asks for them, the field normals (`field_normals.py`) and the silhouette
-normals (`silhouette.py`) rework the normals near rims; both read the rim tiles
-(`rim_tiles.py`), built once.
+When the quality asks for them, the field normals (`field_normals.py`: a variant of this
+shader) and then the silhouette normals (`silhouette.py`: a pass of its own) rework the normals
+near rims; both read the rim tiles (`rim_tiles.py`), built once from the depth.
 Owns: the RGBA32F normal + depth target (xyz = world normal, w = eye depth, 0 = no surface),
 which the shade pass reads and the read-back returns as the Z and N AOVs; the rim tiles and
 the two rim passes.
@@ -21,7 +21,7 @@ from sphrender.server.engine.gpu.draw import PerSize, Target, clear_and_scissor,
 from sphrender.server.engine.gpu.uniforms import set_group, write_matrix
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 from sphrender.server.engine.passes.field_grid import FieldParticles
-from sphrender.server.engine.passes.field_normals import FieldNormalsPass
+from sphrender.server.engine.passes.field_normals import DEFINES, TILES_UNIT, FieldNormals
 from sphrender.server.engine.passes.rim_tiles import RimTiles
 from sphrender.server.engine.passes.silhouette import SilhouettePass
 from sphrender.server.scene import QualityConfig
@@ -41,7 +41,7 @@ class NormalsPass:
         self._context = context
         self._target = PerSize(lambda size: Target.float(context.gl.ctx, size, 4))
         self._tiles = RimTiles(context)
-        self._field = FieldNormalsPass(context)  # quality.field_normals, after
+        self._field = FieldNormals(context)  # quality.field_normals, in this pass
         self._silhouette = SilhouettePass(context)  # quality.silhouette_normals, then
 
     def target(self, size: tuple[int, int]) -> Target:
@@ -65,7 +65,18 @@ class NormalsPass:
         silhouette normals (`silhouette_normals`); the last of them that ran returns its
         target."""
         target = self.target(surface.size)
-        program = self._context.programs.get(FULLSCREEN_VERT, SHADER)
+        reach = quality.field_normals if quality is not None and field is not None else 0
+        rim = quality.silhouette_normals if quality is not None else 0.0
+        tiles = self._tiles.build(surface) if reach > 0 or rim > 0.0 else None
+        program = self._context.programs.get(
+            FULLSCREEN_VERT,
+            SHADER,
+            DEFINES if reach > 0 else None,
+            samplers={"u_depth": 0, "u_tiles": TILES_UNIT} if reach > 0 else None,
+        )
+        if reach > 0 and field is not None and tiles is not None:
+            self._field.prepare(program, field, support=support, reach_px=reach)
+            tiles.use(TILES_UNIT)
         surface.use(0)
 
         def values() -> dict[str, object]:
@@ -88,24 +99,8 @@ class NormalsPass:
         target.fbo.use()
         self._context.fullscreen.draw(program)
         set_scissor(target.fbo, None)
-        if quality is None:
+        if tiles is None:
             return target
-        reach = quality.field_normals if field is not None else 0
-        rim = quality.silhouette_normals
-        if reach <= 0 and rim <= 0.0:
-            return target
-        tiles = self._tiles.build(target.texture)
-        if field is not None:
-            target = self._field.run(
-                target,
-                tiles,
-                camera,
-                field,
-                particle_radius=particle_radius,
-                support=support,
-                reach_px=reach,
-                box=box,
-            )
         return self._silhouette.run(
             target, tiles, camera, particle_radius=particle_radius, rim_radii=rim, box=box
         )

@@ -3,7 +3,8 @@
 The silhouette pass (`silhouette.py`) and the field normals pass (`field_normals.py`) look for a
 rim (background or a depth step) within a few pixels of each surface pixel; most pixels have
 none, and these tiles let them skip the search. Built once per frame by `NormalsPass` when
-either pass runs (both read the same depth: neither changes it).
+either pass runs, from the eye-depth image the normals are differenced from (neither pass
+changes the depth).
 
 Shader: `shaders/silhouette/rim_tiles.frag.glsl` (the extremes per tile, then dilated along x
 and along y). Owns: three RG32F tile targets per image size (a quarter of the image per side).
@@ -36,14 +37,14 @@ class RimTiles:
         self._context = context
         self._targets = PerSize(lambda size: _Tiles(context.gl.ctx, size))
 
-    def build(self, normal_depth: moderngl.Texture) -> moderngl.Texture:
-        """The tiles of the normal + depth image `normal_depth` (eye depth in w): R = the
-        farthest depth (background 3e38), G = the nearest (3e38 without surface)."""
-        steps = self._targets.get(normal_depth.size).steps
+    def build(self, depth: moderngl.Texture) -> moderngl.Texture:
+        """The tiles of the eye-depth image `depth` (R32F, 0 = no surface): R = the farthest
+        depth (background 3e38), G = the nearest (3e38 without surface)."""
+        steps = self._targets.get(depth.size).steps
         programs, draw = self._context.programs, self._context.fullscreen.draw
-        sources = (normal_depth, steps[0].texture, steps[1].texture)
+        sources = (depth, steps[0].texture, steps[1].texture)
         for step, source in enumerate(sources):
-            program = programs.get(FULLSCREEN_VERT, SHADER, _STEPS[step], {"u_normal_depth": 0})
+            program = programs.get(FULLSCREEN_VERT, SHADER, _STEPS[step], {"u_depth": 0})
             source.use(0)
             steps[step].fbo.use()
             draw(program)

@@ -1,46 +1,41 @@
-#version 430 core
-// Field normals (passes/field_normals.py; numpy reference in tests/reference_field_normals.py).
+// Field normals (passes/field_normals.py; numpy reference in tests/reference_field_normals.py),
+// included by normals/surface_normals.frag.glsl when FIELD_NORMALS is 1.
 // Near a rim the depth-differenced normal follows the beads of the particle spheres and stays
 // flat up to the edge of a sheet's hole; the surface a reconstruction would draw there (the
 // iso-surface of the SPH field phi(x) = sum_j W(|x - x_j|, h), as splashsurf's) turns smoothly.
-// Its normal is -grad phi / |grad phi|, which this pass evaluates at each rim pixel's own
+// Its normal is -grad phi / |grad phi|, which `field_normal` evaluates at the pixel's own
 // surface point and blends in by the distance to the rim:
 // * rim distance d: the smallest |dx| + |dy| <= u_reach + 1 to a pixel without surface or whose
 //   depth differs by more than u_edge_jump (nearer or farther; the image border is no rim);
 //   weight t = 1 - (d - 1) / (u_reach + 1) (1 next to the rim, 0 beyond the reach);
-// * x = the pixel's view-space point at its eye depth; grad phi from every centre of the field
-//   grid (common/field_grid.glsl) within h of x: the cubic spline's dW/dq / q times (x - x_j)
+// * grad phi at the pixel's view-space point x from every centre of the field grid
+//   (common/field_grid.glsl) within h of x: the cubic spline's dW/dq / q times (x - x_j)
 //   (constants dropped: only the direction is used);
 // * a visible surface faces the eye: the part of the field normal along the view ray that
 //   points away is removed; where |grad phi| vanishes (no neighbour, a symmetric neighbourhood)
 //   or the result does, the depth normal stays;
-// * the result is normalize(mix(n_depth, n_field, t)), rotated to world space. Depth unchanged.
+// * the result is normalize(mix(n_depth, n_field, t)). Depth unchanged.
 // Pixels whose rim tile (passes/rim_tiles.py: farthest and nearest depth within +-8 pixels)
-// holds nothing beyond u_edge_jump either way, and pixels without surface, pass through.
+// holds nothing beyond u_edge_jump either way skip all of it.
 
 #define FIELD_MAX_REACH 7
 
-#include "common/depth_image.glsl"
 #include "common/field_grid.glsl"
 
 layout(std430, binding = 14) readonly buffer Buckets { uint starts[]; };
 layout(std430, binding = 16) readonly buffer Sorted { vec4 sorted_centres[]; };
 
-uniform sampler2D u_normal_depth;  // world normal (xyz), eye depth (w; 0 = no surface)
-uniform sampler2D u_tiles;         // (farthest, nearest) depth within 8 px, per 4 x 4 tile
-uniform vec2 u_tan_half_fov;       // (tan(fov_y / 2) * aspect, tan(fov_y / 2))
-uniform mat3 u_view_to_world;
-uniform int u_reach;               // pixels, 1 .. FIELD_MAX_REACH
-uniform float u_edge_jump;         // a depth step beyond this is a rim
-
-layout(location = 0) out vec4 out_normal_depth;
+uniform sampler2D u_tiles;  // (farthest, nearest) depth within 8 px, per 4 x 4 tile
+uniform int u_reach;        // pixels, 1 .. FIELD_MAX_REACH
+// Also read: u_depth (the eye depth image) and u_edge_jump (a depth step beyond it is a rim),
+// declared by the including shader.
 
 // True when q is a rim pixel for a pixel of depth zc: no surface, or a step beyond the jump.
 bool other_surface(ivec2 q, ivec2 size, float zc) {
     if (any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, size))) {
         return false;
     }
-    float z = texelFetch(u_normal_depth, q, 0).w;
+    float z = texelFetch(u_depth, q, 0).r;
     return z <= 0.0 || abs(z - zc) > u_edge_jump;
 }
 
@@ -76,29 +71,44 @@ float spline_dw_over_q(float q) {
     return 0.0;
 }
 
-// -grad phi at x (unnormalised), and the sum of the terms' magnitudes in .w.
+// Distance along one axis from offset o (in [0, h)) inside a cell to the cell `delta` steps
+// away: 0 for its own cell, o for the one below, h - o for the one above.
+float gap_to_cell(int delta, float o, float h) {
+    return delta == 0 ? 0.0 : (delta < 0 ? o : h - o);
+}
+
+// -grad phi at x (unnormalised), and the sum of the terms' magnitudes in .w. Visits the cells
+// of the 27 around x's own whose nearest point lies within h (~20 of them), and in each the
+// centres tagged with that cell (common/field_grid.glsl).
 vec4 field_gradient(vec3 x) {
-    ivec3 home = grid_cell(x);
-    uint seen[27];
-    int distinct = 0;
     float h = u_support;
+    ivec3 home = grid_cell(x);
+    vec3 local = x - vec3(home) * h;
     vec3 outward = vec3(0.0);
     float scale = 0.0;
     for (int dz = -1; dz <= 1; ++dz) {
+        float gz = gap_to_cell(dz, local.z, h);
         for (int dy = -1; dy <= 1; ++dy) {
+            float gy = gap_to_cell(dy, local.y, h);
+            float row2 = gy * gy + gz * gz;
+            if (row2 >= h * h) {
+                continue;
+            }
             for (int dx = -1; dx <= 1; ++dx) {
-                uint b = grid_bucket(home + ivec3(dx, dy, dz));
-                bool repeated = false;
-                for (int k = 0; k < distinct; ++k) {
-                    repeated = repeated || seen[k] == b;
-                }
-                if (repeated) {
+                float gx = gap_to_cell(dx, local.x, h);
+                if (gx * gx + row2 >= h * h) {
                     continue;
                 }
-                seen[distinct++] = b;
+                ivec3 cell = home + ivec3(dx, dy, dz);
+                uint b = grid_bucket(cell);
+                uint tag = grid_tag(cell);
                 uint end = starts[b + 1u];
                 for (uint j = starts[b]; j < end; ++j) {
-                    vec3 d = x - sorted_centres[j].xyz;
+                    vec4 c = sorted_centres[j];
+                    if (floatBitsToUint(c.w) != tag) {
+                        continue;
+                    }
+                    vec3 d = x - c.xyz;
                     float q = length(d) / h;
                     if (q < 1.0) {
                         vec3 term = -spline_dw_over_q(q) * d;  // dW/dq < 0: away from x_j
@@ -112,29 +122,22 @@ vec4 field_gradient(vec3 x) {
     return vec4(outward, scale);
 }
 
-void main() {
-    ivec2 p = ivec2(gl_FragCoord.xy);
-    ivec2 size = textureSize(u_normal_depth, 0);
-    vec4 nd = texelFetch(u_normal_depth, p, 0);
-    out_normal_depth = nd;
-    float zc = nd.w;
-    if (zc <= 0.0) {
-        return;
-    }
+// The view-space normal n of the pixel p (eye depth zc, view point x) taken towards the field's
+// by its distance to the rim; n itself away from rims.
+vec3 field_normal(ivec2 p, ivec2 size, float zc, vec3 x, vec3 n) {
     vec2 tile = texelFetch(u_tiles, p / 4, 0).rg;
     if (tile.r <= zc + u_edge_jump && tile.g >= zc - u_edge_jump) {
-        return;
+        return n;
     }
     int d = rim_distance(p, size, zc);
     if (d > u_reach + 1) {
-        return;
+        return n;
     }
     float t = 1.0 - float(d - 1) / float(u_reach + 1);
-    vec3 x = view_position(p, size, u_tan_half_fov, zc);
     vec4 g = field_gradient(x);
     float len_g = length(g.xyz);
     if (!(len_g > 1e-4 * g.w) || !(len_g > 0.0)) {
-        return;
+        return n;
     }
     vec3 n_field = g.xyz / len_g;
     vec3 ray = normalize(x);
@@ -143,15 +146,11 @@ void main() {
         n_field -= away * ray;
         float len_f = length(n_field);
         if (!(len_f > 1e-3)) {
-            return;
+            return n;
         }
         n_field /= len_f;
     }
-    vec3 n = transpose(u_view_to_world) * nd.xyz;
     vec3 blended = mix(n, n_field, t);
     float len_b = length(blended);
-    if (!(len_b > 1e-3)) {
-        return;
-    }
-    out_normal_depth = vec4(normalize(u_view_to_world * (blended / len_b)), zc);
+    return len_b > 1e-3 ? blended / len_b : n;
 }

@@ -1,0 +1,92 @@
+"""Float64 numpy reference of the field normals (shaders/field/field_normals.glsl) on an
+eye-depth image (rows bottom first, as the GL image), view space, by brute force over every
+particle (no grid, no tiles: the shader's grid finds exactly the centres within h, and its
+tiles skip only pixels without a rim within reach)."""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+F64 = npt.NDArray[np.float64]
+
+
+def rim_distances(depth: F64, edge_jump: float, reach: int) -> npt.NDArray[np.int64]:
+    """Per pixel the smallest |dx| + |dy| (1 .. reach + 1) to a pixel without surface or with a
+    depth step beyond `edge_jump` (the image border is none); reach + 2 where there is none."""
+    h, w = depth.shape
+    limit = reach + 1
+    out = np.full((h, w), limit + 1, np.int64)
+    for dy in range(-limit, limit + 1):
+        for dx in range(-limit, limit + 1):
+            d = abs(dx) + abs(dy)
+            if d == 0 or d > limit:
+                continue
+            shifted = np.zeros((h, w))
+            inside = np.zeros((h, w), bool)
+            ys = slice(max(dy, 0), h + min(dy, 0))
+            xs = slice(max(dx, 0), w + min(dx, 0))
+            yt = slice(max(-dy, 0), h + min(-dy, 0))
+            xt = slice(max(-dx, 0), w + min(-dx, 0))
+            shifted[yt, xt] = depth[ys, xs]
+            inside[yt, xt] = True
+            other = inside & ((shifted <= 0.0) | (np.abs(shifted - depth) > edge_jump))
+            out = np.where(other & (d < out), d, out)
+    return out
+
+
+def field_gradient(points: F64, centres: F64, support: float) -> tuple[F64, F64]:
+    """-grad phi at each point (unnormalised, the shader's constants) and the sum of the
+    terms' magnitudes."""
+    d = points[:, None, :] - centres[None, :, :]
+    r = np.linalg.norm(d, axis=-1)
+    q = r / support
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dw_over_q = np.where(q <= 0.5, 6.0 * (3.0 * q - 2.0), -6.0 * (1.0 - q) ** 2 / q)
+    dw_over_q = np.where(q < 1.0, dw_over_q, 0.0)
+    terms = -dw_over_q[..., None] * d
+    return terms.sum(axis=1), np.linalg.norm(terms, axis=-1).sum(axis=1)
+
+
+def field_normals_reference(
+    depth: F64,
+    normals: F64,
+    centres: F64,
+    *,
+    tan_half_fov: tuple[float, float],
+    support: float,
+    reach: int,
+    edge_jump: float,
+) -> tuple[F64, npt.NDArray[np.bool_]]:
+    """View-space normals (H, W, 3) after the field blend of the depth normals `normals`, and
+    which pixels the field changed."""
+    h, w = depth.shape
+    dist = rim_distances(depth, edge_jump, reach)
+    rim = (depth > 0.0) & (dist <= reach + 1)
+    ys, xs = np.nonzero(rim)
+    ndc_x = (xs + 0.5) / w * 2.0 - 1.0
+    ndc_y = (ys + 0.5) / h * 2.0 - 1.0
+    z = depth[ys, xs]
+    x = np.stack([ndc_x * tan_half_fov[0] * z, ndc_y * tan_half_fov[1] * z, -z], axis=-1)
+    g, scale = field_gradient(x, centres, support)
+    out = normals.copy()
+    changed = np.zeros((h, w), bool)
+    for k in range(len(ys)):
+        length = np.linalg.norm(g[k])
+        if not (length > 1e-4 * scale[k]) or not length > 0.0:
+            continue
+        n_field = g[k] / length
+        ray = x[k] / np.linalg.norm(x[k])
+        away = float(n_field @ ray)
+        if away > 0.0:
+            n_field = n_field - away * ray
+            if not np.linalg.norm(n_field) > 1e-3:
+                continue
+            n_field /= np.linalg.norm(n_field)
+        t = 1.0 - (dist[ys[k], xs[k]] - 1) / (reach + 1)
+        n = normals[ys[k], xs[k]]
+        blended = (1.0 - t) * n + t * n_field
+        if np.linalg.norm(blended) > 1e-3:
+            out[ys[k], xs[k]] = blended / np.linalg.norm(blended)
+            changed[ys[k], xs[k]] = True
+    return out, changed

@@ -1,0 +1,263 @@
+"""Field normals (`quality.field_normals`): the normals pass's field variant against its
+float64 brute-force numpy reference (tests/reference_field_normals.py) on ray-cast spheres,
+a lone droplet's exact sphere normal, host and device prepare agreeing, and hard cases
+(coincident and coplanar particles, huge coordinates, tiny and huge radii, particles behind
+the camera, no particles): finite normals, depth untouched."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from reference_field_normals import field_gradient, field_normals_reference
+
+from sphrender.client.frame import make_frame
+from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.gpu.draw import FullscreenTriangle, Target
+from sphrender.server.engine.gpu.gl_context import GLContext
+from sphrender.server.engine.gpu.programs import ProgramCache
+from sphrender.server.engine.passes.context import PassContext
+from sphrender.server.engine.passes.field_grid import FieldParticles, table_size
+from sphrender.server.engine.passes.gaps import EDGE_JUMP_RADII
+from sphrender.server.engine.passes.normals import NormalsPass
+from sphrender.server.engine.renderer import SurfaceRenderer
+from sphrender.server.scene import CameraConfig, QualityConfig, scene_from_dict
+
+W, H = 96, 64
+R = 0.01
+SUPPORT = 4.0 * R
+REACH = 4
+CAMERA = Camera.from_config(CameraConfig(eye=(0.0, 0.0, 0.6), target=(0.0, 0.0, 0.0)), W, H)
+T = CAMERA.tan_half_fov_y
+TAN = (T * CAMERA.aspect, T)
+
+
+def rays() -> np.ndarray:
+    """Unit view-space rays through the pixel centres, rows bottom first."""
+    ys, xs = np.mgrid[0:H, 0:W] + 0.5
+    ray = np.stack([(xs / W * 2 - 1) * TAN[0], (ys / H * 2 - 1) * TAN[1], -np.ones((H, W))], -1)
+    return ray / np.linalg.norm(ray, axis=-1, keepdims=True)
+
+
+def ray_cast(centres: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Eye depth (0 = none) and view-space normals of the union of spheres at view-space
+    `centres`, rows bottom first."""
+    ray = rays().reshape(-1, 3)
+    best = np.full(len(ray), np.inf)
+    normal = np.zeros_like(ray)
+    for c in centres:
+        b = ray @ c
+        perp2 = c @ c - b * b
+        hit = (perp2 < radius * radius) & (b > 0)
+        t = b - np.sqrt(np.maximum(radius * radius - perp2, 0.0))
+        closer = hit & (t < best)
+        best = np.where(closer, t, best)
+        normal[closer] = (t[closer, None] * ray[closer] - c) / radius
+    depth = np.where(np.isfinite(best), best * -ray[:, 2], 0.0)
+    return depth.reshape(H, W), normal.reshape(H, W, 3)
+
+
+def gl_normals(
+    gl: GLContext, depth: np.ndarray, centres: np.ndarray | None, radius: float = R
+) -> np.ndarray:
+    """The normals pass on an eye-depth image, with the field of `centres` (view space; None:
+    field normals off); view-space normals and the depth, rows bottom first."""
+    context = PassContext(gl, ProgramCache(gl), FullscreenTriangle(gl))
+    normals = NormalsPass(context)
+    source = Target.float(gl.ctx, (W, H), 1)
+    try:
+        source.texture.write(np.ascontiguousarray(depth, np.float32).tobytes())
+        quality = QualityConfig(field_normals=REACH if centres is not None else 0)
+        field = None
+        if centres is not None:
+            spheres = np.zeros((len(centres), 4), np.float32)
+            spheres[:, :3] = centres
+            spheres[:, 3] = radius
+            field = FieldParticles(arrays=(spheres,))
+        out = normals.run(source.texture, CAMERA, None, radius, quality, field, 4.0 * radius)
+        pixels = np.frombuffer(out.texture.read(), np.float32).reshape(H, W, 4).astype(np.float64)
+        pixels[..., :3] = pixels[..., :3] @ CAMERA.rotation.T
+        return pixels
+    finally:
+        source.release()
+        normals.release()
+        context.fullscreen.release()
+        context.programs.release()
+
+
+def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    cos = np.sum(a * b, axis=-1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def splash(seed: int, count: int = 3000) -> np.ndarray:
+    """A jittered slab (a sheet with holes) in front of a farther blob, and a few droplets:
+    rims against the background, depth steps, holes; view space, about 0.6 in front."""
+    rng = np.random.default_rng(seed)
+    sheet = rng.uniform([-0.15, -0.1, -0.52], [0.1, 0.1, -0.5], (count // 2, 3))
+    sheet = sheet[rng.random(len(sheet)) > 0.15]  # holes
+    blob = rng.normal([0.05, 0.0, -0.62], [0.06, 0.04, 0.02], (count // 2, 3))
+    drops = np.array([[-0.2, 0.12, -0.45], [0.17, -0.12, -0.55], [0.0, 0.15, -0.5]])
+    return np.concatenate([sheet, blob, drops])
+
+
+def test_matches_the_numpy_reference(gl_context: GLContext) -> None:
+    centres = splash(1)
+    # More cells than buckets share: the table holds centres of several cells per bucket.
+    assert table_size(len(centres)) < len(centres) * 4
+    depth, _ = ray_cast(centres, R)
+    plain = gl_normals(gl_context, depth, None)
+    field = gl_normals(gl_context, depth, centres)
+    expected, changed = field_normals_reference(
+        depth.astype(np.float32).astype(np.float64),
+        plain[..., :3],
+        centres.astype(np.float32).astype(np.float64),
+        tan_half_fov=TAN,
+        support=SUPPORT,
+        reach=REACH,
+        edge_jump=EDGE_JUMP_RADII * R,
+    )
+    assert changed.sum() > 500  # rims, steps and hole edges all over the image
+    np.testing.assert_array_equal(field[..., 3], plain[..., 3])  # depth untouched
+    # Away from rims the pass changes nothing, bit for bit.
+    np.testing.assert_array_equal(field[~changed][:, :3], plain[~changed][:, :3])
+    # Where the gradient is well conditioned (|grad| >= 5 % of the terms' sum, so float32
+    # cancellation costs < ~1e-5 rad), the shader's normal is the reference's to 0.02 deg.
+    ys, xs = np.nonzero(changed)
+    z = depth[ys, xs]
+    x = np.stack(
+        [((xs + 0.5) / W * 2 - 1) * TAN[0] * z, ((ys + 0.5) / H * 2 - 1) * TAN[1] * z, -z], -1
+    )
+    g, scale = field_gradient(x, centres, SUPPORT)
+    good = np.linalg.norm(g, axis=-1) >= 0.05 * scale
+    assert good.mean() > 0.9
+    error = angle_deg(field[ys, xs, :3], expected[ys, xs])
+    assert error[good].max() < 0.02
+    assert np.isfinite(field).all()
+
+
+def test_a_lone_droplet_gets_its_exact_sphere_normal(gl_context: GLContext) -> None:
+    centre = np.array([[0.01, -0.005, -0.45]])
+    radius = 0.03  # ~6 px: every pixel within the reach of the rim
+    depth, truth = ray_cast(centre, radius)
+    plain = gl_normals(gl_context, depth, None, radius)
+    field = gl_normals(gl_context, depth, centre, radius)
+    hit = depth > 0
+    on_rim = hit & (field_normals_reference(
+        depth, plain[..., :3], centre, tan_half_fov=TAN, support=4 * radius, reach=REACH,
+        edge_jump=EDGE_JUMP_RADII * radius,
+    )[1])  # fmt: skip
+    assert on_rim.sum() == hit.sum()
+    before = angle_deg(plain[hit][:, :3], truth[hit])
+    after = angle_deg(field[hit][:, :3], truth[hit])
+    # One kernel's gradient is radial: the sphere's normal wherever the field weight is 1
+    # (next to the rim), and a blend of it with the depth normal inside.
+    next_to_rim = hit & (np.roll(~hit, 1, 0) | np.roll(~hit, -1, 0) | np.roll(~hit, 1, 1)
+                         | np.roll(~hit, -1, 1))  # fmt: skip
+    assert angle_deg(field[next_to_rim][:, :3], truth[next_to_rim]).max() < 0.05
+    assert after.mean() < 0.5 * before.mean()
+
+
+@pytest.mark.parametrize("prepare", ["host", "device"])
+def test_host_and_device_prepare_agree(gl_context: GLContext, prepare: str) -> None:
+    """The grid built from the host's arrays and from the device prepare's spheres (culled
+    particles left out) gives the same normals; depth identical."""
+    rng = np.random.default_rng(3)
+    positions = np.concatenate(
+        [rng.normal(0.0, 0.05, (1500, 3)), rng.uniform(-0.3, 0.3, (30, 3)), [[0.0, 0.0, 5.0]]]
+    )
+    base = {
+        "particles": {"radius": 0.01},
+        "image": {"width": 80, "height": 60},
+        "camera": {"eye": [0.0, 0.1, 0.6], "target": [0.0, 0.0, 0.0]},
+    }
+    results = {}
+    for mode in ("host", prepare):
+        renderer = SurfaceRenderer(gl_context, prepare=mode)  # type: ignore[arg-type]
+        try:
+            for reach in (0, REACH):
+                scene = scene_from_dict({**base, "quality": {"field_normals": reach}})
+                frame, _ = renderer.render(make_frame(positions), scene, depth=True, normals=True)
+                results[mode, reach] = frame
+        finally:
+            renderer.release()
+    host, other = results["host", REACH], results[prepare, REACH]
+    assert host.depth is not None and other.depth is not None
+    assert host.normals is not None and other.normals is not None
+    covered = np.isfinite(host.depth)
+    np.testing.assert_allclose(other.depth[covered], host.depth[covered], rtol=1e-6)
+    assert angle_deg(other.normals[covered], host.normals[covered]).max() < 0.05
+    plain = results["host", 0].normals
+    assert plain is not None
+    assert angle_deg(host.normals[covered], plain[covered]).max() > 5.0  # the field did act
+
+
+HARD_CASES = {
+    "coincident": lambda: np.zeros((50, 3)),
+    "coplanar sheet": lambda: np.stack(
+        [*np.meshgrid(np.arange(-10, 11) * 0.02, np.arange(-8, 9) * 0.02), np.zeros((17, 21))],
+        -1,
+    ).reshape(-1, 3),
+    "collinear": lambda: np.stack([np.arange(30) * 0.01 - 0.15, np.zeros(30), np.zeros(30)], -1),
+    "two particles": lambda: np.array([[0.0, 0.0, 0.0], [0.015, 0.0, 0.0]]),
+    "across the camera": lambda: np.stack(
+        [np.zeros(80), np.zeros(80), np.linspace(-0.5, 1.5, 80)], -1
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(HARD_CASES))
+@pytest.mark.parametrize("shift", [0.0, 1e5])
+def test_hard_cases_stay_finite(renderer: SurfaceRenderer, case: str, shift: float) -> None:
+    positions = HARD_CASES[case]() + shift
+    eye = np.array([0.05, 0.08, 0.6]) + shift
+    images = []
+    for reach in (0, REACH):
+        scene = scene_from_dict(
+            {
+                "particles": {"radius": 0.01},
+                "image": {"width": 64, "height": 48},
+                "camera": {"eye": eye.tolist(), "target": [shift] * 3, "near": 0.01},
+                "quality": {"field_normals": reach},
+            }
+        )
+        frame, _ = renderer.render(make_frame(positions), scene, depth=True, normals=True)
+        assert np.isfinite(frame.rgba).all()
+        assert frame.normals is not None and frame.depth is not None
+        covered = np.isfinite(frame.depth)
+        assert np.isfinite(frame.normals[covered]).all()
+        np.testing.assert_allclose(np.linalg.norm(frame.normals[covered], axis=-1), 1.0, atol=1e-4)
+        images.append(frame)
+    np.testing.assert_array_equal(images[0].depth, images[1].depth)
+
+
+@pytest.mark.parametrize("radius", [1e-5, 1e3])
+def test_tiny_and_huge_radii(renderer: SurfaceRenderer, radius: float) -> None:
+    """The grid's cells scale with the support: the field acts the same at any scale."""
+    rng = np.random.default_rng(7)
+    positions = rng.normal(0.0, 3.0 * radius, (400, 3))
+    frames = []
+    for reach in (0, REACH):
+        scene = scene_from_dict(
+            {
+                "particles": {"radius": radius},
+                "image": {"width": 64, "height": 48},
+                "camera": {"eye": [0.0, 0.0, 60.0 * radius], "target": [0.0, 0.0, 0.0],
+                           "near": radius},
+                "quality": {"field_normals": reach},
+            }
+        )  # fmt: skip
+        frame, _ = renderer.render(make_frame(positions), scene, depth=True, normals=True)
+        assert frame.normals is not None and frame.depth is not None
+        assert np.isfinite(frame.rgba).all()
+        frames.append(frame)
+    covered = np.isfinite(frames[1].depth)
+    assert covered.sum() > 100
+    normals = [f.normals[covered] for f in frames if f.normals is not None]
+    assert np.isfinite(normals[1]).all()
+    assert (angle_deg(normals[0], normals[1]) > 1.0).sum() > 20
+
+
+def test_no_particles(renderer: SurfaceRenderer) -> None:
+    scene = scene_from_dict({"image": {"width": 32, "height": 24}, "quality": {"field_normals": 3}})
+    frame, _ = renderer.render(make_frame(np.zeros((0, 3))), scene, depth=True, normals=True)
+    assert np.isfinite(frame.rgba).all()
