@@ -78,10 +78,8 @@ def field_normals_reference(
         n_field = g[k] / length
         ray = x[k] / np.linalg.norm(x[k])
         away = float(n_field @ ray)
-        if away > 0.0:
-            n_field = n_field - away * ray
-            if not np.linalg.norm(n_field) > 1e-3:
-                continue
+        if away > 0.0:  # facing away: mirrored at the plane perpendicular to the ray
+            n_field = n_field - 2.0 * away * ray
             n_field /= np.linalg.norm(n_field)
         t = 1.0 - (dist[ys[k], xs[k]] - 1) / (reach + 1)
         n = normals[ys[k], xs[k]]

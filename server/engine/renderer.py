@@ -185,7 +185,7 @@ class SurfaceRenderer:
 
         with self._stage(stats, "normals"):
             field = self._prepare.field_particles(prepared) if scene.quality.field_normals else None
-            support = scene.sph.support_radius or 4.0 * prepared.reference_radius
+            support = scene.quality.field_normals_support * prepared.reference_radius
             normal_depth = self._normals.run(
                 surface, camera, box, prepared.reference_radius, scene.quality, field, support
             )

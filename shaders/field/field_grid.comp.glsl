@@ -1,7 +1,7 @@
 #version 430 core
 // Field grid build (passes/field_grid.py; layout in common/field_grid.glsl): a counting sort of
-// the particle centres into hashed buckets, one dispatch per phase (u_phase):
-//   0  clear: buckets[0 .. u_buckets] = 0;
+// the particle centres into hashed buckets (zeroed by the host's buffer clear), one dispatch
+// per phase (u_phase):
 //   1  count: for each source particle with a radius (w != 0; the device prepare writes 0 for
 //      culled ones), its rank in its bucket by atomicAdd; ranks[i] = rank, or NO_RANK;
 //   2  chunk sums: sums[c] = the counts of buckets [c * u_chunk, (c + 1) * u_chunk);
@@ -47,9 +47,7 @@ void main() {
     if (i >= u_count) {
         return;
     }
-    if (u_phase == 0) {
-        buckets[i] = 0u;
-    } else if (u_phase == 1) {
+    if (u_phase == 1) {
         vec4 s = source[i];
         ranks[i] = s.w != 0.0 ? atomicAdd(buckets[grid_bucket(grid_cell(s.xyz))], 1u) : NO_RANK;
     } else if (u_phase == 2) {

@@ -11,9 +11,12 @@
 // * grad phi at the pixel's view-space point x from every centre of the field grid
 //   (common/field_grid.glsl) within h of x: the cubic spline's dW/dq / q times (x - x_j)
 //   (constants dropped: only the direction is used);
-// * a visible surface faces the eye: the part of the field normal along the view ray that
-//   points away is removed; where |grad phi| vanishes (no neighbour, a symmetric neighbourhood)
-//   or the result does, the depth normal stays;
+// * a visible surface faces the eye: a field normal pointing away from it is mirrored at the
+//   plane perpendicular to the view ray (n - 2 (n.ray) ray), keeping its direction on screen,
+//   the part the field gets right next to a rim, and its angle to that plane; the pixel's
+//   surface point there lies off the field's iso-surface, on a side of it the eye cannot
+//   see. (Dropping the away part instead, a grazing normal: dam-break band 8.9 vs 8.5 deg.)
+//   Where |grad phi| vanishes (no neighbour, a symmetric neighbourhood) the depth normal stays;
 // * the result is normalize(mix(n_depth, n_field, t)). Depth unchanged.
 // Pixels whose rim tile (passes/rim_tiles.py: farthest and nearest depth within +-8 pixels)
 // holds nothing beyond u_edge_jump either way skip all of it.
@@ -143,12 +146,7 @@ vec3 field_normal(ivec2 p, ivec2 size, float zc, vec3 x, vec3 n) {
     vec3 ray = normalize(x);
     float away = dot(n_field, ray);
     if (away > 0.0) {
-        n_field -= away * ray;
-        float len_f = length(n_field);
-        if (!(len_f > 1e-3)) {
-            return n;
-        }
-        n_field /= len_f;
+        n_field = normalize(n_field - 2.0 * away * ray);  // a reflection: unit length kept
     }
     vec3 blended = mix(n, n_field, t);
     float len_b = length(blended);

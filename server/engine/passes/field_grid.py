@@ -10,10 +10,12 @@ left out). Only the centres are used: the field is phi(x) = sum_j W(|x - x_j|, h
 weights (on the dam break, per-particle volumes m / rho_j scored no better: 10.9 vs 10.3 deg).
 
 The sort (`shaders/field/field_grid.comp.glsl`, layout in `shaders/common/field_grid.glsl`):
-clear the bucket table, count each centre's rank in its bucket (atomics), prefix-sum the counts
+count each centre's rank in its bucket (atomics), prefix-sum the counts
 (chunk sums, one serial scan of the chunks, chunk scans: the SPH engine's scheme), scatter.
-Table size: the power of two >= 2 N (at least 1024), so the 27 cells a reader visits rarely
-share a bucket, and then only cost time (readers visit each distinct bucket once).
+Table size: the power of two >= N (at least 1024); a cell holds ~8 centres inside a fluid (cell
+side 4 r, spacing 2 r), so buckets mostly hold one cell, and a bucket shared by several cells
+only costs time (each centre carries its cell's tag). The table is zeroed with a buffer clear
+(a dispatch over it cost ~3 ms at 262k buckets on llvmpipe).
 Bindings 12-16 (common/field_grid.glsl); nothing else uses them, so they are bound per build.
 
 Owns: the source (host prepare), rank, bucket, chunk-sum and sorted-centre buffers; grown
@@ -38,7 +40,7 @@ MAX_GROUPS = 65535  # the smallest GL_MAX_COMPUTE_WORK_GROUP_COUNT[0] GL 4.3 all
 SOURCE, RANKS, BUCKETS, SUMS, SORTED = range(12, 17)
 #: Chunks of the prefix sum (the serial scan over them runs in one invocation).
 SCAN_CHUNKS = 1024
-CLEAR, COUNT, CHUNK_SUMS, SCAN_SUMS, CHUNK_SCAN, SCATTER = range(6)
+COUNT, CHUNK_SUMS, SCAN_SUMS, CHUNK_SCAN, SCATTER = range(1, 6)
 
 
 @dataclass(frozen=True)
@@ -64,7 +66,7 @@ class BuiltGrid:
 
 
 def table_size(count: int) -> int:
-    return 1 << max(10, math.ceil(math.log2(max(2 * count, 1))))
+    return 1 << max(10, math.ceil(math.log2(max(count, 1))))
 
 
 class FieldGrid:
@@ -97,7 +99,7 @@ class FieldGrid:
                         source.write(np.ascontiguousarray(array), offset=offset)
                     offset += array.nbytes
         self._reserve(RANKS, 4 * n)
-        self._reserve(BUCKETS, 4 * (buckets + 1))
+        table = self._reserve(BUCKETS, 4 * (buckets + 1))
         self._reserve(SUMS, 4 * (chunks + 1))
         self._reserve(SORTED, 16 * n)
         with clock:
@@ -109,7 +111,8 @@ class FieldGrid:
         set_if_used(shader, "u_bucket_mask", buckets - 1)
         set_if_used(shader, "u_buckets", buckets)
         set_if_used(shader, "u_chunk", chunk)
-        self._run(shader, CLEAR, buckets + 1)
+        with clock:
+            table.clear(size=4 * (buckets + 1))
         self._run(shader, COUNT, n)
         self._run(shader, CHUNK_SUMS, chunks)
         self._run(shader, SCAN_SUMS, 1, count=chunks)  # one invocation scans `chunks` sums
