@@ -15,6 +15,7 @@ from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.gpu.draw import FullscreenTriangle, Target
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.programs import ProgramCache
+from sphrender.server.engine.passes import field_grid
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.field_grid import FieldParticles, table_size
 from sphrender.server.engine.passes.gaps import EDGE_JUMP_RADII
@@ -143,6 +144,20 @@ def test_matches_the_numpy_reference(gl_context: GLContext) -> None:
     assert (np.sum(field[ys, xs, :3] * x, axis=-1) <= 1e-6).all()
 
 
+def test_buckets_shared_by_many_cells(
+    gl_context: GLContext, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A table of two buckets: every pixel's neighbour cells share them, and the cell tags
+    keep each centre counted once (the same normals as the full table's)."""
+    centres = splash(2, count=600)
+    depth, _ = ray_cast(centres, R)
+    full = gl_normals(gl_context, depth, centres)
+    monkeypatch.setattr(field_grid, "table_size", lambda count: 2)
+    shared = gl_normals(gl_context, depth, centres)
+    covered = depth > 0
+    assert angle_deg(shared[covered][:, :3], full[covered][:, :3]).max() < 1e-3
+
+
 def test_a_lone_droplet_gets_its_exact_sphere_normal(gl_context: GLContext) -> None:
     centre = np.array([[0.01, -0.005, -0.45]])
     radius = 0.03  # ~6 px: every pixel within the reach of the rim
@@ -150,10 +165,16 @@ def test_a_lone_droplet_gets_its_exact_sphere_normal(gl_context: GLContext) -> N
     plain = gl_normals(gl_context, depth, None, radius)
     field = gl_normals(gl_context, depth, centre, radius)
     hit = depth > 0
-    on_rim = hit & (field_normals_reference(
-        depth, plain[..., :3], centre, tan_half_fov=TAN, support=SUPPORT_RADII * radius, reach=REACH,
+    _, changed = field_normals_reference(
+        depth,
+        plain[..., :3],
+        centre,
+        tan_half_fov=TAN,
+        support=SUPPORT_RADII * radius,
+        reach=REACH,
         edge_jump=EDGE_JUMP_RADII * radius,
-    )[1])  # fmt: skip
+    )
+    on_rim = hit & changed
     assert on_rim.sum() == hit.sum()
     before = angle_deg(plain[hit][:, :3], truth[hit])
     after = angle_deg(field[hit][:, :3], truth[hit])
@@ -178,13 +199,18 @@ def test_host_and_device_prepare_agree(gl_context: GLContext, prepare: str) -> N
         "image": {"width": 80, "height": 60},
         "camera": {"eye": [0.0, 0.1, 0.6], "target": [0.0, 0.0, 0.0]},
     }
+    # Densities that make the 30 scattered particles exact droplets: the host prepare keeps
+    # them apart from the bulk (the grid must still get both).
+    densities = np.concatenate([np.full(1500, 1000.0), np.full(31, 50.0)])
     results = {}
     for mode in ("host", prepare):
         renderer = SurfaceRenderer(gl_context, prepare=mode)  # type: ignore[arg-type]
         try:
             for reach in (0, REACH):
                 scene = scene_from_dict({**base, "quality": {"field_normals": reach}})
-                frame, _ = renderer.render(make_frame(positions), scene, depth=True, normals=True)
+                frame, _ = renderer.render(
+                    make_frame(positions, densities=densities), scene, depth=True, normals=True
+                )
                 results[mode, reach] = frame
         finally:
             renderer.release()
