@@ -12,8 +12,10 @@
 # 3. Prints the GL renderer and the OpenCL devices (`sphrender info`), renders the demo and the
 #    bench headline scene (a ~100k-particle ball at 1280x720), and prints the stage times and the
 #    host work per frame at 100k/720p and 1M/1080p for both prepare paths
-#    (benchmarks/bench_host.py): on a GPU the host column is the frame time's floor; and what
-#    the service's true stage times (a finish per stage) cost against none.
+#    (benchmarks/bench_host.py): on a GPU the host column is the frame time's floor; what
+#    the service's true stage times (a finish per stage) cost against none; and the frame time
+#    of each preset, and of balanced with field normals (30 ms on llvmpipe, so not in balanced),
+#    against the pre-issue-12 default (benchmarks/bench_frame_ratio.py).
 #
 # Nothing else depends on this script; CI never runs it.
 set -euo pipefail
@@ -63,5 +65,8 @@ section "demo"
 section "host work and stage times (ms; host = wall - time inside GL/CL calls)"
 timeout 420 .venv/bin/python benchmarks/bench_host.py --frames 5 --sizes 100k,1m,4k \
     --prepare host,device,auto --stage-timing-cost
+
+section "frame time per setting against the pre-issue-12 default (field normals: their GPU cost)"
+timeout 180 .venv/bin/python benchmarks/bench_frame_ratio.py --cycles 8
 
 section "done"

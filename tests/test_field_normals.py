@@ -284,7 +284,9 @@ def test_tiny_and_huge_radii(renderer: SurfaceRenderer, radius: float) -> None:
         assert frame.normals is not None and frame.depth is not None
         assert np.isfinite(frame.rgba).all()
         frames.append(frame)
-    covered = np.isfinite(frames[1].depth)
+    depth = frames[1].depth
+    assert depth is not None
+    covered = np.isfinite(depth)
     assert covered.sum() > 100
     normals = [f.normals[covered] for f in frames if f.normals is not None]
     assert np.isfinite(normals[1]).all()

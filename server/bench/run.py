@@ -36,6 +36,7 @@ from sphrender.server.bench.scenes import (
     slab_scene,
 )
 from sphrender.server.bench.surface_bench import (
+    FIELD_NORMALS,
     QUICK_SURFACE_SETTINGS,
     SURFACE_SETTINGS,
     SurfaceResults,
@@ -50,6 +51,7 @@ from sphrender.server.bench.sweep import (
     Setting,
     SweepRow,
     bench_scene_dict,
+    preset_setting,
     run_sweep,
     scene_for,
 )
@@ -224,6 +226,17 @@ def run_bench(
             )
             log(f"  {results.surfaces.dam_note}")
             write_crops(renderer, out, results.surfaces, cache=out / ".reference-cache", gl=gl)
+            if not quick:  # what field normals change (best has them, balanced not)
+                write_crops(
+                    renderer,
+                    out,
+                    results.surfaces,
+                    before=preset_setting("balanced"),
+                    after=FIELD_NORMALS,
+                    cache=out / ".reference-cache",
+                    gl=gl,
+                    prefix="crop-field",
+                )
             if not quick:
                 log("scaling (balanced preset)")
                 for count in (10_000, 100_000, 1_000_000):

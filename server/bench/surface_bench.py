@@ -309,8 +309,10 @@ def write_crops(
     height: int = 360,
     cache: Path | None = None,
     gl: GLContext | None = None,
+    prefix: str = "crop",
 ) -> None:
-    """Before/after crops (the middle half of each image, side by side) as PNGs in `out`."""
+    """Before/after crops (the middle half of each image, side by side) as PNGs in `out`,
+    named `<prefix>-<scene>.png`."""
     from sphrender.server.content.demo import demo_frame
     from sphrender.server.output.encoders import write_png
 
@@ -341,6 +343,6 @@ def write_crops(
         ]
         gap = np.ones((height // 2, 4, 4), np.float32)
         image = np.concatenate([halves[0], gap, halves[1]], axis=1)
-        file = f"crop-{name}.png"
+        file = f"{prefix}-{name}.png"
         write_png(RenderedFrame(image), out / file)
         results.crops.append((f"{name}: {before.name} (left) / {after.name} (right)", file))

@@ -3,9 +3,9 @@
 `SurfaceRenderer` orchestrates a frame and holds no GL code; each pass owns its programs,
 targets and uniforms (`passes/`): sph (OpenCL, only when the scene asks) -> prepare (host or
 device, `passes/prepare_stage.py`) -> splat (+ occlusion culling, coverage) -> smooth ->
-droplets -> normals -> shade (temperature blur, PBR + IBL + emission) -> readback (+ display
-codes). ARCHITECTURE.md "Data flow of one frame" has each step. `RenderStats.host_ms` is the
-frame's work outside GL calls (`gpu/gl_clock.py`).
+droplets -> normals (+ field normals near rims) -> shade (temperature blur, PBR + IBL +
+emission) -> readback (+ display codes). ARCHITECTURE.md "Data flow of one frame" has each
+step. `RenderStats.host_ms` is the frame's work outside GL calls (`gpu/gl_clock.py`).
 
 One renderer belongs to one `GLContext` and is used only on that context's owner thread. It owns
 the passes and what they share (`PassContext`: program cache, full-screen triangle) and releases
