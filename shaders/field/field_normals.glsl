@@ -1,8 +1,9 @@
 // Field normals (passes/field_normals.py; numpy reference in tests/reference_field_normals.py),
 // included by normals/surface_normals.frag.glsl when FIELD_NORMALS is 1.
 // Near a rim the depth-differenced normal follows the beads of the particle spheres and stays
-// flat up to the edge of a sheet's hole; the surface a reconstruction would draw there (the
-// iso-surface of the SPH field phi(x) = sum_j W(|x - x_j|, h), as splashsurf's) turns smoothly.
+// flat up to the edge of a sheet's hole; the surface a reconstruction would draw there (an
+// iso-surface of the field phi(x) = sum_j W(|x - x_j|, h), the cubic spline of support
+// h = quality.field_normals_support radii, as splashsurf's of 4 r) turns smoothly.
 // Its normal is -grad phi / |grad phi|, which `field_normal` evaluates at the pixel's own
 // surface point and blends in by the distance to the rim:
 // * rim distance d: the smallest |dx| + |dy| <= u_reach + 1 to a pixel without surface or whose

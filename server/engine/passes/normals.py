@@ -61,7 +61,7 @@ class NormalsPass:
         """Normals of the eye-depth image `surface`, inside `box` (None: everywhere);
         `particle_radius` sizes the largest depth step that still counts as one surface;
         `quality` gives the wide stencil (`normal_stencil`, off without it), the field normals
-        (`field_normals`, over the particles `field` with SPH support `support`) and the
+        (`field_normals`, over the particles `field` with kernel support `support`) and the
         silhouette normals (`silhouette_normals`); the last of them that ran returns its
         target."""
         target = self.target(surface.size)
