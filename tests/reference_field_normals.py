@@ -11,11 +11,16 @@ import numpy.typing as npt
 F64 = npt.NDArray[np.float64]
 
 
-def rim_distances(depth: F64, edge_jump: float, reach: int) -> npt.NDArray[np.int64]:
-    """Per pixel the smallest |dx| + |dy| (1 .. reach + 1) to a pixel without surface or with a
-    depth step beyond `edge_jump` (the image border is none); reach + 2 where there is none."""
+MAX_REACH_PX = 7  # the shader's FIELD_MAX_REACH
+
+
+def rim_distances(
+    depth: F64, edge_jump: float, footprint_jump: F64, limit: int
+) -> npt.NDArray[np.int64]:
+    """Per pixel the smallest d = |dx| + |dy| (1 .. limit) to a pixel without surface or whose
+    depth differs by more than max(edge_jump, d footprint_jump) (the pixel's own; the image
+    border is none); limit + 1 where there is none."""
     h, w = depth.shape
-    limit = reach + 1
     out = np.full((h, w), limit + 1, np.int64)
     for dy in range(-limit, limit + 1):
         for dx in range(-limit, limit + 1):
@@ -30,7 +35,8 @@ def rim_distances(depth: F64, edge_jump: float, reach: int) -> npt.NDArray[np.in
             xt = slice(max(-dx, 0), w + min(-dx, 0))
             shifted[yt, xt] = depth[ys, xs]
             inside[yt, xt] = True
-            other = inside & ((shifted <= 0.0) | (np.abs(shifted - depth) > edge_jump))
+            jump = np.maximum(edge_jump, d * footprint_jump)
+            other = inside & ((shifted <= 0.0) | (np.abs(shifted - depth) > jump))
             out = np.where(other & (d < out), d, out)
     return out
 
@@ -54,14 +60,21 @@ def field_normals_reference(
     centres: F64,
     *,
     tan_half_fov: tuple[float, float],
+    focal_px: float,
+    particle_radius: float,
     support: float,
-    reach: int,
+    reach_radii: float,
     edge_jump: float,
+    edge_jump_px: float,
 ) -> tuple[F64, npt.NDArray[np.bool_]]:
     """View-space normals (H, W, 3) after the field blend of the depth normals `normals`, and
     which pixels the field changed."""
     h, w = depth.shape
-    dist = rim_distances(depth, edge_jump, reach)
+    with np.errstate(divide="ignore"):
+        radius_px = np.where(depth > 0.0, particle_radius * focal_px / depth, 0.0)
+    # GLSL round() may go either way at .5; the scenes here keep away from it.
+    reach = np.clip(np.floor(reach_radii * radius_px + 0.5), 1, MAX_REACH_PX).astype(np.int64)
+    dist = rim_distances(depth, edge_jump, edge_jump_px * depth / focal_px, MAX_REACH_PX + 1)
     rim = (depth > 0.0) & (dist <= reach + 1)
     ys, xs = np.nonzero(rim)
     ndc_x = (xs + 0.5) / w * 2.0 - 1.0
@@ -81,7 +94,8 @@ def field_normals_reference(
         if away > 0.0:  # facing away: mirrored at the plane perpendicular to the ray
             n_field = n_field - 2.0 * away * ray
             n_field /= np.linalg.norm(n_field)
-        t = 1.0 - (dist[ys[k], xs[k]] - 1) / (reach + 1)
+        k_px = reach[ys[k], xs[k]]
+        t = 1.0 - (dist[ys[k], xs[k]] - 1) / (k_px + 1)
         n = normals[ys[k], xs[k]]
         blended = (1.0 - t) * n + t * n_field
         if np.linalg.norm(blended) > 1e-3:

@@ -19,7 +19,7 @@ from sphrender.server.engine.passes import field_grid
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.field_grid import FieldParticles, table_size
 from sphrender.server.engine.passes.gaps import EDGE_JUMP_RADII
-from sphrender.server.engine.passes.normals import NormalsPass
+from sphrender.server.engine.passes.normals import EDGE_JUMP_FOOTPRINTS, NormalsPass
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import CameraConfig, QualityConfig, scene_from_dict
 
@@ -27,9 +27,10 @@ W, H = 96, 64
 R = 0.01
 SUPPORT_RADII = QualityConfig().field_normals_support
 SUPPORT = SUPPORT_RADII * R
-REACH = 4
+REACH = 2.0  # quality.field_normals, projected particle radii
 CAMERA = Camera.from_config(CameraConfig(eye=(0.0, 0.0, 0.6), target=(0.0, 0.0, 0.0)), W, H)
 T = CAMERA.tan_half_fov_y
+FOCAL = CAMERA.pixels_per_unit_at_unit_depth
 TAN = (T * CAMERA.aspect, T)
 
 
@@ -68,7 +69,7 @@ def gl_normals(
     source = Target.float(gl.ctx, (W, H), 1)
     try:
         source.texture.write(np.ascontiguousarray(depth, np.float32).tobytes())
-        quality = QualityConfig(field_normals=REACH if centres is not None else 0)
+        quality = QualityConfig(field_normals=REACH if centres is not None else 0.0)
         field = None
         if centres is not None:
             spheres = np.zeros((len(centres), 4), np.float32)
@@ -117,9 +118,12 @@ def test_matches_the_numpy_reference(gl_context: GLContext) -> None:
         plain[..., :3],
         centres.astype(np.float32).astype(np.float64),
         tan_half_fov=TAN,
+        focal_px=FOCAL,
+        particle_radius=R,
         support=SUPPORT,
-        reach=REACH,
+        reach_radii=REACH,
         edge_jump=EDGE_JUMP_RADII * R,
+        edge_jump_px=EDGE_JUMP_FOOTPRINTS,
     )
     assert changed.sum() > 500  # rims, steps and hole edges all over the image
     np.testing.assert_array_equal(field[..., 3], plain[..., 3])  # depth untouched
@@ -158,6 +162,42 @@ def test_buckets_shared_by_many_cells(
     assert angle_deg(shared[covered][:, :3], full[covered][:, :3]).max() < 1e-3
 
 
+def test_a_grazing_surface_far_away_is_no_rim(gl_context: GLContext) -> None:
+    """A plane seen at a grazing angle steps by more than 4 r between pixels where a pixel's
+    footprint is large; the normals pass takes it as one surface (steps up to 8 footprints),
+    so must the field: its normals stay the depth normals away from the plane's outline (a
+    rim rule of 4 r alone put the field's lattice ripple in stripes across such surfaces)."""
+    radius = 0.004  # ~0.6 px at this depth; the reach (2 r) is 1 px
+    # A smooth plane (the depth image, exact) 15 deg off the view direction, its particles on
+    # it (the field): steps of 1.2-2 footprints / tan 15 deg = 4.7-8.5 r between pixels.
+    slope = np.tan(np.radians(15.0))
+    origin = np.array([0.0, -0.12, -0.45])
+    along = np.array([0.0, slope, -1.0])  # down the plane, away from the eye
+    xs, zs = np.meshgrid(np.arange(-40, 41) * 2 * radius, np.arange(0, 100) * 2 * radius)
+    centres = origin + xs.reshape(-1, 1) * [1.0, 0.0, 0.0] + zs.reshape(-1, 1) * along
+    normal = np.cross([1.0, 0.0, 0.0], along)
+    normal /= np.linalg.norm(normal)
+    ray = rays()
+    t = (origin @ normal) / (ray @ normal)
+    point = ray * t[..., None]
+    u = point[..., 0]
+    v = (point - origin) @ along / (along @ along)
+    inside = (t > 0) & (np.abs(u) <= 0.32) & (v >= 0.0) & (v <= 0.8)
+    depth = np.where(inside, -point[..., 2], 0.0)
+    steps = np.abs(np.diff(np.where(inside, depth, np.nan), axis=0))
+    assert np.nanmax(steps) > 1.5 * EDGE_JUMP_RADII * radius  # the case the footprints cover
+    plain = gl_normals(gl_context, depth, None, radius)
+    field = gl_normals(gl_context, depth, centres, radius)
+    inner = inside.copy()
+    for _ in range(3):  # 3 px inside the outline: beyond the reach of its rims
+        inner[1:-1, 1:-1] &= inner[:-2, 1:-1] & inner[2:, 1:-1] & inner[1:-1, :-2] & inner[1:-1, 2:]
+        inner[[0, -1], :] = False
+        inner[:, [0, -1]] = False
+    assert inner.sum() > 300
+    np.testing.assert_array_equal(field[inner], plain[inner])
+    assert (angle_deg(field[inside & ~inner][:, :3], plain[inside & ~inner][:, :3]) > 0.1).any()
+
+
 def test_a_lone_droplet_gets_its_exact_sphere_normal(gl_context: GLContext) -> None:
     centre = np.array([[0.01, -0.005, -0.45]])
     radius = 0.03  # ~6 px: every pixel within the reach of the rim
@@ -170,9 +210,12 @@ def test_a_lone_droplet_gets_its_exact_sphere_normal(gl_context: GLContext) -> N
         plain[..., :3],
         centre,
         tan_half_fov=TAN,
+        focal_px=FOCAL,
+        particle_radius=radius,
         support=SUPPORT_RADII * radius,
-        reach=REACH,
+        reach_radii=REACH,
         edge_jump=EDGE_JUMP_RADII * radius,
+        edge_jump_px=EDGE_JUMP_FOOTPRINTS,
     )
     on_rim = hit & changed
     assert on_rim.sum() == hit.sum()
@@ -206,7 +249,7 @@ def test_host_and_device_prepare_agree(gl_context: GLContext, prepare: str) -> N
     for mode in ("host", prepare):
         renderer = SurfaceRenderer(gl_context, prepare=mode)  # type: ignore[arg-type]
         try:
-            for reach in (0, REACH):
+            for reach in (0.0, REACH):
                 scene = scene_from_dict({**base, "quality": {"field_normals": reach}})
                 frame, _ = renderer.render(
                     make_frame(positions, densities=densities), scene, depth=True, normals=True
@@ -245,7 +288,7 @@ def test_hard_cases_stay_finite(renderer: SurfaceRenderer, case: str, shift: flo
     positions = HARD_CASES[case]() + shift
     eye = np.array([0.05, 0.08, 0.6]) + shift
     images = []
-    for reach in (0, REACH):
+    for reach in (0.0, REACH):
         scene = scene_from_dict(
             {
                 "particles": {"radius": 0.01},
@@ -270,7 +313,7 @@ def test_tiny_and_huge_radii(renderer: SurfaceRenderer, radius: float) -> None:
     rng = np.random.default_rng(7)
     positions = rng.normal(0.0, 3.0 * radius, (400, 3))
     frames = []
-    for reach in (0, REACH):
+    for reach in (0.0, REACH):
         scene = scene_from_dict(
             {
                 "particles": {"radius": radius},
@@ -294,6 +337,8 @@ def test_tiny_and_huge_radii(renderer: SurfaceRenderer, radius: float) -> None:
 
 
 def test_no_particles(renderer: SurfaceRenderer) -> None:
-    scene = scene_from_dict({"image": {"width": 32, "height": 24}, "quality": {"field_normals": 3}})
+    scene = scene_from_dict(
+        {"image": {"width": 32, "height": 24}, "quality": {"field_normals": 2.0}}
+    )
     frame, _ = renderer.render(make_frame(np.zeros((0, 3))), scene, depth=True, normals=True)
     assert np.isfinite(frame.rgba).all()

@@ -582,6 +582,22 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="the field grid without the host prepare's droplets",
     ),
     Mutation(
+        name="field-rim-jump-4r-only",
+        path="shaders/field/field_normals.glsl",
+        old="float jump = max(u_edge_jump, footprint_jump * float(d));",
+        new="float jump = u_edge_jump;",
+        tests=("tests/test_field_normals.py::test_a_grazing_surface_far_away_is_no_rim",),
+        description="field normals taking a grazing surface's per-pixel steps for rims",
+    ),
+    Mutation(
+        name="field-rim-jump-not-summed",
+        path="shaders/field/field_normals.glsl",
+        old="float jump = max(u_edge_jump, footprint_jump * float(d));",
+        new="float jump = max(u_edge_jump, footprint_jump);",
+        tests=("tests/test_field_normals.py::test_a_grazing_surface_far_away_is_no_rim",),
+        description="field normals comparing a pixel d away with one pixel's step allowance",
+    ),
+    Mutation(
         name="host-culling-drops-rim-coverage",
         path="server/engine/passes/splat.py",
         old="edge = ids[~covered_around(ids.astype(np.intp), COVERAGE_NEED_PX)]",

@@ -332,7 +332,7 @@ def _field_band_line(row: SurfaceRow | None, before: SurfaceRow) -> list[str]:
         return []
     ratio = row.dam_band_fair_deg / before.dam_band_fair_deg
     return [
-        f"  * with `field_normals = 5` ({row.setting}; in best, not in balanced: its frame "
+        f"  * with `field_normals = 2` ({row.setting}; in best, not in balanced: its frame "
         f"time on llvmpipe, benchmarks/bench_frame_ratio.py): {_f(row.dam_band_fair_deg)}° = "
         f"{_f(100 * ratio, 1)} % ({'met' if ratio <= 0.4 else 'NOT met'}); plain band "
         f"{_f(row.dam_band_deg)}° = {_f(100 * row.dam_band_deg / before.dam_band_deg, 1)} %"

@@ -85,7 +85,7 @@ SURFACE_SETTINGS: tuple[Setting, ...] = (
     Setting("balanced + anisotropy", {"sph": {"anisotropy": True}}, preset="balanced"),
     Setting("balanced, no gaps", {"quality": {"close_gaps": 0.0}}, preset="balanced"),
     Setting("balanced + silhouette normals", {"quality": {"silhouette_normals": 2.0}}, "balanced"),
-    Setting("balanced + field normals 5 px", {"quality": {"field_normals": 5}}, "balanced"),
+    Setting("balanced + field normals 2 r", {"quality": {"field_normals": 2.0}}, "balanced"),
 )
 #: The setting of the done-when list's band line that is not the default (report.py).
 FIELD_NORMALS = SURFACE_SETTINGS[-1]

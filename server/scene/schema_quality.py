@@ -169,19 +169,19 @@ class QualityConfig:
         high=8.0,
         unit="particle radii",
     )
-    field_normals: int = spec(
-        0,
-        "take the normals within this many pixels of a rim (background or a depth step "
-        "beyond 4 particle radii) towards the normal of the particles' smoothed field, "
-        "-grad phi of phi = sum W(|x - x_j|, field_normals_support) at the pixel's own "
-        "surface point (passes/field_normals.py): smooth rims where the particles leave "
-        "beads, rounded edges round a sheet's holes, exact droplet spheres; blended in by the "
-        "distance to the rim, depth unchanged. Builds a particle grid on the device each "
-        "frame (on llvmpipe 5 px cost ~30 ms at 100k particles, 1280x720: in best, not "
-        "balanced). 0: off",
-        low=0,
-        high=7,
-        unit="pixels",
+    field_normals: float = spec(
+        0.0,
+        "take the normals within this many projected particle radii (at most 7 pixels) of a "
+        "rim (background, or a depth step the normals pass does not difference across) "
+        "towards the normal of the particles' smoothed field, -grad phi of phi = sum W(|x - "
+        "x_j|, field_normals_support) at the pixel's own surface point "
+        "(passes/field_normals.py): smooth rims where the particles leave beads, rounded edges "
+        "round a sheet's holes, exact droplet spheres; blended in by the distance to the rim, "
+        "depth unchanged. Builds a particle grid on the device each frame (on llvmpipe ~30 ms "
+        "of a 100k-particle 1280x720 frame: in best, not balanced). 0: off",
+        low=0.0,
+        high=8.0,
+        unit="particle radii",
     )
     field_normals_support: float = spec(
         5.0,

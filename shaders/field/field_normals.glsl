@@ -6,9 +6,14 @@
 // h = quality.field_normals_support radii, as splashsurf's of 4 r) turns smoothly.
 // Its normal is -grad phi / |grad phi|, which `field_normal` evaluates at the pixel's own
 // surface point and blends in by the distance to the rim:
-// * rim distance d: the smallest |dx| + |dy| <= u_reach + 1 to a pixel without surface or whose
-//   depth differs by more than u_edge_jump (nearer or farther; the image border is no rim);
-//   weight t = 1 - (d - 1) / (u_reach + 1) (1 next to the rim, 0 beyond the reach);
+// * reach k = u_reach_radii projected particle radii at the pixel's depth, rounded, in
+//   1 .. FIELD_MAX_REACH pixels (the rim tiles' +-8 pixels must hold distance k + 1);
+// * rim distance d: the smallest d = |dx| + |dy| <= k + 1 to a pixel without surface or whose
+//   depth differs by more than max(u_edge_jump, d u_edge_jump_px footprints) (nearer or
+//   farther; the image border is no rim): the normals pass's edge rule between neighbours,
+//   whose footprint part (a grazing surface far away steps by more than 4 r per pixel and is
+//   still one surface) adds up over d pixels;
+//   weight t = 1 - (d - 1) / (k + 1) (1 next to the rim, 0 beyond the reach);
 // * grad phi at the pixel's view-space point x from every centre of the field grid
 //   (common/field_grid.glsl) within h of x: the cubic spline's dW/dq / q times (x - x_j)
 //   (constants dropped: only the direction is used);
@@ -20,7 +25,7 @@
 //   Where |grad phi| vanishes (no neighbour, a symmetric neighbourhood) the depth normal stays;
 // * the result is normalize(mix(n_depth, n_field, t)). Depth unchanged.
 // Pixels whose rim tile (passes/rim_tiles.py: farthest and nearest depth within +-8 pixels)
-// holds nothing beyond u_edge_jump either way skip all of it.
+// holds nothing beyond the jump either way skip all of it.
 
 #define FIELD_MAX_REACH 7
 
@@ -29,33 +34,36 @@
 layout(std430, binding = 14) readonly buffer Buckets { uint starts[]; };
 layout(std430, binding = 16) readonly buffer Sorted { vec4 sorted_centres[]; };
 
-uniform sampler2D u_tiles;  // (farthest, nearest) depth within 8 px, per 4 x 4 tile
-uniform int u_reach;        // pixels, 1 .. FIELD_MAX_REACH
-// Also read: u_depth (the eye depth image) and u_edge_jump (a depth step beyond it is a rim),
-// declared by the including shader.
+uniform sampler2D u_tiles;    // (farthest, nearest) depth within 8 px, per 4 x 4 tile
+uniform float u_reach_radii;  // quality.field_normals: the reach in projected particle radii
+// Also read, declared by the including shader: u_depth (the eye depth image), u_edge_jump,
+// u_edge_jump_px, u_focal_px and u_particle_radius.
 
-// True when q is a rim pixel for a pixel of depth zc: no surface, or a step beyond the jump.
-bool other_surface(ivec2 q, ivec2 size, float zc) {
+// True when q is a rim pixel for a pixel of depth zc: no surface, or a depth step beyond
+// `jump`.
+bool other_surface(ivec2 q, ivec2 size, float zc, float jump) {
     if (any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, size))) {
         return false;
     }
     float z = texelFetch(u_depth, q, 0).r;
-    return z <= 0.0 || abs(z - zc) > u_edge_jump;
+    return z <= 0.0 || abs(z - zc) > jump;
 }
 
-// The smallest Manhattan distance (1 .. u_reach + 1) to a rim pixel, u_reach + 2 if none.
-int rim_distance(ivec2 p, ivec2 size, float zc) {
-    int limit = u_reach + 1;
+// The smallest Manhattan distance d (1 .. reach + 1) to a rim pixel at that distance's jump,
+// reach + 2 if none.
+int rim_distance(ivec2 p, ivec2 size, float zc, float footprint_jump, int reach) {
+    int limit = reach + 1;
     for (int d = 1; d <= FIELD_MAX_REACH + 1; ++d) {
         if (d > limit) {
             break;
         }
+        float jump = max(u_edge_jump, footprint_jump * float(d));
         for (int k = 0; k < d; ++k) {
             // The four edges of the diamond |dx| + |dy| = d, each point once.
-            if (other_surface(p + ivec2(d - k, k), size, zc)
-                || other_surface(p + ivec2(-k, d - k), size, zc)
-                || other_surface(p + ivec2(k - d, -k), size, zc)
-                || other_surface(p + ivec2(k, k - d), size, zc)) {
+            if (other_surface(p + ivec2(d - k, k), size, zc, jump)
+                || other_surface(p + ivec2(-k, d - k), size, zc, jump)
+                || other_surface(p + ivec2(k - d, -k), size, zc, jump)
+                || other_surface(p + ivec2(k, k - d), size, zc, jump)) {
                 return d;
             }
         }
@@ -129,15 +137,18 @@ vec4 field_gradient(vec3 x) {
 // The view-space normal n of the pixel p (eye depth zc, view point x) taken towards the field's
 // by its distance to the rim; n itself away from rims.
 vec3 field_normal(ivec2 p, ivec2 size, float zc, vec3 x, vec3 n) {
+    float jump = max(u_edge_jump, u_edge_jump_px * zc / u_focal_px);
     vec2 tile = texelFetch(u_tiles, p / 4, 0).rg;
-    if (tile.r <= zc + u_edge_jump && tile.g >= zc - u_edge_jump) {
+    if (tile.r <= zc + jump && tile.g >= zc - jump) {
         return n;
     }
-    int d = rim_distance(p, size, zc);
-    if (d > u_reach + 1) {
+    float radius_px = u_particle_radius * u_focal_px / zc;
+    int reach = clamp(int(round(u_reach_radii * radius_px)), 1, FIELD_MAX_REACH);
+    int d = rim_distance(p, size, zc, u_edge_jump_px * zc / u_focal_px, reach);
+    if (d > reach + 1) {
         return n;
     }
-    float t = 1.0 - float(d - 1) / float(u_reach + 1);
+    float t = 1.0 - float(d - 1) / float(reach + 1);
     vec4 g = field_gradient(x);
     float len_g = length(g.xyz);
     if (!(len_g > 1e-4 * g.w) || !(len_g > 0.0)) {

@@ -65,17 +65,17 @@ class NormalsPass:
         silhouette normals (`silhouette_normals`); the last of them that ran returns its
         target."""
         target = self.target(surface.size)
-        reach = quality.field_normals if quality is not None and field is not None else 0
+        reach = quality.field_normals if quality is not None and field is not None else 0.0
         rim = quality.silhouette_normals if quality is not None else 0.0
-        tiles = self._tiles.build(surface) if reach > 0 or rim > 0.0 else None
+        tiles = self._tiles.build(surface) if reach > 0.0 or rim > 0.0 else None
         program = self._context.programs.get(
             FULLSCREEN_VERT,
             SHADER,
-            DEFINES if reach > 0 else None,
-            samplers={"u_depth": 0, "u_tiles": TILES_UNIT} if reach > 0 else None,
+            DEFINES if reach > 0.0 else None,
+            samplers={"u_depth": 0, "u_tiles": TILES_UNIT} if reach > 0.0 else None,
         )
-        if reach > 0 and field is not None and tiles is not None:
-            self._field.prepare(program, field, support=support, reach_px=reach)
+        if reach > 0.0 and field is not None and tiles is not None:
+            self._field.prepare(program, field, support=support, reach_radii=reach)
             tiles.use(TILES_UNIT)
         surface.use(0)
 
