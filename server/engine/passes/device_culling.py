@@ -18,7 +18,6 @@ every particle (equal up to depth-buffer ties, tests/test_device_prepare.py).
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 
 import moderngl
@@ -27,6 +26,7 @@ import numpy as np
 from sphrender.server.engine.geometry import occlusion
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.screen_box import ScreenBox
+from sphrender.server.engine.gpu.dispatch import dispatch_1d
 from sphrender.server.engine.gpu.uniforms import set_group, set_if_used, write_array
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.splat_buffers import (
@@ -41,7 +41,6 @@ CULL_SHADER = "splat/occlusion_cull.comp.glsl"
 PYRAMID_SHADER = "splat/depth_pyramid.comp.glsl"
 FRONT, SECOND, COVER = 1, 2, 4  # the flags of occlusion_cull.comp.glsl
 GROUP_SIZE = 256
-MAX_GROUPS = 65535
 #: Pyramid levels: blocks up to 64 pixels, as occlusion.DepthMaxTable's max_side (larger
 #: rectangles are simply drawn); depth_pyramid.comp.glsl builds a 64-pixel block per group.
 LEVELS = 7
@@ -133,11 +132,8 @@ class DeviceCulling:
 
     def _run(self, shader: moderngl.ComputeShader, phase: int, count: int) -> None:
         set_if_used(shader, "u_phase", phase)
-        per_dispatch = GROUP_SIZE * MAX_GROUPS
         with self._context.gl.clock:
-            for first in range(0, count, per_dispatch):
-                set_if_used(shader, "u_first", first)
-                shader.run(group_x=math.ceil(min(per_dispatch, count - first) / GROUP_SIZE))
+            dispatch_1d(shader, count, GROUP_SIZE)
             self._context.gl.ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
 
     def build_pyramid(

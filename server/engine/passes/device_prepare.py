@@ -12,7 +12,6 @@ whose rasteriser is the cost; see `SurfaceRenderer` for the switch).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import moderngl
@@ -23,6 +22,7 @@ from sphrender.client.frame import ParticleFrame
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.prepare import frame_reference_radius
 from sphrender.server.engine.geometry.screen_box import ScreenBox, clip_box
+from sphrender.server.engine.gpu.dispatch import dispatch_1d
 from sphrender.server.engine.gpu.uniforms import set_group, set_if_used
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.splat import SplatBatch
@@ -40,7 +40,6 @@ from sphrender.server.scene import Scene
 
 COMPUTE_SHADER = "splat/particles_to_view.comp.glsl"
 GROUP_SIZE = 256  # local_size_x of the compute shader
-MAX_GROUPS = 65535  # the smallest GL_MAX_COMPUTE_WORK_GROUP_COUNT[0] GL 4.3 allows
 _SUMMARY_INIT = np.array([2**31 - 1] * 4 + [0] * 4 + [0x7F800000, 0, 0, 0], dtype=np.int32)
 
 
@@ -155,14 +154,10 @@ class DevicePrepare:
 
         set_group(shader, "frame", (camera, scene.particles.radius, far_limit, flags), values)
         self._buffers.bind()
-        per_dispatch = GROUP_SIZE * MAX_GROUPS
+        set_if_used(shader, "u_count", count)
         ctx = self._context.gl.ctx
         with self._context.gl.clock:
-            for first in range(0, count, per_dispatch):
-                set_if_used(shader, "u_first", first)
-                set_if_used(shader, "u_count", count)
-                groups = math.ceil(min(per_dispatch, count - first) / GROUP_SIZE)
-                shader.run(group_x=groups)
+            dispatch_1d(shader, count, GROUP_SIZE)
             ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
             summary = self._buffers.buffer(SUMMARY).read()
         return np.frombuffer(summary, dtype=np.int32)

@@ -31,12 +31,12 @@ import moderngl
 import numpy as np
 import numpy.typing as npt
 
+from sphrender.server.engine.gpu.dispatch import dispatch_1d
 from sphrender.server.engine.gpu.uniforms import set_if_used
 from sphrender.server.engine.passes.context import PassContext
 
 SHADER = "field/field_grid.comp.glsl"
 GROUP_SIZE = 256  # local_size_x of the shader
-MAX_GROUPS = 65535  # the smallest GL_MAX_COMPUTE_WORK_GROUP_COUNT[0] GL 4.3 allows
 SOURCE, RANKS, BUCKETS, SUMS, SORTED = range(12, 17)
 #: Chunks of the prefix sum (the serial scan over them runs in one invocation).
 SCAN_CHUNKS = 1024
@@ -132,11 +132,8 @@ class FieldGrid:
         """Phase `phase` over `items` invocations (`count`: its u_count, default `items`)."""
         set_if_used(shader, "u_phase", phase)
         set_if_used(shader, "u_count", items if count is None else count)
-        per_dispatch = GROUP_SIZE * MAX_GROUPS
         with self._context.gl.clock:
-            for first in range(0, items, per_dispatch):
-                set_if_used(shader, "u_first", first)
-                shader.run(group_x=math.ceil(min(per_dispatch, items - first) / GROUP_SIZE))
+            dispatch_1d(shader, items, GROUP_SIZE)
             self._context.gl.ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
 
     def release(self) -> None:
