@@ -107,8 +107,8 @@ def splash(seed: int, count: int = 3000) -> np.ndarray:
 
 def test_matches_the_numpy_reference(gl_context: GLContext) -> None:
     centres = splash(1)
-    # Buckets shared by several cells (the tags keep them apart): the table has about as many
-    # buckets as centres, so the 27 cells around some pixels hash to one bucket twice.
+    # About as many buckets as centres: buckets hold cells of far-apart places too, which the
+    # tags keep apart (test_buckets_shared_by_many_cells forces neighbours into one bucket).
     assert table_size(len(centres)) <= 2 * len(centres)
     depth, _ = ray_cast(centres, R)
     plain = gl_normals(gl_context, depth, None)
