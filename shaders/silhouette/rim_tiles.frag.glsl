@@ -6,7 +6,7 @@
 // (run along x, then along y: a tile then holds the extremes within +-8 pixels of any of its
 // pixels, more than either reader's reach). silhouette_normals.frag.glsl skips a pixel whose
 // tile holds nothing farther than its own depth + u_edge_jump (no silhouette within reach),
-// field_normals.frag.glsl one whose tile holds nothing beyond the jump either way.
+// field/field_normals.glsl one whose tile holds nothing beyond the jump either way.
 
 #define RIM_DILATE 0
 #define AXIS 0

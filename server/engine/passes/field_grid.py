@@ -12,10 +12,10 @@ weights (on the dam break, per-particle volumes m / rho_j scored no better: 10.9
 The sort (`shaders/field/field_grid.comp.glsl`, layout in `shaders/common/field_grid.glsl`):
 count each centre's rank in its bucket (atomics), prefix-sum the counts
 (chunk sums, one serial scan of the chunks, chunk scans: the SPH engine's scheme), scatter.
-Table size: the power of two >= N (at least 1024); a cell holds ~8 centres inside a fluid (cell
-side 4 r, spacing 2 r), so buckets mostly hold one cell, and a bucket shared by several cells
-only costs time (each centre carries its cell's tag). The table is zeroed with a buffer clear
-(a dispatch over it cost ~3 ms at 262k buckets on llvmpipe).
+Table size: the power of two >= N (at least 1024); a cell holds ~16 centres inside a fluid
+(cell side h = 5 r by default, spacing 2 r), so buckets mostly hold one cell, and a bucket
+shared by several cells only costs time (each centre carries its cell's tag). The table is
+zeroed with a buffer clear (a dispatch over it cost ~3 ms at 262k buckets on llvmpipe).
 Bindings 12-16 (common/field_grid.glsl); nothing else uses them, so they are bound per build.
 
 Owns: the source (host prepare), rank, bucket, chunk-sum and sorted-centre buffers; grown
