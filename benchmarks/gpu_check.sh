@@ -15,7 +15,9 @@
 #    (benchmarks/bench_host.py): on a GPU the host column is the frame time's floor; what
 #    the service's true stage times (a finish per stage) cost against none; and the frame time
 #    of each preset, and of balanced with field normals (30 ms on llvmpipe, so not in balanced),
-#    against the pre-issue-12 default (benchmarks/bench_frame_ratio.py).
+#    against the pre-issue-12 default (benchmarks/bench_frame_ratio.py); and the field normals'
+#    gradient per invocation (the normals pass's way) against tiles in shared memory
+#    (benchmarks/bench_field_gradient.py: 2.9-3.8x slower on llvmpipe, the usual remedy on GPUs).
 #
 # Nothing else depends on this script; CI never runs it.
 set -euo pipefail
@@ -68,5 +70,8 @@ timeout 420 .venv/bin/python benchmarks/bench_host.py --frames 5 --sizes 100k,1m
 
 section "frame time per setting against the pre-issue-12 default (field normals: their GPU cost)"
 timeout 180 .venv/bin/python benchmarks/bench_frame_ratio.py --cycles 8
+
+section "field gradient: per invocation against tiles in shared memory"
+timeout 120 .venv/bin/python benchmarks/bench_field_gradient.py
 
 section "done"

@@ -342,3 +342,58 @@ def test_no_particles(renderer: SurfaceRenderer) -> None:
     )
     frame, _ = renderer.render(make_frame(np.zeros((0, 3))), scene, depth=True, normals=True)
     assert np.isfinite(frame.rgba).all()
+
+
+@pytest.mark.parametrize(
+    "kernel", ["bench/field_gradient_gather.comp.glsl", "bench/field_gradient_tiled.comp.glsl"]
+)
+def test_bench_gradient_kernels_match_the_reference(gl_context: GLContext, kernel: str) -> None:
+    """benchmarks/bench_field_gradient.py's two kernels (the normals pass's gather, and tiles
+    in shared memory) give the brute-force gradient at the points that need it, and zero at
+    the others: the timing compares two right answers."""
+    centres = splash(4)
+    depth, _ = ray_cast(centres, R)
+    ys, xs = np.nonzero(depth > 0)
+    z = depth[ys, xs]
+    view = np.stack(
+        [((xs + 0.5) / W * 2 - 1) * TAN[0] * z, ((ys + 0.5) / H * 2 - 1) * TAN[1] * z, -z], -1
+    )
+    needed = np.random.default_rng(5).random(len(ys)) < 0.5
+    points = np.zeros((H, W, 4), np.float32)
+    points[ys, xs, :3] = view
+    points[ys, xs, 3] = needed
+    context = PassContext(gl_context, ProgramCache(gl_context), FullscreenTriangle(gl_context))
+    grid = field_grid.FieldGrid(context)
+    ctx = gl_context.ctx
+    point_image = ctx.texture((W, H), 4, points.tobytes(), dtype="f4")
+    gradient_image = ctx.texture((W, H), 4, dtype="f4")
+    try:
+        spheres = np.zeros((len(centres), 4), np.float32)
+        spheres[:, :3], spheres[:, 3] = centres, R
+        built = grid.build(FieldParticles(arrays=(spheres,)), SUPPORT)
+        grid.bind_for_reading()
+        point_image.bind_to_image(0, read=True, write=False)
+        gradient_image.bind_to_image(1, read=False, write=True)
+        shader = context.programs.compute(kernel)
+        shader["u_support"] = built.support
+        shader["u_bucket_mask"] = built.bucket_mask
+        shader.run(-(-W // 8), -(-H // 8))
+        ctx.memory_barrier()
+        out = np.frombuffer(gradient_image.read(), np.float32).reshape(H, W, 4)
+    finally:
+        point_image.release()
+        gradient_image.release()
+        grid.release()
+        context.fullscreen.release()
+        context.programs.release()
+    np.testing.assert_array_equal(out[ys[~needed], xs[~needed]], 0.0)
+    expected, scale = field_gradient(
+        view[needed].astype(np.float32).astype(np.float64),
+        centres.astype(np.float32).astype(np.float64),
+        SUPPORT,
+    )
+    got = out[ys[needed], xs[needed]].astype(np.float64)
+    good = np.linalg.norm(expected, axis=-1) >= 0.05 * scale
+    assert good.mean() > 0.9
+    assert angle_deg(got[good, :3], expected[good]).max() < 0.02
+    np.testing.assert_allclose(got[:, 3], scale, rtol=1e-4)

@@ -17,6 +17,9 @@ Table size: the power of two >= N (at least 1024); a cell holds ~16 centres insi
 shared by several cells only costs time (each centre carries its cell's tag). The table is
 zeroed with a buffer clear (a dispatch over it cost ~3 ms at 262k buckets on llvmpipe).
 Bindings 12-16 (common/field_grid.glsl); nothing else uses them, so they are bound per build.
+Faster layouts tried on llvmpipe and not kept (ARCHITECTURE.md, "field normals' speed"): rows of
+h / 2 cells as runs of centres, a texture instead of the buffer, tiles in shared memory
+(benchmarks/bench_field_gradient.py); the readers' gathers cost the same either way.
 
 Owns: the source (host prepare), rank, bucket, chunk-sum and sorted-centre buffers; grown
 geometrically, never shrunk; released by `release`.
