@@ -600,8 +600,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         name="host-culling-drops-rim-coverage",
         path="server/engine/passes/splat.py",
-        old="edge = ids[~covered_around(ids.astype(np.intp), COVERAGE_NEED_PX)]",
-        new="edge = ids[~covered_around(ids.astype(np.intp), COVERAGE_NEED_PX - 1)]",
+        old="edge = ids[~np.isfinite(largest[ids])].astype(np.uint32)",
+        new="edge = ids[~np.isfinite(table.largest(bounds.grown(-1), ids))].astype(np.uint32)",
         tests=("tests/test_occlusion.py",),
         description="coverage left out for particles whose rectangle's rim touches background",
     ),
@@ -616,8 +616,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         name="coverage-band-without-the-outside",
         path="shaders/splat/coverage_band.frag.glsl",
-        old="out_band = band ? 1.0 : 0.0;",
-        new="out_band = band && surface ? 1.0 : 0.0;",
+        old="gl_FragDepth = band ? 1.0 : 0.0;",
+        new="gl_FragDepth = band && surface ? 1.0 : 0.0;",
         tests=("tests/test_surfaces.py::test_alpha_is_sub_pixel_coverage_on_every_edge",),
         description="no coverage drawn just outside the silhouettes (no anti-aliased fringe)",
     ),

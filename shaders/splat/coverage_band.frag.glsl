@@ -5,13 +5,14 @@
 // shade_pbr.frag.glsl's nearest_neighbour_surface (neighbours outside the image left out) and
 // next_to_background (clamped to the image) look at them. Everywhere else the shade pass
 // ignores the coverage (1 inside a surface, background elsewhere), so the coverage pass
-// discards its fragments there before any work. Second output: the coverage target's start,
-// 1 inside a surface (the shade pass then needs no neighbour test there), 0 elsewhere.
+// rejects its fragments there before any work: the band goes out as depth (1 in the band, 0
+// elsewhere) into the depth buffer the coverage draws test against (depth less than that:
+// every quad's fragment passes in the band and none outside). Colour: the coverage target's
+// start, 1 inside a surface (the shade pass then needs no neighbour test there), 0 elsewhere.
 
 uniform sampler2D u_depth;  // the splat's eye depth, 0 = no surface
 
-layout(location = 0) out float out_band;
-layout(location = 1) out float out_coverage;
+layout(location = 0) out float out_coverage;
 
 void main() {
     ivec2 p = ivec2(gl_FragCoord.xy);
@@ -28,6 +29,6 @@ void main() {
             }
         }
     }
-    out_band = band ? 1.0 : 0.0;
+    gl_FragDepth = band ? 1.0 : 0.0;
     out_coverage = surface && !band ? 1.0 : 0.0;
 }

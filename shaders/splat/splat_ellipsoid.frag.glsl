@@ -1,4 +1,4 @@
-#version 330 core
+#version 430 core
 // Ray-ellipsoid intersection per fragment: in unit-sphere coordinates u = A^-1 (x - c) the ray
 // t d becomes t d' - c' (d' = A^-1 d, c' = A^-1 c), a sphere test of radius 1. As for spheres
 // (splat_sphere.frag.glsl), the miss distance comes from the perpendicular vector
@@ -22,8 +22,9 @@ uniform float u_near;
 uniform float u_far;
 
 #if COVERAGE
-uniform sampler2D u_band;   // 1 where the shade pass reads the coverage (coverage_band.frag.glsl)
-uniform bool u_banded;      // false: every pixel (the droplets over the smoothed surface)
+// Outside the band (coverage_band.frag.glsl) the target's depth test rejects the fragment
+// first (splat_coverage.frag.glsl).
+layout(early_fragment_tests) in;
 layout(location = 0) out float out_coverage;
 #else
 layout(location = 0) out float out_eye_depth;
@@ -45,11 +46,6 @@ void main() {
     // Distance to the edge in pixels: (1 - miss) / |gradient|; edge normal: the gradient.
     vec2 gradient = vec2(dFdx(miss), dFdy(miss));
     float rate = length(gradient);
-    // After the derivatives (they need the whole 2 x 2 quad): the shade pass ignores the
-    // coverage outside the band.
-    if (u_banded && texelFetch(u_band, ivec2(gl_FragCoord.xy), 0).r <= 0.0) {
-        discard;
-    }
     float coverage = rate > 0.0 ? edge_coverage((1.0 - miss) / rate, gradient / rate)
                                 : (miss <= 1.0 ? 1.0 : 0.0);
     if (coverage <= 0.0 || along <= 0.0) {

@@ -200,13 +200,19 @@ class DepthMaxTable:
     def occluded(self, bounds: SphereBounds, candidates: I64) -> Mask:
         """For each candidate particle (indices into `bounds`): True when its nearest eye depth
         is larger than every depth inside its rectangle, i.e. no fragment of it can pass the
-        depth test. Rectangles leaving the table count as visible.
+        depth test. Rectangles leaving the table count as visible (`largest`)."""
+        return bounds.near_depth[candidates] > self.largest(bounds, candidates)
+
+    def largest(self, bounds: SphereBounds, candidates: I64) -> npt.NDArray[np.float64]:
+        """For each candidate particle (indices into `bounds`): the largest depth inside its
+        rectangle (+inf where it holds background), or +inf where the table cannot tell:
+        rectangles leaving the table, and those it has no level for.
 
         The level k = floor(log2(shorter side)) has blocks of side s = 2**k <= side < 2 s, so
         two blocks per axis (at the low and the high end) cover the rectangle exactly when its
         longer side is below 2 s too; longer rectangles (elongated silhouettes near the image
-        border, or sides without a level) are counted as visible."""
-        result = np.zeros(candidates.size, dtype=bool)
+        border, or sides without a level) get +inf."""
+        result = np.full(candidates.size, np.inf)
         if candidates.size == 0:
             return result
         ox, oy = self.origin
@@ -223,7 +229,6 @@ class DepthMaxTable:
         inside &= np.isin(level, list(self.levels))
         block = np.left_shift(1, np.clip(level, 0, 62))
         inside &= (w < 2 * block) & (h < 2 * block)
-        near = bounds.near_depth[candidates]
         for k, table in self.levels.items():
             rows = np.flatnonzero(inside & (level == k))
             if rows.size == 0:
@@ -236,5 +241,5 @@ class DepthMaxTable:
             largest = np.maximum(flat[low_y + low_x], flat[low_y + high_x])
             np.maximum(largest, flat[high_y + low_x], out=largest)
             np.maximum(largest, flat[high_y + high_x], out=largest)
-            result[rows] = near[rows] > largest
+            result[rows] = largest
         return result

@@ -83,10 +83,12 @@ class PerSize(Generic[R]):
 
 class FramebufferOn:
     """A framebuffer on textures someone else owns (another pass's target), kept while they are
-    the same objects and rebuilt when one changes (keyed by identity: GL names are reused)."""
+    the same objects and rebuilt when one changes (keyed by identity: GL names are reused);
+    `depth`: a depth attachment the caller owns, the same for every framebuffer built."""
 
-    def __init__(self, ctx: moderngl.Context) -> None:
+    def __init__(self, ctx: moderngl.Context, depth: moderngl.Renderbuffer | None = None) -> None:
         self._ctx = ctx
+        self._depth = depth
         self._textures: tuple[moderngl.Texture, ...] = ()
         self._fbo: moderngl.Framebuffer | None = None
 
@@ -97,7 +99,7 @@ class FramebufferOn:
             or any(a is not b for a, b in zip(textures, self._textures, strict=True))
         ):
             self.release()
-            self._fbo = self._ctx.framebuffer(list(textures))
+            self._fbo = self._ctx.framebuffer(list(textures), self._depth)
             self._textures = textures
         return self._fbo
 

@@ -19,11 +19,11 @@ targets (depth texture, depth renderbuffer, temperature texture, their framebuff
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from dataclasses import dataclass, replace
 
 import moderngl
 import numpy as np
-import numpy.typing as npt
 
 from sphrender.server.engine.geometry import occlusion
 from sphrender.server.engine.geometry.camera import Camera
@@ -33,7 +33,7 @@ from sphrender.server.engine.gpu.draw import PerSize, Target, float_texture
 from sphrender.server.engine.gpu.gl_clock import GLClock
 from sphrender.server.engine.gpu.uniforms import set_group, set_if_used, write_matrix
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
-from sphrender.server.engine.passes.coverage_band import CoverageBand
+from sphrender.server.engine.passes.coverage_band import CoverageBand, gate
 from sphrender.server.engine.passes.device_culling import (
     COVER,
     FRONT,
@@ -56,7 +56,6 @@ ELLIPSOID_VERTEX_SHADER = "splat/splat_ellipsoid.vert.glsl"
 ELLIPSOID_FRAGMENT_SHADER = "splat/splat_ellipsoid.frag.glsl"
 COVERAGE_VERTEX_SHADER = "splat/splat_coverage.vert.glsl"
 COVERAGE_FRAGMENT_SHADER = "splat/splat_coverage.frag.glsl"
-_COVERAGE_UNITS = {"u_band": 0}  # the coverage draws' texture unit (the band mask)
 #: How far past a silhouette the coverage quads reach, in pixels.
 COVERAGE_MARGIN_PX = 1.5
 #: Which particles' coverage is drawn: those whose bounds rectangle, grown by this many pixels,
@@ -217,14 +216,14 @@ class SplatPass:
             temperature, fbo = targets.temperature_targets()
         clock = self._context.gl.clock
         fbo.use()
-        coverage = None
         with clock:
             fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-            if antialias:
-                coverage = targets.coverage_target()
-                coverage.fbo.clear(0.0, 0.0, 0.0, 0.0)
-                fbo.use()
+        # Cleared by the coverage band (passes/coverage_band.py) when there are particles.
+        coverage = targets.coverage_target() if antialias else None
         if batch.count == 0:
+            if coverage is not None:
+                with clock:
+                    coverage.fbo.clear(0.0, 0.0, 0.0, 0.0)
             return SplatOutput(targets.depth, temperature, 0, _texture(coverage))
         self.buffers.ensure_quads(batch.count)
         self.buffers.bind()
@@ -251,13 +250,13 @@ class SplatPass:
         if host is None:
             splatted = -1  # the device prepare counts what it drew
         if coverage is not None:
-            band = self._band.run(targets.depth, coverage.texture, box)
+            gated = self._band.run(targets.depth, coverage.texture, box)
             if coverage_ids is None:
                 self._draw_coverage(
-                    coverage, camera, batch, 0, batch.count, band, flag_mask=coverage_mask
+                    gated, camera, batch, 0, batch.count, banded=True, flag_mask=coverage_mask
                 )
             elif coverage_ids[1]:
-                self._draw_coverage(coverage, camera, batch, *coverage_ids, band, use_ids=True)
+                self._draw_coverage(gated, camera, batch, *coverage_ids, banded=True, use_ids=True)
         return SplatOutput(targets.depth, temperature, splatted, _texture(coverage))
 
     def run_droplets(
@@ -296,7 +295,7 @@ class SplatPass:
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
         if coverage is not None and count:
-            self._draw_coverage(targets.coverage_target(), camera, droplets, 0, count, None)
+            self._draw_coverage(targets.coverage_target().fbo, camera, droplets, 0, count)
         splatted = count if droplets.host is not None else -1  # -1: the device prepare counts
         return SplatOutput(composite, temperature, splatted, coverage)
 
@@ -313,26 +312,23 @@ class SplatPass:
 
     def _draw_coverage(
         self,
-        target: Target,
+        fbo: moderngl.Framebuffer,
         camera: Camera,
         batch: SplatBatch,
         first: int,
         count: int,
-        band: moderngl.Texture | None,
         *,
+        banded: bool = False,
         use_ids: bool = False,
         flag_mask: int = 0,
     ) -> None:
-        """Coverage of quads `first` .. `first + count` (of the id list when `use_ids`), into
-        `target` with blending MAX and no depth test (see splat_coverage.frag.glsl), only
-        where `band` (passes/coverage_band.py) is set; None: everywhere."""
+        """Coverage of quads `first` .. `first + count` (of the id list when `use_ids`) into
+        `fbo` with blending MAX (see splat_coverage.frag.glsl); `banded`: only inside the band
+        that `fbo` holds as its depth (coverage_band.py `gate`), else everywhere."""
         if count == 0:
             return
         ctx = self._context.gl.ctx
         program, vao = self._vertex_array(batch.ellipsoid, False, coverage=True)
-        set_if_used(program, "u_banded", band is not None)
-        if band is not None:
-            band.use(0)
         focal_px = camera.pixels_per_unit_at_unit_depth
         set_group(
             program,
@@ -348,13 +344,19 @@ class SplatPass:
                 "u_focal_px": focal_px,
             },
         )
-        target.fbo.use()
+        fbo.use()
         ctx.enable(moderngl.BLEND)
         ctx.blend_equation = moderngl.MAX  # type: ignore[assignment]  # the stub wants a pair
         try:
-            _render(
-                vao, first, count, use_ids=use_ids, clock=self._context.gl.clock, mask=flag_mask
-            )
+            with gate(ctx, fbo) if banded else nullcontext():
+                _render(
+                    vao,
+                    first,
+                    count,
+                    use_ids=use_ids,
+                    clock=self._context.gl.clock,
+                    mask=flag_mask,
+                )
         finally:
             ctx.blend_equation = moderngl.FUNC_ADD  # type: ignore[assignment]
             ctx.disable(moderngl.BLEND)
@@ -396,22 +398,24 @@ class SplatPass:
         if antialias and COVERAGE_NEED_PX:  # rectangles grown for the coverage test
             sides = np.concatenate([sides, sides + 2 * COVERAGE_NEED_PX])
         table = occlusion.DepthMaxTable(depth, (x, y), sides)
-        # "Covered all over within k pixels": the front layer's largest depth there is finite.
-        infinitely_far = np.full_like(radius, np.inf)
-
-        def covered_around(rows: npt.NDArray[np.intp], pixels: int) -> npt.NDArray[np.bool_]:
-            grown = replace(bounds.grown(pixels), near_depth=infinitely_far)
-            return table.occluded(grown, rows)
-
+        # The front layer's largest depth in each rectangle: a particle nearer than none of it
+        # is hidden; one whose rectangle (grown by COVERAGE_NEED_PX) holds no background is
+        # covered all over. One query for both where the rectangles are the same.
+        shared = antialias and not COVERAGE_NEED_PX
+        largest = table.largest(bounds, np.arange(count)) if shared else None
         if others.size:
-            others = others[~table.occluded(bounds, others)]
+            behind = largest[others] if largest is not None else table.largest(bounds, others)
+            others = others[~(bounds.near_depth[others] > behind)]
             self.buffers.write(IDS, others.astype(np.uint32), offset_items=front.size)
             _render(vao, front.size, others.size, use_ids=True, clock=self._context.gl.clock)
         drawn = int(front.size + others.size)
         if not antialias:
             return drawn, None
-        ids = np.concatenate([front, others.astype(np.uint32)])
-        edge = ids[~covered_around(ids.astype(np.intp), COVERAGE_NEED_PX)]
+        ids = np.concatenate([front, others.astype(np.uint32)]).astype(np.intp)
+        if largest is None:
+            largest = np.full(count, np.inf)
+            largest[ids] = table.largest(bounds.grown(COVERAGE_NEED_PX), ids)
+        edge = ids[~np.isfinite(largest[ids])].astype(np.uint32)
         self.buffers.write(IDS, edge, offset_items=drawn)
         return drawn, (drawn, int(edge.size))
 
@@ -456,12 +460,9 @@ class SplatPass:
                 ELLIPSOID_VERTEX_SHADER,
                 ELLIPSOID_FRAGMENT_SHADER,
                 {"HAS_TEMPERATURE": has_temperature, "COVERAGE": coverage},
-                _COVERAGE_UNITS if coverage else None,
             )
         elif coverage:
-            program = programs.get(
-                COVERAGE_VERTEX_SHADER, COVERAGE_FRAGMENT_SHADER, samplers=_COVERAGE_UNITS
-            )
+            program = programs.get(COVERAGE_VERTEX_SHADER, COVERAGE_FRAGMENT_SHADER)
         else:
             sphere_defines = {"HAS_TEMPERATURE": True} if has_temperature else None
             program = programs.get(VERTEX_SHADER, FRAGMENT_SHADER, sphere_defines)
