@@ -542,6 +542,22 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="field normals counting the centres of every cell sharing a bucket",
     ),
     Mutation(
+        name="field-blend-last-group-dropped",
+        path="shaders/field/field_blend.comp.glsl",
+        old="uint needed = (rim_count + uint(FIELD_GROUP) - 1u) / uint(FIELD_GROUP);",
+        new="uint needed = rim_count / uint(FIELD_GROUP);",
+        tests=("tests/test_field_normals.py::test_matches_the_numpy_reference",),
+        description="field normals' blend dispatched without the list's last, partial group",
+    ),
+    Mutation(
+        name="field-blend-rows-overlap",
+        path="shaders/field/field_blend.comp.glsl",
+        old="uint i = gl_WorkGroupID.y * u_groups_x * uint(FIELD_GROUP) + gl_GlobalInvocationID.x;",
+        new="uint i = gl_WorkGroupID.y * u_groups_x + gl_GlobalInvocationID.x;",
+        tests=("tests/test_field_normals.py::test_blend_dispatch_in_rows",),
+        description="the blend's rows of work groups indexing the list as if one group long",
+    ),
+    Mutation(
         name="field-scan-inclusive",
         path="shaders/field/field_grid.comp.glsl",
         old="            buckets[b] = running;\n            running += count;",

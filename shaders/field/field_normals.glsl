@@ -1,11 +1,12 @@
-// Field normals (passes/field_normals.py; numpy reference in tests/reference_field_normals.py),
-// included by normals/surface_normals.frag.glsl when FIELD_NORMALS is 1.
+// Field normals (passes/field_normals.py; numpy reference in tests/reference_field_normals.py):
+// the functions of its two compute passes, field/field_rims.comp.glsl (which pixels, and
+// their weights) and field/field_blend.comp.glsl (the field's normal, blended in).
 // Near a rim the depth-differenced normal follows the beads of the particle spheres and stays
 // flat up to the edge of a sheet's hole; the surface a reconstruction would draw there (an
 // iso-surface of the field phi(x) = sum_j W(|x - x_j|, h), the cubic spline of support
 // h = quality.field_normals_support radii, as splashsurf's of 4 r) turns smoothly.
-// Its normal is -grad phi / |grad phi|, which `field_normal` evaluates at the pixel's own
-// surface point and blends in by the distance to the rim:
+// Its normal is -grad phi / |grad phi|, which `field_blend` evaluates at the pixel's own
+// surface point and blends in by the distance to the rim (`field_weight`):
 // * reach k = u_reach_radii projected particle radii at the pixel's depth, rounded, in
 //   1 .. FIELD_MAX_REACH pixels (the rim tiles' +-8 pixels must hold distance k + 1);
 // * rim distance d: the smallest d = |dx| + |dy| <= k + 1 to a pixel without surface or whose
@@ -134,25 +135,31 @@ vec4 field_gradient(vec3 x) {
     return vec4(outward, scale);
 }
 
-// The view-space normal n of the pixel p (eye depth zc, view point x) taken towards the field's
-// by its distance to the rim; n itself away from rims.
-vec3 field_normal(ivec2 p, ivec2 size, float zc, vec3 x, vec3 n) {
+// The field's weight t at the pixel p of eye depth zc (> 0): 1 - (d - 1) / (reach + 1) at rim
+// distance d <= reach + 1, else 0 (the depth normal stays).
+float field_weight(ivec2 p, ivec2 size, float zc) {
     float jump = max(u_edge_jump, u_edge_jump_px * zc / u_focal_px);
     vec2 tile = texelFetch(u_tiles, p / 4, 0).rg;
     if (tile.r <= zc + jump && tile.g >= zc - jump) {
-        return n;
+        return 0.0;
     }
     float radius_px = u_particle_radius * u_focal_px / zc;
     int reach = clamp(int(round(u_reach_radii * radius_px)), 1, FIELD_MAX_REACH);
     int d = rim_distance(p, size, zc, u_edge_jump_px * zc / u_focal_px, reach);
     if (d > reach + 1) {
-        return n;
+        return 0.0;
     }
-    float t = 1.0 - float(d - 1) / float(reach + 1);
+    return 1.0 - float(d - 1) / float(reach + 1);
+}
+
+// The view-space normal n at the view point x taken towards the field's by the weight t, in
+// `blended`; false (nothing to change) where the field's gradient vanishes.
+bool field_blend(vec3 x, vec3 n, float t, out vec3 blended) {
+    blended = n;
     vec4 g = field_gradient(x);
     float len_g = length(g.xyz);
     if (!(len_g > 1e-4 * g.w) || !(len_g > 0.0)) {
-        return n;
+        return false;
     }
     vec3 n_field = g.xyz / len_g;
     vec3 ray = normalize(x);
@@ -160,7 +167,11 @@ vec3 field_normal(ivec2 p, ivec2 size, float zc, vec3 x, vec3 n) {
     if (away > 0.0) {
         n_field = normalize(n_field - 2.0 * away * ray);  // a reflection: unit length kept
     }
-    vec3 blended = mix(n, n_field, t);
-    float len_b = length(blended);
-    return len_b > 1e-3 ? blended / len_b : n;
+    vec3 mixed = mix(n, n_field, t);
+    float len_b = length(mixed);
+    if (!(len_b > 1e-3)) {
+        return false;
+    }
+    blended = mixed / len_b;
+    return true;
 }

@@ -14,11 +14,12 @@
 //   jump of more than u_edge_jump) when the pixel has a neighbour of its own surface along the
 //   axis. Without one: toward the single nearer neighbour, if exactly one (a surface seen
 //   edge-on behind it, see one_sided_difference), else the depth is taken as constant along it.
-// FIELD_NORMALS 1 (quality.field_normals): near rims the normal is then taken towards the SPH
-// field's (field/field_normals.glsl).
-// Output: world normal (xyz), eye depth (w); all zero where there is no surface.
+// FIELD_NORMALS 1 (quality.field_normals): the pixels near rims are also listed
+// (field/field_rims.glsl), whose normals passes/field_normals.py then takes towards the SPH
+// field's (field/field_blend.comp.glsl).
 
 #define FIELD_NORMALS 0
+// Output: world normal (xyz), eye depth (w); all zero where there is no surface.
 
 #include "common/depth_image.glsl"
 
@@ -36,7 +37,7 @@ uniform float u_kink;            // largest relative difference of the two one-s
 layout(location = 0) out vec4 out_normal_depth;
 
 #if FIELD_NORMALS
-#include "field/field_normals.glsl"
+#include "field/field_rims.glsl"
 #endif
 
 vec3 one_sided_difference(ivec2 center, vec3 position, float zc, ivec2 step, ivec2 size) {
@@ -117,7 +118,7 @@ void main() {
         normal = -normal;  // face the camera
     }
 #if FIELD_NORMALS
-    normal = field_normal(center, size, zc, position, normal);
+    list_rim(center, size, zc);
 #endif
     out_normal_depth = vec4(normalize(u_view_to_world * normal), zc);
 }

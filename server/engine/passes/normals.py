@@ -4,8 +4,9 @@ Shader: `shaders/normals/surface_normals.frag.glsl`: the view position of each p
 depth through the inverse projection, the smaller one-sided difference per axis (so a depth
 edge does not bend the normal), their cross product, rotated to world space.
 When the quality asks for them, the field normals (`field_normals.py`: a variant of this
-shader) and then the silhouette normals (`silhouette.py`: a pass of its own) rework the normals
-near rims; both read the rim tiles (`rim_tiles.py`), built once from the depth.
+shader lists the pixels near rims, a compute pass fixes their normals up in place) and then the
+silhouette normals (`silhouette.py`: a pass of its own) rework the normals near rims; both read
+the rim tiles (`rim_tiles.py`), built once from the depth.
 Owns: the RGBA32F normal + depth target (xyz = world normal, w = eye depth, 0 = no surface),
 which the shade pass reads and the read-back returns as the Z and N AOVs; the rim tiles and
 the two rim passes.
@@ -41,7 +42,7 @@ class NormalsPass:
         self._context = context
         self._target = PerSize(lambda size: Target.float(context.gl.ctx, size, 4))
         self._tiles = RimTiles(context)
-        self._field = FieldNormals(context)  # quality.field_normals, in this pass
+        self._field = FieldNormals(context)  # quality.field_normals, on this pass's target
         self._silhouette = SilhouettePass(context)  # quality.silhouette_normals, then
 
     def target(self, size: tuple[int, int]) -> Target:
@@ -68,37 +69,28 @@ class NormalsPass:
         reach = quality.field_normals if quality is not None and field is not None else 0.0
         rim = quality.silhouette_normals if quality is not None else 0.0
         tiles = self._tiles.build(surface) if reach > 0.0 or rim > 0.0 else None
+        listing = reach > 0.0 and field is not None and tiles is not None
         program = self._context.programs.get(
             FULLSCREEN_VERT,
             SHADER,
-            DEFINES if reach > 0.0 else None,
-            samplers={"u_depth": 0, "u_tiles": TILES_UNIT} if reach > 0.0 else None,
+            DEFINES if listing else None,
+            samplers={"u_depth": 0, "u_tiles": TILES_UNIT} if listing else None,
         )
-        if reach > 0.0 and field is not None and tiles is not None:
-            self._field.prepare(program, field, support=support, reach_radii=reach)
-            tiles.use(TILES_UNIT)
+        built = None
+        if listing and field is not None and tiles is not None:
+            built = self._field.prepare(
+                program, tiles, surface.size, field, support=support, reach_radii=reach
+            )
         surface.use(0)
-
-        def values() -> dict[str, object]:
-            tan_y = camera.tan_half_fov_y
-            return {
-                "u_depth": 0,
-                "u_tan_half_fov": (tan_y * camera.aspect, tan_y),
-                "u_edge_jump": EDGE_JUMP_RADII * particle_radius,
-                "u_edge_jump_px": EDGE_JUMP_FOOTPRINTS,
-                "u_focal_px": camera.pixels_per_unit_at_unit_depth,
-                "u_particle_radius": particle_radius,
-                "u_stencil_radii": quality.normal_stencil if quality is not None else 0.0,
-                "u_stencil_max_px": quality.normal_stencil_max_px if quality is not None else 1,
-                "u_kink": KINK,
-            }
-
-        set_group(program, "frame", (camera, particle_radius, quality), values)
+        values = _frame_uniforms(camera, particle_radius, quality)
+        set_group(program, "frame", (camera, particle_radius, quality), lambda: values)
         write_matrix(program, "u_view_to_world", lambda: camera.rotation.T, camera)
         clear_and_scissor(target.fbo, box)
         target.fbo.use()
         self._context.fullscreen.draw(program)
         set_scissor(target.fbo, None)
+        if built is not None:
+            self._field.finish(target, surface, camera, values, built)
         if tiles is None:
             return target
         return self._silhouette.run(
@@ -110,3 +102,22 @@ class NormalsPass:
         self._tiles.release()
         self._field.release()
         self._silhouette.release()
+
+
+def _frame_uniforms(
+    camera: Camera, particle_radius: float, quality: QualityConfig | None
+) -> dict[str, object]:
+    """The normals pass's per-frame uniforms (the field normals' passes share the edge rule's
+    and the camera's)."""
+    tan_y = camera.tan_half_fov_y
+    return {
+        "u_depth": 0,
+        "u_tan_half_fov": (tan_y * camera.aspect, tan_y),
+        "u_edge_jump": EDGE_JUMP_RADII * particle_radius,
+        "u_edge_jump_px": EDGE_JUMP_FOOTPRINTS,
+        "u_focal_px": camera.pixels_per_unit_at_unit_depth,
+        "u_particle_radius": particle_radius,
+        "u_stencil_radii": quality.normal_stencil if quality is not None else 0.0,
+        "u_stencil_max_px": quality.normal_stencil_max_px if quality is not None else 1,
+        "u_kink": KINK,
+    }
