@@ -51,14 +51,21 @@ bool other_surface(ivec2 q, ivec2 size, float zc, float jump) {
 }
 
 // The smallest Manhattan distance d (1 .. reach + 1) to a rim pixel at that distance's jump,
-// reach + 2 if none.
-int rim_distance(ivec2 p, ivec2 size, float zc, float footprint_jump, int reach) {
+// reach + 2 if none. `tile`: the farthest and the nearest depth of a window holding every pixel
+// within reach + 1 (the rim tiles); once no depth in it differs from zc by more than the next
+// ring's jump, no farther ring can hold a rim (the jump only grows with d): on a smooth slope
+// the search stops there instead of walking every ring (the 100k ball at 1280x720: 61k pixels
+// search, 49k of them find no rim).
+int rim_distance(ivec2 p, ivec2 size, float zc, float footprint_jump, int reach, vec2 tile) {
     int limit = reach + 1;
     for (int d = 1; d <= FIELD_MAX_REACH + 1; ++d) {
         if (d > limit) {
             break;
         }
         float jump = max(u_edge_jump, footprint_jump * float(d));
+        if (tile.r - zc <= jump && zc - tile.g <= jump) {
+            break;  // |z - zc| <= jump for every z of the window, in float as in other_surface
+        }
         for (int k = 0; k < d; ++k) {
             // The four edges of the diamond |dx| + |dy| = d, each point once.
             if (other_surface(p + ivec2(d - k, k), size, zc, jump)
@@ -140,12 +147,12 @@ vec4 field_gradient(vec3 x) {
 float field_weight(ivec2 p, ivec2 size, float zc) {
     float jump = max(u_edge_jump, u_edge_jump_px * zc / u_focal_px);
     vec2 tile = texelFetch(u_tiles, p / 4, 0).rg;
-    if (tile.r <= zc + jump && tile.g >= zc - jump) {
+    if (tile.r - zc <= jump && zc - tile.g <= jump) {
         return 0.0;
     }
     float radius_px = u_particle_radius * u_focal_px / zc;
     int reach = clamp(int(round(u_reach_radii * radius_px)), 1, FIELD_MAX_REACH);
-    int d = rim_distance(p, size, zc, u_edge_jump_px * zc / u_focal_px, reach);
+    int d = rim_distance(p, size, zc, u_edge_jump_px * zc / u_focal_px, reach, tile);
     if (d > reach + 1) {
         return 0.0;
     }
