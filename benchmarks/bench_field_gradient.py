@@ -1,5 +1,6 @@
-"""The field normals' gradient two ways, timed side by side: per invocation, as the normals
-pass computes it (each pixel gathers the centres of the grid cells around its own point), and
+"""The field normals' gradient two ways, timed side by side: per invocation, as the blend pass
+computes it (field_gradient: each pixel gathers the centres of the rows of grid cells around its
+own point; here dispatched over the image, the engine dispatches over its list of pixels), and
 by tiles (a work group loads the centres around all its points into shared memory once, every
 invocation reads them there), the usual GPU remedy for a gather per invocation.
 
@@ -10,8 +11,8 @@ The points are the pixels the field normals evaluate on the bench's ~100k-partic
 rule, tests/reference_field_normals.py), the grid the engine's own (passes/field_grid.py).
 Prints the median dispatch time of each kernel (a finish after each), their ratio, and the
 largest angle between their gradients. On llvmpipe (this project's CI machines) the tiles were
-3-4x slower (54-68 ms against 18 ms: barriers and shared memory cost more than the gathers
-save), so the normals pass gathers; benchmarks/gpu_check.sh runs this on a GPU.
+3x slower (54-72 ms against 18-25 ms: barriers and shared memory cost more than the gathers
+save), so the engine gathers; benchmarks/gpu_check.sh runs this on a GPU.
 Kernels: shaders/bench/field_gradient_gather.comp.glsl, field_gradient_tiled.comp.glsl.
 """
 
@@ -43,7 +44,7 @@ from sphrender.server.engine.passes.normals import EDGE_JUMP_FOOTPRINTS
 from sphrender.server.engine.renderer import SurfaceRenderer
 
 KERNELS = {
-    "per invocation (the normals pass)": ("bench/field_gradient_gather.comp.glsl", 8),
+    "per invocation (field_gradient)": ("bench/field_gradient_gather.comp.glsl", 8),
     "tiles in shared memory": ("bench/field_gradient_tiled.comp.glsl", 8),
 }
 RADIUS = 0.01

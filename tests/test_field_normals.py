@@ -6,6 +6,9 @@ the camera, no particles): finite normals, depth untouched."""
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 from reference_field_normals import field_gradient, field_normals_reference
@@ -32,6 +35,7 @@ CAMERA = Camera.from_config(CameraConfig(eye=(0.0, 0.0, 0.6), target=(0.0, 0.0, 
 T = CAMERA.tan_half_fov_y
 FOCAL = CAMERA.pixels_per_unit_at_unit_depth
 TAN = (T * CAMERA.aspect, T)
+SHADERS = Path(__file__).resolve().parents[1] / "shaders"
 
 
 def rays() -> np.ndarray:
@@ -105,14 +109,13 @@ def splash(seed: int, count: int = 3000) -> np.ndarray:
     return np.concatenate([sheet, blob, drops])
 
 
-def test_matches_the_numpy_reference(gl_context: GLContext) -> None:
-    centres = splash(1)
-    # About as many buckets as centres: buckets hold cells of far-apart places too, which the
-    # tags keep apart (test_buckets_shared_by_many_cells forces neighbours into one bucket).
-    assert table_size(len(centres)) <= 2 * len(centres)
+def assert_matches_the_reference(gl: GLContext, centres: np.ndarray, facing_away: int = 0) -> int:
+    """The field normals of `centres` (radius R) against the brute-force reference on their
+    ray-cast depth, with more than `facing_away` well-conditioned pixels whose field normal
+    faces away from the eye; returns how many pixels the field changed."""
     depth, _ = ray_cast(centres, R)
-    plain = gl_normals(gl_context, depth, None)
-    field = gl_normals(gl_context, depth, centres)
+    plain = gl_normals(gl, depth, None)
+    field = gl_normals(gl, depth, centres)
     expected, changed = field_normals_reference(
         depth.astype(np.float32).astype(np.float64),
         plain[..., :3],
@@ -125,7 +128,6 @@ def test_matches_the_numpy_reference(gl_context: GLContext) -> None:
         edge_jump=EDGE_JUMP_RADII * R,
         edge_jump_px=EDGE_JUMP_FOOTPRINTS,
     )
-    assert changed.sum() > 500  # rims, steps and hole edges all over the image
     np.testing.assert_array_equal(field[..., 3], plain[..., 3])  # depth untouched
     # Away from rims the pass changes nothing, bit for bit.
     np.testing.assert_array_equal(field[~changed][:, :3], plain[~changed][:, :3])
@@ -142,24 +144,83 @@ def test_matches_the_numpy_reference(gl_context: GLContext) -> None:
     error = angle_deg(field[ys, xs, :3], expected[ys, xs])
     assert error[good].max() < 0.02
     assert np.isfinite(field).all()
-    # Every normal faces the eye (field normals facing away are mirrored to face it), and
-    # the scene has such pixels.
-    assert (np.sum(g * x, axis=-1) > 0.0)[good].sum() > 10
+    # Every normal faces the eye (field normals facing away are mirrored to face it).
+    assert (np.sum(g * x, axis=-1) > 0.0)[good].sum() >= facing_away
     assert (np.sum(field[ys, xs, :3] * x, axis=-1) <= 1e-6).all()
+    return int(changed.sum())
+
+
+def test_matches_the_numpy_reference(gl_context: GLContext) -> None:
+    centres = splash(1)
+    # About as many buckets as centres: buckets hold cells of far-apart places too, which the
+    # distance test drops (test_buckets_shared_by_many_cells: ~20 centres per bucket).
+    assert table_size(len(centres)) <= 2 * len(centres)
+    # Rims, steps and hole edges all over the image, and field normals facing away.
+    assert assert_matches_the_reference(gl_context, centres, facing_away=10) > 500
+
+
+def test_rows_wrapping_at_the_tables_end(
+    gl_context: GLContext, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A row of cells whose run of buckets passes the table's last one goes on at bucket 0
+    (common/field_grid.glsl). The smallest table, and a jittered sheet facing the camera in the
+    cells (0 .. 8, -2 .. 1, -28), whose cell (4, 0, -28) hashes to bucket 0 there: the rows
+    the sheet's pixels scan through it start in the table's last buckets."""
+    cell = SUPPORT / 2
+    constants = grid_constants()
+    hashed = (4 + 0 * constants["FIELD_HASH_Y"] - 28 * constants["FIELD_HASH_Z"]) % 2**32
+    assert hashed % field_grid.MIN_BUCKETS == 0
+    xs, ys = np.meshgrid(np.arange(0.0, 9 * cell, 1.2 * R), np.arange(-2 * cell, 2 * cell, 1.2 * R))
+    rng = np.random.default_rng(7)
+    centres = np.stack([xs.ravel(), ys.ravel(), np.full(xs.size, -27.5 * cell)], -1)
+    centres += rng.uniform(-0.15 * R, 0.15 * R, centres.shape)
+    monkeypatch.setattr(field_grid, "table_size", lambda count: field_grid.MIN_BUCKETS)
+    assert assert_matches_the_reference(gl_context, centres) > 100  # the sheet's rim
 
 
 def test_buckets_shared_by_many_cells(
     gl_context: GLContext, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A table of two buckets: every pixel's neighbour cells share them, and the cell tags
-    keep each centre counted once (the same normals as the full table's)."""
+    """The smallest table under 20k far-away centres (off to the side, beyond every pixel's
+    support): ~20 per bucket, sharing the buckets of the splash's cells. The distance test
+    drops them and each row of cells is still one run of buckets: the full table's normals."""
     centres = splash(2, count=600)
     depth, _ = ray_cast(centres, R)
-    full = gl_normals(gl_context, depth, centres)
-    monkeypatch.setattr(field_grid, "table_size", lambda count: 2)
-    shared = gl_normals(gl_context, depth, centres)
+    far = np.random.default_rng(3).uniform([3.0, -1.0, -2.0], [4.0, 1.0, -0.5], (20_000, 3))
+    everything = np.concatenate([centres, far])
+    assert table_size(len(everything)) >= 16 * field_grid.MIN_BUCKETS
     covered = depth > 0
-    assert angle_deg(shared[covered][:, :3], full[covered][:, :3]).max() < 1e-3
+    full = gl_normals(gl_context, depth, everything)[covered][:, :3]
+    alone = gl_normals(gl_context, depth, centres)[covered][:, :3]
+    monkeypatch.setattr(field_grid, "table_size", lambda count: field_grid.MIN_BUCKETS)
+    shared = gl_normals(gl_context, depth, everything)[covered][:, :3]
+    assert angle_deg(shared, full).max() < 1e-3
+    assert angle_deg(alone, full).max() < 1e-3
+
+
+def grid_constants() -> dict[str, int]:
+    source = (SHADERS / "common" / "field_grid.glsl").read_text()
+    found = dict(re.findall(r"#define (FIELD_\w+) (\d+)u?\b", source))
+    return {name: int(value) for name, value in found.items()}
+
+
+def test_rows_of_one_window_never_share_a_bucket() -> None:
+    """common/field_grid.glsl's promise: the rows of cells one point scans (|dy|, |dz| <= m
+    from its own) start in buckets more than 4 m apart modulo the smallest table, so their
+    runs of at most 2 m + 1 buckets never overlap in any table (each size a multiple of it):
+    no centre counted twice. And the host's smallest table is the shader's."""
+    constants = grid_constants()
+    m = constants["FIELD_CELLS_PER_SUPPORT"]
+    modulus = constants["FIELD_MIN_BUCKETS"]
+    assert modulus == field_grid.MIN_BUCKETS == table_size(1)
+    assert table_size(modulus + 1) % modulus == 0
+    window = range(-2 * m, 2 * m + 1)
+    for dy in window:
+        for dz in window:
+            if dy or dz:
+                step = dy * constants["FIELD_HASH_Y"] + dz * constants["FIELD_HASH_Z"]
+                residue = step % modulus
+                assert min(residue, modulus - residue) > 4 * m, (dy, dz)
 
 
 def test_blend_dispatch_in_rows(gl_context: GLContext, monkeypatch: pytest.MonkeyPatch) -> None:

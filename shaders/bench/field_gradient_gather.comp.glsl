@@ -1,7 +1,7 @@
 #version 430 core
-// The field gradient as the normals pass computes it (field_gradient of field/field_normals.glsl:
-// each invocation walks the grid cells around its own point and gathers their centres), one
-// invocation per pixel. benchmarks/bench_field_gradient.py times it against
+// The field gradient as the blend pass computes it (field_gradient of field/field_normals.glsl:
+// each invocation walks the rows of grid cells around its own point and gathers their
+// centres), one invocation per pixel of the image. benchmarks/bench_field_gradient.py times it against
 // field_gradient_tiled.comp.glsl.
 
 layout(local_size_x = 8, local_size_y = 8) in;

@@ -1,16 +1,16 @@
 #version 430 core
 // The field gradient by tiles (benchmarks/bench_field_gradient.py): a work group of TILE x TILE
 // pixels takes the cells around all its needing points (their cells' bounding box grown by
-// one), loads their centres into shared memory TILE^2 at a time, and every invocation sums over
-// each batch (the same address in every invocation: a broadcast, no gather). The usual GPU
-// remedy for a gather per invocation, more terms per point in exchange (boxes of more than
-// MAX_TILE_CELLS cells: field_gradient per invocation). The same terms as
-// field_gradient in another order (centres outside h add nothing).
+// m = FIELD_CELLS_PER_SUPPORT), loads their centres into shared memory TILE^2 at a time, and
+// every invocation sums over each batch (the same address in every invocation: a broadcast,
+// no gather). The usual GPU remedy for a gather per invocation, more terms per point in
+// exchange (boxes of more than MAX_TILE_CELLS cells: field_gradient per invocation). The same
+// terms as field_gradient in another order (centres outside h add nothing).
 
 #define TILE 8
 // A box of more cells (needing points far apart in depth: a droplet before the pool) falls
 // back to field_gradient per invocation.
-#define MAX_TILE_CELLS 64
+#define MAX_TILE_CELLS 216
 
 layout(local_size_x = TILE, local_size_y = TILE) in;
 
@@ -50,8 +50,8 @@ void main() {
         }
         return;
     }
-    ivec3 low = ivec3(s_low[0], s_low[1], s_low[2]) - 1;
-    ivec3 high = ivec3(s_high[0], s_high[1], s_high[2]) + 1;
+    ivec3 low = ivec3(s_low[0], s_low[1], s_low[2]) - FIELD_CELLS_PER_SUPPORT;
+    ivec3 high = ivec3(s_high[0], s_high[1], s_high[2]) + FIELD_CELLS_PER_SUPPORT;
     ivec3 cells = high - low + 1;
     if (cells.x * cells.y * cells.z > MAX_TILE_CELLS) {
         if (inside) {
@@ -64,21 +64,27 @@ void main() {
     float scale = 0.0;
     for (int z = low.z; z <= high.z; ++z) {
         for (int y = low.y; y <= high.y; ++y) {
-            for (int x = low.x; x <= high.x; ++x) {
-                ivec3 cell = ivec3(x, y, z);
-                uint tag = grid_tag(cell);
-                uint b = grid_bucket(cell);
-                uint end = starts[b + 1u];
-                for (uint first = starts[b]; first < end; first += uint(TILE * TILE)) {
-                    uint j = first + lane;
-                    vec3 c = vec3(3e38);  // not this cell's: beyond every support
-                    if (j < end && floatBitsToUint(sorted_centres[j].w) == tag) {
-                        c = sorted_centres[j].xyz;
+            // The row's cells low.x .. high.x are one run of buckets (common/field_grid.glsl);
+            // a centre counts only in its own cell's row (runs of the box's rows may overlap).
+            uint first = grid_bucket(ivec3(low.x, y, z));
+            uint count = uint(high.x - low.x + 1);
+            for (uint b = 0u; b < count; ++b) {
+                uint bucket = (first + b) & u_bucket_mask;
+                uint end = starts[bucket + 1u];
+                for (uint run = starts[bucket]; run < end; run += uint(TILE * TILE)) {
+                    uint j = run + lane;
+                    vec3 c = vec3(3e38);  // not this box's: beyond every support
+                    if (j < end) {
+                        vec3 centre = sorted_centres[j].xyz;
+                        ivec3 own = grid_cell(centre);
+                        if (own.y == y && own.z == z && own.x >= low.x && own.x <= high.x) {
+                            c = centre;
+                        }
                     }
                     s_centres[lane] = c;
                     barrier();
-                    uint count = min(uint(TILE * TILE), end - first);
-                    for (uint k = 0u; k < count; ++k) {
+                    uint batch = min(uint(TILE * TILE), end - run);
+                    for (uint k = 0u; k < batch; ++k) {
                         vec3 d = point.xyz - s_centres[k];
                         float q = length(d) / h;
                         if (q < 1.0) {

@@ -8,8 +8,7 @@
 //   3  one invocation: sums become their exclusive prefix sum;
 //   4  chunk scan: buckets[b] becomes the exclusive prefix sum of the counts (in place, each
 //      chunk serially from its sum), buckets[u_buckets] = the total;
-//   5  scatter: sorted[buckets[bucket(i)] + ranks[i]] = the centre of source particle i, its
-//      cell's tag in w (bits).
+//   5  scatter: sorted[buckets[bucket(i)] + ranks[i]] = source particle i (centre, radius).
 // Phases 1 and 5 compute a particle's bucket with the same code of the same shader, so they
 // agree bit for bit.
 
@@ -73,9 +72,8 @@ void main() {
     } else if (u_phase == 5) {
         uint rank = ranks[i];
         if (rank != NO_RANK) {
-            vec3 c = source[i].xyz;
-            ivec3 cell = grid_cell(c);
-            sorted_centres[buckets[grid_bucket(cell)] + rank] = vec4(c, uintBitsToFloat(grid_tag(cell)));
+            vec4 s = source[i];
+            sorted_centres[buckets[grid_bucket(grid_cell(s.xyz))] + rank] = s;
         }
     }
 }

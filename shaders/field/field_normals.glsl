@@ -16,7 +16,7 @@
 //   still one surface) adds up over d pixels;
 //   weight t = 1 - (d - 1) / (k + 1) (1 next to the rim, 0 beyond the reach);
 // * grad phi at the pixel's view-space point x from every centre of the field grid
-//   (common/field_grid.glsl) within h of x: the cubic spline's dW/dq / q times (x - x_j)
+//   (common/field_grid.glsl: rows of cells of side h / 2) within h of x: the cubic spline's dW/dq / q times (x - x_j)
 //   (constants dropped: only the direction is used);
 // * a visible surface faces the eye: a field normal pointing away from it is mirrored at the
 //   plane perpendicular to the view ray (n - 2 (n.ray) ray), keeping its direction on screen,
@@ -91,51 +91,64 @@ float spline_dw_over_q(float q) {
     return 0.0;
 }
 
-// Distance along one axis from offset o (in [0, h)) inside a cell to the cell `delta` steps
-// away: 0 for its own cell, o for the one below, h - o for the one above.
-float gap_to_cell(int delta, float o, float h) {
-    return delta == 0 ? 0.0 : (delta < 0 ? o : h - o);
+// Distance along one axis from offset o (in [0, cell)) inside a cell to the cell `delta`
+// steps away: 0 for its own cell.
+float gap_to_cell(int delta, float o, float cell) {
+    if (delta == 0) {
+        return 0.0;
+    }
+    return delta < 0 ? o + float(-delta - 1) * cell : cell - o + float(delta - 1) * cell;
 }
 
-// -grad phi at x (unnormalised), and the sum of the terms' magnitudes in .w. Visits the cells
-// of the 27 around x's own whose nearest point lies within h (~20 of them), and in each the
-// centres tagged with that cell (common/field_grid.glsl).
+// Adds the terms of the sorted centres first .. end - 1 within h of x.
+void add_centres(uint first, uint end, vec3 x, float h, inout vec3 outward, inout float scale) {
+    float h2 = h * h;
+    for (uint j = first; j < end; ++j) {
+        vec3 d = x - sorted_centres[j].xyz;
+        float r2 = dot(d, d);
+        if (r2 < h2) {
+            float r = sqrt(r2);
+            float w = spline_dw_over_q(r / h);
+            outward -= w * d;  // dW/dq < 0: away from x_j
+            scale += abs(w) * r;
+        }
+    }
+}
+
+// -grad phi at x (unnormalised), and the sum of the terms' magnitudes in .w. Visits the rows
+// of cells along x (common/field_grid.glsl: one contiguous run of centres each) of the
+// (2 m + 1)^2 around x's own whose nearest point lies within h (~22 for m = 2), each only over
+// the cells its chord of the support sphere crosses: ~10.5 h^3 of volume against 20.6 h^3 for
+// the 27 cells of side h the grid had, box-tested (1.42M against 1.78M centres visited on the
+// 100k ball at 1280x720; the blend pass 9.4 -> 7.5 ms on llvmpipe; inside the fragment shader
+// it was no faster, its lanes running rows of different lengths; m = 3: more rows than saved).
 vec4 field_gradient(vec3 x) {
+    const int m = FIELD_CELLS_PER_SUPPORT;
     float h = u_support;
+    float cell = grid_cell_side();
+    uint buckets = u_bucket_mask + 1u;
     ivec3 home = grid_cell(x);
-    vec3 local = x - vec3(home) * h;
+    vec3 local = x - vec3(home) * cell;
     vec3 outward = vec3(0.0);
     float scale = 0.0;
-    for (int dz = -1; dz <= 1; ++dz) {
-        float gz = gap_to_cell(dz, local.z, h);
-        for (int dy = -1; dy <= 1; ++dy) {
-            float gy = gap_to_cell(dy, local.y, h);
+    for (int dz = -m; dz <= m; ++dz) {
+        float gz = gap_to_cell(dz, local.z, cell);
+        for (int dy = -m; dy <= m; ++dy) {
+            float gy = gap_to_cell(dy, local.y, cell);
             float row2 = gy * gy + gz * gz;
             if (row2 >= h * h) {
                 continue;
             }
-            for (int dx = -1; dx <= 1; ++dx) {
-                float gx = gap_to_cell(dx, local.x, h);
-                if (gx * gx + row2 >= h * h) {
-                    continue;
-                }
-                ivec3 cell = home + ivec3(dx, dy, dz);
-                uint b = grid_bucket(cell);
-                uint tag = grid_tag(cell);
-                uint end = starts[b + 1u];
-                for (uint j = starts[b]; j < end; ++j) {
-                    vec4 c = sorted_centres[j];
-                    if (floatBitsToUint(c.w) != tag) {
-                        continue;
-                    }
-                    vec3 d = x - c.xyz;
-                    float q = length(d) / h;
-                    if (q < 1.0) {
-                        vec3 term = -spline_dw_over_q(q) * d;  // dW/dq < 0: away from x_j
-                        outward += term;
-                        scale += length(term);
-                    }
-                }
+            float chord = sqrt(h * h - row2);
+            int lo = max(int(floor((local.x - chord) / cell)), -m);
+            int hi = min(int(floor((local.x + chord) / cell)), m);
+            uint first = grid_bucket(home + ivec3(lo, dy, dz));
+            uint last = first + uint(hi - lo + 1);  // one past the row's last bucket
+            if (last <= buckets) {
+                add_centres(starts[first], starts[last], x, h, outward, scale);
+            } else {  // the row wraps at the table's end
+                add_centres(starts[first], starts[buckets], x, h, outward, scale);
+                add_centres(starts[0], starts[last - buckets], x, h, outward, scale);
             }
         }
     }

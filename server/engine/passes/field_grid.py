@@ -12,14 +12,17 @@ weights (on the dam break, per-particle volumes m / rho_j scored no better: 10.9
 The sort (`shaders/field/field_grid.comp.glsl`, layout in `shaders/common/field_grid.glsl`):
 count each centre's rank in its bucket (atomics), prefix-sum the counts
 (chunk sums, one serial scan of the chunks, chunk scans: the SPH engine's scheme), scatter.
-Table size: the power of two >= N (at least 1024); a cell holds ~16 centres inside a fluid
-(cell side h = 5 r by default, spacing 2 r), so buckets mostly hold one cell, and a bucket
-shared by several cells only costs time (each centre carries its cell's tag). The table is
+Cells have side h / 2 and the hash is linear in x, so a reader scans each row of cells along x
+that its support sphere crosses as one contiguous run of sorted centres (half the volume of
+the 27 cells of side h around a point).
+Table size: the power of two >= N, at least MIN_BUCKETS (the hash's constants keep the rows of
+one reader's window in distinct buckets for every such table; common/field_grid.glsl). A cell
+holds ~2 centres inside a fluid (spacing 2 r, cell side 2.5 r by default); cells far apart
+that share a bucket only cost time: a reader's distance test drops their centres. The table is
 zeroed with a buffer clear (a dispatch over it cost ~3 ms at 262k buckets on llvmpipe).
 Bindings 12-16 (common/field_grid.glsl); nothing else uses them, so they are bound per build.
-Faster layouts tried on llvmpipe and not kept (ARCHITECTURE.md, "field normals' speed"): rows of
-h / 2 cells as runs of centres, a texture instead of the buffer, tiles in shared memory
-(benchmarks/bench_field_gradient.py); the readers' gathers cost the same either way.
+Faster layouts tried on llvmpipe and not kept (ARCHITECTURE.md, "field normals' speed"): a
+texture instead of the buffer, tiles in shared memory (benchmarks/bench_field_gradient.py).
 
 Owns: the source (host prepare), rank, bucket, chunk-sum and sorted-centre buffers; grown
 geometrically, never shrunk; released by `release`.
@@ -43,6 +46,8 @@ GROUP_SIZE = 256  # local_size_x of the shader
 SOURCE, RANKS, BUCKETS, SUMS, SORTED = range(12, 17)
 #: Chunks of the prefix sum (the serial scan over them runs in one invocation).
 SCAN_CHUNKS = 1024
+#: The smallest table (FIELD_MIN_BUCKETS of common/field_grid.glsl; a power of two).
+MIN_BUCKETS = 1024
 COUNT, CHUNK_SUMS, SCAN_SUMS, CHUNK_SCAN, SCATTER = range(1, 6)
 
 
@@ -69,7 +74,7 @@ class BuiltGrid:
 
 
 def table_size(count: int) -> int:
-    return 1 << max(10, math.ceil(math.log2(max(count, 1))))
+    return max(MIN_BUCKETS, 1 << math.ceil(math.log2(max(count, 1))))
 
 
 class FieldGrid:
