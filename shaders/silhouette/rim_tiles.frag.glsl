@@ -1,4 +1,4 @@
-#version 330 core
+#version 400 core
 // The farthest and the nearest depth per 4 x 4 block of the eye-depth image
 // (passes/rim_tiles.py), with background counted as farther than any surface (3e38) and left
 // out of the nearest (3e38 when a block has no surface); pixels outside the image are left
@@ -31,16 +31,17 @@ void main() {
         }
     }
 #else
-    ivec2 origin = ivec2(gl_FragCoord.xy) * 4;
-    for (int y = 0; y < 4; ++y) {
-        for (int x = 0; x < 4; ++x) {
-            ivec2 p = origin + ivec2(x, y);
-            if (any(greaterThanEqual(p, size))) {
-                continue;
-            }
-            float z = texelFetch(u_depth, p, 0).r;
-            farthest = max(farthest, z > 0.0 ? z : 3e38);
-            nearest = z > 0.0 ? min(nearest, z) : nearest;
+    // Four 2 x 2 gathers; past the image's edge the texture clamps to it, which repeats this
+    // block's own edge pixels (the extremes are the same).
+    vec2 texel = 1.0 / vec2(size);
+    vec2 origin = vec2(ivec2(gl_FragCoord.xy) * 4);
+    for (int y = 1; y < 4; y += 2) {
+        for (int x = 1; x < 4; x += 2) {
+            vec4 z = textureGather(u_depth, (origin + vec2(x, y)) * texel);
+            // Background is the farthest of all, and no candidate for the nearest.
+            vec4 v = mix(z, vec4(3e38), lessThanEqual(z, vec4(0.0)));
+            farthest = max(farthest, max(max(v.x, v.y), max(v.z, v.w)));
+            nearest = min(nearest, min(min(v.x, v.y), min(v.z, v.w)));
         }
     }
 #endif
