@@ -550,6 +550,14 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="a row of cells that wraps at the table's end losing its part past it",
     ),
     Mutation(
+        name="field-cull-middle-block-only",
+        path="shaders/field/field_grid.comp.glsl",
+        old="return (rim_blocks[middle.y * u_rim_blocks.x + middle.x] & 2u) != 0u;",
+        new="return (rim_blocks[middle.y * u_rim_blocks.x + middle.x] & 1u) != 0u;",
+        tests=("tests/test_field_normals.py::test_matches_the_numpy_reference",),
+        description="the field grid dropping particles whose support reaches a listed block",
+    ),
+    Mutation(
         name="field-blend-last-group-dropped",
         path="shaders/field/field_blend.comp.glsl",
         old="uint needed = (rim_count + uint(FIELD_GROUP) - 1u) / uint(FIELD_GROUP);",
@@ -592,8 +600,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         name="field-culled-counted",
         path="shaders/field/field_grid.comp.glsl",
-        old="ranks[i] = s.w != 0.0 ?",
-        new="ranks[i] = true ?",
+        old="bool wanted = s.w != 0.0 && (!u_cull || near_a_rim(s.xyz));",
+        new="bool wanted = !u_cull || near_a_rim(s.xyz);",
         tests=("tests/test_field_normals.py::test_host_and_device_prepare_agree",),
         description="the field grid sorting the particles the device prepare culled",
     ),

@@ -2,8 +2,10 @@
 // Field grid build (passes/field_grid.py; layout in common/field_grid.glsl): a counting sort of
 // the particle centres into hashed buckets (zeroed by the host's buffer clear), one dispatch
 // per phase (u_phase):
+//   0  rim blocks (u_cull): bit 1 of each block where one within +-RIM_REACH has bit 0;
 //   1  count: for each source particle with a radius (w != 0; the device prepare writes 0 for
-//      culled ones), its rank in its bucket by atomicAdd; ranks[i] = rank, or NO_RANK;
+//      culled ones) whose support can reach a rim block (u_cull; common/rim_blocks.glsl), its
+//      rank in its bucket by atomicAdd; ranks[i] = rank, or NO_RANK;
 //   2  chunk sums: sums[c] = the counts of buckets [c * u_chunk, (c + 1) * u_chunk);
 //   3  one invocation: sums become their exclusive prefix sum;
 //   4  chunk scan: buckets[b] becomes the exclusive prefix sum of the counts (in place, each
@@ -15,6 +17,7 @@
 layout(local_size_x = 256) in;
 
 #include "common/field_grid.glsl"
+#include "common/rim_blocks.glsl"
 
 const uint NO_RANK = 0xffffffffu;
 
@@ -29,9 +32,73 @@ uniform uint u_first;    // first item of this dispatch (dispatches are split at
 uniform uint u_count;    // items of the phase: particles, buckets or chunks
 uniform uint u_buckets;  // table size
 uniform uint u_chunk;    // buckets per chunk (phases 2 and 4)
+uniform bool u_cull;     // phase 1: only the particles near a flagged rim block
+uniform vec2 u_tan_half_fov;  // (tan(fov_y / 2) * aspect, tan(fov_y / 2)), for the blocks
+uniform ivec2 u_image;        // the image's size in pixels
+
+// The pixels whose centre rays can pass within u_support of c, along one axis (the tangent
+// lines of the circle of radius r at (lateral, depth), common/sphere_bounds.glsl's formula in
+// float), widened by two pixels for float rounding; `depth` > 1.01 r.
+ivec2 reach_interval(float lateral, float depth, float r, float tan_half, int size) {
+    float d2_r2 = (depth - r) * (depth + r);
+    float spread = r * sqrt(lateral * lateral + d2_r2);
+    float scale = 0.5 * float(size) / tan_half;
+    float centre = 0.5 * float(size);
+    float lo = clamp((lateral * depth - spread) / d2_r2 * scale + centre, -1.0, float(size));
+    float hi = clamp((lateral * depth + spread) / d2_r2 * scale + centre, -1.0, float(size));
+    return ivec2(int(floor(lo)) - 2, int(ceil(hi)) + 2);
+}
+
+// Whether the support sphere of the view-space centre c can reach a listed pixel: a listed
+// block inside its screen rectangle (conservative: kept when near or behind the eye plane).
+// A rectangle of at most 2 RIM_REACH + 1 blocks per axis lies within RIM_REACH of its middle
+// block, whose bit 1 answers at once; a larger one (a near particle) looks at every block.
+bool near_a_rim(vec3 c) {
+    float r = u_support;
+    float depth = -c.z;
+    if (!(depth > 1.01 * r)) {
+        return true;
+    }
+    ivec2 x = reach_interval(c.x, depth, r, u_tan_half_fov.x, u_image.x);
+    ivec2 y = reach_interval(c.y, depth, r, u_tan_half_fov.y, u_image.y);
+    if (x.y < 0 || y.y < 0 || x.x >= u_image.x || y.x >= u_image.y) {
+        return false;  // off the image: no listed pixel there
+    }
+    ivec2 low = clamp(ivec2(x.x, y.x), ivec2(0), u_image - 1) / RIM_BLOCK;
+    ivec2 high = clamp(ivec2(x.y, y.y), ivec2(0), u_image - 1) / RIM_BLOCK;
+    if (all(lessThanEqual(high - low, ivec2(2 * RIM_REACH)))) {
+        ivec2 middle = (low + high) / 2;
+        return (rim_blocks[middle.y * u_rim_blocks.x + middle.x] & 2u) != 0u;
+    }
+    for (int by = low.y; by <= high.y; ++by) {
+        for (int bx = low.x; bx <= high.x; ++bx) {
+            if ((rim_blocks[by * u_rim_blocks.x + bx] & 1u) != 0u) {
+                return true;
+            }
+        }
+    }
+    return false;
+}
 
 void main() {
     uint i = u_first + gl_GlobalInvocationID.x;
+    if (u_phase == 0) {
+        ivec2 blocks = u_rim_blocks;
+        if (i >= uint(blocks.x * blocks.y)) {
+            return;
+        }
+        ivec2 b = ivec2(int(i) % blocks.x, int(i) / blocks.x);
+        ivec2 low = max(b - RIM_REACH, ivec2(0));
+        ivec2 high = min(b + RIM_REACH, blocks - 1);
+        bool near = false;
+        for (int by = low.y; by <= high.y; ++by) {
+            for (int bx = low.x; bx <= high.x; ++bx) {
+                near = near || (rim_blocks[by * blocks.x + bx] & 1u) != 0u;
+            }
+        }
+        rim_blocks[i] = (rim_blocks[i] & 1u) | (near ? 2u : 0u);  // bit 0 unchanged
+        return;
+    }
     if (u_phase == 3) {
         if (i == 0u) {
             uint total = 0u;
@@ -48,7 +115,8 @@ void main() {
     }
     if (u_phase == 1) {
         vec4 s = source[i];
-        ranks[i] = s.w != 0.0 ? atomicAdd(buckets[grid_bucket(grid_cell(s.xyz))], 1u) : NO_RANK;
+        bool wanted = s.w != 0.0 && (!u_cull || near_a_rim(s.xyz));
+        ranks[i] = wanted ? atomicAdd(buckets[grid_bucket(grid_cell(s.xyz))], 1u) : NO_RANK;
     } else if (u_phase == 2) {
         uint first = i * u_chunk;
         uint last = min(first + u_chunk, u_buckets);

@@ -44,11 +44,13 @@ from sphrender.server.engine.passes.context import PassContext
 SHADER = "field/field_grid.comp.glsl"
 GROUP_SIZE = 256  # local_size_x of the shader
 SOURCE, RANKS, BUCKETS, SUMS, SORTED = range(12, 17)
+#: The rim blocks' binding and side in pixels (common/rim_blocks.glsl).
+RIM_BLOCKS, RIM_BLOCK = 19, 16
 #: Chunks of the prefix sum (the serial scan over them runs in one invocation).
 SCAN_CHUNKS = 1024
 #: The smallest table (FIELD_MIN_BUCKETS of common/field_grid.glsl; a power of two).
 MIN_BUCKETS = 1024
-COUNT, CHUNK_SUMS, SCAN_SUMS, CHUNK_SCAN, SCATTER = range(1, 6)
+DILATE_BLOCKS, COUNT, CHUNK_SUMS, SCAN_SUMS, CHUNK_SCAN, SCATTER = range(6)
 
 
 @dataclass(frozen=True)
@@ -66,11 +68,26 @@ class FieldParticles:
 
 
 @dataclass(frozen=True)
+class RimCulling:
+    """Sort only the particles whose support reaches a flagged rim block (the storage buffer
+    at binding 19, common/rim_blocks.glsl) of an image of `size` seen through `tan_half_fov`."""
+
+    blocks: moderngl.Buffer
+    size: tuple[int, int]
+    tan_half_fov: tuple[float, float]
+
+
+@dataclass(frozen=True)
 class BuiltGrid:
     """What a reader sets: the support and the table mask (common/field_grid.glsl)."""
 
     support: float
     bucket_mask: int
+
+
+def rim_blocks(size: tuple[int, int]) -> tuple[int, int]:
+    """Rim blocks per row and per column of an image of `size`."""
+    return (-(-size[0] // RIM_BLOCK), -(-size[1] // RIM_BLOCK))
 
 
 def table_size(count: int) -> int:
@@ -82,6 +99,7 @@ class FieldGrid:
         self._context = context
         ctx = context.gl.ctx
         self._buffers = {binding: ctx.buffer(reserve=64) for binding in range(SOURCE, SORTED + 1)}
+        self._last_buckets = 0
 
     def _reserve(self, binding: int, nbytes: int) -> moderngl.Buffer:
         buffer = self._buffers[binding]
@@ -90,8 +108,11 @@ class FieldGrid:
             buffer.orphan(max(nbytes, buffer.size * 2))
         return buffer
 
-    def build(self, particles: FieldParticles, support: float) -> BuiltGrid:
-        """Sort `particles` into the grid of cell side `support` (view-space units)."""
+    def build(
+        self, particles: FieldParticles, support: float, cull: RimCulling | None = None
+    ) -> BuiltGrid:
+        """Sort `particles` into the grid of SPH support `support` (view-space units; cells of
+        half that side); with `cull`, only those that can reach a flagged rim block."""
         n = particles.total
         buckets = table_size(n)
         chunk = max(32, -(-buckets // SCAN_CHUNKS))
@@ -119,6 +140,16 @@ class FieldGrid:
         set_if_used(shader, "u_bucket_mask", buckets - 1)
         set_if_used(shader, "u_buckets", buckets)
         set_if_used(shader, "u_chunk", chunk)
+        set_if_used(shader, "u_cull", cull is not None)
+        if cull is not None:
+            width, height = cull.size
+            set_if_used(shader, "u_image", (width, height))
+            set_if_used(shader, "u_rim_blocks", rim_blocks(cull.size))
+            set_if_used(shader, "u_tan_half_fov", cull.tan_half_fov)
+            with clock:
+                cull.blocks.bind_to_storage_buffer(RIM_BLOCKS)
+            blocks_x, blocks_y = rim_blocks(cull.size)
+            self._run(shader, DILATE_BLOCKS, blocks_x * blocks_y)
         with clock:
             table.clear(size=4 * (buckets + 1))
         self._run(shader, COUNT, n)
@@ -126,7 +157,14 @@ class FieldGrid:
         self._run(shader, SCAN_SUMS, 1, count=chunks)  # one invocation scans `chunks` sums
         self._run(shader, CHUNK_SCAN, chunks)
         self._run(shader, SCATTER, n)
+        self._last_buckets = buckets
         return BuiltGrid(float(support), buckets - 1)
+
+    def sorted_count(self) -> int:
+        """How many centres the last build sorted (reads 4 bytes back: for tests and benches)."""
+        table = self._buffers[BUCKETS]
+        size = self._last_buckets
+        return int(np.frombuffer(table.read(size=4, offset=4 * size), np.uint32)[0])
 
     def bind_for_reading(self) -> None:
         """Bind the table and the sorted centres (a reader's bindings 14 and 16)."""

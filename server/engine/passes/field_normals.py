@@ -38,7 +38,13 @@ from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.gpu.draw import Target
 from sphrender.server.engine.gpu.uniforms import set_group, set_if_used, write_matrix
 from sphrender.server.engine.passes.context import PassContext
-from sphrender.server.engine.passes.field_grid import BuiltGrid, FieldGrid, FieldParticles
+from sphrender.server.engine.passes.field_grid import (
+    RIM_BLOCKS,
+    FieldGrid,
+    FieldParticles,
+    RimCulling,
+    rim_blocks,
+)
 
 BLEND_SHADER = "field/field_blend.comp.glsl"
 #: The normals pass's variant that lists the rims (field/field_rims.glsl).
@@ -60,35 +66,35 @@ class FieldNormals:
         ctx = context.gl.ctx
         self._rims = ctx.buffer(reserve=16)
         self._count = ctx.buffer(reserve=16)
+        self._blocks = ctx.buffer(reserve=16)
 
     def prepare(
         self,
         program: moderngl.Program,
         tiles: moderngl.Texture,
         size: tuple[int, int],
-        particles: FieldParticles,
         *,
-        support: float,
         reach_radii: float,
-    ) -> BuiltGrid:
+    ) -> None:
         """Before the normals pass's FIELD_NORMALS variant `program` draws an image of `size`:
-        build the grid of `particles` (SPH support `support`), empty the list, set the
-        variant's uniforms and bind what it reads and writes (`tiles` to TILES_UNIT)."""
+        empty the list and the rim blocks, set the variant's uniforms and bind what it reads
+        and writes (`tiles` to TILE_UNIT)."""
         if max(size) > MAX_IMAGE_SIDE:
             raise ValueError(f"field normals: image sides at most {MAX_IMAGE_SIDE} px, got {size}")
-        built = self._grid.build(particles, support)
         if 8 * size[0] * size[1] > self._rims.size:
             self._rims.orphan(8 * size[0] * size[1])
+        blocks_x, blocks_y = rim_blocks(size)
+        if 4 * blocks_x * blocks_y > self._blocks.size:
+            self._blocks.orphan(4 * blocks_x * blocks_y)
         with self._context.gl.clock:
             self._count.clear()
-            self._grid.bind_for_reading()
+            self._blocks.clear()
             self._rims.bind_to_storage_buffer(RIMS)
             self._count.bind_to_storage_buffer(COUNT)
+            self._blocks.bind_to_storage_buffer(RIM_BLOCKS)
             tiles.use(TILES_UNIT)
-        set_if_used(program, "u_support", built.support)
-        set_if_used(program, "u_bucket_mask", built.bucket_mask)
         set_if_used(program, "u_reach_radii", float(reach_radii))
-        return built
+        set_if_used(program, "u_rim_blocks", (blocks_x, blocks_y))
 
     def finish(
         self,
@@ -96,10 +102,18 @@ class FieldNormals:
         depth: moderngl.Texture,
         camera: Camera,
         frame_uniforms: dict[str, object],
-        built: BuiltGrid,
+        particles: FieldParticles,
+        support: float,
     ) -> None:
-        """After the variant drew `normals` from the eye-depth image `depth`: the listed
-        pixels' normals taken towards the field (`frame_uniforms`: the normals pass's)."""
+        """After the variant drew `normals` from the eye-depth image `depth`: sort the
+        `particles` that can reach a listed pixel into the field grid (SPH support `support`),
+        then take the listed pixels' normals towards the field (`frame_uniforms`: the normals
+        pass's)."""
+        tan_y = camera.tan_half_fov_y
+        cull = RimCulling(self._blocks, depth.size, (tan_y * camera.aspect, tan_y))
+        with self._context.gl.clock:
+            self._context.gl.ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)  # the blocks
+        built = self._grid.build(particles, support, cull)
         shader = self._context.programs.compute(BLEND_SHADER, {"u_depth": 0})
         key = tuple(sorted(frame_uniforms.items()))
         set_group(shader, "frame", key, lambda: dict(frame_uniforms))
@@ -131,3 +145,4 @@ class FieldNormals:
         self._grid.release()
         self._rims.release()
         self._count.release()
+        self._blocks.release()

@@ -76,11 +76,8 @@ class NormalsPass:
             DEFINES if listing else None,
             samplers={"u_depth": 0, "u_tiles": TILES_UNIT} if listing else None,
         )
-        built = None
-        if listing and field is not None and tiles is not None:
-            built = self._field.prepare(
-                program, tiles, surface.size, field, support=support, reach_radii=reach
-            )
+        if listing and tiles is not None:
+            self._field.prepare(program, tiles, surface.size, reach_radii=reach)
         surface.use(0)
         values = _frame_uniforms(camera, particle_radius, quality)
         set_group(program, "frame", (camera, particle_radius, quality), lambda: values)
@@ -89,8 +86,8 @@ class NormalsPass:
         target.fbo.use()
         self._context.fullscreen.draw(program)
         set_scissor(target.fbo, None)
-        if built is not None:
-            self._field.finish(target, surface, camera, values, built)
+        if listing and field is not None:
+            self._field.finish(target, surface, camera, values, field, support)
         if tiles is None:
             return target
         return self._silhouette.run(
