@@ -111,8 +111,8 @@ class FieldNormals:
         pass's)."""
         tan_y = camera.tan_half_fov_y
         cull = RimCulling(self._blocks, depth.size, (tan_y * camera.aspect, tan_y))
-        with self._context.gl.clock:
-            self._context.gl.ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)  # the blocks
+        with self._context.gl.clock:  # the list, its count and the blocks the draw wrote
+            self._context.gl.ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
         built = self._grid.build(particles, support, cull)
         shader = self._context.programs.compute(BLEND_SHADER, {"u_depth": 0})
         key = tuple(sorted(frame_uniforms.items()))
@@ -133,13 +133,11 @@ class FieldNormals:
         self._run(lambda: shader.run_indirect(self._count, 4))
 
     def _run(self, dispatch: Callable[..., None], *groups: int) -> None:
-        """`dispatch(*groups)` between barriers: what it reads is written, what it writes is
-        seen by the next reader (a shader, the indirect dispatch, a texture fetch)."""
-        ctx = self._context.gl.ctx
+        """`dispatch(*groups)`, then a barrier: what it wrote is seen by the next reader (a
+        shader, the indirect dispatch, a texture fetch)."""
         with self._context.gl.clock:
-            ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
             dispatch(*groups)
-            ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
+            self._context.gl.ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
 
     def release(self) -> None:
         self._grid.release()
