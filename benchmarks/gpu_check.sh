@@ -14,7 +14,7 @@
 #    host work per frame at 100k/720p and 1M/1080p for both prepare paths
 #    (benchmarks/bench_host.py): on a GPU the host column is the frame time's floor; what
 #    the service's true stage times (a finish per stage) cost against none; and the frame time
-#    of each preset, and of balanced with field normals (30 ms on llvmpipe, so not in balanced),
+#    of each preset, and of balanced with field normals (24 ms on llvmpipe, so not in balanced),
 #    against the pre-issue-12 default (benchmarks/bench_frame_ratio.py); and the field normals'
 #    gradient per invocation (the normals pass's way) against tiles in shared memory
 #    (benchmarks/bench_field_gradient.py: 2.9-3.8x slower on llvmpipe, the usual remedy on GPUs).

@@ -5,8 +5,8 @@
 //   1  dispatched with them: for each listed pixel, the normal of the normals pass's target
 //      (world space) taken towards the field's at the pixel's view point (field_blend,
 //      field/field_normals.glsl), in place.
-// 64 listed pixels to a work group, the gradient runs in no idle lane: 9 ms on the 100k ball at
-// 1280x720 on llvmpipe, against ~21 ms inside the normals pass's fragment shader, whose 4 x 4
+// 64 listed pixels to a work group, the gradient runs in no idle lane: 6 ms on the 100k ball at
+// 1280x720 on llvmpipe, against ~11 ms inside the normals pass's fragment shader, whose 4 x 4
 // blocks along the rims were a third idle.
 
 #define FIELD_GROUP 64

@@ -18,14 +18,15 @@ Two parts:
    (the same test as a compute pass over the image cost 17 ms at 1280x720 on llvmpipe);
 2. `shaders/field/field_blend.comp.glsl`: one invocation turns the list's length into the
    arguments of an indirect dispatch (the CPU never reads the count), then one invocation per
-   listed pixel evaluates the gradient over the field grid (`field_grid.py`, built every frame
-   the feature runs) and writes the blended normal back into the target (image load/store).
-   Packed 64 listed pixels to a work group the gradient runs in no idle lane: 9 ms on the 100k
-   ball at 1280x720 on llvmpipe, against ~21 ms inside the fragment shader, whose 4 x 4 blocks
-   along the rims were a third idle.
+   listed pixel evaluates the gradient over the field grid (`field_grid.py`, built between the
+   two from the particles whose support reaches a 16-px block with a listed pixel) and writes
+   the blended normal back into the target (image load/store). Packed 64 listed pixels to a
+   work group the gradient runs in no idle lane: 6 ms on the 100k ball at 1280x720 on
+   llvmpipe, against ~11 ms inside the fragment shader, whose 4 x 4 blocks along the rims were
+   a third idle.
 
 Owns: the field grid, the list (binding 17) and its count + the dispatch arguments (18), the
-list grown with the image; released by `release`.
+rim blocks (19), grown with the image; released by `release`.
 """
 
 from __future__ import annotations
