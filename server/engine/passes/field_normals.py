@@ -1,5 +1,6 @@
 """Field normals (`[quality] field_normals`): the normals near a rim from the SPH field's
-gradient, fixed up in place in the normals pass's target by two compute passes.
+gradient: the normals pass's variant lists the pixels near rims, a compute pass blends their
+normals in place in its target.
 
 A screen-space surface is the union of the particle spheres, smoothed. Near a rim (background,
 or a depth step: a sheet over the bulk, a hole in a sheet) its depth-differenced normal follows
@@ -79,7 +80,7 @@ class FieldNormals:
     ) -> None:
         """Before the normals pass's FIELD_NORMALS variant `program` draws an image of `size`:
         empty the list and the rim blocks, set the variant's uniforms and bind what it reads
-        and writes (`tiles` to TILE_UNIT)."""
+        and writes (`tiles` to TILES_UNIT)."""
         if max(size) > MAX_IMAGE_SIDE:
             raise ValueError(f"field normals: image sides at most {MAX_IMAGE_SIDE} px, got {size}")
         if 8 * size[0] * size[1] > self._rims.size:
@@ -102,22 +103,21 @@ class FieldNormals:
         normals: Target,
         depth: moderngl.Texture,
         camera: Camera,
-        frame_uniforms: dict[str, object],
+        frame_uniforms: tuple[object, Callable[[], dict[str, object]]],
         particles: FieldParticles,
         support: float,
     ) -> None:
         """After the variant drew `normals` from the eye-depth image `depth`: sort the
         `particles` that can reach a listed pixel into the field grid (SPH support `support`),
         then take the listed pixels' normals towards the field (`frame_uniforms`: the normals
-        pass's)."""
+        pass's uniform group: its key and values)."""
         tan_y = camera.tan_half_fov_y
         cull = RimCulling(self._blocks, depth.size, (tan_y * camera.aspect, tan_y))
         with self._context.gl.clock:  # the list, its count and the blocks the draw wrote
             self._context.gl.ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
         built = self._grid.build(particles, support, cull)
         shader = self._context.programs.compute(BLEND_SHADER, {"u_depth": 0})
-        key = tuple(sorted(frame_uniforms.items()))
-        set_group(shader, "frame", key, lambda: dict(frame_uniforms))
+        set_group(shader, "frame", *frame_uniforms)
         set_if_used(shader, "u_support", built.support)
         set_if_used(shader, "u_bucket_mask", built.bucket_mask)
         write_matrix(shader, "u_view_to_world", lambda: camera.rotation.T, camera)

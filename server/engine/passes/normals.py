@@ -79,15 +79,19 @@ class NormalsPass:
         if listing and tiles is not None:
             self._field.prepare(program, tiles, surface.size, reach_radii=reach)
         surface.use(0)
-        values = _frame_uniforms(camera, particle_radius, quality)
-        set_group(program, "frame", (camera, particle_radius, quality), lambda: values)
+        key = (camera, particle_radius, quality)
+
+        def values() -> dict[str, object]:
+            return _frame_uniforms(camera, particle_radius, quality)
+
+        set_group(program, "frame", key, values)
         write_matrix(program, "u_view_to_world", lambda: camera.rotation.T, camera)
         clear_and_scissor(target.fbo, box)
         target.fbo.use()
         self._context.fullscreen.draw(program)
         set_scissor(target.fbo, None)
         if listing and field is not None:
-            self._field.finish(target, surface, camera, values, field, support)
+            self._field.finish(target, surface, camera, (key, values), field, support)
         if tiles is None:
             return target
         return self._silhouette.run(
