@@ -369,7 +369,7 @@ def test_the_grid_leaves_out_only_particles_far_from_every_rim(
 
     def counting(self: field_grid.FieldGrid, *args: object, **kwargs: object) -> object:
         built = build(self, *args, **kwargs)  # type: ignore[arg-type]
-        sorted_counts.append(self.sorted_count())
+        sorted_counts.append(self.sorted_count(built))
         return built
 
     monkeypatch.setattr(field_grid.FieldGrid, "build", counting)

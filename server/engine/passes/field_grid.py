@@ -104,7 +104,6 @@ class FieldGrid:
         self._context = context
         ctx = context.gl.ctx
         self._buffers = {binding: ctx.buffer(reserve=64) for binding in range(SOURCE, SORTED + 1)}
-        self._last_buckets = 0
 
     def _reserve(self, binding: int, nbytes: int) -> moderngl.Buffer:
         buffer = self._buffers[binding]
@@ -162,14 +161,13 @@ class FieldGrid:
         self._run(shader, SCAN_SUMS, 1, count=chunks)  # one invocation scans `chunks` sums
         self._run(shader, CHUNK_SCAN, chunks)
         self._run(shader, SCATTER, n)
-        self._last_buckets = buckets
         return BuiltGrid(float(support), buckets - 1)
 
-    def sorted_count(self) -> int:
-        """How many centres the last build sorted (reads 4 bytes back: for tests and benches)."""
-        table = self._buffers[BUCKETS]
-        size = self._last_buckets
-        return int(np.frombuffer(table.read(size=4, offset=4 * size), np.uint32)[0])
+    def sorted_count(self, built: BuiltGrid) -> int:
+        """How many centres the build that returned `built` sorted (reads 4 bytes back: for
+        tests and benches)."""
+        end = 4 * (built.bucket_mask + 1)  # starts[table size] = the total
+        return int(np.frombuffer(self._buffers[BUCKETS].read(size=4, offset=end), np.uint32)[0])
 
     def bind_for_reading(self) -> None:
         """Bind the table and the sorted centres (a reader's bindings 14 and 16)."""

@@ -57,8 +57,8 @@ TILES_UNIT = 1
 RIMS, COUNT = 17, 18
 #: Work groups per row of the blend's dispatch (GL 4.3 promises 65535 per axis), 64 pixels each.
 GROUPS_X = 4096
-#: Pixel coordinates are packed 16 bits each.
-MAX_IMAGE_SIDE = 65535
+#: The list packs pixel coordinates in 16 bits each (scene images are far smaller).
+MAX_PACKED_SIDE = 65535
 
 
 class FieldNormals:
@@ -81,8 +81,8 @@ class FieldNormals:
         """Before the normals pass's FIELD_NORMALS variant `program` draws an image of `size`:
         empty the list and the rim blocks, set the variant's uniforms and bind what it reads
         and writes (`tiles` to TILES_UNIT)."""
-        if max(size) > MAX_IMAGE_SIDE:
-            raise ValueError(f"field normals: image sides at most {MAX_IMAGE_SIDE} px, got {size}")
+        if max(size) > MAX_PACKED_SIDE:
+            raise ValueError(f"field normals: image sides at most {MAX_PACKED_SIDE} px, got {size}")
         if 8 * size[0] * size[1] > self._rims.size:
             self._rims.orphan(8 * size[0] * size[1])
         blocks_x, blocks_y = rim_blocks(size)
