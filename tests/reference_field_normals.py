@@ -11,7 +11,7 @@ import numpy.typing as npt
 F64 = npt.NDArray[np.float64]
 
 
-MAX_REACH_PX = 7  # the shader's FIELD_MAX_REACH
+MAX_REACH_PX = 5  # the shader's FIELD_MAX_REACH
 
 
 def rim_distances(

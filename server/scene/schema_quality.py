@@ -171,7 +171,7 @@ class QualityConfig:
     )
     field_normals: float = spec(
         0.0,
-        "take the normals within this many projected particle radii (at most 7 pixels) of a "
+        "take the normals within this many projected particle radii (at most 5 pixels) of a "
         "rim (background, or a depth step the normals pass does not difference across) "
         "towards the normal of the particles' smoothed field, -grad phi of phi = sum W(|x - "
         "x_j|, field_normals_support) at the pixel's own surface point "

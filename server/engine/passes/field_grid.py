@@ -15,8 +15,10 @@ left out). Only the centres are used: the field is phi(x) = sum_j W(|x - x_j|, h
 weights (on the dam break, per-particle volumes m / rho_j scored no better: 10.9 vs 10.3 deg).
 
 The sort (`shaders/field/field_grid.comp.glsl`, layout in `shaders/common/field_grid.glsl`):
-count each centre's rank in its bucket (atomics), prefix-sum the counts
-(chunk sums, one serial scan of the chunks, chunk scans: the SPH engine's scheme), scatter.
+count each centre's rank in its bucket (atomics) and list the kept ones, prefix-sum the counts
+(chunk sums, one serial scan of the chunks, chunk scans: the SPH engine's scheme), scatter the
+kept ones (an indirect dispatch over the list, whose size the serial scan turns into its
+arguments: the CPU never reads it).
 Cells have side h / 2 and the hash is linear in x, so a reader scans each row of cells along x
 that its support sphere crosses as one contiguous run of sorted centres (half the volume of
 the 27 cells of side h around a point).
@@ -25,11 +27,13 @@ one reader's window in distinct buckets for every such table; common/field_grid.
 holds ~2 centres inside a fluid (spacing 2 r, cell side 2.5 r by default); cells far apart
 that share a bucket only cost time: a reader's distance test drops their centres. The table is
 zeroed with a buffer clear (a dispatch over it cost ~3 ms at 262k buckets on llvmpipe).
-Bindings 12-16 (common/field_grid.glsl); nothing else uses them, so they are bound per build.
+Bindings 12-16 and 20 (common/field_grid.glsl, the kept list's count); nothing else uses them,
+so they are bound per build.
 Faster layouts tried on llvmpipe and not kept (ARCHITECTURE.md, "field normals' speed"): a
 texture instead of the buffer, tiles in shared memory (benchmarks/bench_field_gradient.py).
 
-Owns: the source (host prepare), rank, bucket, chunk-sum and sorted-centre buffers; grown
+Owns: the source (host prepare), kept-list, kept-count, bucket, chunk-sum and sorted-centre
+buffers; grown
 geometrically, never shrunk; released by `release`.
 """
 
@@ -48,7 +52,11 @@ from sphrender.server.engine.passes.context import PassContext
 
 SHADER = "field/field_grid.comp.glsl"
 GROUP_SIZE = 256  # local_size_x of the shader
-SOURCE, RANKS, BUCKETS, SUMS, SORTED = range(12, 17)
+SOURCE, KEPT, BUCKETS, SUMS, SORTED = range(12, 17)
+#: The kept particles' count + the scatter's indirect dispatch arguments.
+KEPT_COUNT = 20
+#: Work groups per row of the scatter's indirect dispatch (GL 4.3 promises 65535 per axis).
+SCATTER_GROUPS_X = 4096
 #: The rim blocks' binding and side in pixels (common/rim_blocks.glsl).
 RIM_BLOCKS, RIM_BLOCK = 19, 16
 #: Chunks of the prefix sum (the serial scan over them runs in one invocation).
@@ -103,7 +111,8 @@ class FieldGrid:
     def __init__(self, context: PassContext) -> None:
         self._context = context
         ctx = context.gl.ctx
-        self._buffers = {binding: ctx.buffer(reserve=64) for binding in range(SOURCE, SORTED + 1)}
+        bindings = (*range(SOURCE, SORTED + 1), KEPT_COUNT)
+        self._buffers = {binding: ctx.buffer(reserve=64) for binding in bindings}
 
     def _reserve(self, binding: int, nbytes: int) -> moderngl.Buffer:
         buffer = self._buffers[binding]
@@ -131,13 +140,13 @@ class FieldGrid:
                     if len(array):
                         source.write(np.ascontiguousarray(array), offset=offset)
                     offset += array.nbytes
-        self._reserve(RANKS, 4 * n)
+        self._reserve(KEPT, 8 * n)
         table = self._reserve(BUCKETS, 4 * (buckets + 1))
         self._reserve(SUMS, 4 * (chunks + 1))
         self._reserve(SORTED, 16 * n)
         with clock:
             source.bind_to_storage_buffer(SOURCE)
-            for binding in range(RANKS, SORTED + 1):
+            for binding in (*range(KEPT, SORTED + 1), KEPT_COUNT):
                 self._buffers[binding].bind_to_storage_buffer(binding)
         shader = self._context.programs.compute(SHADER)
         set_if_used(shader, "u_support", float(support))
@@ -145,6 +154,7 @@ class FieldGrid:
         set_if_used(shader, "u_buckets", buckets)
         set_if_used(shader, "u_chunk", chunk)
         set_if_used(shader, "u_cull", cull is not None)
+        set_if_used(shader, "u_groups_x", SCATTER_GROUPS_X)
         if cull is not None:
             width, height = cull.size
             set_if_used(shader, "u_image", (width, height))
@@ -156,11 +166,15 @@ class FieldGrid:
             self._run(shader, DILATE_BLOCKS, blocks_x * blocks_y)
         with clock:
             table.clear(size=4 * (buckets + 1))
+            self._buffers[KEPT_COUNT].clear()
         self._run(shader, COUNT, n)
         self._run(shader, CHUNK_SUMS, chunks)
         self._run(shader, SCAN_SUMS, 1, count=chunks)  # one invocation scans `chunks` sums
         self._run(shader, CHUNK_SCAN, chunks)
-        self._run(shader, SCATTER, n)
+        set_if_used(shader, "u_phase", SCATTER)  # over the kept particles only
+        with clock:
+            shader.run_indirect(self._buffers[KEPT_COUNT], 4)  # past the count
+            self._context.gl.ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
         return BuiltGrid(float(support), buckets - 1)
 
     def sorted_count(self, built: BuiltGrid) -> int:

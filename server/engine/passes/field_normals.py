@@ -7,7 +7,7 @@ or a depth step: a sheet over the bulk, a hole in a sheet) its depth-differenced
 the spheres' beads and stays flat up to a hole's edge, where the surface a reconstruction
 draws (splashsurf's iso-surface of the SPH field) turns smoothly towards the rim. The normal of
 that iso-surface is -grad phi / |grad phi| of phi(x) = sum_j W(|x - x_j|, h), evaluated at each
-pixel's own surface point within `field_normals` projected particle radii (at most 7 pixels) of
+pixel's own surface point within `field_normals` projected particle radii (at most 5 pixels) of
 a rim and blended in by the distance to it (full next to the rim, none beyond the reach).
 Droplets (lone particles) get their exact sphere normal from it. Depth, coverage and the rim's
 place are unchanged. The rule in full: `shaders/field/field_normals.glsl`.
@@ -51,8 +51,8 @@ from sphrender.server.engine.passes.field_grid import (
 BLEND_SHADER = "field/field_blend.comp.glsl"
 #: The normals pass's variant that lists the rims (field/field_rims.glsl).
 DEFINES = {"FIELD_NORMALS": 1}
-#: Texture unit of the rim tiles in that variant.
-TILES_UNIT = 1
+#: Texture units of the rim tiles in that variant: the +-8 px windows, each tile's own extremes.
+TILES_UNIT, EXTREMES_UNIT = 1, 2
 #: Storage bindings of the list and of its count + the blend's dispatch arguments.
 RIMS, COUNT = 17, 18
 #: Work groups per row of the blend's dispatch (GL 4.3 promises 65535 per axis), 64 pixels each.
@@ -74,13 +74,15 @@ class FieldNormals:
         self,
         program: moderngl.Program,
         tiles: moderngl.Texture,
+        extremes: moderngl.Texture,
         size: tuple[int, int],
         *,
         reach_radii: float,
     ) -> None:
         """Before the normals pass's FIELD_NORMALS variant `program` draws an image of `size`:
         empty the list and the rim blocks, set the variant's uniforms and bind what it reads
-        and writes (`tiles` to TILES_UNIT)."""
+        and writes (the rim tiles' windows `tiles` to TILES_UNIT, their `extremes` to
+        EXTREMES_UNIT)."""
         if max(size) > MAX_PACKED_SIDE:
             raise ValueError(f"field normals: image sides at most {MAX_PACKED_SIDE} px, got {size}")
         if 8 * size[0] * size[1] > self._rims.size:
@@ -95,6 +97,7 @@ class FieldNormals:
             self._count.bind_to_storage_buffer(COUNT)
             self._blocks.bind_to_storage_buffer(RIM_BLOCKS)
             tiles.use(TILES_UNIT)
+            extremes.use(EXTREMES_UNIT)
         set_if_used(program, "u_reach_radii", float(reach_radii))
         set_if_used(program, "u_rim_blocks", (blocks_x, blocks_y))
 

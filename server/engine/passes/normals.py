@@ -22,7 +22,12 @@ from sphrender.server.engine.gpu.draw import PerSize, Target, clear_and_scissor,
 from sphrender.server.engine.gpu.uniforms import set_group, write_matrix
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 from sphrender.server.engine.passes.field_grid import FieldParticles
-from sphrender.server.engine.passes.field_normals import DEFINES, TILES_UNIT, FieldNormals
+from sphrender.server.engine.passes.field_normals import (
+    DEFINES,
+    EXTREMES_UNIT,
+    TILES_UNIT,
+    FieldNormals,
+)
 from sphrender.server.engine.passes.rim_tiles import RimTiles
 from sphrender.server.engine.passes.silhouette import SilhouettePass
 from sphrender.server.scene import QualityConfig
@@ -35,6 +40,8 @@ EDGE_JUMP_FOOTPRINTS = 8.0
 #: The wide stencil's kink test: the two one-sided slopes over the stencil may differ by this
 #: fraction of the larger (a crease, a rim or a junction differs by more).
 KINK = 0.5
+#: The FIELD_NORMALS variant's texture units.
+_FIELD_SAMPLERS = {"u_depth": 0, "u_tiles": TILES_UNIT, "u_tile_extremes": EXTREMES_UNIT}
 
 
 class NormalsPass:
@@ -74,10 +81,11 @@ class NormalsPass:
             FULLSCREEN_VERT,
             SHADER,
             DEFINES if listing else None,
-            samplers={"u_depth": 0, "u_tiles": TILES_UNIT} if listing else None,
+            samplers=_FIELD_SAMPLERS if listing else None,
         )
         if listing and tiles is not None:
-            self._field.prepare(program, tiles, surface.size, reach_radii=reach)
+            extremes = self._tiles.extremes(surface.size)
+            self._field.prepare(program, tiles, extremes, surface.size, reach_radii=reach)
         surface.use(0)
         key = (camera, particle_radius, quality)
 

@@ -39,7 +39,8 @@ class RimTiles:
 
     def build(self, depth: moderngl.Texture) -> moderngl.Texture:
         """The tiles of the eye-depth image `depth` (R32F, 0 = no surface): R = the farthest
-        depth (background 3e38), G = the nearest (3e38 without surface)."""
+        depth within +-8 pixels of the tile (background 3e38), G = the nearest (3e38 without
+        surface). The same extremes of each tile's own 4 x 4 pixels: `extremes` after it."""
         steps = self._targets.get(depth.size).steps
         programs, draw = self._context.programs, self._context.fullscreen.draw
         sources = (depth, steps[0].texture, steps[1].texture)
@@ -49,6 +50,11 @@ class RimTiles:
             steps[step].fbo.use()
             draw(program)
         return steps[2].texture
+
+    def extremes(self, size: tuple[int, int]) -> moderngl.Texture:
+        """The farthest and the nearest depth of each tile's own 4 x 4 pixels (same encoding),
+        as the last `build` of an image of `size` left them."""
+        return self._targets.get(size).steps[0].texture
 
     def release(self) -> None:
         self._targets.release()
