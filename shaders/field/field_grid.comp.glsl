@@ -15,7 +15,7 @@
 //   5  scatter, one invocation per kept particle (i, rank):
 //      sorted[buckets[bucket(i)] + rank] = source particle i (centre, radius). Over the kept
 //      list, not every source particle: on the 100k ball at 1280x720 24k of 102k are kept,
-//      the phase 1.9 -> ms on llvmpipe.
+//      the build 5.1 -> 4.5 ms on llvmpipe (the scatter 1.9 -> ~0.3, the count 1.8 -> 2.2).
 // Phases 1 and 5 compute a particle's bucket with the same code of the same shader, so they
 // agree bit for bit.
 

@@ -68,6 +68,12 @@ uniform sampler2D u_brdf_lut;       // (n.v, roughness) -> (A, B)
 uniform int u_ibl_samples;
 uniform float u_eq55_k;
 
+// The half-width of the 3 x 3 neighbour windows below, 1: a uniform, not a constant, so that
+// their loops stay loops. llvmpipe runs both sides of a branch for every pixel of its block
+// under a mask and skips only loops whose lanes are all done: unrolled, the two windows (needed
+// only next to a silhouette) cost every pixel 18 fetches (~2 ms of the 100k ball's 1280x720
+// frame). A GPU skips a branch no lane of a warp takes either way.
+uniform int u_neighbour_reach;
 uniform sampler2D u_coverage;       // sub-pixel coverage of the silhouettes (ANTIALIAS)
 uniform sampler2D u_temperature;    // kelvin, nearest particle (0 = none)
 uniform sampler2D u_blackbody;      // 1 x N: rgb at luminance 1, log2(luminance) in alpha
@@ -159,8 +165,8 @@ vec3 blackbody_radiance(float kelvin) {
 vec4 nearest_neighbour_surface(ivec2 pixel, ivec2 size, out ivec2 source) {
     vec4 best = vec4(0.0);
     source = pixel;
-    for (int dy = -1; dy <= 1; ++dy) {
-        for (int dx = -1; dx <= 1; ++dx) {
+    for (int dy = -u_neighbour_reach; dy <= u_neighbour_reach; ++dy) {
+        for (int dx = -u_neighbour_reach; dx <= u_neighbour_reach; ++dx) {
             ivec2 q = pixel + ivec2(dx, dy);
             if (any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, size))) {
                 continue;
@@ -177,8 +183,8 @@ vec4 nearest_neighbour_surface(ivec2 pixel, ivec2 size, out ivec2 source) {
 
 // Whether any of the 8 neighbours of `pixel` has no surface at its centre (a silhouette is near).
 bool next_to_background(ivec2 pixel, ivec2 size) {
-    for (int dy = -1; dy <= 1; ++dy) {
-        for (int dx = -1; dx <= 1; ++dx) {
+    for (int dy = -u_neighbour_reach; dy <= u_neighbour_reach; ++dy) {
+        for (int dx = -u_neighbour_reach; dx <= u_neighbour_reach; ++dx) {
             ivec2 q = clamp(pixel + ivec2(dx, dy), ivec2(0), size - 1);
             if (texelFetch(u_normal_depth, q, 0).w <= 0.0) {
                 return true;

@@ -169,6 +169,7 @@ class ShadePass:
             "u_f0": material.specular_f0,
             "u_diffuse_albedo": material.diffuse_albedo,
             "u_roughness": material.roughness,
+            "u_neighbour_reach": 1,  # shade_pbr.frag.glsl: a uniform, so its loops stay loops
             "u_eq55_k": shading.eq55_k,
             "u_blackbody_range": (TABLE_MIN_K, TABLE_MAX_K),
             "u_emissivity": material.normal_emissivity,
