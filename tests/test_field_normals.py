@@ -160,6 +160,20 @@ def test_matches_the_numpy_reference(gl_context: GLContext) -> None:
     assert assert_matches_the_reference(gl_context, centres, facing_away=10) > 500
 
 
+def test_rims_of_a_nearer_sheet_over_a_wall_filling_the_image(gl_context: GLContext) -> None:
+    """No background anywhere: the wall's rims are the edges of the nearer sheet only, which
+    the listing's tile test must find from the far side too (its nearer-surface term)."""
+    rng = np.random.default_rng(3)
+    ys, xs = np.mgrid[-0.32:0.32:0.01, -0.46:0.46:0.01]
+    wall = np.stack([xs.ravel(), ys.ravel(), np.full(xs.size, -0.7)], -1)
+    wall += rng.normal(0.0, 0.001, wall.shape)
+    sheet = rng.uniform([-0.08, -0.05, -0.51], [0.08, 0.05, -0.5], (400, 3))
+    centres = np.concatenate([wall, sheet])
+    depth, _ = ray_cast(centres, R)
+    assert (depth > 0).all()  # the wall fills the image
+    assert assert_matches_the_reference(gl_context, centres) > 100
+
+
 def test_rows_wrapping_at_the_tables_end(
     gl_context: GLContext, monkeypatch: pytest.MonkeyPatch
 ) -> None:

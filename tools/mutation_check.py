@@ -534,6 +534,32 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="the silhouette pass turning droplets smaller than its window",
     ),
     Mutation(
+        name="field-first-ring-too-far",
+        path="shaders/field/field_normals.glsl",
+        old="            int dm = max(gx + gy, 1);",
+        new="            int dm = max(gx + gy, 1) + 1;",
+        tests=("tests/test_field_normals.py::test_matches_the_numpy_reference",),
+        description="the rim search starting a ring past the first that a tile allows",
+    ),
+    Mutation(
+        name="field-tile-test-farther-only",
+        path="shaders/field/field_list.comp.glsl",
+        old="                if (e.r - own.g > jump || own.r - e.g > jump) {",
+        new="                if (e.r - own.g > jump) {",
+        tests=(
+            "tests/test_field_normals.py::test_rims_of_a_nearer_sheet_over_a_wall_filling_the_image",
+        ),
+        description="the listing skipping tiles whose rim is a nearer surface",
+    ),
+    Mutation(
+        name="field-list-half-the-tile",
+        path="shaders/field/field_list.comp.glsl",
+        old="int((i >> 2) & 3u)",
+        new="int((i >> 2) & 1u)",
+        tests=("tests/test_field_normals.py::test_matches_the_numpy_reference",),
+        description="the listing covering only two rows of each listed tile",
+    ),
+    Mutation(
         name="field-rows-overlap",
         path="shaders/common/field_grid.glsl",
         old="#define FIELD_HASH_Y 19349663u",
@@ -600,8 +626,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         name="field-culled-counted",
         path="shaders/field/field_grid.comp.glsl",
-        old="bool wanted = s.w != 0.0 && (!u_cull || near_a_rim(s.xyz));",
-        new="bool wanted = !u_cull || near_a_rim(s.xyz);",
+        old="if (s.w != 0.0 && (!u_cull || near_a_rim(s.xyz))) {",
+        new="if (!u_cull || near_a_rim(s.xyz)) {",
         tests=("tests/test_field_normals.py::test_host_and_device_prepare_agree",),
         description="the field grid sorting the particles the device prepare culled",
     ),

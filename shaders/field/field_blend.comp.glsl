@@ -1,6 +1,6 @@
 #version 430 core
 // Field normals, second part (passes/field_normals.py), by phase (u_phase):
-//   0  one invocation: the work groups for the `rim_count` pixels field/field_rims.glsl
+//   0  one invocation: the work groups for the `rim_count` pixels field/field_list.comp.glsl
 //      listed, as the arguments of an indirect dispatch (x at most u_groups_x, then rows);
 //   1  dispatched with them: for each listed pixel, the normal of the normals pass's target
 //      (world space) taken towards the field's at the pixel's view point (field_blend,

@@ -1,5 +1,5 @@
 // Field normals (passes/field_normals.py; numpy reference in tests/reference_field_normals.py):
-// the functions of its two compute passes, field/field_rims.comp.glsl (which pixels, and
+// the functions of its two compute passes, field/field_list.comp.glsl (which pixels, and
 // their weights) and field/field_blend.comp.glsl (the field's normal, blended in).
 // Near a rim the depth-differenced normal follows the beads of the particle spheres and stays
 // flat up to the edge of a sheet's hole; the surface a reconstruction would draw there (an

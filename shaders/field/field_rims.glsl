@@ -1,11 +1,8 @@
-// Field normals, first part (passes/field_normals.py), included by
-// normals/surface_normals.frag.glsl when FIELD_NORMALS is 1: a surface pixel within reach of a
-// rim (field_weight, field/field_normals.glsl; the rim tiles let the rest stop at once)
-// appends (x | y << 16, its weight's bits) to `rims`, counts itself in `rim_count` and flags
-// its rim block (common/rim_blocks.glsl);
-// field/field_blend.comp.glsl then changes the listed pixels' normals. In the fragment
-// shader, which has the depth at hand: as a compute pass of its own over the image the same
-// test cost 17 ms on the 100k ball at 1280x720 on llvmpipe, several times its share here.
+// Field normals, first part (passes/field_normals.py), for field/field_list.comp.glsl: a
+// surface pixel within reach of a rim (field_weight, field/field_normals.glsl) appends
+// (x | y << 16, its weight's bits) to `rims`, counts itself in `rim_count` and flags its rim
+// block (common/rim_blocks.glsl); field/field_blend.comp.glsl then changes the listed pixels'
+// normals.
 
 #include "field/field_normals.glsl"
 #include "common/rim_blocks.glsl"

@@ -14,11 +14,6 @@
 //   jump of more than u_edge_jump) when the pixel has a neighbour of its own surface along the
 //   axis. Without one: toward the single nearer neighbour, if exactly one (a surface seen
 //   edge-on behind it, see one_sided_difference), else the depth is taken as constant along it.
-// FIELD_NORMALS 1 (quality.field_normals): the pixels near rims are also listed
-// (field/field_rims.glsl), whose normals passes/field_normals.py then takes towards the SPH
-// field's (field/field_blend.comp.glsl).
-
-#define FIELD_NORMALS 0
 // Output: world normal (xyz), eye depth (w); all zero where there is no surface.
 
 #include "common/depth_image.glsl"
@@ -35,10 +30,6 @@ uniform int u_stencil_max_px;
 uniform float u_kink;            // largest relative difference of the two one-sided slopes
 
 layout(location = 0) out vec4 out_normal_depth;
-
-#if FIELD_NORMALS
-#include "field/field_rims.glsl"
-#endif
 
 vec3 one_sided_difference(ivec2 center, vec3 position, float zc, ivec2 step, ivec2 size) {
     float z_plus = fetch_depth(u_depth, center + step);
@@ -117,8 +108,5 @@ void main() {
     if (dot(normal, position) > 0.0) {
         normal = -normal;  // face the camera
     }
-#if FIELD_NORMALS
-    list_rim(center, size, zc);
-#endif
     out_normal_depth = vec4(normalize(u_view_to_world * normal), zc);
 }

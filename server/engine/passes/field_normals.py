@@ -1,6 +1,6 @@
 """Field normals (`[quality] field_normals`): the normals near a rim from the SPH field's
-gradient: the normals pass's variant lists the pixels near rims, a compute pass blends their
-normals in place in its target.
+gradient: a compute pass lists the pixels near rims, another blends their normals in place in
+the normals pass's target.
 
 A screen-space surface is the union of the particle spheres, smoothed. Near a rim (background,
 or a depth step: a sheet over the bulk, a hole in a sheet) its depth-differenced normal follows
@@ -13,10 +13,14 @@ Droplets (lone particles) get their exact sphere normal from it. Depth, coverage
 place are unchanged. The rule in full: `shaders/field/field_normals.glsl`.
 
 Two parts:
-1. in the normals pass (its FIELD_NORMALS variant, `shaders/field/field_rims.glsl`): each
-   surface pixel within reach of a rim (the rim tiles, `rim_tiles.py`, let the rest stop at
-   once) appends itself and its weight to a list; the fragment shader has the depth at hand
-   (the same test as a compute pass over the image cost 17 ms at 1280x720 on llvmpipe);
+1. `shaders/field/field_list.comp.glsl`: the rim tiles (`rim_tiles.py`) that may hold a pixel
+   within reach of a rim list themselves (a test per tile over its neighbours' extremes), then
+   one invocation per pixel of a listed tile appends each surface pixel within reach of a rim
+   and its weight to a list (`shaders/field/field_rims.glsl`; an indirect dispatch sized on
+   the device). On the 100k ball at 1280x720, 2.7k of 57.6k tiles list themselves and 9k
+   pixels are listed: 4.6 ms on llvmpipe, against 6.3 ms inside the normals pass's fragment
+   shader (whose variant cost ~2.6 ms over the whole image even where no pixel searched) and
+   17 ms as a compute pass over every pixel;
 2. `shaders/field/field_blend.comp.glsl`: one invocation turns the list's length into the
    arguments of an indirect dispatch (the CPU never reads the count), then one invocation per
    listed pixel evaluates the gradient over the field grid (`field_grid.py`, built between the
@@ -26,8 +30,9 @@ Two parts:
    llvmpipe, against ~11 ms inside the fragment shader, whose 4 x 4 blocks along the rims were
    a third idle.
 
-Owns: the field grid, the list (binding 17) and its count + the dispatch arguments (18), the
-rim blocks (19), grown with the image; released by `release`.
+Owns: the field grid, the list (binding 17) and its count + the blend's dispatch arguments
+(18), the rim blocks (19), the listed tiles (21) and their count + the listing's dispatch
+arguments (22), grown with the image; released by `release`.
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ from collections.abc import Callable
 import moderngl
 
 from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.geometry.screen_box import ScreenBox
 from sphrender.server.engine.gpu.draw import Target
 from sphrender.server.engine.gpu.uniforms import set_group, set_if_used, write_matrix
 from sphrender.server.engine.passes.context import PassContext
@@ -49,15 +55,17 @@ from sphrender.server.engine.passes.field_grid import (
 )
 
 BLEND_SHADER = "field/field_blend.comp.glsl"
-#: The normals pass's variant that lists the rims (field/field_rims.glsl).
-DEFINES = {"FIELD_NORMALS": 1}
-#: Texture units of the rim tiles in that variant: the +-8 px windows, each tile's own extremes.
-TILES_UNIT, EXTREMES_UNIT = 1, 2
-#: Storage bindings of the list and of its count + the blend's dispatch arguments.
-RIMS, COUNT = 17, 18
-#: Work groups per row of the blend's dispatch (GL 4.3 promises 65535 per axis), 64 pixels each.
+LIST_SHADER = "field/field_list.comp.glsl"
+#: Its texture units: the eye depth, the rim tiles' windows and their own extremes.
+_LIST_SAMPLERS = {"u_depth": 0, "u_tiles": 1, "u_tile_extremes": 2}
+#: Storage bindings of the list and of its count + the blend's dispatch arguments, and of the
+#: listed rim tiles and their count + the listing's dispatch arguments.
+RIMS, COUNT, TILES, TILE_COUNT = 17, 18, 21, 22
+#: Work groups per row of the indirect dispatches (GL 4.3 promises 65535 per axis).
 GROUPS_X = 4096
-#: The list packs pixel coordinates in 16 bits each (scene images are far smaller).
+#: Work-group size of the listing (field_list.comp.glsl's FIELD_LIST_GROUP).
+LIST_GROUP = 64
+#: The lists pack pixel and tile coordinates in 16 bits each (scene images are far smaller).
 MAX_PACKED_SIDE = 65535
 
 
@@ -69,37 +77,64 @@ class FieldNormals:
         self._rims = ctx.buffer(reserve=16)
         self._count = ctx.buffer(reserve=16)
         self._blocks = ctx.buffer(reserve=16)
+        self._tiles = ctx.buffer(reserve=16)
+        self._tile_count = ctx.buffer(reserve=16)
 
-    def prepare(
+    def list_rims(
         self,
-        program: moderngl.Program,
-        tiles: moderngl.Texture,
-        extremes: moderngl.Texture,
-        size: tuple[int, int],
+        depth: moderngl.Texture,
+        tiles: tuple[moderngl.Texture, moderngl.Texture],
+        box: ScreenBox | None,
+        frame_uniforms: tuple[object, Callable[[], dict[str, object]]],
         *,
         reach_radii: float,
     ) -> None:
-        """Before the normals pass's FIELD_NORMALS variant `program` draws an image of `size`:
-        empty the list and the rim blocks, set the variant's uniforms and bind what it reads
-        and writes (the rim tiles' windows `tiles` to TILES_UNIT, their `extremes` to
-        EXTREMES_UNIT)."""
+        """List the pixels of the eye-depth image `depth` inside `box` (None: all) within
+        `reach_radii` projected particle radii of a rim into a fresh list and flag their rim
+        blocks; `tiles`: its rim tiles (the +-8 px windows, each tile's own extremes);
+        `frame_uniforms`: the normals pass's uniform group, its key and values."""
+        size = depth.size
         if max(size) > MAX_PACKED_SIDE:
             raise ValueError(f"field normals: image sides at most {MAX_PACKED_SIDE} px, got {size}")
-        if 8 * size[0] * size[1] > self._rims.size:
-            self._rims.orphan(8 * size[0] * size[1])
+        box = (0, 0, *size) if box is None else box
+        tile_box = _tile_box(box, tiles[0].size)
+        self._grow(self._rims, 8 * size[0] * size[1])
+        self._grow(self._tiles, 4 * tile_box[2] * tile_box[3])
         blocks_x, blocks_y = rim_blocks(size)
-        if 4 * blocks_x * blocks_y > self._blocks.size:
-            self._blocks.orphan(4 * blocks_x * blocks_y)
+        self._grow(self._blocks, 4 * blocks_x * blocks_y)
+        shader = self._context.programs.compute(LIST_SHADER, _LIST_SAMPLERS)
+        set_group(shader, "frame", *frame_uniforms)
+        set_if_used(shader, "u_reach_radii", float(reach_radii))
+        set_if_used(shader, "u_rim_blocks", (blocks_x, blocks_y))
+        set_if_used(shader, "u_groups_x", GROUPS_X)
+        set_if_used(shader, "u_tile_box", tile_box)
+        set_if_used(shader, "u_box", box)
         with self._context.gl.clock:
             self._count.clear()
             self._blocks.clear()
-            self._rims.bind_to_storage_buffer(RIMS)
-            self._count.bind_to_storage_buffer(COUNT)
-            self._blocks.bind_to_storage_buffer(RIM_BLOCKS)
-            tiles.use(TILES_UNIT)
-            extremes.use(EXTREMES_UNIT)
-        set_if_used(program, "u_reach_radii", float(reach_radii))
-        set_if_used(program, "u_rim_blocks", (blocks_x, blocks_y))
+            self._tile_count.clear()
+            for buffer, binding in (
+                (self._rims, RIMS),
+                (self._count, COUNT),
+                (self._blocks, RIM_BLOCKS),
+                (self._tiles, TILES),
+                (self._tile_count, TILE_COUNT),
+            ):
+                buffer.bind_to_storage_buffer(binding)
+            depth.use(0)
+            tiles[0].use(1)
+            tiles[1].use(2)
+        set_if_used(shader, "u_phase", 0)
+        self._run(shader.run, -(-tile_box[2] * tile_box[3] // LIST_GROUP))
+        set_if_used(shader, "u_phase", 1)
+        self._run(shader.run, 1)
+        set_if_used(shader, "u_phase", 2)
+        self._run(lambda: shader.run_indirect(self._tile_count, 4))
+
+    @staticmethod
+    def _grow(buffer: moderngl.Buffer, nbytes: int) -> None:
+        if nbytes > buffer.size:
+            buffer.orphan(nbytes)
 
     def finish(
         self,
@@ -110,7 +145,8 @@ class FieldNormals:
         particles: FieldParticles,
         support: float,
     ) -> None:
-        """After the variant drew `normals` from the eye-depth image `depth`: sort the
+        """After `list_rims` listed the pixels of the eye-depth image `depth` and the normals
+        pass drew `normals` from it: sort the
         `particles` that can reach a listed pixel into the field grid (SPH support `support`),
         then take the listed pixels' normals towards the field (`frame_uniforms`: the normals
         pass's uniform group: its key and values)."""
@@ -144,7 +180,18 @@ class FieldNormals:
             self._context.gl.ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
 
     def release(self) -> None:
+        self._tiles.release()
+        self._tile_count.release()
         self._grid.release()
         self._rims.release()
         self._count.release()
         self._blocks.release()
+
+
+def _tile_box(box: ScreenBox, tiles: tuple[int, int]) -> ScreenBox:
+    """The 4 x 4 tiles holding a pixel of `box`, clipped to the `tiles` of the image."""
+    x, y, width, height = box
+    x0, y0 = max(x // 4, 0), max(y // 4, 0)
+    x1 = min(-(-(x + width) // 4), tiles[0])
+    y1 = min(-(-(y + height) // 4), tiles[1])
+    return (x0, y0, max(x1 - x0, 0), max(y1 - y0, 0))

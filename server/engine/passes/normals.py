@@ -3,8 +3,8 @@
 Shader: `shaders/normals/surface_normals.frag.glsl`: the view position of each pixel from its
 depth through the inverse projection, the smaller one-sided difference per axis (so a depth
 edge does not bend the normal), their cross product, rotated to world space.
-When the quality asks for them, the field normals (`field_normals.py`: a variant of this
-shader lists the pixels near rims, a compute pass fixes their normals up in place) and then the
+When the quality asks for them, the field normals (`field_normals.py`: compute passes list the
+pixels near rims and fix their normals up in place) and then the
 silhouette normals (`silhouette.py`: a pass of its own) rework the normals near rims; both read
 the rim tiles (`rim_tiles.py`), built once from the depth.
 Owns: the RGBA32F normal + depth target (xyz = world normal, w = eye depth, 0 = no surface),
@@ -22,12 +22,7 @@ from sphrender.server.engine.gpu.draw import PerSize, Target, clear_and_scissor,
 from sphrender.server.engine.gpu.uniforms import set_group, write_matrix
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 from sphrender.server.engine.passes.field_grid import FieldParticles
-from sphrender.server.engine.passes.field_normals import (
-    DEFINES,
-    EXTREMES_UNIT,
-    TILES_UNIT,
-    FieldNormals,
-)
+from sphrender.server.engine.passes.field_normals import FieldNormals
 from sphrender.server.engine.passes.rim_tiles import RimTiles
 from sphrender.server.engine.passes.silhouette import SilhouettePass
 from sphrender.server.scene import QualityConfig
@@ -40,8 +35,6 @@ EDGE_JUMP_FOOTPRINTS = 8.0
 #: The wide stencil's kink test: the two one-sided slopes over the stencil may differ by this
 #: fraction of the larger (a crease, a rim or a junction differs by more).
 KINK = 0.5
-#: The FIELD_NORMALS variant's texture units.
-_FIELD_SAMPLERS = {"u_depth": 0, "u_tiles": TILES_UNIT, "u_tile_extremes": EXTREMES_UNIT}
 
 
 class NormalsPass:
@@ -76,16 +69,7 @@ class NormalsPass:
         reach = quality.field_normals if quality is not None and field is not None else 0.0
         rim = quality.silhouette_normals if quality is not None else 0.0
         tiles = self._tiles.build(surface) if reach > 0.0 or rim > 0.0 else None
-        listing = reach > 0.0 and field is not None and tiles is not None
-        program = self._context.programs.get(
-            FULLSCREEN_VERT,
-            SHADER,
-            DEFINES if listing else None,
-            samplers=_FIELD_SAMPLERS if listing else None,
-        )
-        if listing and tiles is not None:
-            extremes = self._tiles.extremes(surface.size)
-            self._field.prepare(program, tiles, extremes, surface.size, reach_radii=reach)
+        program = self._context.programs.get(FULLSCREEN_VERT, SHADER)
         surface.use(0)
         key = (camera, particle_radius, quality)
 
@@ -98,7 +82,9 @@ class NormalsPass:
         target.fbo.use()
         self._context.fullscreen.draw(program)
         set_scissor(target.fbo, None)
-        if listing and field is not None:
+        if reach > 0.0 and field is not None and tiles is not None:
+            extremes = self._tiles.extremes(surface.size)
+            self._field.list_rims(surface, (tiles, extremes), box, (key, values), reach_radii=reach)
             self._field.finish(target, surface, camera, (key, values), field, support)
         if tiles is None:
             return target

@@ -95,10 +95,11 @@ class PrepareStage:
         return drops
 
     def field_particles(self, prepared: PreparedFrame) -> FieldParticles:
-        """Every visible particle's centre for the field grid (passes/field_grid.py): the host's
-        arrays, or the spheres the device prepare wrote (still in the splat's buffers: the
-        device's droplets are marked there, not uploaded over them)."""
-        if prepared.centres is not None:
+        """Every visible particle's centre for the field grid (passes/field_grid.py): the
+        spheres in the splat's buffers (the device prepare's: its droplets are marked there,
+        not uploaded over them; the host prepare's when the frame has no droplets), else the
+        host's arrays (the droplets' upload replaced the bulk's in those buffers)."""
+        if prepared.centres is not None and prepared.droplets is not None:
             return FieldParticles(arrays=(prepared.centres,))
         return FieldParticles(buffer=self._splat.buffers.buffer(SPHERES), count=prepared.bulk.count)
 
