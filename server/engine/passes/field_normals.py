@@ -12,7 +12,7 @@ a rim and blended in by the distance to it (full next to the rim, none beyond th
 Droplets (lone particles) get their exact sphere normal from it. Depth, coverage and the rim's
 place are unchanged. The rule in full: `shaders/field/field_normals.glsl`.
 
-Two parts:
+Two parts, the first before the normals pass draws (`prepare`), the second after (`blend`):
 1. `shaders/field/field_list.comp.glsl`: the rim tiles (`rim_tiles.py`) that may hold a pixel
    within reach of a rim list themselves (a test per tile over its neighbours' extremes), then
    one invocation per pixel of a listed tile appends each surface pixel within reach of a rim
@@ -20,15 +20,15 @@ Two parts:
    the device). On the 100k ball at 1280x720, 2.7k of 57.6k tiles list themselves and 9k
    pixels are listed: 4.6 ms on llvmpipe, against 6.3 ms inside the normals pass's fragment
    shader (whose variant cost ~2.6 ms over the whole image even where no pixel searched) and
-   17 ms as a compute pass over every pixel;
+   17 ms as a compute pass over every pixel; then the field grid (`field_grid.py`) sorts the
+   particles whose support reaches a 16-px block with a listed pixel;
 2. `shaders/field/field_blend.comp.glsl`: one invocation turns the list's length into the
    arguments of an indirect dispatch (the CPU never reads the count), then one invocation per
-   listed pixel evaluates the gradient over the field grid (`field_grid.py`, built between the
-   two from the particles whose support reaches a 16-px block with a listed pixel) and writes
-   the blended normal back into the target (image load/store). Packed 64 listed pixels to a
-   work group the gradient runs in no idle lane: 6 ms on the 100k ball at 1280x720 on
-   llvmpipe, against ~11 ms inside the fragment shader, whose 4 x 4 blocks along the rims were
-   a third idle.
+   listed pixel evaluates the gradient over the field grid and writes the blended normal back
+   into the target (image load/store). Packed 64 listed pixels to a work group the gradient
+   runs in no idle lane: 4.4 ms on the 100k ball at 1280x720 on llvmpipe (against ~11 ms
+   inside the fragment shader at the 7-px reach, whose 4 x 4 blocks along the rims were a
+   third idle).
 
 Owns: the field grid, the list (binding 17) and its count + the blend's dispatch arguments
 (18), the rim blocks (19), the listed tiles (21) and their count + the listing's dispatch
@@ -48,6 +48,7 @@ from sphrender.server.engine.gpu.uniforms import set_group, set_if_used, write_m
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.field_grid import (
     RIM_BLOCKS,
+    BuiltGrid,
     FieldGrid,
     FieldParticles,
     RimCulling,
@@ -80,19 +81,39 @@ class FieldNormals:
         self._tiles = ctx.buffer(reserve=16)
         self._tile_count = ctx.buffer(reserve=16)
 
-    def list_rims(
+    def prepare(
+        self,
+        depth: moderngl.Texture,
+        tiles: tuple[moderngl.Texture, moderngl.Texture],
+        box: ScreenBox | None,
+        camera: Camera,
+        frame_uniforms: tuple[object, Callable[[], dict[str, object]]],
+        field: tuple[FieldParticles, float],
+        *,
+        reach_radii: float,
+    ) -> BuiltGrid:
+        """Before the normals pass draws from the eye-depth image `depth`: list its pixels
+        inside `box` (None: all) within `reach_radii` projected particle radii of a rim
+        (`tiles`: its rim tiles, the +-8 px windows and each tile's own extremes;
+        `frame_uniforms`: the normals pass's uniform group, its key and values), then sort the
+        particles of `field` (and its SPH support) that can reach a listed pixel into the
+        field grid; `blend` takes what this returns. Neither reads the normals, so the normals
+        draw queued after them need not finish first (on llvmpipe a compute dispatch waits
+        for the drawing before it: 117 against 122 ms a frame on the 100k ball at 1280x720)."""
+        self._list_rims(depth, tiles, box, frame_uniforms, reach_radii)
+        tan_y = camera.tan_half_fov_y
+        cull = RimCulling(self._blocks, depth.size, (tan_y * camera.aspect, tan_y))
+        return self._grid.build(*field, cull)
+
+    def _list_rims(
         self,
         depth: moderngl.Texture,
         tiles: tuple[moderngl.Texture, moderngl.Texture],
         box: ScreenBox | None,
         frame_uniforms: tuple[object, Callable[[], dict[str, object]]],
-        *,
         reach_radii: float,
     ) -> None:
-        """List the pixels of the eye-depth image `depth` inside `box` (None: all) within
-        `reach_radii` projected particle radii of a rim into a fresh list and flag their rim
-        blocks; `tiles`: its rim tiles (the +-8 px windows, each tile's own extremes);
-        `frame_uniforms`: the normals pass's uniform group, its key and values."""
+        """The list of rim pixels, its count and the rim blocks, fresh."""
         size = depth.size
         if max(size) > MAX_PACKED_SIDE:
             raise ValueError(f"field normals: image sides at most {MAX_PACKED_SIDE} px, got {size}")
@@ -136,25 +157,17 @@ class FieldNormals:
         if nbytes > buffer.size:
             buffer.orphan(nbytes)
 
-    def finish(
+    def blend(
         self,
         normals: Target,
         depth: moderngl.Texture,
         camera: Camera,
         frame_uniforms: tuple[object, Callable[[], dict[str, object]]],
-        particles: FieldParticles,
-        support: float,
+        built: BuiltGrid,
     ) -> None:
-        """After `list_rims` listed the pixels of the eye-depth image `depth` and the normals
-        pass drew `normals` from it: sort the
-        `particles` that can reach a listed pixel into the field grid (SPH support `support`),
-        then take the listed pixels' normals towards the field (`frame_uniforms`: the normals
-        pass's uniform group: its key and values)."""
-        tan_y = camera.tan_half_fov_y
-        cull = RimCulling(self._blocks, depth.size, (tan_y * camera.aspect, tan_y))
-        with self._context.gl.clock:  # the list, its count and the blocks the draw wrote
-            self._context.gl.ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
-        built = self._grid.build(particles, support, cull)
+        """After `prepare` (which returned `built`) and the normals pass drew `normals` from
+        the eye-depth image `depth`: take the listed pixels' normals towards the field
+        (`frame_uniforms`: the normals pass's uniform group, its key and values)."""
         shader = self._context.programs.compute(BLEND_SHADER, {"u_depth": 0})
         set_group(shader, "frame", *frame_uniforms)
         set_if_used(shader, "u_support", built.support)

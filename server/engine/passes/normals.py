@@ -78,14 +78,23 @@ class NormalsPass:
 
         set_group(program, "frame", key, values)
         write_matrix(program, "u_view_to_world", lambda: camera.rotation.T, camera)
+        built = None
+        if reach > 0.0 and field is not None and tiles is not None:
+            built = self._field.prepare(
+                surface,
+                (tiles, self._tiles.extremes(surface.size)),
+                box,
+                camera,
+                (key, values),
+                (field, support),
+                reach_radii=reach,
+            )
         clear_and_scissor(target.fbo, box)
         target.fbo.use()
         self._context.fullscreen.draw(program)
         set_scissor(target.fbo, None)
-        if reach > 0.0 and field is not None and tiles is not None:
-            extremes = self._tiles.extremes(surface.size)
-            self._field.list_rims(surface, (tiles, extremes), box, (key, values), reach_radii=reach)
-            self._field.finish(target, surface, camera, (key, values), field, support)
+        if built is not None:
+            self._field.blend(target, surface, camera, (key, values), built)
         if tiles is None:
             return target
         return self._silhouette.run(
