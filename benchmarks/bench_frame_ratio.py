@@ -42,7 +42,7 @@ SETTINGS = {
     "pre-issue default": scene_for(PRE_ISSUE.preset or "balanced", dict(PRE_ISSUE.overrides)),
     "balanced (default)": scene_for("balanced", {}),
     "balanced, no gaps": scene_for("balanced", {"quality": {"close_gaps": 0.0}}),
-    "balanced + field 2 r": scene_for("balanced", {"quality": {"field_normals": 2.0}}),
+    "balanced, no field": scene_for("balanced", {"quality": {"field_normals": 0.0}}),
     "fast": scene_for("fast", {}),
 }
 

@@ -21,7 +21,8 @@ from sphrender.server.engine.renderer import SurfaceRenderer
 
 SETTINGS = {
     "unfiltered": Setting(
-        "unfiltered", overrides={"quality": {"filter": "none", "exact_droplets": False}}
+        "unfiltered",
+        overrides={"quality": {"filter": "none", "exact_droplets": False, "field_normals": 0.0}},
     ),
     "previous_default": Setting(
         "previous_default",
@@ -32,6 +33,7 @@ SETTINGS = {
                 "antialias": False,
                 "kernel_max_px": 32,
                 "close_gaps": 0.0,
+                "field_normals": 0.0,
             }
         },
     ),

@@ -14,9 +14,9 @@
 #    host work per frame at 100k/720p and 1M/1080p for both prepare paths
 #    (benchmarks/bench_host.py): on a GPU the host column is the frame time's floor; what
 #    the service's true stage times (a finish per stage) cost against none; and the frame time
-#    of each preset, and of balanced with field normals (24 ms on llvmpipe, so not in balanced),
-#    against the pre-issue-12 default (benchmarks/bench_frame_ratio.py); and the field normals'
-#    gradient per invocation (the normals pass's way) against tiles in shared memory
+#    of each preset, and of balanced without its field normals (~14 ms on llvmpipe), against
+#    the pre-issue-12 default (benchmarks/bench_frame_ratio.py); and the field normals'
+#    gradient per invocation (the blend's way) against tiles in shared memory
 #    (benchmarks/bench_field_gradient.py: 2.9-3.8x slower on llvmpipe, the usual remedy on GPUs).
 #
 # Nothing else depends on this script; CI never runs it.

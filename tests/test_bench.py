@@ -79,12 +79,12 @@ def test_bench_quick_writes_the_table(tmp_path: Path) -> None:
     assert [r["setting"] for r in surface] == [s.name for s in QUICK_SURFACE_SETTINGS]
     assert tuple(surface[0].keys()) == tuple(f.name for f in fields(SurfaceRow))
     by_name = {r["setting"]: r for r in surface}
-    # Exact droplets: the default's droplet error equals the unfiltered splat's (the same
-    # spheres), and the pre-issue filter flattens them (measured 32 vs 4 deg).
+    # Exact droplets: the default splats the unfiltered spheres, whose depth-differenced
+    # normals its field normals then replace by the field's, exact for a lone sphere: no worse
+    # than the unfiltered splat's (measured 2.7 vs 4.3 deg); the pre-issue filter flattens them
+    # (measured 32 deg).
     balanced, before = by_name["preset balanced"], by_name["pre-issue default"]
-    assert float(balanced["droplet_deg"]) == pytest.approx(
-        float(by_name["unfiltered"]["droplet_deg"])
-    )
+    assert float(balanced["droplet_deg"]) <= float(by_name["unfiltered"]["droplet_deg"])
     assert float(before["droplet_deg"]) > 2 * float(balanced["droplet_deg"])
     report = (out / "REPORT.md").read_text()
     assert "## Real SPH surfaces" in report

@@ -362,6 +362,33 @@ def test_host_and_device_prepare_agree(gl_context: GLContext, prepare: str) -> N
     assert angle_deg(host.normals[covered], plain[covered]).max() > 5.0  # the field did act
 
 
+def test_the_same_frame_gives_the_same_normals_bit_for_bit(gl_context: GLContext) -> None:
+    """The grid's count ranks the centres of a bucket in the order its atomics ran; its last
+    phase places them by source index, so a reader sums them in one order and the normals
+    repeat bit for bit (the service's frames are compared byte for byte with in-process
+    renders). Fresh renderers, many shared buckets (a dense ball: ~2 centres per cell)."""
+    positions = jittered_lattice_ball(0.12, 0.01, seed=4)
+    scene = scene_from_dict(
+        {
+            "particles": {"radius": 0.01},
+            "image": {"width": 160, "height": 120},
+            "camera": {"eye": [0.0, 0.1, 0.45], "target": [0.0, 0.0, 0.0]},
+            "quality": {"field_normals": REACH},
+        }
+    )
+    normals = []
+    for _ in range(3):
+        renderer = SurfaceRenderer(gl_context)
+        try:
+            frame, _ = renderer.render(make_frame(positions), scene, normals=True)
+        finally:
+            renderer.release()
+        assert frame.normals is not None
+        normals.append(frame.normals)
+    np.testing.assert_array_equal(normals[1], normals[0])
+    np.testing.assert_array_equal(normals[2], normals[0])
+
+
 def test_the_grid_leaves_out_only_particles_far_from_every_rim(
     gl_context: GLContext, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -560,6 +560,14 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="the listing covering only two rows of each listed tile",
     ),
     Mutation(
+        name="field-grid-atomic-order",
+        path="shaders/field/field_grid.comp.glsl",
+        old="                sorted_centres[first + below] = s;",
+        new="                sorted_centres[first + entry.y] = s;",
+        tests=("tests/test_field_normals.py::test_the_same_frame_gives_the_same_normals_bit_for_bit",),
+        description="the field grid keeping its atomics' order within a bucket (normals vary)",
+    ),
+    Mutation(
         name="field-rows-overlap",
         path="shaders/common/field_grid.glsl",
         old="#define FIELD_HASH_Y 19349663u",

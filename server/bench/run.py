@@ -36,7 +36,7 @@ from sphrender.server.bench.scenes import (
     slab_scene,
 )
 from sphrender.server.bench.surface_bench import (
-    FIELD_NORMALS,
+    NO_FIELD_NORMALS,
     QUICK_SURFACE_SETTINGS,
     SURFACE_SETTINGS,
     SurfaceResults,
@@ -226,13 +226,13 @@ def run_bench(
             )
             log(f"  {results.surfaces.dam_note}")
             write_crops(renderer, out, results.surfaces, cache=out / ".reference-cache", gl=gl)
-            if not quick:  # what field normals change (best has them, balanced not)
+            if not quick:  # what field normals change
                 write_crops(
                     renderer,
                     out,
                     results.surfaces,
-                    before=preset_setting("balanced"),
-                    after=FIELD_NORMALS,
+                    before=NO_FIELD_NORMALS,
+                    after=preset_setting("balanced"),
                     cache=out / ".reference-cache",
                     gl=gl,
                     prefix="crop-field",

@@ -170,16 +170,15 @@ class QualityConfig:
         unit="particle radii",
     )
     field_normals: float = spec(
-        0.0,
+        2.0,
         "take the normals within this many projected particle radii (at most 5 pixels) of a "
         "rim (background, or a depth step the normals pass does not difference across) "
         "towards the normal of the particles' smoothed field, -grad phi of phi = sum W(|x - "
         "x_j|, field_normals_support) at the pixel's own surface point "
         "(passes/field_normals.py): smooth rims where the particles leave beads, rounded edges "
         "round a sheet's holes, exact droplet spheres; blended in by the distance to the rim, "
-        "depth unchanged. Builds a particle grid on the device each frame (on llvmpipe ~24 ms "
-        "of a 100k-particle 1280x720 frame, 1.5x the pre-issue-12 default with balanced: in "
-        "best, not balanced). 0: off",
+        "depth unchanged. Builds a particle grid on the device each frame (on llvmpipe ~15 ms "
+        "of a 100k-particle 1280x720 frame; balanced and best: 2, fast: off). 0: off",
         low=0.0,
         high=8.0,
         unit="particle radii",

@@ -12,10 +12,16 @@
 //      of phase 5's indirect dispatch (x at most u_groups_x, then rows);
 //   4  chunk scan: buckets[b] becomes the exclusive prefix sum of the counts (in place, each
 //      chunk serially from its sum), buckets[u_buckets] = the total;
-//   5  scatter, one invocation per kept particle (i, rank):
-//      sorted[buckets[bucket(i)] + rank] = source particle i (centre, radius). Over the kept
+//   5  scatter, one invocation per kept particle (i, rank): order[buckets[bucket(i)] + rank] =
+//      i. Over the kept
 //      list, not every source particle: on the 100k ball at 1280x720 24k of 102k are kept,
-//      the build 5.1 -> 4.5 ms on llvmpipe (the scatter 1.9 -> ~0.3, the count 1.8 -> 2.2).
+//      the build 5.1 -> 4.5 ms on llvmpipe (the scatter 1.9 -> ~0.3, the count 1.8 -> 2.2);
+//   6  the same dispatch again: each kept particle's place in its bucket by source index, the
+//      count of the bucket's indices (phase 5 wrote them, `order`) below its own, and there
+//      its centre: sorted[buckets[bucket(i)] + that count]. The ranks of phase 1 come in the
+//      order the atomics ran, so without it a reader's sums, and the normals, would change in
+//      their last bits from run to run (the service's frames must not; one invocation per
+//      bucket sorting its run cost 2.6 ms on llvmpipe, this ~0.3).
 // Phases 1 and 5 compute a particle's bucket with the same code of the same shader, so they
 // agree bit for bit.
 
@@ -29,6 +35,7 @@ layout(std430, binding = 13) buffer Kept { uvec2 kept[]; };  // (source index, r
 layout(std430, binding = 14) buffer Buckets { uint buckets[]; };
 layout(std430, binding = 15) buffer Sums { uint sums[]; };
 layout(std430, binding = 16) writeonly buffer Sorted { vec4 sorted_centres[]; };
+layout(std430, binding = 23) buffer Order { uint order[]; };  // source indices, per bucket
 layout(std430, binding = 20) buffer KeptCount { uint kept_count; uint groups_x; uint groups_y; uint groups_z; };
 
 uniform int u_phase;
@@ -120,12 +127,22 @@ void main() {
         }
         return;
     }
-    if (u_phase == 5) {
+    if (u_phase == 5 || u_phase == 6) {
         uint k = gl_WorkGroupID.y * u_groups_x * gl_WorkGroupSize.x + gl_GlobalInvocationID.x;
         if (k < kept_count) {
             uvec2 entry = kept[k];
             vec4 s = source[entry.x];
-            sorted_centres[buckets[grid_bucket(grid_cell(s.xyz))] + entry.y] = s;
+            uint bucket = grid_bucket(grid_cell(s.xyz));
+            uint first = buckets[bucket];
+            if (u_phase == 5) {
+                order[first + entry.y] = entry.x;
+            } else {
+                uint below = 0u;
+                for (uint j = first; j < buckets[bucket + 1u]; ++j) {
+                    below += order[j] < entry.x ? 1u : 0u;
+                }
+                sorted_centres[first + below] = s;
+            }
         }
         return;
     }

@@ -17,8 +17,9 @@ weights (on the dam break, per-particle volumes m / rho_j scored no better: 10.9
 The sort (`shaders/field/field_grid.comp.glsl`, layout in `shaders/common/field_grid.glsl`):
 count each centre's rank in its bucket (atomics) and list the kept ones, prefix-sum the counts
 (chunk sums, one serial scan of the chunks, chunk scans: the SPH engine's scheme), scatter the
-kept ones (an indirect dispatch over the list, whose size the serial scan turns into its
-arguments: the CPU never reads it).
+kept ones' indices (an indirect dispatch over the list, whose size the serial scan turns into
+its arguments: the CPU never reads it), then place each kept centre within its bucket by its
+index, so that every run sums the same centres in the same order (bit-identical normals).
 Cells have side h / 2 and the hash is linear in x, so a reader scans each row of cells along x
 that its support sphere crosses as one contiguous run of sorted centres (half the volume of
 the 27 cells of side h around a point).
@@ -32,8 +33,8 @@ so they are bound per build.
 Faster layouts tried on llvmpipe and not kept (ARCHITECTURE.md, "field normals' speed"): a
 texture instead of the buffer, tiles in shared memory (benchmarks/bench_field_gradient.py).
 
-Owns: the source (host prepare), kept-list, kept-count, bucket, chunk-sum and sorted-centre
-buffers; grown
+Owns: the source (host prepare), kept-list, kept-count, order, bucket, chunk-sum and
+sorted-centre buffers; grown
 geometrically, never shrunk; released by `release`.
 """
 
@@ -53,8 +54,9 @@ from sphrender.server.engine.passes.context import PassContext
 SHADER = "field/field_grid.comp.glsl"
 GROUP_SIZE = 256  # local_size_x of the shader
 SOURCE, KEPT, BUCKETS, SUMS, SORTED = range(12, 17)
-#: The kept particles' count + the scatter's indirect dispatch arguments.
-KEPT_COUNT = 20
+#: The kept particles' count + the scatter's indirect dispatch arguments; the scatter's source
+#: indices per bucket (shaders/field/field_grid.comp.glsl's phases 5 and 6).
+KEPT_COUNT, ORDER = 20, 23
 #: Work groups per row of the scatter's indirect dispatch (GL 4.3 promises 65535 per axis).
 SCATTER_GROUPS_X = 4096
 #: The rim blocks' binding and side in pixels (common/rim_blocks.glsl).
@@ -63,7 +65,7 @@ RIM_BLOCKS, RIM_BLOCK = 19, 16
 SCAN_CHUNKS = 1024
 #: The smallest table (FIELD_MIN_BUCKETS of common/field_grid.glsl; a power of two).
 MIN_BUCKETS = 1024
-DILATE_BLOCKS, COUNT, CHUNK_SUMS, SCAN_SUMS, CHUNK_SCAN, SCATTER = range(6)
+DILATE_BLOCKS, COUNT, CHUNK_SUMS, SCAN_SUMS, CHUNK_SCAN, SCATTER, PLACE = range(7)
 
 
 @dataclass(frozen=True)
@@ -111,7 +113,7 @@ class FieldGrid:
     def __init__(self, context: PassContext) -> None:
         self._context = context
         ctx = context.gl.ctx
-        bindings = (*range(SOURCE, SORTED + 1), KEPT_COUNT)
+        bindings = (*range(SOURCE, SORTED + 1), KEPT_COUNT, ORDER)
         self._buffers = {binding: ctx.buffer(reserve=64) for binding in bindings}
 
     def _reserve(self, binding: int, nbytes: int) -> moderngl.Buffer:
@@ -144,9 +146,10 @@ class FieldGrid:
         table = self._reserve(BUCKETS, 4 * (buckets + 1))
         self._reserve(SUMS, 4 * (chunks + 1))
         self._reserve(SORTED, 16 * n)
+        self._reserve(ORDER, 4 * n)
         with clock:
             source.bind_to_storage_buffer(SOURCE)
-            for binding in (*range(KEPT, SORTED + 1), KEPT_COUNT):
+            for binding in (*range(KEPT, SORTED + 1), KEPT_COUNT, ORDER):
                 self._buffers[binding].bind_to_storage_buffer(binding)
         shader = self._context.programs.compute(SHADER)
         set_if_used(shader, "u_support", float(support))
@@ -171,10 +174,11 @@ class FieldGrid:
         self._run(shader, CHUNK_SUMS, chunks)
         self._run(shader, SCAN_SUMS, 1, count=chunks)  # one invocation scans `chunks` sums
         self._run(shader, CHUNK_SCAN, chunks)
-        set_if_used(shader, "u_phase", SCATTER)  # over the kept particles only
-        with clock:
-            shader.run_indirect(self._buffers[KEPT_COUNT], 4)  # past the count
-            self._context.gl.ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
+        for phase in (SCATTER, PLACE):  # over the kept particles only
+            set_if_used(shader, "u_phase", phase)
+            with clock:
+                shader.run_indirect(self._buffers[KEPT_COUNT], 4)  # past the count
+                self._context.gl.ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
         return BuiltGrid(float(support), buckets - 1)
 
     def sorted_count(self, built: BuiltGrid) -> int:
