@@ -12,17 +12,17 @@
 //      of phase 5's indirect dispatch (x at most u_groups_x, then rows);
 //   4  chunk scan: buckets[b] becomes the exclusive prefix sum of the counts (in place, each
 //      chunk serially from its sum), buckets[u_buckets] = the total;
-//   5  scatter, one invocation per kept particle (i, rank): order[buckets[bucket(i)] + rank] =
-//      i. Over the kept
-//      list, not every source particle: on the 100k ball at 1280x720 24k of 102k are kept,
-//      the build 5.1 -> 4.5 ms on llvmpipe (the scatter 1.9 -> ~0.3, the count 1.8 -> 2.2);
+//   5  scatter, one invocation per kept particle (i, rank), an indirect dispatch over the
+//      kept list: order[buckets[bucket(i)] + rank] = i. Over the kept particles, not every
+//      source particle: on the 100k ball at 1280x720 24k of 102k are kept, the build 5.1 ->
+//      4.5 ms on llvmpipe (the scatter 1.9 -> ~0.3, the count 1.8 -> 2.2);
 //   6  the same dispatch again: each kept particle's place in its bucket by source index, the
 //      count of the bucket's indices (phase 5 wrote them, `order`) below its own, and there
 //      its centre: sorted[buckets[bucket(i)] + that count]. The ranks of phase 1 come in the
 //      order the atomics ran, so without it a reader's sums, and the normals, would change in
 //      their last bits from run to run (the service's frames must not; one invocation per
 //      bucket sorting its run cost 2.6 ms on llvmpipe, this ~0.3).
-// Phases 1 and 5 compute a particle's bucket with the same code of the same shader, so they
+// Phases 1, 5 and 6 compute a particle's bucket with the same code of the same shader, so they
 // agree bit for bit.
 
 layout(local_size_x = 256) in;

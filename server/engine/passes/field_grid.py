@@ -28,8 +28,8 @@ one reader's window in distinct buckets for every such table; common/field_grid.
 holds ~2 centres inside a fluid (spacing 2 r, cell side 2.5 r by default); cells far apart
 that share a bucket only cost time: a reader's distance test drops their centres. The table is
 zeroed with a buffer clear (a dispatch over it cost ~3 ms at 262k buckets on llvmpipe).
-Bindings 12-16 and 20 (common/field_grid.glsl, the kept list's count); nothing else uses them,
-so they are bound per build.
+Bindings 12-16, 20 and 23 (common/field_grid.glsl; the kept list's count, the scatter's order);
+nothing else uses them, so they are bound per build.
 Faster layouts tried on llvmpipe and not kept (ARCHITECTURE.md, "field normals' speed"): a
 texture instead of the buffer, tiles in shared memory (benchmarks/bench_field_gradient.py).
 
