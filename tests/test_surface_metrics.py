@@ -13,6 +13,7 @@ from sphrender.server.bench.surface_quality import (
     band_error_deg,
     shift_tolerant_band_error_deg,
     silhouette_band,
+    split_flicker_deg,
     truth_flicker_deg,
 )
 from sphrender.server.engine.frame_output import RenderedFrame
@@ -55,6 +56,22 @@ def test_shift_tolerance_forgives_a_one_pixel_rim_and_nothing_else() -> None:
     # stays above 180 - 15; a match against the truth's background (zero normals) would give 90.
     reversed_ = RenderedFrame(same.rgba, same.depth, -truth.normals.astype(np.float32))
     assert shift_tolerant_band_error_deg(reversed_, truth, band) > 150.0
+
+
+def test_split_flicker_recombines_to_the_mean_and_puts_the_rims_turn_in_the_band() -> None:
+    """The moved sphere's flicker split at its silhouette band: the band's and the inside's
+    means weighted by their shares give the whole mean back, and the rim, whose normals are
+    grazing, turns by more than the inside (the surface bench's flicker floor argument)."""
+    a = sphere_truth(CAMERA, np.zeros(3), R)
+    b = sphere_truth(CAMERA, np.array([0.01 * R, 0.0, 0.0]), R)
+    band = silhouette_band(a, R / 10)
+    covered = a.hit & b.hit
+    rim, inside, share = split_flicker_deg(a.normals, b.normals, covered, band)
+    total = truth_flicker_deg(a, b)
+    assert 0.0 < share < 0.5
+    assert math.isclose(share * rim + (1.0 - share) * inside, total, rel_tol=1e-9)
+    assert inside < total < rim
+    assert math.isnan(split_flicker_deg(a.normals, b.normals, covered, np.zeros_like(band))[0])
 
 
 def test_truth_flicker_of_a_moved_sphere_is_its_normal_turn() -> None:

@@ -306,6 +306,7 @@ def surface_section(surfaces: SurfaceResults, lattice: SweepRow | None = None) -
             f"{_f(surfaces.dam_flicker_floor)}°, so the renderer flickers "
             f"{_f(default.flicker_deg / surfaces.spatter_flicker_floor)}x / "
             f"{_f(default.dam_flicker_deg / surfaces.dam_flicker_floor)}x the truth",
+            *_flicker_split_line(default, surfaces),
             f"* ball {_f(default.ball_mean_deg)}° / {_f(default.ball_p95_deg)}° (<= 2 / 5) on "
             f"this section's 30k ball at {surfaces.width // 2}x{surfaces.height // 2} (about 2 px "
             f"per radius): {verdict(default.ball_mean_deg <= 2 and default.ball_p95_deg <= 5)}",
@@ -323,6 +324,20 @@ def surface_section(surfaces: SurfaceResults, lattice: SweepRow | None = None) -
         for caption, file in surfaces.crops:
             lines += [f"![{caption}]({file})", "", caption, ""]
     return [*lines, ""]
+
+
+def _flicker_split_line(row: SurfaceRow, surfaces: SurfaceResults) -> list[str]:
+    """Where the spatter's flicker comes from: its silhouette band against the rest, the
+    renderer's against the truth's."""
+    band, inside, share = surfaces.spatter_floor_split
+    if math.isnan(row.flicker_band_deg) or math.isnan(share):
+        return []
+    return [
+        f"  * spatter: within the truth's silhouette band ({_f(100 * share, 1)} % of the "
+        f"pixels) {_f(row.flicker_band_deg)}° against the truth's own {_f(band)}°, elsewhere "
+        f"{_f(row.flicker_inside_deg)}° against {_f(inside)}°: the band alone puts the "
+        f"truth at {_f(share * band)}° of the mean"
+    ]
 
 
 def _no_field_band_line(row: SurfaceRow | None, before: SurfaceRow) -> list[str]:

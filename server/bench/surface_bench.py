@@ -46,6 +46,7 @@ from sphrender.server.bench.surface_quality import (
     silhouette_band,
     spatter_scene,
     spatter_truth,
+    split_flicker_deg,
     supersampled_coverage,
     truth_flicker_deg,
 )
@@ -110,6 +111,9 @@ class SurfaceRow:
     dam_flicker_deg: float = math.nan
     ball_mean_deg: float = math.nan
     ball_p95_deg: float = math.nan
+    #: The spatter's flicker within its truth's silhouette band and outside it.
+    flicker_band_deg: float = math.nan
+    flicker_inside_deg: float = math.nan
 
 
 #: Columns of the front, all lower-is-better (time is the spatter frame's).
@@ -130,6 +134,9 @@ class SurfaceResults:
     height: int
     rows: list[SurfaceRow] = field(default_factory=list)
     spatter_flicker_floor: float = math.nan
+    #: The spatter truth's own flicker within its silhouette band and outside it, and the
+    #: band's share of the pixels both truths cover.
+    spatter_floor_split: tuple[float, float, float] = (math.nan, math.nan, math.nan)
     dam_flicker_floor: float = math.nan
     dam_note: str = ""
     crops: list[tuple[str, str]] = field(default_factory=list)  # (caption, file name)
@@ -181,7 +188,9 @@ class _Case:
     band: npt.NDArray[np.bool_]
 
 
-def _spatter_case(renderer: SurfaceRenderer, width: int, height: int) -> tuple[_Case, float]:
+def _spatter_case(
+    renderer: SurfaceRenderer, width: int, height: int
+) -> tuple[_Case, float, tuple[float, float, float]]:
     spatter = spatter_scene()
     camera = Camera.from_config(spatter.camera_config(), width, height)
     params = SphParameters.from_scene(
@@ -193,16 +202,19 @@ def _spatter_case(renderer: SurfaceRenderer, width: int, height: int) -> tuple[_
     truth = spatter.truth(camera)
     n_pool = len(spatter.positions) - 40
     moved_truth = spatter_truth(moved_positions[:n_pool], moved_positions[n_pool:], spatter.radius)
-    floor = truth_flicker_deg(truth, moved_truth(camera))
+    moved = moved_truth(camera)
+    floor = truth_flicker_deg(truth, moved)
+    band = silhouette_band(truth, spatter.radius)
+    split = split_flicker_deg(truth.normals, moved.normals, truth.hit & moved.hit, band)
     case = _Case(
         spatter,
         camera,
         make_frame(spatter.positions, densities=densities),
         make_frame(moved_positions, densities=densities),
         truth,
-        silhouette_band(truth, spatter.radius),
+        band,
     )
-    return case, floor
+    return case, floor, split
 
 
 def _dam_case(
@@ -255,7 +267,9 @@ def run_surface_bench(
     log: Callable[[str], None] = print,
 ) -> SurfaceResults:
     results = SurfaceResults(width, height)
-    spatter, results.spatter_flicker_floor = _spatter_case(renderer, width, height)
+    spatter, results.spatter_flicker_floor, results.spatter_floor_split = _spatter_case(
+        renderer, width, height
+    )
     coverage = supersampled_coverage(
         lambda cam: spheres_truth(cam, spatter.scene.positions, spatter.scene.radius),
         spatter.scene.camera_config(),
@@ -278,11 +292,13 @@ def run_surface_bench(
             "spatter_ms": ms,
             "droplet_deg": droplet_error_deg(rendered, truth),
             "edge_alpha_err": edge_alpha_error(rendered.rgba[..., 3].astype(np.float64), coverage),
-            "flicker_deg": flicker_deg(
-                rendered, _render(renderer, spatter.moved, setting, spatter)
-            )[0],
             "spatter_band_deg": band_error_deg(rendered, truth, spatter.band),
         }
+        moved_render = _render(renderer, spatter.moved, setting, spatter)
+        values["flicker_deg"] = flicker_deg(rendered, moved_render)[0]
+        values["flicker_band_deg"], values["flicker_inside_deg"], _ = _split(
+            rendered, moved_render, spatter.band
+        )
         if dam is not None:
             dam_render: RenderedFrame = _render(renderer, dam.frame, setting, dam)
             values["dam_band_deg"] = band_error_deg(dam_render, dam.truth, dam.band)
@@ -301,6 +317,15 @@ def run_surface_bench(
         results.rows.append(row)
         log("  " + " ".join(f"{f.name}={getattr(row, f.name)}" for f in fields(row))[:400])
     return results
+
+
+def _split(a: RenderedFrame, b: RenderedFrame, band: npt.NDArray[np.bool_]) -> tuple[float, ...]:
+    """split_flicker_deg over the pixels both renders cover."""
+    assert a.normals is not None and b.normals is not None
+    assert a.depth is not None and b.depth is not None
+    covered = np.isfinite(a.depth) & np.isfinite(b.depth)
+    normals = (a.normals.astype(np.float64), b.normals.astype(np.float64))
+    return split_flicker_deg(*normals, covered, band)
 
 
 def write_crops(
@@ -322,7 +347,7 @@ def write_crops(
     from sphrender.server.output.encoders import write_png
 
     after = after or preset_setting("balanced")
-    spatter, _ = _spatter_case(renderer, width, height)
+    spatter, _, _ = _spatter_case(renderer, width, height)
     cases: list[tuple[str, Callable[[Setting], RenderedFrame]]] = [
         ("spatter", lambda s: _render(renderer, spatter.frame, s, spatter))
     ]

@@ -207,6 +207,22 @@ def shift_tolerant_band_error_deg(
     return float(best[mask].mean())
 
 
+def split_flicker_deg(
+    a: npt.NDArray[np.float64], b: npt.NDArray[np.float64], covered: Mask, band: Mask
+) -> tuple[float, float, float]:
+    """Mean normal change between the (H, W, 3) normals `a` and `b` over the `covered` pixels
+    within `band` and outside it, and the band's share of them: where a flicker comes from
+    (a rim's grazing normals turn by degrees when it moves by a fraction of a pixel, the
+    inside by far less)."""
+    inside, rim = covered & ~band, covered & band
+    count = max(int(covered.sum()), 1)
+
+    def mean(mask: Mask) -> float:
+        return float(angle_deg(a[mask], b[mask]).mean()) if mask.any() else float("nan")
+
+    return mean(rim), mean(inside), float(rim.sum()) / count
+
+
 def truth_flicker_deg(a: Truth, b: Truth) -> float:
     """The truth's own flicker: mean normal change between the truths of a frame and of its
     jittered copy over pixels both cover (the floor of a renderer's flicker: the true surface
