@@ -534,6 +534,14 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="the silhouette pass turning droplets smaller than its window",
     ),
     Mutation(
+        name="shade-neighbour-window-empty",
+        path="server/engine/passes/shade.py",
+        old='"u_neighbour_reach": 1,',
+        new='"u_neighbour_reach": 0,',
+        tests=("tests/test_surfaces.py::test_alpha_is_sub_pixel_coverage_on_every_edge",),
+        description="the shade pass's anti-aliasing windows shrunk to the pixel itself",
+    ),
+    Mutation(
         name="field-first-ring-too-far",
         path="shaders/field/field_normals.glsl",
         old="            int dm = max(gx + gy, 1);",
