@@ -7,6 +7,7 @@ the camera, no particles): finite normals, depth untouched."""
 from __future__ import annotations
 
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -158,6 +159,33 @@ def test_matches_the_numpy_reference(gl_context: GLContext) -> None:
     assert table_size(len(centres)) <= 2 * len(centres)
     # Rims, steps and hole edges all over the image, and field normals facing away.
     assert assert_matches_the_reference(gl_context, centres, facing_away=10) > 500
+
+
+@pytest.mark.parametrize("size", [(97, 61), (33, 130)])
+def test_matches_the_reference_on_images_of_partial_tiles(
+    gl_context: GLContext, monkeypatch: pytest.MonkeyPatch, size: tuple[int, int]
+) -> None:
+    """Sides that are no multiple of the 4-px rim tiles: the listing's partial tiles at the far
+    edges, and the first-ring search clipped to the image, list exactly the reference's
+    pixels (this module's image constants swapped for the test)."""
+    camera = Camera.from_config(CameraConfig(eye=(0.0, 0.0, 0.6), target=(0.0, 0.0, 0.0)), *size)
+    tan = camera.tan_half_fov_y
+    module = sys.modules[__name__]
+    for name, value in {
+        "W": size[0],
+        "H": size[1],
+        "CAMERA": camera,
+        "T": tan,
+        "FOCAL": camera.pixels_per_unit_at_unit_depth,
+        "TAN": (tan * camera.aspect, tan),
+    }.items():
+        monkeypatch.setattr(module, name, value)
+    # Droplets on the last column and the last row (the partial tiles), and in the far corner.
+    z = 0.55
+    last_x = ((size[0] - 0.5) / size[0] * 2 - 1) * tan * camera.aspect * z
+    last_y = ((size[1] - 0.5) / size[1] * 2 - 1) * tan * z
+    edges = np.array([[last_x, 0.0, -z], [0.0, last_y, -z], [last_x, last_y, -z]])
+    assert assert_matches_the_reference(gl_context, np.concatenate([splash(1), edges])) > 300
 
 
 def test_rims_of_a_nearer_sheet_over_a_wall_filling_the_image(gl_context: GLContext) -> None:

@@ -568,6 +568,14 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="the listing covering only two rows of each listed tile",
     ),
     Mutation(
+        name="field-list-partial-tiles-dropped",
+        path="server/engine/passes/field_normals.py",
+        old="    x1 = min(-(-(x + width) // 4), tiles[0])",
+        new="    x1 = min((x + width) // 4, tiles[0])",
+        tests=("tests/test_field_normals.py::test_matches_the_reference_on_images_of_partial_tiles",),
+        description="the listing leaving out the partial tiles at an image's far side",
+    ),
+    Mutation(
         name="field-grid-atomic-order",
         path="shaders/field/field_grid.comp.glsl",
         old="                sorted_centres[first + below] = s;",
