@@ -7,7 +7,7 @@ invocation reads them there), the usual GPU remedy for a gather per invocation.
 Not a test. Run:  .venv/bin/python benchmarks/bench_field_gradient.py [--repeats 7]
 
 The points are the pixels the field normals evaluate on the bench's ~100k-particle ball at
-1280x720 (balanced + field normals 2 r; within the reach of a rim, by the numpy reference's rim
+1280x720 (the default, balanced; within the reach of a rim, by the numpy reference's rim
 rule, tests/reference_field_normals.py), the grid the engine's own (passes/field_grid.py).
 Prints the median dispatch time of each kernel (a finish after each), their ratio, and the
 largest angle between their gradients. On llvmpipe (this project's CI machines) the tiles were
@@ -54,7 +54,7 @@ def needed_points(gl: GLContext) -> tuple[np.ndarray, np.ndarray]:
     """The view points (H, W, 4; w = 1 where the field normals evaluate the gradient) and the
     particles' view-space centres."""
     positions = jittered_lattice_ball(0.58, RADIUS, seed=0)
-    scene = SETTINGS["balanced + field 2 r"]
+    scene = SETTINGS["balanced (default)"]
     renderer = SurfaceRenderer(gl)
     try:
         out, _ = renderer.render(make_frame(positions), scene, depth=True)
@@ -98,7 +98,7 @@ def main() -> None:
         grid = FieldGrid(context)
         spheres = np.zeros((len(centres), 4), np.float32)
         spheres[:, :3], spheres[:, 3] = centres, RADIUS
-        support = SETTINGS["balanced + field 2 r"].quality.field_normals_support * RADIUS
+        support = SETTINGS["balanced (default)"].quality.field_normals_support * RADIUS
         built = grid.build(FieldParticles(arrays=(spheres,)), support)
         grid.bind_for_reading()
         point_image = ctx.texture((width, height), 4, points.tobytes(), dtype="f4")

@@ -1,4 +1,4 @@
-"""Field normals (`quality.field_normals`): the normals pass's field variant against its
+"""Field normals (`quality.field_normals`): the listing and blend compute passes against their
 float64 brute-force numpy reference (tests/reference_field_normals.py) on ray-cast spheres,
 a lone droplet's exact sphere normal, host and device prepare agreeing, and hard cases
 (coincident and coplanar particles, huge coordinates, tiny and huge radii, particles behind
