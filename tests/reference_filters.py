@@ -8,6 +8,7 @@ drop/clamp/extend with mirrored drops) so the GPU result can be compared value b
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import numpy.typing as npt
@@ -80,56 +81,119 @@ def _pass(
             def spatial(off: tuple[int, int], inv2s2: float = inv2s2) -> float:
                 return 1.0 if box else math.exp(-(off[0] ** 2 + off[1] ** 2) * inv2s2)
 
-            total, weights = zc, 1.0
             if q.filter == "narrow_range":
-                thr = q.narrow_range_threshold * radius
-                upper, lower = zc + thr, zc - thr
-                lower_clamp = zc - q.narrow_range_clamp * radius
-                for k in range(1, reach + 1):
-                    if directions is not None:
-                        offsets = [(k * directions[0][0], k * directions[0][1])]
-                    else:
-                        offsets = [
-                            o for o in _ring_offsets(k) if o[0] ** 2 + o[1] ** 2 <= reach * reach
-                        ]
-                    for off in offsets:
-                        wgt = spatial(off)
-                        za, zb = at(off), at((-off[0], -off[1]))
-                        if not (0.0 < za <= upper and 0.0 < zb <= upper):
-                            continue  # mirrored drop
-                        for z in (za, zb):
-                            if z < lower:
-                                z = lower_clamp
-                            else:
-                                upper = max(upper, z + thr)
-                                lower = min(lower, z - thr)
-                            total += wgt * z
-                            weights += wgt
+                out[row, col] = _narrow_range(depth, row, col, directions, reach, spatial, radius, q)
+                continue
+            total, weights = zc, 1.0
+            if directions is not None:
+                dx, dy = directions[0]
+                offsets = [(k * dx, k * dy) for k in range(-reach, reach + 1)]
             else:
-                if directions is not None:
-                    dx, dy = directions[0]
-                    offsets = [(k * dx, k * dy) for k in range(-reach, reach + 1)]
-                else:
-                    offsets = [
-                        (x, y)
-                        for y in range(-reach, reach + 1)
-                        for x in range(-reach, reach + 1)
-                        if x * x + y * y <= reach * reach
-                    ]
-                range_inv = 1.0 / (2.0 * (q.bilateral_depth_sigma * radius) ** 2)
-                for off in offsets:
-                    if off == (0, 0):
-                        continue
-                    z = at(off)
-                    if z <= 0.0:
-                        continue
-                    wgt = spatial(off)
-                    if q.filter == "bilateral":
-                        wgt *= math.exp(-((z - zc) ** 2) * range_inv)
-                    total += wgt * z
-                    weights += wgt
+                offsets = [
+                    (x, y)
+                    for y in range(-reach, reach + 1)
+                    for x in range(-reach, reach + 1)
+                    if x * x + y * y <= reach * reach
+                ]
+            range_inv = 1.0 / (2.0 * (q.bilateral_depth_sigma * radius) ** 2)
+            for off in offsets:
+                if off == (0, 0):
+                    continue
+                z = at(off)
+                if z <= 0.0:
+                    continue
+                wgt = spatial(off)
+                if q.filter == "bilateral":
+                    wgt *= math.exp(-((z - zc) ** 2) * range_inv)
+                total += wgt * z
+                weights += wgt
             out[row, col] = total / weights
     return out
+
+
+def _narrow_range(
+    depth: F32,
+    row: int,
+    col: int,
+    directions: list[tuple[int, int]] | None,
+    reach: int,
+    spatial: Callable[[tuple[int, int]], float],
+    radius: float,
+    q: QualityConfig,
+) -> float:
+    """Truong & Yuksel's narrow range at one pixel: a sample behind the centre by more than
+    lambda r drops its mirror too, one in front by more is clamped to z - mu r, the range grows
+    around each accepted sample, walking outwards; the samples' inverse depths are averaged. A
+    sample whose mirror lies past the image's end counts alone, and then the result is the
+    intercept at the pixel of the weighted line (1-D) or plane (2-D) fit through the inverse
+    depths taken, kept within those the kernel can have taken."""
+    h, w = depth.shape
+    zc = float(depth[row, col])
+    thr = q.narrow_range_threshold * radius
+    upper, lower = zc + thr, zc - thr
+    lower_clamp = zc - q.narrow_range_clamp * radius
+    taken: list[tuple[float, float, tuple[int, int]]] = [(1.0, zc, (0, 0))]  # weight, z, offset
+
+    def outside(off: tuple[int, int]) -> bool:
+        return not (0 <= row - off[1] < h and 0 <= col + off[0] < w)
+
+    for k in range(1, reach + 1):
+        if directions is not None:
+            offsets = [(k * directions[0][0], k * directions[0][1])]
+        else:
+            offsets = [o for o in _ring_offsets(k) if o[0] ** 2 + o[1] ** 2 <= reach * reach]
+        for off in offsets:
+            mirror = (-off[0], -off[1])
+            za = _fetch(depth, row - off[1], col + off[0])
+            zb = _fetch(depth, row - mirror[1], col + mirror[0])
+            out_a, out_b = outside(off), outside(mirror)
+            valid_a, valid_b = 0.0 < za <= upper, 0.0 < zb <= upper
+            use_a = not out_a and valid_a and (valid_b or out_b)
+            use_b = not out_b and valid_b and (valid_a or out_a)
+            for z, use, o in ((za, use_a, off), (zb, use_b, mirror)):
+                if not use:
+                    continue
+                if z < lower:
+                    z = lower_clamp
+                else:
+                    upper = max(upper, z + thr)
+                    lower = min(lower, z - thr)
+                taken.append((spatial(off), z, o))
+    weights = np.array([t[0] for t in taken])
+    u = 1.0 / np.array([t[1] for t in taken])  # the narrow range averages inverse depth
+    offsets_px = np.array([t[2] for t in taken], dtype=np.float64)
+    mean = float((weights * u).sum() / weights.sum())
+    if not (weights[:, None] * offsets_px).sum(axis=0).any():
+        return 1.0 / mean  # every sample paired with its mirror: the plain weighted mean
+    uc = 1.0 / zc
+    fit = _fit_intercept(weights, u - uc, offsets_px, directions, mean - uc) + uc
+    nearest = min(lower, lower_clamp)
+    u_max = 1.0 / nearest if nearest > 0.0 else math.inf
+    return 1.0 / min(max(fit, 1.0 / upper), u_max)
+
+
+def _fit_intercept(
+    weights: npt.NDArray[np.float64],
+    d: npt.NDArray[np.float64],
+    offsets: npt.NDArray[np.float64],
+    directions: list[tuple[int, int]] | None,
+    d_mean: float,
+) -> float:
+    """The weighted least-squares intercept at offset 0 of `d` over the offsets: a line along
+    the 1-D pass's axis (variance floored at 1e-6 px^2), or a plane (covariance ridge-damped by
+    1e-3 px^2), as the shaders compute it."""
+    total = weights.sum()
+    if directions is not None:
+        k = offsets @ np.array(directions[0], dtype=np.float64)
+        k_mean = (weights * k).sum() / total
+        variance = (weights * k * k).sum() / total - k_mean**2
+        covariance = (weights * k * d).sum() / total - k_mean * d_mean
+        return d_mean - covariance / max(variance, 1e-6) * k_mean
+    o_mean = (weights[:, None] * offsets).sum(axis=0) / total
+    second = np.einsum("i,ij,ik->jk", weights, offsets, offsets) / total
+    c = second - np.outer(o_mean, o_mean) + 1e-3 * np.eye(2)
+    cd = (weights[:, None] * offsets * d[:, None]).sum(axis=0) / total - o_mean * d_mean
+    return float(d_mean - np.linalg.solve(c, cd) @ o_mean)
 
 
 def filter_depth(

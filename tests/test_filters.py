@@ -106,6 +106,75 @@ def test_packed_filters_with_wide_and_capped_kernels(renderer: SurfaceRenderer, 
     assert_matches_reference(renderer, depth, 920.0, replace(quality, kernel_max_px=11))
 
 
+def perspective_plane(height: int, width: int, px_per_unit: float) -> np.ndarray:
+    """The eye depth of a plane tilted towards the bottom of the image, seen in perspective:
+    1/z is affine in the pixel coordinates (z 0.25 at the bottom row to 0.43 at the top of a
+    180-row image at 247 px per unit, as a pool filling a close-up)."""
+    rows = np.arange(height, dtype=np.float64)[:, None] * np.ones((1, width))
+    cols = np.arange(width, dtype=np.float64)[None, :]
+    inverse = 1.0 / 0.32 + 2.2 * (rows - (height - 1) / 2) / px_per_unit + 0.3 * cols / 1e3
+    return (1.0 / inverse).astype(np.float32)
+
+
+PLANE_QUALITIES = {
+    "separable": QualityConfig(),
+    "separable-capped": QualityConfig(kernel_max_px=11),
+    "2d": QualityConfig(separable=False, iterations=1),
+}
+
+
+@pytest.mark.parametrize("name", list(PLANE_QUALITIES))
+def test_narrow_range_keeps_a_plane_in_perspective_up_to_the_image_edges(
+    renderer: SurfaceRenderer, name: str
+) -> None:
+    """The narrow range averages inverse depth, which is affine over a plane, and where a kernel
+    reaches past the image's end it fits a line (plane) through the inverse depths inside: a
+    plane filling the image is a fixed point, edges included. An average of z bends it by half
+    its second derivative times sigma^2 (0.12 r here), a fit of z at the edges by 0.06 r, a
+    one-sided mean without the fit by its slope times the taps' mean offset. (Dropping the taps
+    past the end, the old rule, is exact on a plane too: `test_engine_groundtruth`'s slab that
+    fills the image is what shows its unsmoothed edges.) Bound: float32 sums of a few hundred
+    terms, 1e-5 of z relative at worst (at z = 0.3, 3e-4 r; 2e-3 r allows the 2-D plane fit's
+    normal equations; measured 6.6e-5 r for the 1-D passes, 6.4e-4 r for the 2-D)."""
+    px_per_unit = 247.0
+    quality = replace(PLANE_QUALITIES[name], close_gaps=0.0)
+    height, width = (180, 320) if quality.separable else (60, 90)
+    depth = perspective_plane(height, width, px_per_unit)
+    out = renderer.filter_depth_image(
+        depth, particle_radius=RADIUS, px_per_unit=px_per_unit, quality=quality
+    )
+    error = np.abs(out.astype(np.float64) - depth) / RADIUS
+    assert error.max() <= 2e-3, f"max |filtered - plane| = {error.max():.3g} r"
+
+
+@pytest.mark.parametrize("margin", [0, 1, 3, 4, 5, 11, 64])
+@pytest.mark.parametrize("size", [(1, 1), (7, 3), (41, 20), (44, 9), (130, 140)])
+def test_border_split_gives_every_texel_near_an_image_end_to_the_border_variant(
+    size: tuple[int, int], margin: int
+) -> None:
+    """Brute force over every texel: the inside part holds only texels all of whose pixels lie
+    more than `margin` pixels from both ends along the axis (a kernel at most that long stays
+    in the image there), and the parts tile the packed image without overlap."""
+    from sphrender.server.engine.geometry.screen_box import packed_border_split
+
+    width, height = size
+    texels = ((width + 3) // 4, height)
+    for axis in (0, 1):
+        inside, strips = packed_border_split(size, axis, margin)
+        cover = np.zeros((texels[1], texels[0]), np.int32)
+        for x, y, w, h in ([inside] if inside is not None else []) + strips:
+            cover[y : y + h, x : x + w] += 1
+        assert (cover == 1).all(), f"axis {axis}: texels covered {np.unique(cover)} times"
+        if inside is None:
+            continue
+        x, y, w, h = inside
+        for tx in range(x, x + w):
+            for ty in range(y, y + h):
+                pixels = [4 * tx + i for i in range(4) if 4 * tx + i < width] if axis == 0 else [ty]
+                end = width if axis == 0 else height
+                assert all(margin <= p <= end - 1 - margin for p in pixels), (axis, tx, ty)
+
+
 def test_filter_smooths_noise_and_keeps_steps(renderer: SurfaceRenderer) -> None:
     """Behavioural check of the narrow-range filter: particle-scale noise shrinks, the 30 r step
     to the nearer block stays a step (not blurred into a ramp)."""

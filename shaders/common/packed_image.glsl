@@ -10,6 +10,11 @@ vec4 fetch_packed(sampler2D image, ivec2 p) {
     return texelFetch(image, p, 0);
 }
 
+// Component-wise a || b.
+bvec4 either(bvec4 a, bvec4 b) {
+    return bvec4(ivec4(a) | ivec4(b));
+}
+
 // Component-wise a && b (GLSL has no && for bvec4).
 bvec4 both(bvec4 a, bvec4 b) {
     return bvec4(ivec4(a) & ivec4(b));

@@ -22,6 +22,58 @@
 
 uniform sampler2D u_depth;
 
+#if FILTER == FILTER_NARROW_RANGE
+// Sums of the plane fit over the taps taken, offsets o in pixels and d = u - u_centre of the
+// inverse depths u = 1/z.
+struct BorderFit {
+    vec2 offset_sum;  // sum w o (0 while every tap is paired with its mirror)
+    vec3 second;      // sum w (ox ox, ox oy, oy oy)
+    vec2 depth;       // sum w o d
+};
+
+// A sample of weight `w` at offset `o`, `wd` = w * d (or its mirror pair's w (za - zb)).
+void add_to_fit(inout BorderFit fit, ivec2 o, float w, float wd) {
+    vec2 f = vec2(o);
+    fit.second += w * vec3(f.x * f.x, f.x * f.y, f.y * f.y);
+    fit.depth += wd * f;
+}
+
+// The weighted mean `mean` of the inverse depths, or where the kernel went one-sided the
+// intercept at the pixel of the weighted least-squares plane u = a + b.o through the samples
+// taken (ridge-damped by 1e-3 px^2, so samples along one line give that line's fit), kept
+// within [u_min, u_max], the inverse depths the kernel can have taken.
+float image_border_fit(BorderFit fit, float mean, float weight_sum, float uc, float u_min,
+                       float u_max) {
+    if (fit.offset_sum == vec2(0.0)) {
+        return mean;
+    }
+    vec2 o_mean = fit.offset_sum / weight_sum;
+    vec3 c = fit.second / weight_sum - vec3(o_mean.x * o_mean.x, o_mean.x * o_mean.y,
+                                            o_mean.y * o_mean.y) + vec3(1e-3, 0.0, 1e-3);
+    vec2 cd = fit.depth / weight_sum - o_mean * (mean - uc);
+    float det = c.x * c.z - c.y * c.y;
+    vec2 slope = vec2(c.z * cd.x - c.y * cd.y, c.x * cd.y - c.y * cd.x) / det;
+    return clamp(mean - dot(slope, o_mean), u_min, u_max);
+}
+
+// The narrow range averages inverse depth (see smooth_depth_separable.frag.glsl): a plane in
+// perspective is a fixed point of the filter. Finite for background 0.
+float inverse_depth(float z) {
+    return 1.0 / max(z, 1e-30);
+}
+
+// One sample of the narrow range: clamped to z_centre - mu r when in front by more than
+// lambda r, else it grows the accepted range around itself; returns the value it adds.
+float narrow_range_sample(float z, inout float upper, inout float lower, float lower_clamp) {
+    if (z < lower) {
+        return lower_clamp;
+    }
+    upper = max(upper, z + u_nr_threshold);
+    lower = min(lower, z - u_nr_threshold);
+    return z;
+}
+#endif
+
 layout(location = 0) out float out_eye_depth;
 
 void main() {
@@ -54,6 +106,15 @@ void main() {
     float upper = zc + u_nr_threshold;
     float lower = zc - u_nr_threshold;
     float lower_clamp = zc - u_nr_clamp;
+    float uc = inverse_depth(zc);
+    sum = uc;  // the narrow range averages inverse depths u = 1/z
+    // A tap past the image's end is no background: the kernel goes on one-sided there (the
+    // tap inside counts alone), and the result is the intercept at the pixel of the weighted
+    // plane fit through the taps taken (image_border_fit), exact on a tilted plane, where a
+    // one-sided mean would lie off it. The separable filter does the same per axis
+    // (image_border_taps.glsl).
+    ivec2 size = textureSize(u_depth, 0);
+    BorderFit fit = BorderFit(vec2(0.0), vec3(0.0), vec2(0.0));
     for (int k = 1; k <= radius; ++k) {
         int pairs_in_ring = 4 * k;
         for (int i = 0; i < pairs_in_ring; ++i) {
@@ -71,29 +132,44 @@ void main() {
             }
             float d2 = dot(vec2(offset), vec2(offset));
             float w = exp(-d2 * inv_two_sigma2);
-            float za = fetch_depth(u_depth, center + offset);
-            float zb = fetch_depth(u_depth, center - offset);
+            ivec2 pa = center + offset;
+            ivec2 pb = center - offset;
+            bool out_a = any(lessThan(pa, ivec2(0))) || any(greaterThanEqual(pa, size));
+            bool out_b = any(lessThan(pb, ivec2(0))) || any(greaterThanEqual(pb, size));
+            float za = fetch_depth(u_depth, pa);
+            float zb = fetch_depth(u_depth, pb);
             bool valid_a = za > 0.0 && za <= upper;
             bool valid_b = zb > 0.0 && zb <= upper;
-            if (!(valid_a && valid_b)) {
-                continue;  // as in the paper: a dropped sample drops its mirror (no one-sided bias)
+            // as in the paper, a dropped sample drops its mirror (no one-sided bias); a
+            // sample whose mirror lies past the image's end counts alone
+            bool use_a = !out_a && valid_a && (valid_b || out_b);
+            bool use_b = !out_b && valid_b && (valid_a || out_a);
+            if (use_a) {
+                za = narrow_range_sample(za, upper, lower, lower_clamp);
             }
-            if (za < lower) {
-                za = lower_clamp;
-            } else {
-                upper = max(upper, za + u_nr_threshold);
-                lower = min(lower, za - u_nr_threshold);
+            if (use_b) {
+                zb = narrow_range_sample(zb, upper, lower, lower_clamp);
             }
-            if (zb < lower) {
-                zb = lower_clamp;
-            } else {
-                upper = max(upper, zb + u_nr_threshold);
-                lower = min(lower, zb - u_nr_threshold);
+            float ua = inverse_depth(za);
+            float ub = inverse_depth(zb);
+            if (use_a && use_b) {
+                sum += w * (ua + ub);
+                weight_sum += 2.0 * w;
+                add_to_fit(fit, offset, 2.0 * w, w * (ua - ub));
+            } else if (use_a || use_b) {
+                float u = use_a ? ua : ub;
+                ivec2 at = use_a ? offset : -offset;
+                sum += w * u;
+                weight_sum += w;
+                fit.offset_sum += w * vec2(at);
+                add_to_fit(fit, at, w, w * (u - uc));
             }
-            sum += w * (za + zb);
-            weight_sum += 2.0 * w;
         }
     }
+    float u_min = inverse_depth(upper);
+    float u_max = inverse_depth(min(lower, lower_clamp));
+    sum = 1.0 / image_border_fit(fit, sum / weight_sum, weight_sum, uc, u_min, u_max);
+    weight_sum = 1.0;
 #else
     float inv_two_range2 = 1.0 / (2.0 * u_range_sigma * u_range_sigma);
     for (int y = -radius; y <= radius; ++y) {

@@ -50,3 +50,34 @@ def packed_box(box: ScreenBox) -> ScreenBox:
     x, y, width, height = box
     first = x // 4
     return (first, y, (x + width + 3) // 4 - first, height)
+
+
+def intersect(a: ScreenBox, b: ScreenBox) -> ScreenBox | None:
+    """The overlap of two boxes, None when they do not overlap."""
+    x0, y0 = max(a[0], b[0]), max(a[1], b[1])
+    x1, y1 = min(a[0] + a[2], b[0] + b[2]), min(a[1] + a[3], b[1] + b[3])
+    return (x0, y0, x1 - x0, y1 - y0) if x1 > x0 and y1 > y0 else None
+
+
+def packed_border_split(
+    image_px: tuple[int, int], axis: int, margin_px: int
+) -> tuple[ScreenBox | None, list[ScreenBox]]:
+    """A packed image (four pixels per texel along x) of `image_px` = (width, height) pixels cut
+    along `axis` (0: x, 1: y) into the texels all of whose pixels lie more than `margin_px`
+    pixels inside both ends of that axis (None if there are none) and the 1-2 strips of texels
+    at the ends that hold the rest: where a 1-D kernel at most `margin_px` long may reach past
+    the image."""
+    width, height = image_px
+    texels = ((width + 3) // 4, height)
+    if axis == 0:
+        # texel x holds pixels 4x .. 4x + 3
+        lo, hi, end = (margin_px + 3) // 4, (width - 4 - margin_px) // 4 + 1, texels[0]
+    else:
+        lo, hi, end = margin_px, height - margin_px, height
+
+    def span(a: int, b: int) -> ScreenBox:
+        return (a, 0, b - a, texels[1]) if axis == 0 else (0, a, texels[0], b - a)
+
+    if lo >= hi:
+        return None, [span(0, end)]
+    return span(lo, hi), [span(a, b) for a, b in ((0, lo), (hi, end)) if b > a]

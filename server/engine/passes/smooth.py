@@ -16,9 +16,14 @@ from __future__ import annotations
 
 import moderngl
 
-from sphrender.server.engine.geometry.screen_box import ScreenBox, packed_box
+from sphrender.server.engine.geometry.screen_box import (
+    ScreenBox,
+    intersect,
+    packed_border_split,
+    packed_box,
+)
 from sphrender.server.engine.gpu.draw import PerSize, Target, clear_and_scissor, set_scissor
-from sphrender.server.engine.gpu.uniforms import set_group
+from sphrender.server.engine.gpu.uniforms import set_group, set_if_used
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 from sphrender.server.engine.passes.gaps import GapPass
 from sphrender.server.scene import QualityConfig
@@ -85,7 +90,10 @@ class SmoothPass:
         if quality.separable:
             if quality.keep_features != "none":
                 defines["KEEP_FEATURES"] = _KEEP_FEATURES_DEFINES[quality.keep_features]
-            return self._separable(targets, depth, defines, uniforms, quality.iterations, box)
+            margin_px = max(quality.kernel_max_px, quality.kernel_min_px)
+            return self._separable(
+                targets, depth, defines, uniforms, quality.iterations, box, margin_px
+            )
         return self._two_d(targets, depth, defines, uniforms, quality.iterations, box)
 
     def _two_d(
@@ -121,6 +129,7 @@ class SmoothPass:
         uniforms: _FilterUniforms,
         iterations: int,
         box: ScreenBox | None,
+        margin_px: int,
     ) -> moderngl.Texture:
         programs, draw = self._context.programs, self._context.fullscreen.draw
         packed = targets.packed
@@ -131,22 +140,21 @@ class SmoothPass:
         depth.use(0)
         packed[0].fbo.use()
         draw(pack)
-        passes = {
-            axis: programs.get(
-                FULLSCREEN_VERT, SEPARABLE_SHADER, {**defines, "AXIS": axis}, {"u_packed_depth": 0}
-            )
+        draws = {
+            axis: self._axis_draws(defines, uniforms, axis, depth.size, packed_scissor, margin_px)
             for axis in (0, 1)
         }
-        for program in passes.values():
-            uniforms.set(program)
         read_index = 0
         for iteration in range(iterations):
             # The passes alternate their order (x y, y x, ...): the nonlinear filters leave
             # streaks along the axis filtered last, and alternating keeps them from piling up.
             for axis in (0, 1) if iteration % 2 == 0 else (1, 0):
                 packed[read_index].texture.use(0)
-                packed[1 - read_index].fbo.use()
-                draw(passes[axis])
+                target = packed[1 - read_index].fbo
+                for program, scissor in draws[axis]:
+                    set_scissor(target, scissor)
+                    target.use()
+                    draw(program)
                 read_index = 1 - read_index
         for target in packed:
             set_scissor(target.fbo, None)
@@ -158,6 +166,40 @@ class SmoothPass:
         draw(unpack)
         set_scissor(result.fbo, None)
         return result.texture
+
+    def _axis_draws(
+        self,
+        defines: dict[str, int],
+        uniforms: _FilterUniforms,
+        axis: int,
+        image_px: tuple[int, int],
+        scissor: ScreenBox | None,
+        margin_px: int,
+    ) -> list[tuple[moderngl.Program, ScreenBox | None]]:
+        """The draws of one 1-D pass along `axis`, each a program and the packed texels it
+        covers (`scissor`: the screen box's, None = all). The narrow range's kernel goes
+        one-sided past the image's ends (shaders/smooth/image_border_taps.glsl); that variant
+        covers the strips within `margin_px` (the kernel cap) of the ends, the packed walk's
+        the rest, so the inside pays nothing for it."""
+        programs = self._context.programs
+
+        def program(border: int) -> moderngl.Program:
+            variant = {**defines, "AXIS": axis, "IMAGE_BORDER": border}
+            chosen = programs.get(
+                FULLSCREEN_VERT, SEPARABLE_SHADER, variant, {"u_packed_depth": 0}
+            )
+            uniforms.set(chosen)
+            set_if_used(chosen, "u_image_size_px", image_px)
+            return chosen
+
+        if defines["FILTER"] != _FILTER_DEFINES["narrow_range"]:
+            return [(program(0), scissor)]
+        whole = scissor or (0, 0, (image_px[0] + 3) // 4, image_px[1])
+        inside, strips = packed_border_split(image_px, axis, margin_px)
+        parts = [(0, inside)] if inside is not None else []
+        parts += [(1, strip) for strip in strips]
+        clipped = [(border, intersect(box, whole)) for border, box in parts]
+        return [(program(border), box) for border, box in clipped if box is not None]
 
     def release(self) -> None:
         self._targets.release()
