@@ -82,7 +82,9 @@ def _pass(
                 return 1.0 if box else math.exp(-(off[0] ** 2 + off[1] ** 2) * inv2s2)
 
             if q.filter == "narrow_range":
-                out[row, col] = _narrow_range(depth, row, col, directions, reach, spatial, radius, q)
+                out[row, col] = _narrow_range(
+                    depth, row, col, directions, reach, spatial, radius, q
+                )
                 continue
             total, weights = zc, 1.0
             if directions is not None:

@@ -815,6 +815,58 @@ MUTATIONS: tuple[Mutation, ...] = (
         tests=("tests/test_programs.py", "tests/test_gaps.py"),
         description="the sampler units passed to ProgramCache.get never set (all left at unit 0)",
     ),
+    Mutation(
+        name="smooth-border-fit-dropped",
+        path="shaders/smooth/image_border_taps.glsl",
+        old="    return mix(mean, fit, notEqual(g_k_sum, vec4(0.0)));",
+        new="    return mean;",
+        tests=(
+            "tests/test_filters.py::test_filter_matches_numpy_reference",
+            "tests/test_filters.py::test_narrow_range_keeps_a_plane_in_perspective_up_to_the_image_edges",
+        ),
+        description="the 1-D passes' kernel one-sided at an image end without the line fit",
+    ),
+    Mutation(
+        name="smooth-border-strips-plain",
+        path="server/engine/passes/smooth.py",
+        old="        parts += [(1, strip) for strip in strips]",
+        new="        parts += [(0, strip) for strip in strips]",
+        tests=(
+            "tests/test_engine_groundtruth.py::test_slab_filling_the_image_is_as_smooth_at_the_image_edges_as_inside",
+        ),
+        description="the strips at the image's ends drawn with the packed walk (taps dropped)",
+    ),
+    Mutation(
+        name="smooth-border-strip-too-narrow",
+        path="server/engine/geometry/screen_box.py",
+        old="lo, hi, end = (margin_px + 3) // 4, (width - 4 - margin_px) // 4 + 1, texels[0]",
+        new="lo, hi, end = margin_px // 4, (width - 4 - margin_px) // 4 + 1, texels[0]",
+        tests=(
+            "tests/test_filters.py::test_border_split_gives_every_texel_near_an_image_end_to_the_border_variant",
+            "tests/test_filters.py::test_packed_filters_with_wide_and_capped_kernels",
+        ),
+        description="the left strip one texel short when kernel_max_px is no multiple of 4",
+    ),
+    Mutation(
+        name="smooth-centre-as-depth",
+        path="shaders/smooth/smooth_depth_separable.frag.glsl",
+        old="    g_sum = inverse_depth(z);",
+        new="    g_sum = zc;",
+        tests=("tests/test_filters.py::test_filter_matches_numpy_reference",),
+        description="the narrow range's centre sample summed as depth among inverse depths",
+    ),
+    Mutation(
+        name="smooth-2d-border-fit-dropped",
+        path="shaders/smooth/smooth_depth.frag.glsl",
+        old="    return clamp(mean - dot(slope, o_mean), u_min, u_max);",
+        new="    return mean;",
+        tests=(
+            "tests/test_filters.py::test_filter_matches_numpy_reference",
+            "tests/test_filters.py::test_narrow_range_keeps_a_plane_in_perspective_up_to_the_image_edges",
+        ),
+        description="the 2-D kernel one-sided at an image end without the plane fit",
+    ),
+
 )
 # fmt: on
 

@@ -150,10 +150,10 @@ class SmoothPass:
             # streaks along the axis filtered last, and alternating keeps them from piling up.
             for axis in (0, 1) if iteration % 2 == 0 else (1, 0):
                 packed[read_index].texture.use(0)
-                target = packed[1 - read_index].fbo
+                fbo = packed[1 - read_index].fbo
                 for program, scissor in draws[axis]:
-                    set_scissor(target, scissor)
-                    target.use()
+                    set_scissor(fbo, scissor)
+                    fbo.use()
                     draw(program)
                 read_index = 1 - read_index
         for target in packed:
@@ -185,9 +185,7 @@ class SmoothPass:
 
         def program(border: int) -> moderngl.Program:
             variant = {**defines, "AXIS": axis, "IMAGE_BORDER": border}
-            chosen = programs.get(
-                FULLSCREEN_VERT, SEPARABLE_SHADER, variant, {"u_packed_depth": 0}
-            )
+            chosen = programs.get(FULLSCREEN_VERT, SEPARABLE_SHADER, variant, {"u_packed_depth": 0})
             uniforms.set(chosen)
             set_if_used(chosen, "u_image_size_px", image_px)
             return chosen
