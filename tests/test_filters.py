@@ -175,6 +175,31 @@ def test_border_split_gives_every_texel_near_an_image_end_to_the_border_variant(
                 assert all(margin <= p <= end - 1 - margin for p in pixels), (axis, tx, ty)
 
 
+def test_border_variant_gives_the_packed_walks_result_bit_for_bit_inside(
+    renderer: SurfaceRenderer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The separable narrow range is drawn as the packed walk inside and as the border variant
+    in strips at the image's ends; where no tap crosses an end the two add the same terms in
+    the same order, so drawing the variant everywhere changes no bit (no seam where the strips
+    end)."""
+    from sphrender.server.engine.passes import smooth
+
+    depth = synthetic_depth(height=72, width=90)
+    quality = replace(QualityConfig(), kernel_max_px=11, close_gaps=0.0)
+
+    def run() -> np.ndarray:
+        return renderer.filter_depth_image(
+            depth, particle_radius=RADIUS, px_per_unit=920.0, quality=quality
+        )
+
+    split = run()
+    everywhere = smooth.packed_border_split
+    monkeypatch.setattr(
+        smooth, "packed_border_split", lambda size, axis, _: everywhere(size, axis, 10**6)
+    )
+    assert np.array_equal(run(), split)
+
+
 def test_filter_smooths_noise_and_keeps_steps(renderer: SurfaceRenderer) -> None:
     """Behavioural check of the narrow-range filter: particle-scale noise shrinks, the 30 r step
     to the nearer block stays a step (not blurred into a ramp)."""

@@ -867,6 +867,17 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="the 2-D kernel one-sided at an image end without the plane fit",
     ),
 
+    Mutation(
+        name="smooth-border-pair-sum-reordered",
+        path="shaders/smooth/image_border_taps.glsl",
+        old="    g_sum += mix(wa * ua + wb * ub, w * (ua + ub), pair);",
+        new="    g_sum += wa * ua + wb * ub;",
+        tests=(
+            "tests/test_filters.py::"
+            "test_border_variant_gives_the_packed_walks_result_bit_for_bit_inside",
+        ),
+        description="the border variant summing a pair in another order (a seam at its strips)",
+    ),
 )
 # fmt: on
 
