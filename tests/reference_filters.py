@@ -2,7 +2,8 @@
 
 Written from the equations, pixel by pixel, for small images only. They mirror the shader's
 documented rules (kernel size from the projected radius, background never read, narrow-range
-drop/clamp/extend with mirrored drops) so the GPU result can be compared value by value.
+drop/clamp/extend with mirrored drops over inverse depths, one-sided with a line or plane fit
+past the image's ends) so the GPU result can be compared value by value.
 """
 
 from __future__ import annotations

@@ -6,8 +6,13 @@ Kernel sigma = kernel_scale x the projected particle radius (or the thesis's eq 
 filters' streaks do not pile up on one axis) run on a packed copy of the image, four pixels of
 a row per RGBA32F texel: pack, the 1-D passes, unpack; one fetch serves four pixels.
 
+The narrow range averages inverse depth and, where a kernel reaches past the image's end, goes
+on one-sided and fits a line through the taps inside; a 1-D pass draws that variant
+(IMAGE_BORDER) only over the strips within kernel_max_px of the ends (`_axis_draws`).
+
 Shaders: `shaders/smooth/smooth_depth_separable.frag.glsl` (1-D, packed; taps walked by
-`common/packed_taps.glsl`), `shaders/smooth/smooth_depth.frag.glsl` (2-D), `common/image_pack`
+`common/packed_taps.glsl`; `smooth/image_border_taps.glsl` its variant at the image's ends),
+`shaders/smooth/smooth_depth.frag.glsl` (2-D), `common/image_pack`
 and `common/image_unpack`; uniforms shared by both in `common/depth_filter_params.glsl`.
 Owns: two plain ping-pong targets and two packed ones, per image size.
 """
