@@ -76,9 +76,6 @@ def _pass(
             reach, sigma = kernel(zc, radius, px_per_unit, q)
             inv2s2 = 1.0 / (2.0 * sigma * sigma)
 
-            def at(off: tuple[int, int], row: int = row, col: int = col) -> float:
-                return _fetch(depth, row - off[1], col + off[0])
-
             def spatial(off: tuple[int, int], inv2s2: float = inv2s2) -> float:
                 return 1.0 if box else math.exp(-(off[0] ** 2 + off[1] ** 2) * inv2s2)
 
@@ -87,31 +84,63 @@ def _pass(
                     depth, row, col, directions, reach, spatial, radius, q
                 )
                 continue
-            total, weights = zc, 1.0
-            if directions is not None:
-                dx, dy = directions[0]
-                offsets = [(k * dx, k * dy) for k in range(-reach, reach + 1)]
-            else:
-                offsets = [
-                    (x, y)
-                    for y in range(-reach, reach + 1)
-                    for x in range(-reach, reach + 1)
-                    if x * x + y * y <= reach * reach
-                ]
-            range_inv = 1.0 / (2.0 * (q.bilateral_depth_sigma * radius) ** 2)
-            for off in offsets:
-                if off == (0, 0):
-                    continue
-                z = at(off)
-                if z <= 0.0:
-                    continue
-                wgt = spatial(off)
-                if q.filter == "bilateral":
-                    wgt *= math.exp(-((z - zc) ** 2) * range_inv)
-                total += wgt * z
-                weights += wgt
-            out[row, col] = total / weights
+            out[row, col] = _gaussian_or_bilateral(
+                depth, row, col, directions, reach, spatial, radius, q
+            )
     return out
+
+
+def _gaussian_or_bilateral(
+    depth: F32,
+    row: int,
+    col: int,
+    directions: list[tuple[int, int]] | None,
+    reach: int,
+    spatial: Callable[[tuple[int, int]], float],
+    radius: float,
+    q: QualityConfig,
+) -> float:
+    """The Gaussian (eq 17-21) or bilateral (eq 22-24) weighted mean of z at one pixel over
+    the surface samples in reach; where a sample lay past the image's end, the intercept of
+    the weighted line (1-D) or plane (2-D) fit through the samples taken, kept within their
+    range widened by its width."""
+    h, w = depth.shape
+    zc = float(depth[row, col])
+    if directions is not None:
+        dx, dy = directions[0]
+        offsets = [(k * dx, k * dy) for k in range(-reach, reach + 1)]
+    else:
+        offsets = [
+            (x, y)
+            for y in range(-reach, reach + 1)
+            for x in range(-reach, reach + 1)
+            if x * x + y * y <= reach * reach
+        ]
+    range_inv = 1.0 / (2.0 * (q.bilateral_depth_sigma * radius) ** 2)
+    taken: list[tuple[float, float, tuple[int, int]]] = [(1.0, zc, (0, 0))]
+    crossed = False
+    for off in offsets:
+        if off == (0, 0):
+            continue
+        if not (0 <= row - off[1] < h and 0 <= col + off[0] < w):
+            crossed = True
+            continue
+        z = _fetch(depth, row - off[1], col + off[0])
+        if z <= 0.0:
+            continue
+        wgt = spatial(off)
+        if q.filter == "bilateral":
+            wgt *= math.exp(-((z - zc) ** 2) * range_inv)
+        taken.append((wgt, z, off))
+    weights = np.array([t[0] for t in taken])
+    z_taken = np.array([t[1] for t in taken])
+    mean = float((weights * z_taken).sum() / weights.sum())
+    if not crossed:
+        return mean
+    offsets_px = np.array([t[2] for t in taken], dtype=np.float64)
+    fit = _fit_intercept(weights, z_taken - zc, offsets_px, directions, mean - zc) + zc
+    low, high = float(z_taken.min()), float(z_taken.max())
+    return min(max(fit, 2.0 * low - high), 2.0 * high - low)
 
 
 def _narrow_range(

@@ -268,21 +268,31 @@ def test_slab_normals_point_up(
 
 
 @pytest.mark.parametrize(
-    ("quality", "ratio_bound"),
-    [({}, 3.0), ({"separable": False, "iterations": 1}, 6.0)],
-    ids=["default", "narrow-range-2d"],
+    ("quality", "ratio_bound", "floor_deg"),
+    [
+        ({}, 3.0, 0.0),
+        ({"separable": False, "iterations": 1}, 6.0, 0.0),
+        ({"filter": "gaussian"}, 0.0, 6.0),
+        ({"filter": "bilateral"}, 0.0, 6.0),
+    ],
+    ids=["default", "narrow-range-2d", "gaussian", "bilateral"],
 )
 def test_slab_filling_the_image_is_as_smooth_at_the_image_edges_as_inside(
-    renderer: SurfaceRenderer, quality: dict[str, Any], ratio_bound: float
+    renderer: SurfaceRenderer, quality: dict[str, Any], ratio_bound: float, floor_deg: float
 ) -> None:
     """A pool close-up: a lattice slab covers the bottom, left and right ends of the image. The
-    narrow range's kernels there reach past the image; they go on one-sided and fit a line
-    through the inverse depths inside. Dropping those taps with their mirrors instead leaves
-    the edge pixels unsmoothed: 21 deg mean error within 3 px of those ends (28 deg for the
-    2-D kernel) against 0.36 deg inside. Bound: a one-sided local-linear fit's intercept has
-    about 4x the variance of a centred mean over the same kernel (a boundary kernel), so about
-    2x the normal error; measured 0.64 vs 0.35 deg (1.8x) with the default quality, 1.59 vs
-    0.39 deg (4.1x) for one 2-D pass, which fits the line in both axes at a corner."""
+    kernels there reach past the image; they go on one-sided and fit a line through the values
+    inside. Before, the narrow range dropped those taps with their mirrors, which left the
+    edge pixels unsmoothed (21 deg mean error within 3 px of those ends, 28 deg for the 2-D
+    kernel, against 0.36 deg inside), and the Gaussian and bilateral filters took a one-sided
+    mean, which lies off the slope (23 deg). Bounds: a one-sided local-linear fit's intercept
+    has about 4x the variance of a centred mean over the same kernel (a boundary kernel), so
+    about 2x the normal error: measured 0.64 vs 0.35 deg (1.8x) with the default quality,
+    1.59 vs 0.39 deg (4.1x) for one 2-D pass, which fits in both axes at a corner. The Gaussian
+    and bilateral filters average z, which curves over a plane in perspective (z = z0 + b k +
+    c k^2 across a kernel): a centred mean is off by +c sigma^2, a one-sided fit's intercept by
+    -0.75 c sigma^2 (the half-Gaussian's moments), and that change over the last rows tilts the
+    normals: measured 3.9 and 4.0 deg, bound 6."""
     r = 0.01
     scene = scene_from_dict(
         {
@@ -306,7 +316,7 @@ def test_slab_filling_the_image_is_as_smooth_at_the_image_edges_as_inside(
     assert (edges & covered).sum() > 0.95 * edges.sum(), "the slab must cover those ends"
     edge_mean, inside_mean = np.nanmean(error[edges]), np.nanmean(error[inside])
     print(quality, f"edges {edge_mean:.2f} deg, inside {inside_mean:.2f} deg")
-    assert edge_mean <= ratio_bound * inside_mean
+    assert edge_mean <= max(ratio_bound * inside_mean, floor_deg)
 
 
 def test_per_particle_radii_override_scene_radius(renderer: SurfaceRenderer) -> None:

@@ -17,6 +17,7 @@ from reference_filters import ambiguous_reach, filter_depth, temperature_blur
 
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import QualityConfig
+from sphrender.server.scene.schema_quality import FilterName
 
 RADIUS = 0.01
 PX_PER_UNIT = 260.0  # r_px = 1.3 px at z = 2
@@ -175,8 +176,9 @@ def test_border_split_gives_every_texel_near_an_image_end_to_the_border_variant(
                 assert all(margin <= p <= end - 1 - margin for p in pixels), (axis, tx, ty)
 
 
+@pytest.mark.parametrize("filter_name", ["narrow_range", "gaussian", "bilateral"])
 def test_border_variant_gives_the_packed_walks_result_bit_for_bit_inside(
-    renderer: SurfaceRenderer, monkeypatch: pytest.MonkeyPatch
+    renderer: SurfaceRenderer, monkeypatch: pytest.MonkeyPatch, filter_name: FilterName
 ) -> None:
     """The separable narrow range is drawn as the packed walk inside and as the border variant
     in strips at the image's ends; where no tap crosses an end the two add the same terms in
@@ -185,7 +187,7 @@ def test_border_variant_gives_the_packed_walks_result_bit_for_bit_inside(
     from sphrender.server.engine.passes import smooth
 
     depth = synthetic_depth(height=72, width=90)
-    quality = replace(QualityConfig(), kernel_max_px=11, close_gaps=0.0)
+    quality = QualityConfig(filter=filter_name, kernel_max_px=11, close_gaps=0.0)
 
     def run() -> np.ndarray:
         return renderer.filter_depth_image(

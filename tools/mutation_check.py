@@ -818,8 +818,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         name="smooth-border-fit-dropped",
         path="shaders/smooth/image_border_taps.glsl",
-        old="    return mix(mean, fit, notEqual(g_k_sum, vec4(0.0)));",
-        new="    return mean;",
+        old="    bvec4 one_sided = notEqual(g_k_sum, vec4(0.0));",
+        new="    bvec4 one_sided = bvec4(false);",
         tests=(
             "tests/test_filters.py::test_filter_matches_numpy_reference",
             "tests/test_filters.py::test_narrow_range_keeps_a_plane_in_perspective_up_to_the_image_edges",
@@ -858,13 +858,13 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         name="smooth-2d-border-fit-dropped",
         path="shaders/smooth/smooth_depth.frag.glsl",
-        old="    return clamp(mean - dot(slope, o_mean), u_min, u_max);",
+        old="    return clamp(mean - dot(slope, o_mean), v_min, v_max);",
         new="    return mean;",
         tests=(
             "tests/test_filters.py::test_filter_matches_numpy_reference",
             "tests/test_filters.py::test_narrow_range_keeps_a_plane_in_perspective_up_to_the_image_edges",
         ),
-        description="the 2-D kernel one-sided at an image end without the plane fit",
+        description="the 2-D kernels one-sided at an image end without the plane fit",
     ),
 
     Mutation(
@@ -877,6 +877,18 @@ MUTATIONS: tuple[Mutation, ...] = (
             "test_border_variant_gives_the_packed_walks_result_bit_for_bit_inside",
         ),
         description="the border variant summing a pair in another order (a seam at its strips)",
+    ),
+    Mutation(
+        name="smooth-border-gaussian-fit-dropped",
+        path="shaders/smooth/image_border_taps.glsl",
+        old="    bvec4 one_sided = g_crossed;",
+        new="    bvec4 one_sided = bvec4(false);",
+        tests=(
+            "tests/test_filters.py::test_filter_matches_numpy_reference",
+            "tests/test_engine_groundtruth.py::"
+            "test_slab_filling_the_image_is_as_smooth_at_the_image_edges_as_inside",
+        ),
+        description="the Gaussian's one-sided mean at an image end kept (no line fit)",
     ),
 )
 # fmt: on

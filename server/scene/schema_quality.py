@@ -20,9 +20,10 @@ class QualityConfig:
     filter: FilterName = spec(
         "narrow_range",
         "depth smoothing filter: narrow_range (Truong & Yuksel 2018; averages inverse depth, so "
-        "a plane in perspective stays a plane, and where a kernel reaches past the image's end "
-        "it goes on one-sided and fits a line through the taps inside), bilateral (eq 22-24), "
-        "gaussian (eq 17-21) or none",
+        "a plane in perspective stays a plane), bilateral (eq 22-24), gaussian (eq 17-21) or "
+        "none. Where a kernel reaches past the image's end it goes on one-sided and returns "
+        "the intercept of a line fit through the taps inside (the image's edge is no "
+        "silhouette)",
     )
     separable: bool = spec(True, "filter rows then columns (1-D kernels) instead of one 2-D kernel")
     iterations: int = spec(2, "how many times the whole filter is applied", low=1, high=16)

@@ -1,13 +1,14 @@
-// The narrow-range kernel of smooth_depth_separable.frag.glsl at the image's ends, included
-// there in place of its tap_pair when IMAGE_BORDER is 1. A tap past the image's end is no
-// background: dropping it with its mirror, as a background tap is dropped, leaves the pixels
-// at the image's edge unsmoothed (the particles' bumps: 48 deg of normal error on the last rows
-// of a slab that fills the image). Here the kernel goes on one-sided instead: the tap inside
-// the image counts alone, and the result is the intercept at the pixel of the weighted
-// least-squares line u = a + b k through the inverse depths u = 1/z the kernel took (exact on
-// a plane, where a one-sided mean would lie off it). passes/smooth.py draws this variant only
-// within kernel_max_px of the image's ends; wherever no tap crosses an end it adds what the
-// packed walk's tap_pair adds, bit for bit.
+// The 1-D kernels of smooth_depth_separable.frag.glsl at the image's ends, included there in
+// place of its tap_pair when IMAGE_BORDER is 1. A tap past the image's end is no background.
+// The narrow range dropped it with its mirror, as a background tap is dropped, which left the
+// pixels at the image's edge unsmoothed (the particles' bumps: 48 deg of normal error on the
+// last rows of a slab that fills the image); the Gaussian and bilateral filters dropped it
+// alone, and their one-sided mean lay off any slope (23 deg there). Here the kernel goes on
+// one-sided, and the result is the intercept at the pixel of the weighted least-squares line
+// v = a + b k through the values the kernel took: inverse depths u = 1/z for the narrow range
+// (exact on a plane), depths for the others (as they average), kept within the values taken.
+// passes/smooth.py draws this variant only within kernel_max_px of the image's ends; wherever
+// no tap crosses an end it adds what the packed walk's tap_pair adds, bit for bit.
 
 uniform ivec2 u_image_size_px;  // the unpacked image (the packed texture's last texel may pad)
 
@@ -15,7 +16,12 @@ vec4 g_room_ahead;   // pixels between each lane's pixel and the image's end alo
 vec4 g_room_behind;  // ... and along -AXIS
 vec4 g_k_sum;        // sum of w k over the samples taken (signed offsets)
 vec4 g_kk_sum;       // sum of w k^2
-vec4 g_kd_sum;       // sum of w k (u - u_centre)
+vec4 g_kd_sum;       // sum of w k (v - v_centre)
+#if FILTER != FILTER_NARROW_RANGE
+bvec4 g_crossed;     // a tap in reach lay past an end
+vec4 g_min_taken;    // the range of the depths taken
+vec4 g_max_taken;
+#endif
 
 // Sets the lanes' room to the image's ends and zeroes the fit's sums.
 void start_image_border(ivec2 texel) {
@@ -30,8 +36,14 @@ void start_image_border(ivec2 texel) {
     g_k_sum = vec4(0.0);
     g_kk_sum = vec4(0.0);
     g_kd_sum = vec4(0.0);
+#if FILTER != FILTER_NARROW_RANGE
+    g_crossed = bvec4(false);
+    g_min_taken = g_center;
+    g_max_taken = g_center;
+#endif
 }
 
+#if FILTER == FILTER_NARROW_RANGE
 // The narrow range's tap_pair (smooth_depth_separable.frag.glsl) where the pair may straddle an
 // image end: a side is taken with its mirror as there, or alone when the mirror lies past the
 // end. Walked by common/packed_taps.glsl like the other (the value arguments are unused).
@@ -72,16 +84,61 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     g_kd_sum += kf * (wa * (ua - uc) - wb * (ub - uc));
 }
 
-// The weighted mean `mean` of the inverse depths, or where the kernel went one-sided
-// (g_k_sum != 0) the intercept a = mean - b k_mean of the weighted least-squares line through
-// the samples taken (the variance floor keeps a lone near sample finite), kept within the
-// inverse depths the kernel can have taken.
+#else
+// The Gaussian's and the bilateral's tap_pair where a tap may lie past an end: the same sums
+// (a tap past the end reads 0, so it is skipped like background), and the fit's.
+void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
+    vec4 w = gaussian_next();
+    float kf = float(k);
+    bvec4 in_reach = lessThanEqual(vec4(kf), g_reach);
+    bvec4 use_a = both(in_reach, greaterThan(za, vec4(0.0)));
+    bvec4 use_b = both(in_reach, greaterThan(zb, vec4(0.0)));
+    vec4 wa = w;
+    vec4 wb = w;
+#if FILTER == FILTER_BILATERAL
+    float inv_two_range2 = 1.0 / (2.0 * u_range_sigma * u_range_sigma);
+    vec4 da = za - g_center;
+    vec4 db = zb - g_center;
+    wa *= exp(-da * da * inv_two_range2);
+    wb *= exp(-db * db * inv_two_range2);
+#endif
+    g_sum += mix(vec4(0.0), wa * za, use_a) + mix(vec4(0.0), wb * zb, use_b);
+    g_weight_sum += mix(vec4(0.0), wa, use_a) + mix(vec4(0.0), wb, use_b);
+    bvec4 out_a = lessThan(g_room_ahead, vec4(kf));
+    bvec4 out_b = lessThan(g_room_behind, vec4(kf));
+    g_crossed = either(g_crossed, both(in_reach, either(out_a, out_b)));
+    vec4 ta = mix(vec4(0.0), wa, use_a);
+    vec4 tb = mix(vec4(0.0), wb, use_b);
+    g_k_sum += kf * (ta - tb);
+    g_kk_sum += kf * kf * (ta + tb);
+    g_kd_sum += kf * (ta * (za - g_center) - tb * (zb - g_center));
+    g_min_taken = min(g_min_taken, mix(g_min_taken, za, use_a));
+    g_min_taken = min(g_min_taken, mix(g_min_taken, zb, use_b));
+    g_max_taken = max(g_max_taken, mix(g_max_taken, za, use_a));
+    g_max_taken = max(g_max_taken, mix(g_max_taken, zb, use_b));
+}
+#endif
+
+// The weighted mean `mean` of the values (narrow range: inverse depths), or where the kernel
+// went one-sided at an image end the intercept a = mean - b k_mean of the weighted
+// least-squares line through the samples taken (the variance floor keeps a lone near sample
+// finite), kept within the values the kernel can have taken.
 vec4 image_border_fit(vec4 mean) {
     vec4 k_mean = g_k_sum / g_weight_sum;
     vec4 variance = g_kk_sum / g_weight_sum - k_mean * k_mean;
-    vec4 covariance = g_kd_sum / g_weight_sum - k_mean * (mean - inverse_depth(g_center));
+#if FILTER == FILTER_NARROW_RANGE
+    vec4 centre = inverse_depth(g_center);
+    vec4 low = inverse_depth(g_upper);
+    vec4 high = inverse_depth(min(g_lower, g_lower_clamp));
+    bvec4 one_sided = notEqual(g_k_sum, vec4(0.0));  // only an image end unpairs a tap
+#else
+    vec4 centre = g_center;
+    vec4 low = 2.0 * g_min_taken - g_max_taken;  // the range taken, widened by its width:
+    vec4 high = 2.0 * g_max_taken - g_min_taken; // a curved surface's end may lie beyond it
+    bvec4 one_sided = g_crossed;  // background unpairs taps too: not fitted (as inside)
+#endif
+    vec4 covariance = g_kd_sum / g_weight_sum - k_mean * (mean - centre);
     vec4 slope = covariance / max(variance, 1e-6);
-    vec4 nearest = min(g_lower, g_lower_clamp);
-    vec4 fit = clamp(mean - slope * k_mean, inverse_depth(g_upper), inverse_depth(nearest));
-    return mix(mean, fit, notEqual(g_k_sum, vec4(0.0)));
+    vec4 fit = clamp(mean - slope * k_mean, low, high);
+    return mix(mean, fit, one_sided);
 }

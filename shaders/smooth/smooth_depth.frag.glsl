@@ -22,9 +22,8 @@
 
 uniform sampler2D u_depth;
 
-#if FILTER == FILTER_NARROW_RANGE
-// Sums of the plane fit over the taps taken, offsets o in pixels and d = u - u_centre of the
-// inverse depths u = 1/z.
+// Sums of the plane fit over the taps taken, offsets o in pixels and d = v - v_centre of the
+// values v the filter averages (the narrow range: inverse depths u = 1/z; the others: z).
 struct BorderFit {
     vec2 offset_sum;  // sum w o (0 while every tap is paired with its mirror)
     vec3 second;      // sum w (ox ox, ox oy, oy oy)
@@ -38,24 +37,25 @@ void add_to_fit(inout BorderFit fit, ivec2 o, float w, float wd) {
     fit.depth += wd * f;
 }
 
-// The weighted mean `mean` of the inverse depths, or where the kernel went one-sided the
-// intercept at the pixel of the weighted least-squares plane u = a + b.o through the samples
-// taken (ridge-damped by 1e-3 px^2, so samples along one line give that line's fit), kept
-// within [u_min, u_max], the inverse depths the kernel can have taken.
-float image_border_fit(BorderFit fit, float mean, float weight_sum, float uc, float u_min,
-                       float u_max) {
-    if (fit.offset_sum == vec2(0.0)) {
+// The weighted mean `mean` of the values, or where the kernel went one-sided at an image end
+// the intercept at the pixel of the weighted least-squares plane v = a + b.o through the
+// samples taken (ridge-damped by 1e-3 px^2, so samples along one line give that line's fit),
+// kept within [v_min, v_max]; `vc` is the centre's value.
+float image_border_fit(BorderFit fit, bool one_sided, float mean, float weight_sum, float vc,
+                       float v_min, float v_max) {
+    if (!one_sided) {
         return mean;
     }
     vec2 o_mean = fit.offset_sum / weight_sum;
     vec3 c = fit.second / weight_sum - vec3(o_mean.x * o_mean.x, o_mean.x * o_mean.y,
                                             o_mean.y * o_mean.y) + vec3(1e-3, 0.0, 1e-3);
-    vec2 cd = fit.depth / weight_sum - o_mean * (mean - uc);
+    vec2 cd = fit.depth / weight_sum - o_mean * (mean - vc);
     float det = c.x * c.z - c.y * c.y;
     vec2 slope = vec2(c.z * cd.x - c.y * cd.y, c.x * cd.y - c.y * cd.x) / det;
-    return clamp(mean - dot(slope, o_mean), u_min, u_max);
+    return clamp(mean - dot(slope, o_mean), v_min, v_max);
 }
 
+#if FILTER == FILTER_NARROW_RANGE
 // The narrow range averages inverse depth (see smooth_depth_separable.frag.glsl): a plane in
 // perspective is a fixed point of the filter. Finite for background 0.
 float inverse_depth(float z) {
@@ -168,10 +168,16 @@ void main() {
     }
     float u_min = inverse_depth(upper);
     float u_max = inverse_depth(min(lower, lower_clamp));
-    sum = 1.0 / image_border_fit(fit, sum / weight_sum, weight_sum, uc, u_min, u_max);
+    bool one_sided = fit.offset_sum != vec2(0.0);  // only an image end unpairs a tap
+    sum = 1.0 / image_border_fit(fit, one_sided, sum / weight_sum, weight_sum, uc, u_min, u_max);
     weight_sum = 1.0;
 #else
     float inv_two_range2 = 1.0 / (2.0 * u_range_sigma * u_range_sigma);
+    ivec2 size = textureSize(u_depth, 0);
+    BorderFit fit = BorderFit(vec2(0.0), vec3(0.0), vec2(0.0));
+    bool crossed = false;
+    float z_min = zc;
+    float z_max = zc;
     for (int y = -radius; y <= radius; ++y) {
         for (int x = -radius; x <= radius; ++x) {
             ivec2 offset = ivec2(x, y);
@@ -181,7 +187,12 @@ void main() {
             if (offset == ivec2(0)) {
                 continue;
             }
-            float z = fetch_depth(u_depth, center + offset);
+            ivec2 p = center + offset;
+            if (any(lessThan(p, ivec2(0))) || any(greaterThanEqual(p, size))) {
+                crossed = true;
+                continue;
+            }
+            float z = fetch_depth(u_depth, p);
             if (z <= 0.0) {
                 continue;
             }
@@ -192,8 +203,19 @@ void main() {
 #endif
             sum += w * z;
             weight_sum += w;
+            fit.offset_sum += w * vec2(offset);
+            add_to_fit(fit, offset, w, w * (z - zc));
+            z_min = min(z_min, z);
+            z_max = max(z_max, z);
         }
     }
+    // A tap past the image's end is skipped like background, but the kernel's one-sided mean
+    // there lies off any slope: where one was skipped, the plane fit's intercept (background
+    // unpairs taps too, and inside the image those stay the plain mean). The range taken is
+    // widened by its width: the end of a curved surface may lie beyond it.
+    sum = image_border_fit(fit, crossed, sum / weight_sum, weight_sum, zc, 2.0 * z_min - z_max,
+                           2.0 * z_max - z_min);
+    weight_sum = 1.0;
 #endif
     out_eye_depth = sum / weight_sum;
 }

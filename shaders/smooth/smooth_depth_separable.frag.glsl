@@ -26,12 +26,9 @@
 #define KEEP_SHARE_LOW 0.4
 #define KEEP_SHARE_HIGH 0.8
 // 1: the variant passes/smooth.py draws where a kernel may reach past the image's ends (within
-// kernel_max_px of them): there the narrow range goes on one-sided and fits a line
+// kernel_max_px of them): there the kernel goes on one-sided and fits a line
 // (image_border_taps.glsl); the same result as 0 wherever no kernel reaches that far.
 #define IMAGE_BORDER 0
-#if IMAGE_BORDER && FILTER != FILTER_NARROW_RANGE
-#error "IMAGE_BORDER is the narrow range's"
-#endif
 
 // The depth is its own guide (common/packed_taps.glsl).
 #define PACKED_VALUE 0

@@ -6,9 +6,9 @@ Kernel sigma = kernel_scale x the projected particle radius (or the thesis's eq 
 filters' streaks do not pile up on one axis) run on a packed copy of the image, four pixels of
 a row per RGBA32F texel: pack, the 1-D passes, unpack; one fetch serves four pixels.
 
-The narrow range averages inverse depth and, where a kernel reaches past the image's end, goes
-on one-sided and fits a line through the taps inside; a 1-D pass draws that variant
-(IMAGE_BORDER) only over the strips within kernel_max_px of the ends (`_axis_draws`).
+The narrow range averages inverse depth. Where a kernel reaches past the image's end it goes on
+one-sided and fits a line through the taps inside; a 1-D pass draws that variant (IMAGE_BORDER)
+only over the strips within kernel_max_px of the ends (`_axis_draws`).
 
 Shaders: `shaders/smooth/smooth_depth_separable.frag.glsl` (1-D, packed; taps walked by
 `common/packed_taps.glsl`; `smooth/image_border_taps.glsl` its variant at the image's ends),
@@ -182,8 +182,8 @@ class SmoothPass:
         margin_px: int,
     ) -> list[tuple[moderngl.Program, ScreenBox | None]]:
         """The draws of one 1-D pass along `axis`, each a program and the packed texels it
-        covers (`scissor`: the screen box's, None = all). The narrow range's kernel goes
-        one-sided past the image's ends (shaders/smooth/image_border_taps.glsl); that variant
+        covers (`scissor`: the screen box's, None = all). A kernel goes one-sided past the
+        image's ends and fits a line (shaders/smooth/image_border_taps.glsl); that variant
         covers the strips within `margin_px` (the kernel cap) of the ends, the packed walk's
         the rest, so the inside pays nothing for it."""
         programs = self._context.programs
@@ -195,8 +195,6 @@ class SmoothPass:
             set_if_used(chosen, "u_image_size_px", image_px)
             return chosen
 
-        if defines["FILTER"] != _FILTER_DEFINES["narrow_range"]:
-            return [(program(0), scissor)]
         whole = scissor or (0, 0, (image_px[0] + 3) // 4, image_px[1])
         inside, strips = packed_border_split(image_px, axis, margin_px)
         parts = [(0, inside)] if inside is not None else []
