@@ -30,7 +30,8 @@ struct BorderFit {
     vec2 depth;       // sum w o d
 };
 
-// A sample of weight `w` at offset `o`, `wd` = w * d (or its mirror pair's w (za - zb)).
+// The samples at +-o of weights summing to `w`, `wd` = the sum of w d with d's sign at -o
+// flipped (the offset's sign cancels in the second moments).
 void add_to_fit(inout BorderFit fit, ivec2 o, float w, float wd) {
     vec2 f = vec2(o);
     fit.second += w * vec3(f.x * f.x, f.x * f.y, f.y * f.y);
@@ -150,20 +151,16 @@ void main() {
             if (use_b) {
                 zb = narrow_range_sample(zb, upper, lower, lower_clamp);
             }
+            // branch-free (llvmpipe runs both sides of an if): a pair adds nothing to
+            // offset_sum, a lone sample its offset
+            float wa = use_a ? w : 0.0;
+            float wb = use_b ? w : 0.0;
             float ua = inverse_depth(za);
             float ub = inverse_depth(zb);
-            if (use_a && use_b) {
-                sum += w * (ua + ub);
-                weight_sum += 2.0 * w;
-                add_to_fit(fit, offset, 2.0 * w, w * (ua - ub));
-            } else if (use_a || use_b) {
-                float u = use_a ? ua : ub;
-                ivec2 at = use_a ? offset : -offset;
-                sum += w * u;
-                weight_sum += w;
-                fit.offset_sum += w * vec2(at);
-                add_to_fit(fit, at, w, w * (u - uc));
-            }
+            sum += wa * ua + wb * ub;
+            weight_sum += wa + wb;
+            fit.offset_sum += (wa - wb) * vec2(offset);
+            add_to_fit(fit, offset, wa + wb, wa * (ua - uc) - wb * (ub - uc));
         }
     }
     float u_min = inverse_depth(upper);
