@@ -180,9 +180,9 @@ def test_border_split_gives_every_texel_near_an_image_end_to_the_border_variant(
 def test_border_variant_gives_the_packed_walks_result_bit_for_bit_inside(
     renderer: SurfaceRenderer, monkeypatch: pytest.MonkeyPatch, filter_name: FilterName
 ) -> None:
-    """The separable narrow range is drawn as the packed walk inside and as the border variant
-    in strips at the image's ends; where no tap crosses an end the two add the same terms in
-    the same order, so drawing the variant everywhere changes no bit (no seam where the strips
+    """A separable filter is drawn as the packed walk inside and as the border variant in
+    strips at the image's ends; where no tap crosses an end the two add the same terms in the
+    same order, so drawing the variant everywhere changes no bit (no seam where the strips
     end)."""
     from sphrender.server.engine.passes import smooth
 
