@@ -244,6 +244,22 @@ def filter_depth(
     return image
 
 
+def _kelvin_at(taken: list[tuple[float, float, int]], crossed: bool) -> float:
+    """The weighted mean of the (weight, kelvin, offset) samples, or where a tap fell past the
+    image's end the intercept of their weighted line fit, kept within their range widened by
+    its width (common/border_fit.glsl)."""
+    weights = np.array([t[0] for t in taken])
+    kelvin = np.array([t[1] for t in taken])
+    mean = float((weights * kelvin).sum() / weights.sum())
+    if not crossed:
+        return mean
+    offsets = np.array([[t[2], 0] for t in taken], dtype=np.float64)
+    centre = kelvin[0]
+    fit = _fit_intercept(weights, kelvin - centre, offsets, [(1, 0)], mean - centre) + centre
+    low, high = float(kelvin.min()), float(kelvin.max())
+    return min(max(fit, 2.0 * low - high), 2.0 * high - low)
+
+
 def temperature_blur(
     temperature: F32,
     depth: F32,
@@ -257,7 +273,8 @@ def temperature_blur(
     Per pixel with a surface: sigma = max(sigma_radii * r_px(z), 0.5) with r_px(z) =
     radius_px_at_unit_depth / z, reach = min(ceil(3 sigma), max_reach_px), sigma shrunk to
     reach / 3 when the cap bites; a tap counts when it has a surface within depth_range of the
-    centre's depth. Pixels without a surface give 0."""
+    centre's depth; where a tap fell past the image's end, a line fit's intercept (`_kelvin_at`).
+    Pixels without a surface give 0."""
     h, w = depth.shape
     image = temperature.astype(np.float64)
     for dx, dy in ((1, 0), (0, 1)):
@@ -274,18 +291,20 @@ def temperature_blur(
                 reach = min(int(np.ceil(np.float32(3.0) * sigma32)), max_reach_px)
                 sigma = min(float(sigma32), max(reach, 1) / 3.0)
                 inv = 1.0 / (2.0 * sigma * sigma)
-                total, weights = image[row, col], 1.0
+                taken = [(1.0, float(image[row, col]), 0)]  # weight, kelvin, offset
+                crossed = False
                 for k in range(-reach, reach + 1):
                     if k == 0:
                         continue
                     # rows of these arrays are top first; the shader's +y is one row up
                     r, c = row - k * dy, col + k * dx
+                    if not (0 <= r < h and 0 <= c < w):
+                        crossed = True
+                        continue
                     z = _fetch(depth, r, c)
                     if z <= 0.0 or abs(z - zc) > depth_range:
                         continue
-                    wgt = math.exp(-k * k * inv)
-                    total += wgt * image[r, c]
-                    weights += wgt
-                out[row, col] = total / weights
+                    taken.append((math.exp(-k * k * inv), float(image[r, c]), k))
+                out[row, col] = _kelvin_at(taken, crossed)
         image = out
     return image.astype(np.float32)

@@ -271,3 +271,28 @@ def test_temperature_blur_matches_numpy_reference(renderer: SurfaceRenderer) -> 
             np.inf,
         )
         assert (np.abs(gpu - unguided) / np.maximum(unguided, 1.0)).max() > 1e-2
+
+
+def test_temperature_border_variant_gives_the_same_bits_inside(
+    renderer: SurfaceRenderer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The temperature blur's variant at the image's ends adds the same terms as the plain one
+    where no tap falls past an end: drawn everywhere, it changes no bit (no seam where its
+    strips end)."""
+    from sphrender.server.engine.passes import temperature
+
+    depth = synthetic_depth(height=40, width=120)
+    columns = np.arange(depth.shape[1])[None, :]
+    kelvin = np.where(depth > 0, 300.0 + 20.0 * columns + 0 * depth, 0.0).astype(np.float32)
+
+    def run() -> np.ndarray:
+        return renderer.blur_temperature_image(
+            kelvin, depth, particle_radius=RADIUS, px_per_unit=900.0
+        )
+
+    split = run()
+    everywhere = temperature.packed_border_split
+    monkeypatch.setattr(
+        temperature, "packed_border_split", lambda size, axis, _: everywhere(size, axis, 10**6)
+    )
+    assert np.array_equal(run(), split)

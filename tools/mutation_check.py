@@ -890,6 +890,14 @@ MUTATIONS: tuple[Mutation, ...] = (
         ),
         description="the Gaussian's one-sided mean at an image end kept (no line fit)",
     ),
+    Mutation(
+        name="temperature-border-fit-dropped",
+        path="shaders/temperature/smooth_temperature.frag.glsl",
+        old="                              g_t_min - span, g_t_max + span, g_crossed);",
+        new="                              g_t_min - span, g_t_max + span, bvec4(false));",
+        tests=("tests/test_filters.py::test_temperature_blur_matches_numpy_reference",),
+        description="the temperature blur's one-sided mean at an image end kept (no line fit)",
+    ),
 )
 # fmt: on
 

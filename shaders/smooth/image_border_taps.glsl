@@ -119,13 +119,12 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
 }
 #endif
 
+#include "common/border_fit.glsl"
+
 // The weighted mean `mean` of the values (narrow range: inverse depths), or where the kernel
-// went one-sided at an image end the intercept a = mean - b k_mean of the weighted
-// least-squares line through the samples taken (the variance floor keeps a lone near sample
-// finite), kept within the values the kernel can have taken.
+// went one-sided at an image end the line fit's intercept, kept within the values the kernel
+// can have taken.
 vec4 image_border_fit(vec4 mean) {
-    vec4 k_mean = g_k_sum / g_weight_sum;
-    vec4 variance = g_kk_sum / g_weight_sum - k_mean * k_mean;
 #if FILTER == FILTER_NARROW_RANGE
     vec4 centre = inverse_depth(g_center);
     vec4 low = inverse_depth(g_upper);
@@ -137,8 +136,6 @@ vec4 image_border_fit(vec4 mean) {
     vec4 high = 2.0 * g_max_taken - g_min_taken; // a curved surface's end may lie beyond it
     bvec4 one_sided = g_crossed;  // background unpairs taps too: not fitted (as inside)
 #endif
-    vec4 covariance = g_kd_sum / g_weight_sum - k_mean * (mean - centre);
-    vec4 slope = covariance / max(variance, 1e-6);
-    vec4 fit = clamp(mean - slope * k_mean, low, high);
-    return mix(mean, fit, one_sided);
+    return border_line_fit(mean, centre, g_weight_sum, g_k_sum, g_kk_sum, g_kd_sum, low, high,
+                           one_sided);
 }

@@ -9,6 +9,11 @@
 
 // 0: along rows (x), 1: along columns (y).
 #define AXIS 0
+// 1: the variant passes/temperature.py draws within u_max_reach_px of the image's ends: a tap
+// past the end is skipped as before, but where one was, the kernel's one-sided mean becomes
+// the intercept of a line fit through the temperatures taken (common/border_fit.glsl), so a
+// gradient running out of the image is not shifted. Elsewhere the same bits as 0.
+#define IMAGE_BORDER 0
 // The smoothed depth guides, the temperature is filtered (common/packed_taps.glsl).
 #define PACKED_VALUE 1
 
@@ -28,6 +33,51 @@ vec4 g_center;
 vec4 g_reach;
 vec4 g_sum;
 vec4 g_weight_sum;
+#if IMAGE_BORDER
+#include "common/border_fit.glsl"
+uniform ivec2 u_image_size_px;  // the unpacked image (the packed texture's last texel may pad)
+vec4 g_room_ahead;   // pixels between each lane's pixel and the image's end along +AXIS
+vec4 g_room_behind;  // ... and along -AXIS
+bvec4 g_crossed;     // a tap in reach lay past an end
+vec4 g_t_center;
+vec4 g_k_sum;        // sums of w k, w k^2, w k (t - t_centre) over the samples taken
+vec4 g_kk_sum;
+vec4 g_kd_sum;
+vec4 g_t_min;        // the range of the temperatures taken
+vec4 g_t_max;
+
+void start_image_border(ivec2 texel, vec4 tc) {
+#if AXIS == 0
+    vec4 position = vec4(float(4 * texel.x)) + vec4(0.0, 1.0, 2.0, 3.0);
+    g_room_ahead = vec4(float(u_image_size_px.x - 1)) - position;
+#else
+    vec4 position = vec4(float(texel.y));
+    g_room_ahead = vec4(float(u_image_size_px.y - 1)) - position;
+#endif
+    g_room_behind = position;
+    g_crossed = bvec4(false);
+    g_t_center = tc;
+    g_k_sum = vec4(0.0);
+    g_kk_sum = vec4(0.0);
+    g_kd_sum = vec4(0.0);
+    g_t_min = tc;
+    g_t_max = tc;
+}
+
+// The line fit's sums of the taps tap_pair took at +-k (weights wa, wb; 0 when skipped).
+void border_taps(float k, vec4 wa, vec4 wb, vec4 ta, vec4 tb, bvec4 in_reach) {
+    bvec4 out_a = lessThan(g_room_ahead, vec4(k));
+    bvec4 out_b = lessThan(g_room_behind, vec4(k));
+    g_crossed = either(g_crossed, both(in_reach, either(out_a, out_b)));
+    g_k_sum += k * (wa - wb);
+    g_kk_sum += k * k * (wa + wb);
+    g_kd_sum += k * (wa * (ta - g_t_center) - wb * (tb - g_t_center));
+    g_t_min = min(g_t_min, min(mix(g_t_min, ta, greaterThan(wa, vec4(0.0))),
+                               mix(g_t_min, tb, greaterThan(wb, vec4(0.0)))));
+    g_t_max = max(g_t_max, max(mix(g_t_max, ta, greaterThan(wa, vec4(0.0))),
+                               mix(g_t_max, tb, greaterThan(wb, vec4(0.0)))));
+}
+#endif
 
 void tap_pair(int k, vec4 za, vec4 zb, vec4 ta, vec4 tb) {
     vec4 w = gaussian_next();
@@ -42,6 +92,9 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 ta, vec4 tb) {
     );
     g_sum += mix(vec4(0.0), w * ta, use_a) + mix(vec4(0.0), w * tb, use_b);
     g_weight_sum += mix(vec4(0.0), w, use_a) + mix(vec4(0.0), w, use_b);
+#if IMAGE_BORDER
+    border_taps(float(k), mix(vec4(0.0), w, use_a), mix(vec4(0.0), w, use_b), ta, tb, in_reach);
+#endif
 }
 
 #include "common/packed_taps.glsl"
@@ -65,6 +118,15 @@ void main() {
     g_sum = tc;
     g_weight_sum = vec4(1.0);
     int radius = int(max(max(g_reach.x, g_reach.y), max(g_reach.z, g_reach.w)));
+#if IMAGE_BORDER
+    start_image_border(texel, tc);
+#endif
     walk_packed_taps(u_packed_depth, u_packed_temperature, texel, zc, tc, radius);
-    out_packed_temperature = mix(vec4(0.0), g_sum / g_weight_sum, surface);
+    vec4 blurred = g_sum / g_weight_sum;
+#if IMAGE_BORDER
+    vec4 span = g_t_max - g_t_min;  // kept within the range taken, widened by its width
+    blurred = border_line_fit(blurred, g_t_center, g_weight_sum, g_k_sum, g_kk_sum, g_kd_sum,
+                              g_t_min - span, g_t_max + span, g_crossed);
+#endif
+    out_packed_temperature = mix(vec4(0.0), blurred, surface);
 }

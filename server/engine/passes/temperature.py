@@ -4,6 +4,8 @@ The splat writes the front sphere's temperature per pixel (unsmoothed); this pas
 screen space, separably on packed images (four pixels per texel, as the depth filters), guided by
 the smoothed depth: samples more than TEMPERATURE_DEPTH_RANGE_RADII particle radii away in depth
 belong to another surface and are skipped. Sigma = TEMPERATURE_SIGMA_RADII projected radii.
+Within TEMPERATURE_MAX_REACH_PX of the image's ends a variant (IMAGE_BORDER) fits a line where
+taps fell past the end, so a gradient running out of the image keeps its value at the edge.
 
 Shader: `shaders/temperature/smooth_temperature.frag.glsl` (+ `common/image_pack`, `image_unpack`).
 Owns: the packed depth guide, two packed kelvin images (ping-pong) and the unpacked result.
@@ -13,8 +15,9 @@ from __future__ import annotations
 
 import moderngl
 
-from sphrender.server.engine.gpu.draw import PerSize, Target
-from sphrender.server.engine.gpu.uniforms import set_group
+from sphrender.server.engine.geometry.screen_box import ScreenBox, packed_border_split
+from sphrender.server.engine.gpu.draw import PerSize, Target, set_scissor
+from sphrender.server.engine.gpu.uniforms import set_group, set_if_used
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 
 SHADER = "temperature/smooth_temperature.frag.glsl"
@@ -66,26 +69,47 @@ class TemperaturePass:
             draw(pack)
         blur.packed_depth.texture.use(1)
         for axis in (0, 1):
-            program = programs.get(FULLSCREEN_VERT, SHADER, _AXIS_DEFINES[axis], _BLUR_UNITS)
-            set_group(
-                program,
-                "frame",
-                (particle_radius, px_per_unit),
-                lambda: {
-                    "u_radius_px_at_unit_depth": particle_radius * px_per_unit,
-                    "u_sigma_radii": TEMPERATURE_SIGMA_RADII,
-                    "u_max_reach_px": TEMPERATURE_MAX_REACH_PX,
-                    "u_depth_range": TEMPERATURE_DEPTH_RANGE_RADII * particle_radius,
-                },
-            )
             blur.packed[axis].texture.use(0)
-            blur.packed[1 - axis].fbo.use()
-            draw(program)
+            fbo = blur.packed[1 - axis].fbo
+            for border, box in self._parts(temperature.size, axis):
+                program = self._program(
+                    axis, border, temperature.size, particle_radius, px_per_unit
+                )
+                set_scissor(fbo, box)
+                fbo.use()
+                draw(program)
+            set_scissor(fbo, None)
         unpack = programs.get(FULLSCREEN_VERT, UNPACK_SHADER, samplers={"u_packed": 0})
         blur.packed[0].texture.use(0)
         blur.result.fbo.use()
         draw(unpack)
         return blur.result.texture
+
+    @staticmethod
+    def _parts(size: tuple[int, int], axis: int) -> list[tuple[int, ScreenBox]]:
+        """The packed texels of one pass: (0, the inside) and (1, each strip within the
+        kernel cap of the image's ends along `axis`), where taps may fall past the image."""
+        inside, strips = packed_border_split(size, axis, TEMPERATURE_MAX_REACH_PX)
+        return ([(0, inside)] if inside is not None else []) + [(1, strip) for strip in strips]
+
+    def _program(
+        self, axis: int, border: int, size: tuple[int, int], radius: float, px_per_unit: float
+    ) -> moderngl.Program:
+        defines = {**_AXIS_DEFINES[axis], "IMAGE_BORDER": border}
+        program = self._context.programs.get(FULLSCREEN_VERT, SHADER, defines, _BLUR_UNITS)
+        set_group(
+            program,
+            "frame",
+            (radius, px_per_unit),
+            lambda: {
+                "u_radius_px_at_unit_depth": radius * px_per_unit,
+                "u_sigma_radii": TEMPERATURE_SIGMA_RADII,
+                "u_max_reach_px": TEMPERATURE_MAX_REACH_PX,
+                "u_depth_range": TEMPERATURE_DEPTH_RANGE_RADII * radius,
+            },
+        )
+        set_if_used(program, "u_image_size_px", size)
+        return program
 
     def release(self) -> None:
         self._targets.release()
