@@ -10,7 +10,7 @@
 // passes/smooth.py draws this variant only within kernel_max_px of the image's ends; wherever
 // no tap crosses an end it adds what the packed walk's tap_pair adds, bit for bit.
 
-uniform ivec2 u_image_size_px;  // the unpacked image (the packed texture's last texel may pad)
+#include "common/border_fit.glsl"
 
 vec4 g_room_ahead;   // pixels between each lane's pixel and the image's end along +AXIS
 vec4 g_room_behind;  // ... and along -AXIS
@@ -25,14 +25,7 @@ vec4 g_max_taken;
 
 // Sets the lanes' room to the image's ends and zeroes the fit's sums.
 void start_image_border(ivec2 texel) {
-#if AXIS == 0
-    vec4 position = vec4(float(4 * texel.x)) + vec4(0.0, 1.0, 2.0, 3.0);
-    g_room_ahead = vec4(float(u_image_size_px.x - 1)) - position;
-#else
-    vec4 position = vec4(float(texel.y));
-    g_room_ahead = vec4(float(u_image_size_px.y - 1)) - position;
-#endif
-    g_room_behind = position;
+    image_end_room(texel, g_room_ahead, g_room_behind);
     g_k_sum = vec4(0.0);
     g_kk_sum = vec4(0.0);
     g_kd_sum = vec4(0.0);
@@ -91,24 +84,14 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     vec4 w = gaussian_next();
     float kf = float(k);
     bvec4 in_reach = lessThanEqual(vec4(kf), g_reach);
-    bvec4 use_a = both(in_reach, greaterThan(za, vec4(0.0)));
-    bvec4 use_b = both(in_reach, greaterThan(zb, vec4(0.0)));
-    vec4 wa = w;
-    vec4 wb = w;
-#if FILTER == FILTER_BILATERAL
-    float inv_two_range2 = 1.0 / (2.0 * u_range_sigma * u_range_sigma);
-    vec4 da = za - g_center;
-    vec4 db = zb - g_center;
-    wa *= exp(-da * da * inv_two_range2);
-    wb *= exp(-db * db * inv_two_range2);
-#endif
-    g_sum += mix(vec4(0.0), wa * za, use_a) + mix(vec4(0.0), wb * zb, use_b);
-    g_weight_sum += mix(vec4(0.0), wa, use_a) + mix(vec4(0.0), wb, use_b);
+    vec4 ta;
+    vec4 tb;
+    bvec4 use_a;
+    bvec4 use_b;
+    spatial_taps(w, in_reach, za, zb, ta, tb, use_a, use_b);
     bvec4 out_a = lessThan(g_room_ahead, vec4(kf));
     bvec4 out_b = lessThan(g_room_behind, vec4(kf));
     g_crossed = either(g_crossed, both(in_reach, either(out_a, out_b)));
-    vec4 ta = mix(vec4(0.0), wa, use_a);
-    vec4 tb = mix(vec4(0.0), wb, use_b);
     g_k_sum += kf * (ta - tb);
     g_kk_sum += kf * kf * (ta + tb);
     g_kd_sum += kf * (ta * (za - g_center) - tb * (zb - g_center));
@@ -118,8 +101,6 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     g_max_taken = max(g_max_taken, mix(g_max_taken, zb, use_b));
 }
 #endif
-
-#include "common/border_fit.glsl"
 
 // The weighted mean `mean` of the values (narrow range: inverse depths), or where the kernel
 // went one-sided at an image end the line fit's intercept, kept within the values the kernel

@@ -76,6 +76,31 @@ vec4 narrow_range_sample(vec4 z, bvec4 use) {
 }
 #endif
 
+#if FILTER != FILTER_NARROW_RANGE
+// The Gaussian's or the bilateral's taps at +-k of spatial weight w: added to the sums; which
+// were taken in use_a, use_b (not: no surface, or past the image's end, which reads 0), their
+// weights in wa, wb (0 where not taken). Shared with image_border_taps.glsl, so both add the
+// same bits.
+void spatial_taps(vec4 w, bvec4 in_reach, vec4 za, vec4 zb, out vec4 wa, out vec4 wb,
+                  out bvec4 use_a, out bvec4 use_b) {
+    use_a = both(in_reach, greaterThan(za, vec4(0.0)));
+    use_b = both(in_reach, greaterThan(zb, vec4(0.0)));
+    wa = w;
+    wb = w;
+#if FILTER == FILTER_BILATERAL
+    float inv_two_range2 = 1.0 / (2.0 * u_range_sigma * u_range_sigma);
+    vec4 da = za - g_center;
+    vec4 db = zb - g_center;
+    wa *= exp(-da * da * inv_two_range2);
+    wb *= exp(-db * db * inv_two_range2);
+#endif
+    g_sum += mix(vec4(0.0), wa * za, use_a) + mix(vec4(0.0), wb * zb, use_b);
+    g_weight_sum += mix(vec4(0.0), wa, use_a) + mix(vec4(0.0), wb, use_b);
+    wa = mix(vec4(0.0), wa, use_a);
+    wb = mix(vec4(0.0), wb, use_b);
+}
+#endif
+
 #if IMAGE_BORDER
 #include "image_border_taps.glsl"
 #else
@@ -102,19 +127,11 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     g_sum += mix(vec4(0.0), w * (inverse_depth(za) + inverse_depth(zb)), accept);
     g_weight_sum += mix(vec4(0.0), 2.0 * w, accept);
 #else
-    bvec4 use_a = both(in_reach, greaterThan(za, vec4(0.0)));
-    bvec4 use_b = both(in_reach, greaterThan(zb, vec4(0.0)));
-    vec4 wa = w;
-    vec4 wb = w;
-#if FILTER == FILTER_BILATERAL
-    float inv_two_range2 = 1.0 / (2.0 * u_range_sigma * u_range_sigma);
-    vec4 da = za - g_center;
-    vec4 db = zb - g_center;
-    wa *= exp(-da * da * inv_two_range2);
-    wb *= exp(-db * db * inv_two_range2);
-#endif
-    g_sum += mix(vec4(0.0), wa * za, use_a) + mix(vec4(0.0), wb * zb, use_b);
-    g_weight_sum += mix(vec4(0.0), wa, use_a) + mix(vec4(0.0), wb, use_b);
+    vec4 wa;
+    vec4 wb;
+    bvec4 use_a;
+    bvec4 use_b;
+    spatial_taps(w, in_reach, za, zb, wa, wb, use_a, use_b);
 #endif
 }
 #endif

@@ -35,7 +35,6 @@ vec4 g_sum;
 vec4 g_weight_sum;
 #if IMAGE_BORDER
 #include "common/border_fit.glsl"
-uniform ivec2 u_image_size_px;  // the unpacked image (the packed texture's last texel may pad)
 vec4 g_room_ahead;   // pixels between each lane's pixel and the image's end along +AXIS
 vec4 g_room_behind;  // ... and along -AXIS
 bvec4 g_crossed;     // a tap in reach lay past an end
@@ -47,14 +46,7 @@ vec4 g_t_min;        // the range of the temperatures taken
 vec4 g_t_max;
 
 void start_image_border(ivec2 texel, vec4 tc) {
-#if AXIS == 0
-    vec4 position = vec4(float(4 * texel.x)) + vec4(0.0, 1.0, 2.0, 3.0);
-    g_room_ahead = vec4(float(u_image_size_px.x - 1)) - position;
-#else
-    vec4 position = vec4(float(texel.y));
-    g_room_ahead = vec4(float(u_image_size_px.y - 1)) - position;
-#endif
-    g_room_behind = position;
+    image_end_room(texel, g_room_ahead, g_room_behind);
     g_crossed = bvec4(false);
     g_t_center = tc;
     g_k_sum = vec4(0.0);
