@@ -19,17 +19,82 @@ from sphrender.server.scene import QualityConfig
 F32 = npt.NDArray[np.float32]
 
 
-def kernel(zc: float, radius: float, px_per_unit: float, q: QualityConfig) -> tuple[int, float]:
-    """(reach in pixels, sigma in pixels) exactly as the shader derives them (float32 maths)."""
+def _wanted_sigma(zc: float, radius: float, px_per_unit: float, q: QualityConfig) -> float:
+    """The kernel's sigma in pixels before any cap, in the shader's float32 maths."""
     if q.kernel_size == "eq25":
         beyond = max(np.float32(zc) - np.float32(q.eq25_threshold), np.float32(0.0))
         sigma32 = np.float32(q.eq25_sigma_px) - beyond * np.float32(q.eq25_decline) / np.float32(3)
     else:
         r_px = np.float32(radius) * np.float32(px_per_unit) / np.float32(zc)
         sigma32 = np.float32(q.kernel_scale) * r_px
-    reach = float(np.clip(np.ceil(np.float32(3.0) * sigma32), q.kernel_min_px, q.kernel_max_px))
-    sigma = max(min(float(sigma32), reach / 3.0), 1e-3)
-    return int(reach), sigma
+    return float(sigma32)
+
+
+def _clamped_reach(sigma: float, q: QualityConfig, limit: float) -> float:
+    return float(np.clip(np.ceil(np.float32(3.0) * np.float32(sigma)), q.kernel_min_px, limit))
+
+
+def kernel(zc: float, radius: float, px_per_unit: float, q: QualityConfig) -> tuple[int, float]:
+    """(reach in pixels, sigma in pixels) of the 2-D kernel, exactly as the shader derives
+    them (float32 maths): 3 sigma within [kernel_min_px, kernel_max_px], sigma shrunk to
+    reach / 3 when the cap bites."""
+    sigma32 = _wanted_sigma(zc, radius, px_per_unit, q)
+    reach = _clamped_reach(sigma32, q, q.kernel_max_px)
+    return int(reach), max(min(sigma32, reach / 3.0), 1e-3)
+
+
+def separable_kernels(
+    depth: F32, axis: int, radius: float, px_per_unit: float, q: QualityConfig
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """Per pixel of a 1-D pass along `axis` (0: rows, 1: columns): the reach and sigma in
+    pixels and the tap spacing beyond kernel_max_px, as smooth_depth_separable.frag.glsl
+    `kernel_reach` derives them for the four pixels 4x .. 4x+3 of a row it filters together:
+    3 sigma within [kernel_min_px, limit], the limit kernel_max_px x kernel_max_stride, in the
+    strips that passes/smooth.py gives the image-end variant kernel_max_px, elsewhere no more
+    than the pixel's room to the image's ends (but at least kernel_max_px); the spacing the
+    group's smallest ceil(reach / kernel_max_px), each reach then at most kernel_max_px x it."""
+    from sphrender.server.engine.geometry.screen_box import packed_border_split
+
+    h, w = depth.shape
+    cap = q.kernel_max_px
+    inside, _ = packed_border_split((w, h), axis, max(cap, q.kernel_min_px))
+    reach = np.zeros((h, w), np.int64)
+    sigma = np.ones((h, w))
+    stride = np.ones((h, w), np.int64)
+    for row in range(h):
+        gl_y = h - 1 - row  # the shader's texel row (GL's y points up)
+        for group in range(0, w, 4):
+            cols = [c for c in range(group, min(group + 4, w)) if depth[row, c] > 0.0]
+            plain = inside is not None and (
+                inside[0] <= group // 4 < inside[0] + inside[2]
+                and inside[1] <= gl_y < inside[1] + inside[3]
+            )
+            wanted, lanes = {}, {}
+            for col in cols:
+                wanted[col] = _wanted_sigma(float(depth[row, col]), radius, px_per_unit, q)
+                limit = float(cap)
+                if plain:
+                    room = min(col, w - 1 - col) if axis == 0 else min(gl_y, h - 1 - gl_y)
+                    limit = min(cap * q.kernel_max_stride, max(cap, room))
+                lanes[col] = _clamped_reach(wanted[col], q, limit)
+            spacing = max(1, min((math.ceil(r / cap) for r in lanes.values()), default=1))
+            for col in cols:
+                reach_px = min(lanes[col], cap * spacing)
+                reach[row, col] = int(reach_px)
+                sigma[row, col] = max(min(wanted[col], reach_px / 3.0), 1e-3)
+                stride[row, col] = spacing
+    return reach, sigma, stride
+
+
+def tap_offsets(reach: int, stride: int, q: QualityConfig, axis: int) -> list[tuple[int, float]]:
+    """The 1-D kernel's offsets k = 1, 2, ... and the pixels each stands for: every pixel out
+    to kernel_max_px (the packed row walk's whole texels: out to the next multiple of 4), then
+    every stride-th out to the reach."""
+    dense_end = min(reach, q.kernel_max_px)
+    if stride > 1 and axis == 0:
+        dense_end = (dense_end + 3) // 4 * 4
+    dense = [(k, 1.0) for k in range(1, min(reach, dense_end) + 1)]
+    return dense + [(k, float(stride)) for k in range(dense_end + stride, reach + 1, stride)]
 
 
 def ambiguous_reach(zc: float, radius: float, px_per_unit: float, q: QualityConfig) -> bool:
@@ -68,12 +133,20 @@ def _pass(
     Offsets are (x, y) in image coordinates with y pointing *up* (GL), rows stored top first."""
     h, w = depth.shape
     out = np.zeros_like(depth)
+    if directions is not None:
+        axis = 0 if directions[0][0] else 1
+        reaches, sigmas, strides = separable_kernels(depth, axis, radius, px_per_unit, q)
     for row in range(h):
         for col in range(w):
             zc = float(depth[row, col])
             if zc <= 0.0:
                 continue
-            reach, sigma = kernel(zc, radius, px_per_unit, q)
+            if directions is None:
+                reach, sigma = kernel(zc, radius, px_per_unit, q)
+                taps = None
+            else:
+                reach, sigma = int(reaches[row, col]), float(sigmas[row, col])
+                taps = tap_offsets(reach, int(strides[row, col]), q, axis)
             inv2s2 = 1.0 / (2.0 * sigma * sigma)
 
             def spatial(off: tuple[int, int], inv2s2: float = inv2s2) -> float:
@@ -81,11 +154,11 @@ def _pass(
 
             if q.filter == "narrow_range":
                 out[row, col] = _narrow_range(
-                    depth, row, col, directions, reach, spatial, radius, q
+                    depth, row, col, directions, reach, taps, spatial, radius, q
                 )
                 continue
             out[row, col] = _gaussian_or_bilateral(
-                depth, row, col, directions, reach, spatial, radius, q
+                depth, row, col, directions, reach, taps, spatial, radius, q
             )
     return out
 
@@ -96,6 +169,7 @@ def _gaussian_or_bilateral(
     col: int,
     directions: list[tuple[int, int]] | None,
     reach: int,
+    taps: list[tuple[int, float]] | None,
     spatial: Callable[[tuple[int, int]], float],
     radius: float,
     q: QualityConfig,
@@ -106,29 +180,27 @@ def _gaussian_or_bilateral(
     range widened by its width."""
     h, w = depth.shape
     zc = float(depth[row, col])
-    if directions is not None:
+    if directions is not None and taps is not None:
         dx, dy = directions[0]
-        offsets = [(k * dx, k * dy) for k in range(-reach, reach + 1)]
+        offsets = [((sign * k * dx, sign * k * dy), n) for k, n in taps for sign in (1, -1)]
     else:
         offsets = [
-            (x, y)
+            ((x, y), 1.0)
             for y in range(-reach, reach + 1)
             for x in range(-reach, reach + 1)
-            if x * x + y * y <= reach * reach
+            if x * x + y * y <= reach * reach and (x, y) != (0, 0)
         ]
     range_inv = 1.0 / (2.0 * (q.bilateral_depth_sigma * radius) ** 2)
     taken: list[tuple[float, float, tuple[int, int]]] = [(1.0, zc, (0, 0))]
     crossed = False
-    for off in offsets:
-        if off == (0, 0):
-            continue
+    for off, pixels in offsets:
         if not (0 <= row - off[1] < h and 0 <= col + off[0] < w):
             crossed = True
             continue
         z = _fetch(depth, row - off[1], col + off[0])
         if z <= 0.0:
             continue
-        wgt = spatial(off)
+        wgt = pixels * spatial(off)
         if q.filter == "bilateral":
             wgt *= math.exp(-((z - zc) ** 2) * range_inv)
         taken.append((wgt, z, off))
@@ -149,6 +221,7 @@ def _narrow_range(
     col: int,
     directions: list[tuple[int, int]] | None,
     reach: int,
+    taps: list[tuple[int, float]] | None,
     spatial: Callable[[tuple[int, int]], float],
     radius: float,
     q: QualityConfig,
@@ -169,7 +242,8 @@ def _narrow_range(
     def outside(off: tuple[int, int]) -> bool:
         return not (0 <= row - off[1] < h and 0 <= col + off[0] < w)
 
-    for k in range(1, reach + 1):
+    rings = taps if taps is not None else [(k, 1.0) for k in range(1, reach + 1)]
+    for k, pixels in rings:
         if directions is not None:
             offsets = [(k * directions[0][0], k * directions[0][1])]
         else:
@@ -190,7 +264,7 @@ def _narrow_range(
                 else:
                     upper = max(upper, z + thr)
                     lower = min(lower, z - thr)
-                taken.append((spatial(off), z, o))
+                taken.append((pixels * spatial(off), z, o))
     weights = np.array([t[0] for t in taken])
     u = 1.0 / np.array([t[1] for t in taken])  # the narrow range averages inverse depth
     offsets_px = np.array([t[2] for t in taken], dtype=np.float64)

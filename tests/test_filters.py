@@ -100,11 +100,18 @@ def test_packed_filters_at_widths_not_divisible_by_four(
 @pytest.mark.parametrize("name", SEPARABLE)
 def test_packed_filters_with_wide_and_capped_kernels(renderer: SurfaceRenderer, name: str) -> None:
     """Kernels reaching across many packed texels (r_px = 4.6 at z = 2: reach ~28 px, sliding
-    seven texel pairs per side) and kernels capped by kernel_max_px."""
+    seven texel pairs per side), kernels capped by kernel_max_px, and kernels spread past the
+    cap (every pixel out to 7, then every 2nd or 3rd out to 3 sigma, less near the image's
+    ends: groups of each spacing, per texel, and reaches cut by the room to the ends)."""
     depth = synthetic_depth(height=72, width=90)
     quality = QUALITIES[name]
     assert_matches_reference(renderer, depth, 920.0, quality)
-    assert_matches_reference(renderer, depth, 920.0, replace(quality, kernel_max_px=11))
+    capped = replace(quality, kernel_max_px=11, kernel_max_stride=1)
+    assert_matches_reference(renderer, depth, 920.0, capped)
+    spread = replace(quality, kernel_max_px=7, kernel_max_stride=3)
+    assert_matches_reference(renderer, depth, 920.0, spread)
+    # cap 6: the row walk's whole texels end at 8, the spread taps start past them
+    assert_matches_reference(renderer, depth, 920.0, replace(spread, kernel_max_px=6))
 
 
 def perspective_plane(height: int, width: int, px_per_unit: float) -> np.ndarray:
@@ -183,11 +190,14 @@ def test_border_variant_gives_the_packed_walks_result_bit_for_bit_inside(
     """A separable filter is drawn as the packed walk inside and as the border variant in
     strips at the image's ends; where no tap crosses an end the two add the same terms in the
     same order, so drawing the variant everywhere changes no bit (no seam where the strips
-    end)."""
+    end). With a hard cap: spread taps (kernel_max_stride) belong to the packed walk only,
+    the strips keep the cap by design (their kernels are cut at the cap either way)."""
     from sphrender.server.engine.passes import smooth
 
     depth = synthetic_depth(height=72, width=90)
-    quality = QualityConfig(filter=filter_name, kernel_max_px=11, close_gaps=0.0)
+    quality = QualityConfig(
+        filter=filter_name, kernel_max_px=11, kernel_max_stride=1, close_gaps=0.0
+    )
 
     def run() -> np.ndarray:
         return renderer.filter_depth_image(

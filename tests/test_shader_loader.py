@@ -232,6 +232,8 @@ def test_diamond_include_included_once(tmp_path: Path) -> None:
     assert shader.locate(2) == SourceLine("common.glsl", 1)
     # The second include becomes a comment mapped to its own directive line.
     assert texts[3].startswith("//") and "common.glsl" in texts[3]
+    # and holds no directive: moderngl resolves '#include "..."' even in comments, and fails.
+    assert "#include" not in shader.source
     assert shader.locate(4) == SourceLine("c.glsl", 1)
     assert shader.locate(5) == SourceLine("c.glsl", 2)
     assert shader.locate(6) == SourceLine("a.glsl", 4)

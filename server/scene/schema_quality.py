@@ -44,12 +44,24 @@ class QualityConfig:
     )
     kernel_max_px: int = spec(
         64,
-        "cap on the kernel radius in pixels (sigma shrinks to keep 3 sigma inside); a cap "
-        "below 3 kernel_scale projected radii leaves per-particle ripple on close-ups, which "
-        "flickers (spatter pool at 16 px per radius: 1.45 deg at 32, 0.92 at 64, 0.82 at 96)",
+        "the kernel takes every pixel out to this radius; past it only spread taps "
+        "(kernel_max_stride), and where those end the kernel does, with sigma shrunk to keep "
+        "3 sigma inside. A cap below 3 kernel_scale projected radii leaves per-particle ripple "
+        "on close-ups, which flickers (spatter pool, up to ~20 px per radius, hard cap: 0.79 "
+        "deg at 64, 0.69 at 96, 0.66 at 128)",
         low=1,
         high=128,
         unit="px",
+    )
+    kernel_max_stride: int = spec(
+        2,
+        "close-ups, separable filters: a kernel whose 3 sigma lies past kernel_max_px goes on "
+        "beyond it with every stride-th pixel, stride = ceil(3 sigma / kernel_max_px) up to "
+        "this, so sigma stays kernel_scale projected radii out to kernel_max_px x stride for "
+        "fewer than 2 kernel_max_px taps (never past the image's ends). 1: a hard cap (the 2-D "
+        "filter's always)",
+        low=1,
+        high=4,
     )
     kernel_min_px: int = spec(
         1, "smallest kernel radius in pixels (eq 25's ks_min)", low=0, high=64, unit="px"

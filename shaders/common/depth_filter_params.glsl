@@ -6,6 +6,7 @@ uniform float u_px_per_unit;       // (H / 2) / tan(fov_y / 2)
 uniform float u_kernel_scale;
 uniform int u_kernel_min_px;
 uniform int u_kernel_max_px;
+uniform int u_kernel_max_stride;   // separable taps up to this many pixels apart (close-ups)
 uniform float u_range_sigma;       // bilateral: sigma of the depth difference, scene units
 uniform float u_nr_threshold;      // narrow range: lambda * r, scene units
 uniform float u_nr_clamp;          // narrow range: mu * r, scene units

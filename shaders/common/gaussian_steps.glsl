@@ -19,3 +19,13 @@ vec4 gaussian_next() {
     g_gaussian_step *= g_gaussian_growth;
     return g_gaussian_weight;
 }
+
+// Goes on from offset `last` (the weights so far were those of every pixel) to taps `stride`
+// pixels apart, at last + stride, last + 2 stride, ..., each standing for `stride` pixels:
+// w = stride exp(-o^2 / (2 sigma^2)), its ratios growing geometrically as above.
+void gaussian_spread(vec4 sigma, float last, float stride) {
+    vec4 inv_two_sigma2 = 1.0 / (2.0 * sigma * sigma);
+    g_gaussian_weight = stride * exp(-last * last * inv_two_sigma2);
+    g_gaussian_step = exp(-(2.0 * last + stride) * stride * inv_two_sigma2);
+    g_gaussian_growth = exp(-2.0 * stride * stride * inv_two_sigma2);
+}

@@ -11,7 +11,7 @@
 //   for -k texel x - s or x - s - 1 (`behind`, `behind_next`): two fetches per side serve four
 //   offsets of four pixels.
 
-// The four pixels at +k (k = 4s + j + 1, j = 1..3) from the windows at texels +s and +s + 1,
+// The four pixels at +k (k = 4s + j, j = 1..3) from the windows at texels +s and +s + 1,
 // and the four at -k from the windows at -s and -s - 1.
 vec4 ahead_by(int j, vec4 at_s, vec4 at_next) {
     return j == 1 ? vec4(at_s.yzw, at_next.x) : j == 2 ? vec4(at_s.zw, at_next.xy)
@@ -74,3 +74,40 @@ void walk_packed_taps(
     }
 #endif
 }
+
+#if !PACKED_VALUE
+// The taps at offsets first, first + stride, ... up to `radius` (1 <= stride <= 4; the spread
+// taps of close-ups past the cap, smooth_depth_separable.frag.glsl), the guide its own value,
+// walked outwards like the above.
+//   AXIS 0: offset k = 4s + j reads the windows at texels +-s and +-(s + 1) as above; a stride
+//   of at most 4 moves them by one texel at most per tap, so a texel is still fetched once.
+void walk_strided_taps(sampler2D image, ivec2 texel, int first, int radius, int stride) {
+#if AXIS == 0
+    int window = first >> 2;  // s of the windows held
+    vec4 ahead = fetch_packed(image, texel + ivec2(window, 0));
+    vec4 ahead_next = fetch_packed(image, texel + ivec2(window + 1, 0));
+    vec4 behind = fetch_packed(image, texel - ivec2(window, 0));
+    vec4 behind_next = fetch_packed(image, texel - ivec2(window + 1, 0));
+    for (int k = first; k <= radius; k += stride) {
+        int s = k >> 2;
+        if (s != window) {
+            window = s;
+            ahead = ahead_next;
+            behind = behind_next;
+            ahead_next = fetch_packed(image, texel + ivec2(s + 1, 0));
+            behind_next = fetch_packed(image, texel - ivec2(s + 1, 0));
+        }
+        int j = k & 3;
+        vec4 za = j == 0 ? ahead : ahead_by(j, ahead, ahead_next);
+        vec4 zb = j == 0 ? behind : behind_by(j, behind, behind_next);
+        tap_pair(k, za, zb, za, zb);
+    }
+#else
+    for (int k = first; k <= radius; k += stride) {
+        vec4 za = fetch_packed(image, texel + ivec2(0, k));
+        vec4 zb = fetch_packed(image, texel - ivec2(0, k));
+        tap_pair(k, za, zb, za, zb);
+    }
+#endif
+}
+#endif

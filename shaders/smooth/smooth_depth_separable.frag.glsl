@@ -101,6 +101,8 @@ void spatial_taps(vec4 w, bvec4 in_reach, vec4 za, vec4 zb, out vec4 wa, out vec
 }
 #endif
 
+#include "common/border_fit.glsl"
+
 #if IMAGE_BORDER
 #include "image_border_taps.glsl"
 #else
@@ -138,6 +140,36 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
 
 #include "common/packed_taps.glsl"
 
+// The lanes' kernel radii in pixels for the wanted `sigma`, and the texel's tap spacing past
+// the cap: 3 sigma within [kernel_min_px, kernel_max_px x kernel_max_stride]. A kernel takes
+// every pixel out to kernel_max_px; close-ups, whose 3 sigma lies past it, go on with every
+// stride-th pixel (each tap standing for `stride` pixels) out to 3 sigma, stride =
+// ceil(reach / kernel_max_px): fewer than 2 kernel_max_px taps, and sigma stays kernel_scale
+// radii where a hard cap would shrink it and leave the particles' ripple. Spread taps only
+// where the Gaussian's tail lies: near the centre they would alias the detail finer than the
+// stride (spread from the first tap on: 3.2 deg on the spatter pool at stride 2, against 1.3
+// capped). The stride follows the texel's smallest surface lane; the other lanes are cut to
+// kernel_max_px x it (a lane at a discontinuity keeps that kernel). Spread taps never reach
+// past the image's ends (the border variant's one-sided fit is the cap's): a kernel ends at
+// the lane's room to them, which shrinks it continuously to the cap as a lane nears an end.
+vec4 kernel_reach(ivec2 texel, vec4 sigma, bvec4 surface, out int stride) {
+    float cap = float(u_kernel_max_px);
+    vec4 limit = vec4(cap * float(u_kernel_max_stride));
+#if IMAGE_BORDER
+    limit = vec4(cap);
+#else
+    vec4 room_ahead;
+    vec4 room_behind;
+    image_end_room(texel, room_ahead, room_behind);
+    limit = min(limit, max(vec4(cap), min(room_ahead, room_behind)));
+#endif
+    vec4 reach = min(max(ceil(3.0 * sigma), vec4(float(u_kernel_min_px))), limit);  // clamp
+    vec4 lane_stride = ceil(reach / cap);
+    vec4 smallest = mix(vec4(float(u_kernel_max_stride)), lane_stride, surface);
+    stride = int(max(min(min(smallest.x, smallest.y), min(smallest.z, smallest.w)), 1.0));
+    return min(reach, vec4(cap * float(stride)));
+}
+
 void main() {
     ivec2 texel = ivec2(gl_FragCoord.xy);
     vec4 zc = fetch_packed(u_packed_depth, texel);
@@ -153,7 +185,8 @@ void main() {
     // Thesis eq 25, read as a continuous decline (see smooth_depth.frag.glsl).
     vec4 sigma = u_eq25_sigma_px - max(z - u_eq25_threshold, 0.0) * u_eq25_decline / 3.0;
 #endif
-    vec4 reach = clamp(ceil(3.0 * sigma), float(u_kernel_min_px), float(u_kernel_max_px));
+    int stride;
+    vec4 reach = kernel_reach(texel, sigma, surface, stride);
     sigma = max(min(sigma, reach / 3.0), 1e-3);
     g_center = zc;
     g_reach = mix(vec4(0.0), reach, surface);
@@ -176,7 +209,15 @@ void main() {
 #if IMAGE_BORDER
     start_image_border(texel);
 #endif
-    walk_packed_taps(u_packed_depth, u_packed_depth, texel, zc, zc, radius);
+    int dense = min(radius, u_kernel_max_px);
+    walk_packed_taps(u_packed_depth, u_packed_depth, texel, zc, zc, dense);
+    // every pixel out to the cap (along rows, whole texels: to the next multiple of 4), then
+    // the spread taps (close-ups; kernel_reach)
+    int dense_end = AXIS == 0 ? (dense + 3) / 4 * 4 : dense;
+    if (radius > dense_end) {
+        gaussian_spread(sigma, float(dense_end), float(stride));
+        walk_strided_taps(u_packed_depth, texel, dense_end + stride, radius, stride);
+    }
     vec4 smoothed = g_sum / g_weight_sum;
 #if IMAGE_BORDER
     smoothed = image_border_fit(smoothed);

@@ -179,7 +179,9 @@ class _Composer:
                 raise ShaderSourceError(f"include cycle: {shown}", rel, number)
             if target in self.included:
                 # Already part of this shader: skip it (implicit #pragma once), keep the line.
-                note = f'// #include "{target}" skipped: already included'
+                # The note must not read as a directive: moderngl resolves any '#include "..."'
+                # left in a source it compiles, comments included, and fails on it.
+                note = f'// "{target}" skipped: included above'
                 self.out.append(_Line(note, origin, False))
                 continue
             if len(chain) > self.loader.max_include_depth:

@@ -225,6 +225,7 @@ class _FilterUniforms:
         return {
             "u_kernel_min_px": quality.kernel_min_px,
             "u_kernel_max_px": quality.kernel_max_px,
+            "u_kernel_max_stride": quality.kernel_max_stride,
             "u_particle_radius": r,
             "u_px_per_unit": px_per_unit,
             "u_kernel_scale": quality.kernel_scale,
