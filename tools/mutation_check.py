@@ -956,6 +956,14 @@ MUTATIONS: tuple[Mutation, ...] = (
         tests=("tests/test_shader_loader.py::test_diamond_include_included_once",),
         description="a skipped include's note read by moderngl as a directive (which it fails)",
     ),
+    Mutation(
+        name="sph-ranks-atomic-order",
+        path="server/engine/sph/engine.py",
+        old="""        self._run("stable_rank", n, bucket, starts, slots, u32(n), rank)""",
+        new="""        pass""",
+        tests=("tests/test_sph.py::test_the_same_frame_gives_the_same_bits",),
+        description="the counting sort's ranks left in atomic order (run-to-run last bits)",
+    ),
 )
 # fmt: on
 

@@ -121,7 +121,8 @@ inline float gap_to_cell(int delta, float o, float h)
 
 /* --- counting sort -------------------------------------------------------------------- */
 
-/* counts must be zero; rank = position of the particle inside its bucket (atomic order). */
+/* counts must be zero; rank = position of the particle inside its bucket (atomic order; see
+   stable_rank). */
 __kernel void count_buckets(__global const int4 *cell, const uint n, const int nx, const int ny,
                             const uint mask, __global uint *bucket, __global uint *rank,
                             __global uint *counts)
@@ -132,6 +133,34 @@ __kernel void count_buckets(__global const int4 *cell, const uint n, const int n
     const uint b = bucket_of(cell[i], nx, ny, mask);
     bucket[i] = b;
     rank[i] = atomic_inc(&counts[b]);
+}
+
+/* The atomic ranks follow the order the work-items ran, which changes from run to run, and
+   with it the order of every neighbour sum (the same frame's densities and anisotropy differed
+   in their last bits). scatter_index puts each particle's index at its atomic slot; stable_rank
+   then ranks a particle by the indices below its own in its bucket: the order of the frame's
+   arrays, the same every run. Work per particle: its bucket's size (a few particles; the
+   neighbour loops already visit 27 buckets each). */
+__kernel void scatter_index(__global const uint *bucket, __global const uint *rank,
+                            __global const uint *starts, const uint n, __global uint *slots)
+{
+    const uint i = get_global_id(0);
+    if (i >= n)
+        return;
+    slots[starts[bucket[i]] + rank[i]] = i;
+}
+
+__kernel void stable_rank(__global const uint *bucket, __global const uint *starts,
+                          __global const uint *slots, const uint n, __global uint *rank)
+{
+    const uint i = get_global_id(0);
+    if (i >= n)
+        return;
+    const uint b = bucket[i];
+    uint below = 0;
+    for (uint k = starts[b]; k < starts[b + 1]; ++k)
+        below += slots[k] < i ? 1u : 0u;
+    rank[i] = below;
 }
 
 __kernel void scatter_sorted(__global const int4 *cell, __global const float4 *in_cell,

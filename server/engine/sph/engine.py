@@ -13,7 +13,9 @@ steps, which are O(N) numpy:
    are ``(cell_j - cell_i) h + (local_j - local_i)``, exact in the cell part, so coordinates of
    1e5 or a domain of 1e5 h lose nothing.
 2. counting sort by cell (Green 2010): bucket per particle and its rank in the bucket by
-   ``atomic_inc``, exclusive prefix sum of the bucket counts, scatter into cell order. Dense
+   ``atomic_inc``, exclusive prefix sum of the bucket counts, the ranks made stable (by index
+   within the bucket, not atomic order: the same frame sums its neighbours in the same order
+   every run), scatter into cell order. Dense
    buckets (one per cell) when the domain's cell count is at most ~8 N, else a hash table of
    2 N..4 N buckets (sparse or unbounded domains: a lone droplet far away costs one bucket).
 3. density (only when the client sent none), then colour field + gradient + surface flag, then
@@ -165,6 +167,8 @@ class SphEngine:
             name: pyopencl.Kernel(program, name)
             for name in (
                 "count_buckets",
+                "scatter_index",
+                "stable_rank",
                 "scatter_sorted",
                 "chunk_sums",
                 "scan_chunk_sums",
@@ -270,6 +274,10 @@ class SphEngine:
         )
         starts = self._buffer("bucket_starts", 4 * (buckets + 1))
         self._prefix_sum(counts, buckets, starts)
+        # The same order every run: ranks by index within each bucket, not atomic order.
+        slots = self._buffer("bucket_slots", 4 * n)
+        self._run("scatter_index", n, bucket, rank, starts, u32(n), slots)
+        self._run("stable_rank", n, bucket, starts, slots, u32(n), rank)
         self._run(
             "scatter_sorted",
             n,
