@@ -964,6 +964,22 @@ MUTATIONS: tuple[Mutation, ...] = (
         tests=("tests/test_sph.py::test_the_same_frame_gives_the_same_bits",),
         description="the counting sort's ranks left in atomic order (run-to-run last bits)",
     ),
+    Mutation(
+        name="gaps-pinholes-left",
+        path="server/engine/passes/smooth.py",
+        old="            return self._gaps.close_again(smoothed, temperature)",
+        new="            return smoothed",
+        tests=("tests/test_gaps.py::test_pinholes_through_a_lattice_plate_are_closed",),
+        description="no second close after the smoothing: a lattice plate's pinholes stay open",
+    ),
+    Mutation(
+        name="gaps-pinholes-cold",
+        path="server/engine/passes/gaps.py",
+        old="self._close(program, targets, depth, tile_box, temperature, targets.again())",
+        new="self._close(program, targets, depth, tile_box, None, targets.again())",
+        tests=("tests/test_gaps.py::test_pinholes_through_a_lattice_plate_are_closed",),
+        description="pinholes closed in depth but left at 0 K in the kelvin the blur reads",
+    ),
 )
 # fmt: on
 

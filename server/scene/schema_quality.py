@@ -167,8 +167,10 @@ class QualityConfig:
         "most close_gaps particle radii apart (on screen, projected at their depth, and in "
         "depth) takes the depth interpolated between them; depths only get nearer (no hole "
         "opens), a notch along a silhouette stays open, particles farther apart stay apart; "
-        "at most 16 pixels; runs with the smoothing (not with filter none). 0: off (the fast "
-        "preset; on llvmpipe the pass costs ~5-8 % of a 100k-particle 1280x720 frame)",
+        "at most 16 pixels; after the smoothing the same rule once more on background pixels "
+        "within 8 pixels (pinholes: a view along a lattice's channels sees through its "
+        "layers); runs with the smoothing (not with filter none). 0: off (the fast preset; on "
+        "llvmpipe the passes cost ~7-10 % of a 100k-particle 1280x720 frame)",
         low=0.0,
         high=8.0,
         unit="particle radii",

@@ -35,6 +35,11 @@
 
 #define GAP_MAX_PX 16
 #define HAS_TEMPERATURE 0
+// 1: passes/gaps.py close_again, on the smoothed depth: background pixels only (pinholes: the
+// holes a lattice's channels leave once the first pass closed their walls), with the first
+// pass's tiles (the smoothing moves depths by a fraction of r, so their bounds are a heuristic
+// there, not the exact search they are here).
+#define BACKGROUND_ONLY 0
 
 #include "common/depth_image.glsl"
 
@@ -87,6 +92,11 @@ void main() {
     out_depth = vec4(zc, 0.0, 0.0, 0.0);
 #if HAS_TEMPERATURE
     out_temperature = vec4(texelFetch(u_temperature, p, 0).r, 0.0, 0.0, 0.0);
+#endif
+#if BACKGROUND_ONLY
+    if (zc > 0.0) {
+        return;
+    }
 #endif
     vec2 tile = texelFetch(u_tiles, p / 4, 0).rg;
     if (!nearer(tile.g, zc)) {

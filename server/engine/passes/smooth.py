@@ -70,8 +70,9 @@ class SmoothPass:
         box: ScreenBox | None = None,
         temperature: moderngl.Texture | None = None,
     ) -> moderngl.Texture:
-        """Smooth the eye-depth image `depth`, its gaps closed first (`quality.close_gaps`);
-        returns the texture holding the result (`depth` itself for ``filter = "none"`` and no
+        """Smooth the eye-depth image `depth`, its gaps closed first (`quality.close_gaps`)
+        and the pinholes left after it (GapPass.close_again); returns the texture holding the
+        result (`depth` itself for ``filter = "none"`` and no
         gaps to close; the splat's kelvin `temperature` is filled alike, in place).
         `px_per_unit`: pixels per scene unit at eye depth 1.
         With a `box` (see `screen_box`) the passes run only inside it, on targets cleared
@@ -96,10 +97,14 @@ class SmoothPass:
             if quality.keep_features != "none":
                 defines["KEEP_FEATURES"] = _KEEP_FEATURES_DEFINES[quality.keep_features]
             margin_px = max(quality.kernel_max_px, quality.kernel_min_px)
-            return self._separable(
+            smoothed = self._separable(
                 targets, depth, defines, uniforms, quality.iterations, box, margin_px
             )
-        return self._two_d(targets, depth, defines, uniforms, quality.iterations, box)
+        else:
+            smoothed = self._two_d(targets, depth, defines, uniforms, quality.iterations, box)
+        if quality.close_gaps > 0.0:  # pinholes (GapPass.close_again)
+            return self._gaps.close_again(smoothed, temperature)
+        return smoothed
 
     def _two_d(
         self,
