@@ -326,7 +326,7 @@ def test_spread_taps_keep_a_close_up_as_smooth_as_the_full_kernel(
     kernel_max_px = 14: a hard cap shrinks sigma to a third and leaves the lattice's ripple
     (measured inside: 0.45 deg mean, 1.06 p95, against the uncapped kernel's 0.35 / 0.59);
     every pixel out to the cap and every 3rd beyond it keeps the uncapped kernel's sigma at
-    14 + 10 taps per side, and its error (0.35 / 0.64). Bounds: the spread taps only
+    14 + 9 taps per side, and its error (0.35 / 0.64). Bounds: the spread taps only
     resample the Gaussian's tail (past 1 sigma, 3 px apart at sigma 14 px, where the ripple's
     period is 2 r = 14 px), so within 10 % of the uncapped mean and 20 % of its p95; the cap's
     p95 at least 1.5x the uncapped's shows the scene is one where a cap loses."""
