@@ -92,8 +92,8 @@ class _GapTargets:
         self.reclosed: Target | None = None  # close_again's, on its first frame
         self._ctx = ctx
         self.kelvin: Target | None = None  # the filled kelvin, on the first frame with them
-        # closed (or reclosed) depth + filled kelvin, per depth target
-        self.both: dict[int, moderngl.Framebuffer] = {}
+        # closed (or reclosed) depth + filled kelvin, per depth target (its `again` flag)
+        self.both: dict[bool, moderngl.Framebuffer] = {}
         self._back = FramebufferOn(ctx)  # onto the splat's kelvin texture
         self._input = FramebufferOn(ctx)  # onto the depth to close, to copy it
 
@@ -103,11 +103,13 @@ class _GapTargets:
         return self.reclosed
 
     def with_kelvin(self, out: Target) -> tuple[moderngl.Framebuffer, Target]:
+        """A framebuffer on `out` (`closed` or `reclosed`) and the filled kelvin, and that."""
         if self.kelvin is None:
             self.kelvin = Target.float(self._ctx, self.closed.texture.size, 1)
-        both = self.both.get(id(out))
+        again = out is not self.closed
+        both = self.both.get(again)
         if both is None:
-            both = self.both[id(out)] = self._ctx.framebuffer([out.texture, self.kelvin.texture])
+            both = self.both[again] = self._ctx.framebuffer([out.texture, self.kelvin.texture])
         return both, self.kelvin
 
     def back_into(self, temperature: moderngl.Texture) -> moderngl.Framebuffer:
