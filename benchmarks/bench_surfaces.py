@@ -32,6 +32,7 @@ SETTINGS = {
                 "exact_droplets": False,
                 "antialias": False,
                 "kernel_max_px": 32,
+                "kernel_max_stride": 1,
                 "close_gaps": 0.0,
                 "field_normals": 0.0,
             }

@@ -60,6 +60,13 @@ from sphrender.server.scene import scene_from_dict
 
 F64 = npt.NDArray[np.float64]
 JITTER = 0.02  # of r
+
+
+def _hard_cap(px: int) -> dict[str, Any]:
+    """Overrides for a kernel cut at `px` pixels, no spread taps past it."""
+    return {"quality": {"kernel_max_px": px, "kernel_max_stride": 1}}
+
+
 #: The quality of the images before issue 12 (the old balanced preset).
 PRE_ISSUE = Setting(
     "pre-issue default",
@@ -68,6 +75,7 @@ PRE_ISSUE = Setting(
             "exact_droplets": False,
             "antialias": False,
             "kernel_max_px": 32,
+            "kernel_max_stride": 1,  # a hard cap, as then
             "close_gaps": 0.0,
             "field_normals": 0.0,
         }
@@ -85,8 +93,9 @@ SURFACE_SETTINGS: tuple[Setting, ...] = (
     preset_setting("fast"),
     preset_setting("balanced"),
     preset_setting("best"),
-    Setting("balanced, kernel cap 32 px", {"quality": {"kernel_max_px": 32}}, preset="balanced"),
-    Setting("balanced, kernel cap 96 px", {"quality": {"kernel_max_px": 96}}, preset="balanced"),
+    Setting("balanced, hard kernel cap 32 px", _hard_cap(32), preset="balanced"),
+    Setting("balanced, hard kernel cap 64 px", _hard_cap(64), preset="balanced"),
+    Setting("balanced, hard kernel cap 96 px", _hard_cap(96), preset="balanced"),
     Setting("balanced + normal stencil 1 r", {"quality": {"normal_stencil": 1.0}}, "balanced"),
     Setting("balanced + anisotropy", {"sph": {"anisotropy": True}}, preset="balanced"),
     Setting("balanced, no gaps", {"quality": {"close_gaps": 0.0}}, preset="balanced"),
