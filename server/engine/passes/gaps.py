@@ -40,7 +40,6 @@ attribute-less vertex arrays of the tile points.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import cast
 
 import moderngl
 
@@ -134,13 +133,16 @@ class _GapTargets:
         self.both.clear()
 
 
+#: What `run` drew with: its tile box, and the close shader's uniform key and values.
+_LastRun = tuple[ScreenBox, tuple[object, ...], Callable[[], dict[str, object]]]
+
+
 class GapPass:
     def __init__(self, context: PassContext) -> None:
         self._context = context
         self._targets = PerSize(lambda size: _GapTargets(context.gl.ctx, size))
         self._points: dict[moderngl.Program, moderngl.VertexArray] = {}  # per close variant
-        # run's uniform key (its tile box at [3]) and values, for close_again on that frame
-        self._last: tuple[tuple[object, ...], Callable[[], dict[str, object]]] | None = None
+        self._last: _LastRun | None = None  # for close_again on the same frame
 
     def run(
         self,
@@ -180,7 +182,7 @@ class GapPass:
 
         set_group(program, "frame", key, values)
         self._close(program, targets, depth, tile_box, temperature, targets.closed)
-        self._last = (key, values)
+        self._last = (tile_box, key, values)
         return targets.closed.texture
 
     def close_again(
@@ -193,8 +195,7 @@ class GapPass:
         ones) but not the hole, which no direction encloses yet (its sides lie on different
         layers); after the smoothing its sides are one surface."""
         assert self._last is not None, "close_again follows run on the same frame"
-        key, values = self._last
-        tile_box = cast(ScreenBox, key[3])
+        tile_box, key, values = self._last
         program = self._close_program(temperature is not None, pinholes=True)
         set_group(program, "frame", key, values)
         targets = self._targets.get(depth.size)
