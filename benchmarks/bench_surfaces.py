@@ -33,6 +33,7 @@ SETTINGS = {
                 "antialias": False,
                 "kernel_max_px": 32,
                 "kernel_max_stride": 1,
+                "normal_stencil": 0.0,
                 "close_gaps": 0.0,
                 "field_normals": 0.0,
             }
@@ -75,8 +76,8 @@ SETTINGS["balanced_gaps2_stencil1"] = Setting(
     preset="balanced",
     overrides={"quality": {"close_gaps": 2.0, "normal_stencil": 1.0}},
 )
-SETTINGS["balanced_stencil1"] = Setting(
-    "balanced_stencil1", preset="balanced", overrides={"quality": {"normal_stencil": 1.0}}
+SETTINGS["balanced_stencil0"] = Setting(
+    "balanced_stencil0", preset="balanced", overrides={"quality": {"normal_stencil": 0.0}}
 )
 SETTINGS["best_gaps2_rim2"] = Setting(
     "best_gaps2_rim2",

@@ -15,8 +15,9 @@ Tolerances:
   bounds use `reference_surfaces.sphere_errors`: each pixel's ray meets the true sphere
   (radius R + r), the normal is compared with the true normal there and the depth with the true
   depth. Bound = the value on jitter seed 0 + 4 standard deviations of that value over jitter
-  seeds 0-7 (measured on llvmpipe, in BALL_TRUTH_BOUNDS): the lattice's random jitter moves the
-  figures by that much without any change in quality, so a smaller margin would judge the seed;
+  seeds 0-7 (measured on llvmpipe, in BALL_TRUTH_BOUNDS and DEFAULT_TRUTH_BOUNDS): the
+  lattice's random jitter moves the figures by that much without any change in quality, so a
+  smaller margin would judge the seed;
   a real regression (a Gaussian half as wide, kernel_scale 1: mean 2.23 -> 5.49 deg; normals
   from the forward difference, measured before the narrow range averaged inverse depth:
   2.34 -> 2.59 deg) moves them by 9-100 standard deviations. (Other GL drivers were
@@ -114,8 +115,9 @@ class TruthBounds(NamedTuple):
 
 # filter -> bounds on the true-sphere metric: seed 0 + 4 sd over jitter seeds 0-7, rounded up to
 # 0.05. Measured on llvmpipe (seed 0 / sd): normal mean, normal p95 (deg), depth mean, p95 (r).
+# The filters are measured with normals from the 1-pixel difference (normal_stencil = 0).
 BALL_TRUTH_BOUNDS: dict[str, TruthBounds] = {
-    # 2.23/0.029, 4.45/0.080, 2.828/0.005, 5.009/0.029 (the default preset)
+    # 2.23/0.029, 4.45/0.080, 2.828/0.005, 5.009/0.029
     "narrow_range": TruthBounds(2.35, 4.8, 2.85, 5.15),
     # 2.13/0.028, 4.07/0.051, 2.807/0.005, 4.926/0.026
     "narrow_range-2d": TruthBounds(2.25, 4.3, 2.85, 5.05),
@@ -125,6 +127,15 @@ BALL_TRUTH_BOUNDS: dict[str, TruthBounds] = {
     "gaussian": TruthBounds(2.75, 7.95, 2.75, 4.1),
 }
 
+# The default preset (narrow range, normals over a 1-radius stencil of at most 2 px), derived
+# alike: 2.41/0.029, 4.65/0.085, 2.828/0.005, 5.009/0.029. Its true-hit normal error is higher
+# than the 1-pixel difference's (2.23) while the issue's metric is lower (1.48 vs 1.63): the
+# rendered surface lies 2.8 r behind the true sphere, so even its exact normals (the radial
+# direction at the rendered point) are 2.12 deg off the true hit's on average; the 1-pixel rule
+# (the smaller one-sided slope) tilts normals 0.66 deg towards the viewer, which hides part of
+# that offset, the stencil only 0.31 deg (measured on seed 0).
+DEFAULT_TRUTH_BOUNDS = TruthBounds(2.55, 5.0, 2.85, 5.15)
+
 
 def test_default_quality_on_90k_ball_meets_issue_bounds(
     renderer: SurfaceRenderer, ball: np.ndarray
@@ -132,13 +143,13 @@ def test_default_quality_on_90k_ball_meets_issue_bounds(
     """The issue's bounds on its metric, then the default preset against the true sphere:
     normals at the true hit and depth after filtering (BALL_TRUTH_BOUNDS)."""
     assert 85_000 < len(ball) < 95_000
-    errors, truth = render_ball(renderer, ball, ball_scene(), np.zeros(3))  # 1.63 / 4.06 / 0.982
+    errors, truth = render_ball(renderer, ball, ball_scene(), np.zeros(3))  # 1.48 / 3.75 / 0.982
     assert errors.evaluated_pixels > 30_000
     assert errors.mean_deg <= 3.0
     assert errors.p95_deg <= 8.0
     assert errors.silhouette_iou >= 0.97
     assert truth.pixels > 30_000
-    BALL_TRUTH_BOUNDS["narrow_range"].check(truth)
+    DEFAULT_TRUTH_BOUNDS.check(truth)
 
 
 def test_ball_far_from_origin_gives_the_same_figures(
@@ -170,7 +181,7 @@ def test_ball_renders_identically_after_translation(
 @pytest.mark.parametrize("name", list(BALL_TRUTH_BOUNDS))
 def test_each_filter_on_ball(renderer: SurfaceRenderer, ball: np.ndarray, name: str) -> None:
     extra: dict[str, Any] = {"separable": False} if name.endswith("-2d") else {}
-    scene = ball_scene(filter=name.removesuffix("-2d"), **extra)
+    scene = ball_scene(filter=name.removesuffix("-2d"), normal_stencil=0.0, **extra)
     errors, truth = render_ball(renderer, ball, scene, np.zeros(3))
     assert errors.silhouette_iou >= 0.97
     BALL_TRUTH_BOUNDS[name].check(truth)
@@ -388,6 +399,8 @@ def test_normals_beside_a_nearer_surface_come_from_their_own_surface(
     far_center, far_r = np.zeros(3), 0.05
     near_center, near_r = 0.45 * eye + np.array([0.012, 0.008, 0.0]), 0.012
     scene = single_particle_scene("none", far_r)
+    # The 1-pixel rule under test (the default's wide stencil falls back to it at the step).
+    scene = replace(scene, quality=replace(scene.quality, normal_stencil=0.0))
     positions = np.stack([far_center, near_center])
     frame, _ = renderer.render(
         make_frame(positions, radii=np.array([far_r, near_r])), scene, depth=True, normals=True

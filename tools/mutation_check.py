@@ -134,7 +134,7 @@ MUTATIONS: tuple[Mutation, ...] = (
         new="if (has_plus) {",
         tests=(
             "tests/test_engine_groundtruth.py::test_normals_beside_a_nearer_surface_come_from_their_own_surface",
-            "tests/test_engine_groundtruth.py::test_default_quality_on_90k_ball_meets_issue_bounds",
+            "tests/test_engine_groundtruth.py::test_each_filter_on_ball",
         ),
         description="normals always from the forward difference, not the smaller one-sided one",
     ),

@@ -76,6 +76,7 @@ PRE_ISSUE = Setting(
             "antialias": False,
             "kernel_max_px": 32,
             "kernel_max_stride": 1,  # a hard cap, as then
+            "normal_stencil": 0.0,  # the 1-pixel difference, as then
             "close_gaps": 0.0,
             "field_normals": 0.0,
         }
@@ -96,7 +97,7 @@ SURFACE_SETTINGS: tuple[Setting, ...] = (
     Setting("balanced, hard kernel cap 32 px", _hard_cap(32), preset="balanced"),
     Setting("balanced, hard kernel cap 64 px", _hard_cap(64), preset="balanced"),
     Setting("balanced, hard kernel cap 96 px", _hard_cap(96), preset="balanced"),
-    Setting("balanced + normal stencil 1 r", {"quality": {"normal_stencil": 1.0}}, "balanced"),
+    Setting("balanced, no normal stencil", {"quality": {"normal_stencil": 0.0}}, "balanced"),
     Setting("balanced + anisotropy", {"sph": {"anisotropy": True}}, preset="balanced"),
     Setting("balanced, no gaps", {"quality": {"close_gaps": 0.0}}, preset="balanced"),
     Setting("balanced + silhouette normals", {"quality": {"silhouette_normals": 2.0}}, "balanced"),

@@ -116,7 +116,7 @@ class QualityConfig:
         "droplets round)",
     )
     normal_stencil: float = spec(
-        0.0,
+        1.0,
         "normals from a central difference over +-normal_stencil projected particle radii "
         "(at least 1 pixel, at most normal_stencil_max_px) where the stencil stays on one "
         "surface without a kink, else the 1-pixel one-sided difference; averages the ripple "
@@ -126,7 +126,12 @@ class QualityConfig:
         high=4.0,
     )
     normal_stencil_max_px: int = spec(
-        4, "cap on the normal_stencil half-width in pixels", low=1, high=16
+        2,
+        "cap on the normal_stencil half-width in pixels (a central difference over +-s pixels "
+        "of a sphere of R_px pixels is off by ~ (s / R_px)^2 near its rim: small droplets want "
+        "a narrow stencil, a rippled bulk a wide one)",
+        low=1,
+        high=16,
     )
     antialias: bool = spec(
         True,
