@@ -110,6 +110,29 @@ def test_exact_droplets_from_client_densities_need_no_sph_pass(
     assert unsplit.depth is not None and not np.array_equal(unsplit.depth, given.depth)
 
 
+def test_computed_droplet_densities_ignore_the_frames(renderer: SurfaceRenderer) -> None:
+    """Densities that count what the frame does not hold (a simulator's walls, not exported):
+    every particle written at rest density, so the frame's densities split nothing off. With
+    droplet_densities = "computed" the split follows the positions' own eq 2 densities: the
+    same image as on a frame without densities with droplet_density_pass."""
+    pool, droplets = pool_and_droplets()
+    positions = np.concatenate([pool, droplets])
+    walls = np.full(len(positions), 1000.0, np.float32)
+    trusted = render(renderer, positions, make_scene(), densities=walls)
+    scene = make_scene(quality={"droplet_densities": "computed"})
+    own, stats = renderer.render(make_frame(positions, densities=walls), scene, depth=True)
+    reference = render(renderer, positions, make_scene(quality={"droplet_density_pass": True}))
+    assert own.depth is not None and trusted.depth is not None and reference.depth is not None
+    assert np.array_equal(own.depth, reference.depth)
+    assert "sph" in stats.stage_ms  # the density pass ran
+    # the droplets' pixels: smoothed into the pool when the frame's densities are trusted
+    raw = render(renderer, droplets, make_scene(quality={"filter": "none"}))
+    assert raw.depth is not None
+    shown = np.isfinite(raw.depth) & (raw.depth == own.depth)
+    assert shown.sum() > 200
+    assert np.abs(trusted.depth[shown] - own.depth[shown]).max() > 0.5 * R
+
+
 def test_exact_droplets_hard_cases(renderer: SurfaceRenderer) -> None:
     """Only droplets, one droplet, none, a droplet at the near plane: clean images."""
     scene = make_scene(

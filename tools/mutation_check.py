@@ -379,6 +379,14 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="the ellipsoid impostor shows its back surface",
     ),
     Mutation(
+        name="droplet-densities-computed-ignored",
+        path="server/engine/sph/frame.py",
+        old='densities = frame.densities if scene.quality.droplet_densities == "frame" else None',
+        new="densities = frame.densities",
+        tests=("tests/test_surfaces.py::test_computed_droplet_densities_ignore_the_frames",),
+        description='droplet_densities = "computed" still trusts the frame\'s densities',
+    ),
+    Mutation(
         name="normals-across-discontinuities",
         path="shaders/normals/surface_normals.frag.glsl",
         old="    bool has_plus = z_plus > 0.0 && abs(z_plus - zc) <= jump;",

@@ -145,8 +145,17 @@ class QualityConfig:
         "isolated particles and pairs) are not smoothed: they are splatted "
         "as exact spheres over the smoothed surface, so a kernel wider than a droplet neither "
         "flattens it nor blends it into the pool behind. Uses the frame's densities (the "
-        "client's, or those an [sph] feature computed); frames without them are split only "
-        "with droplet_density_pass",
+        "client's, or those an [sph] feature computed; see droplet_densities); frames without "
+        "them are split only with droplet_density_pass",
+    )
+    droplet_densities: Literal["frame", "computed"] = spec(
+        "frame",
+        "which densities exact_droplets compares with droplet_density: the frame's (as above), "
+        "or always an SPH density pass over the frame's own positions (OpenCL, the cost of "
+        "droplet_density_pass). For simulators whose densities count what the frame does not "
+        "hold: SPlisHSPlasH's include its walls (not exported), so in its dam break's frame 9 "
+        "half of the particles with no neighbour within 4 r carry 0.45-1.0 rest, all about 2 r "
+        "from a wall, and are smoothed instead of drawn as droplets",
     )
     droplet_density_pass: bool = spec(
         False,

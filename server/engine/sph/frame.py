@@ -126,8 +126,20 @@ def wants_exact_droplets(scene: Scene) -> bool:
 def splits_droplets(scene: Scene, frame: ParticleFrame) -> bool:
     """Whether this frame's droplets are split off: exact droplets wanted, and densities at hand
     (the frame's) or leave to compute them (`quality.droplet_density_pass`)."""
-    has_densities = frame.densities is not None or scene.quality.droplet_density_pass
+    quality = scene.quality
+    has_densities = (
+        frame.densities is not None
+        or quality.droplet_density_pass
+        or quality.droplet_densities == "computed"
+    )
     return wants_exact_droplets(scene) and has_densities
+
+
+def computes_droplet_densities(scene: Scene, frame: ParticleFrame) -> bool:
+    """Whether the droplet split runs its own density pass: the frame has none, or the scene
+    asks for the positions' own (`quality.droplet_densities = "computed"`)."""
+    own = frame.densities is None or scene.quality.droplet_densities == "computed"
+    return own and splits_droplets(scene, frame)
 
 
 def droplet_mask(
@@ -135,8 +147,9 @@ def droplet_mask(
 ) -> npt.NDArray[np.bool_]:
     """Which particles are droplets: kernel density below `quality.droplet_density` x
     `sph.rest_density`. The frame's densities when it has them (the client's, or those the SPH
-    stage computed), else an eq 2 density pass on `engine()`."""
-    densities = frame.densities
+    stage computed) and the scene trusts them (`quality.droplet_densities = "frame"`), else an
+    eq 2 density pass on `engine()`."""
+    densities = frame.densities if scene.quality.droplet_densities == "frame" else None
     if densities is None:
         params = SphParameters.from_scene(scene, frame_particle_radius(frame, scene))
         densities = engine().density(frame.positions, params)
@@ -181,7 +194,7 @@ class SphStage:
     def warm(self, frame: ParticleFrame, scene: Scene) -> None:
         """Build the CL context and program now if this frame will need them (so the first
         frame's stage time is the pass's, not LLVM's)."""
-        if needs_sph(scene) or (frame.densities is None and splits_droplets(scene, frame)):
+        if needs_sph(scene) or computes_droplet_densities(scene, frame):
             try:
                 self.engine()
             except CLUnavailableError:
