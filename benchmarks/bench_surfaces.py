@@ -71,11 +71,6 @@ for _rim in (1.0, 2.0, 3.0):
         preset="balanced",
         overrides={"quality": {"close_gaps": 2.0, "silhouette_normals": _rim}},
     )
-SETTINGS["balanced_gaps2_stencil1"] = Setting(
-    "balanced_gaps2_stencil1",
-    preset="balanced",
-    overrides={"quality": {"close_gaps": 2.0, "normal_stencil": 1.0}},
-)
 SETTINGS["balanced_stencil0"] = Setting(
     "balanced_stencil0", preset="balanced", overrides={"quality": {"normal_stencil": 0.0}}
 )
