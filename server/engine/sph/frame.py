@@ -125,7 +125,8 @@ def wants_exact_droplets(scene: Scene) -> bool:
 
 def splits_droplets(scene: Scene, frame: ParticleFrame) -> bool:
     """Whether this frame's droplets are split off: exact droplets wanted, and densities at hand
-    (the frame's) or leave to compute them (`quality.droplet_density_pass`)."""
+    (the frame's) or leave to compute them (`quality.droplet_density_pass`, or
+    `quality.droplet_densities = "computed"`, which always does)."""
     quality = scene.quality
     has_densities = (
         frame.densities is not None
