@@ -141,7 +141,7 @@ def test_default_quality_on_90k_ball_meets_issue_bounds(
     renderer: SurfaceRenderer, ball: np.ndarray
 ) -> None:
     """The issue's bounds on its metric, then the default preset against the true sphere:
-    normals at the true hit and depth after filtering (BALL_TRUTH_BOUNDS)."""
+    normals at the true hit and depth after filtering (DEFAULT_TRUTH_BOUNDS)."""
     assert 85_000 < len(ball) < 95_000
     errors, truth = render_ball(renderer, ball, ball_scene(), np.zeros(3))  # 1.48 / 3.75 / 0.982
     assert errors.evaluated_pixels > 30_000
