@@ -26,6 +26,8 @@ from sphrender.server.engine.gpu.programs import ProgramCache
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.splat import SplatPass
 from sphrender.server.engine.renderer import SurfaceRenderer
+from sphrender.server.engine.sph.engine import SphParameters
+from sphrender.server.engine.sph.frame import SphStage
 from sphrender.server.scene import Scene, scene_from_dict
 
 R = 0.02
@@ -131,6 +133,70 @@ def test_computed_droplet_densities_ignore_the_frames(renderer: SurfaceRenderer)
     shown = np.isfinite(raw.depth) & (raw.depth == own.depth)
     assert shown.sum() > 200
     assert np.abs(trusted.depth[shown] - own.depth[shown]).max() > 0.5 * R
+
+
+def test_computed_droplet_densities_count_the_whole_frame_under_surface_only() -> None:
+    """`droplet_densities = "computed"` with `sph.surface_only`: the split's densities are the
+    whole frame's, then subset with the splat. Over the splatted subset alone a surface
+    particle of a ball loses its hidden interior neighbours and reads as a droplet: with a
+    safety layer of 0.3 support radii, 30 of the ball's (checked below, so this test can fail;
+    the default 0.9 keeps every neighbour within reach of the surface, min 0.468 rest either
+    way). Expected: exactly the lone particles and the pair (a pair reads 0.40 rest < 0.45),
+    the ball none, on a frame whose own densities say rest (walls)."""
+    ball = jittered_lattice_ball(14 * R, R, jitter=0.0)
+    lone = np.array([[0.45, 0.0, 0.0], [0.0, 0.45, 0.0], [-0.45, 0.0, 0.1], [0.0, 0.0, 0.5]])
+    pair = np.array([[0.3, 0.3, 0.3], [0.3 + 1.9 * R, 0.3, 0.3]])
+    positions = np.concatenate([ball, lone, pair])
+    frame = make_frame(positions, densities=np.full(len(positions), 1000.0, np.float32))
+    scene = make_scene(
+        quality={"droplet_densities": "computed"}, sph={"surface_only": True, "safety_layer": 0.3}
+    )
+    stage = SphStage()
+    try:
+        outcome = stage.run(frame, scene)
+        engine = stage.engine()
+        params = SphParameters.from_scene(scene, R)
+        keep = engine.compute(positions, params, frame.densities, splat_mask=True).splat_keep
+        assert keep is not None and 0 < (~keep).sum() < len(ball)  # the interior is dropped
+        threshold = 0.45 * scene.sph.rest_density
+        subset_only = engine.density(positions[keep], params) < threshold
+    finally:
+        stage.release()
+    assert np.array_equal(outcome.frame.positions, positions[keep])
+    expected = np.zeros(len(positions), bool)
+    expected[len(ball) :] = True
+    assert outcome.droplets is not None
+    assert np.array_equal(outcome.droplets, expected[keep])
+    assert subset_only[: keep[: len(ball)].sum()].any()  # what the subset alone would say
+
+
+def test_computed_droplet_densities_reuse_the_sph_stages_pass(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A frame without densities under an [sph] feature (eq 29 radii): the stage's own pass
+    computed the positions' densities already, and the split takes them, with no second
+    density pass (counted on the real engine); the droplets are the same as a lone pass's."""
+    pool, droplets = pool_and_droplets()
+    positions = np.concatenate([pool, droplets])
+    scene = make_scene(quality={"droplet_densities": "computed"}, sph={"adaptive_radius": True})
+    stage = SphStage()
+    try:
+        engine = stage.engine()
+        alone = engine.density(positions, SphParameters.from_scene(scene, R)) < 0.45 * 1000.0
+        calls: list[int] = []
+        density = engine.density
+
+        def counted(*args: Any) -> Any:
+            calls.append(len(args[0]))
+            return density(*args)
+
+        monkeypatch.setattr(engine, "density", counted)
+        outcome = stage.run(make_frame(positions), scene)
+    finally:
+        stage.release()
+    assert calls == []
+    assert outcome.droplets is not None and np.array_equal(outcome.droplets, alone)
+    assert outcome.droplets[len(pool) :].all() and not outcome.droplets[: len(pool)].any()
 
 
 def test_exact_droplets_hard_cases(renderer: SurfaceRenderer) -> None:

@@ -387,6 +387,29 @@ MUTATIONS: tuple[Mutation, ...] = (
         description='droplet_densities = "computed" still trusts the frame\'s densities',
     ),
     Mutation(
+        name="droplet-densities-over-the-splat-subset",
+        path="server/engine/sph/frame.py",
+        old=(
+            "droplets = droplet_mask(frame, scene, self.engine, computed)\n"
+            "                if computed is not None and computed.splat_keep is not None:\n"
+            "                    droplets = droplets[computed.splat_keep]"
+        ),
+        new="droplets = droplet_mask(drawn, scene, self.engine)",
+        tests=(
+            "tests/test_surfaces.py::"
+            "test_computed_droplet_densities_count_the_whole_frame_under_surface_only",
+        ),
+        description="the droplet split's own densities come from the surface-only subset",
+    ),
+    Mutation(
+        name="droplet-densities-second-pass",
+        path="server/engine/sph/frame.py",
+        old="if densities is None and computed is not None and computed.density_computed:",
+        new="if densities is None and computed is not None and not computed.density_computed:",
+        tests=("tests/test_surfaces.py::test_computed_droplet_densities_reuse_the_sph_stages_pass",),
+        description="the split repeats the density pass the SPH stage already ran",
+    ),
+    Mutation(
         name="normals-across-discontinuities",
         path="shaders/normals/surface_normals.frag.glsl",
         old="    bool has_plus = z_plus > 0.0 && abs(z_plus - zc) <= jump;",

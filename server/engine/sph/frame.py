@@ -137,20 +137,28 @@ def splits_droplets(scene: Scene, frame: ParticleFrame) -> bool:
 
 
 def computes_droplet_densities(scene: Scene, frame: ParticleFrame) -> bool:
-    """Whether the droplet split runs its own density pass: the frame has none, or the scene
-    asks for the positions' own (`quality.droplet_densities = "computed"`)."""
+    """Whether the droplet split needs the positions' own densities: the frame has none, or the
+    scene asks for them (`quality.droplet_densities = "computed"`). They come from the SPH
+    stage's pass when an [sph] feature computed them, else from a pass of the split's own."""
     own = frame.densities is None or scene.quality.droplet_densities == "computed"
     return own and splits_droplets(scene, frame)
 
 
 def droplet_mask(
-    frame: ParticleFrame, scene: Scene, engine: Callable[[], SphEngine]
+    frame: ParticleFrame,
+    scene: Scene,
+    engine: Callable[[], SphEngine],
+    computed: SphResult | None = None,
 ) -> npt.NDArray[np.bool_]:
-    """Which particles are droplets: kernel density below `quality.droplet_density` x
-    `sph.rest_density`. The frame's densities when it has them (the client's, or those the SPH
-    stage computed) and the scene trusts them (`quality.droplet_densities = "frame"`), else an
-    eq 2 density pass on `engine()`."""
+    """Which of the INPUT frame's particles are droplets: kernel density below
+    `quality.droplet_density` x `sph.rest_density`. The densities are the frame's when it has
+    them and the scene trusts them (`quality.droplet_densities = "frame"`); else those the SPH
+    stage computed from the positions (`computed`, when its densities are its own: no second
+    pass); else an eq 2 pass on `engine()`. Always over the whole input frame: a surface-only
+    subset would undercount every neighbourhood (its caller subsets the mask)."""
     densities = frame.densities if scene.quality.droplet_densities == "frame" else None
+    if densities is None and computed is not None and computed.density_computed:
+        densities = computed.density
     if densities is None:
         params = SphParameters.from_scene(scene, frame_particle_radius(frame, scene))
         densities = engine().density(frame.positions, params)
@@ -207,22 +215,25 @@ class SphStage:
         without OpenCL (and without client densities) are skipped with one warning: the frame
         still renders, its droplets smoothed as without the option."""
         reference_radius = frame_particle_radius(frame, scene)
-        ellipsoids = droplets = None
+        ellipsoids = droplets = computed = None
+        drawn = frame
         if needs_sph(scene):
             result = apply_sph(self.engine(), frame, scene)
-            frame = result.frame
+            drawn, computed = result.frame, result.sph
             if result.anisotropy is not None:
                 ellipsoids = (result.anisotropy.centers, result.anisotropy.axes)
-        if splits_droplets(scene, frame):
+        if splits_droplets(scene, drawn):
             try:
-                droplets = droplet_mask(frame, scene, self.engine)
+                droplets = droplet_mask(frame, scene, self.engine, computed)
+                if computed is not None and computed.splat_keep is not None:
+                    droplets = droplets[computed.splat_keep]
             except CLUnavailableError as exc:
                 if not self._warned:
                     log.warning(
                         "exact droplets need densities or OpenCL, rendering without: %s", exc
                     )
                     self._warned = True
-        return SphOutcome(frame, reference_radius, droplets, ellipsoids)
+        return SphOutcome(drawn, reference_radius, droplets, ellipsoids)
 
     def release(self) -> None:
         if self._engine is not None:
