@@ -40,13 +40,13 @@ BALL_RADIUS = 0.6
 DROPLETS = np.array([[1.1, y, 0.0] for y in (-0.6, -0.2, 0.2, 0.6)] + [[1.5, 0.0, 0.3]])
 
 
-def droplet_scene(**sph: object) -> Scene:
+def droplet_scene(quality: dict[str, object] | None = None, **sph: object) -> Scene:
     return scene_from_dict(
         {
             "image": {"width": 400, "height": 250},
             "camera": {"eye": [0.45, 0.0, 2.4], "target": [0.45, 0.0, 0.0], "fov_y": 40.0},
             "particles": {"radius": RADIUS},
-            "quality": {"filter": "none"},
+            "quality": quality or {"filter": "none"},
             "sph": sph,
         }
     )
@@ -173,25 +173,40 @@ def test_surface_only_splatting_on_real_frames(
         assert np.array_equal(full, part)
 
 
-@pytest.mark.parametrize("adaptive", [False, True])
+#: The smoothed chain with the droplet split on the positions' own densities (its pass, or
+#: the SPH stage's, over the whole frame before the surface-only subset).
+SPLIT = {"filter": "narrow_range", "droplet_densities": "computed"}
+
+
+@pytest.mark.parametrize(("adaptive", "split"), [(False, False), (True, False), (True, True)])
 def test_no_nan_reaches_pixels_with_hard_sph_inputs(
-    renderer: SurfaceRenderer, adaptive: bool
+    renderer: SurfaceRenderer, adaptive: bool, split: bool
 ) -> None:
-    # Coincident particles, one far outlier (hashed grid), a lone particle.
+    # Coincident particles, one far outlier (hashed grid), a lone particle in view.
     positions = np.concatenate(
-        [np.zeros((20, 3)), [[0.0, 0.0, 0.0]], [[1e4, 1e4, 1e4]], jittered_lattice_ball(0.2, 0.05)]
+        [
+            np.zeros((20, 3)),
+            [[0.0, 0.0, 0.0]],
+            [[1e4, 1e4, 1e4]],
+            [[1.2, 0.4, 0.0]],
+            jittered_lattice_ball(0.2, 0.05),
+        ]
     )
-    scene = droplet_scene(adaptive_radius=adaptive, surface_only=True)
+    scene = droplet_scene(SPLIT if split else None, adaptive_radius=adaptive, surface_only=True)
     image, stats = renderer.render(make_frame(positions), scene, depth=True, normals=True)
     assert "sph" in stats.stage_ms
+    assert ("droplets" in stats.stage_ms) == split  # the lone particle in view
     assert np.isfinite(image.rgba).all()
     assert image.normals is not None and np.isfinite(image.normals).all()
     assert (image.rgba[:, :, 3] > 0).any()
 
 
+@pytest.mark.parametrize("split", [False, True])
 @pytest.mark.parametrize("count", [0, 1])
-def test_empty_and_single_particle_frames_with_sph(renderer: SurfaceRenderer, count: int) -> None:
-    scene = droplet_scene(adaptive_radius=True, surface_only=True)
+def test_empty_and_single_particle_frames_with_sph(
+    renderer: SurfaceRenderer, count: int, split: bool
+) -> None:
+    scene = droplet_scene(SPLIT if split else None, adaptive_radius=True, surface_only=True)
     image, stats = renderer.render(make_frame(np.zeros((count, 3))), scene)
     assert "sph" in stats.stage_ms and stats.particles_drawn == count
     assert np.isfinite(image.rgba).all()
