@@ -175,7 +175,7 @@ def test_surface_only_splatting_on_real_frames(
 
 #: The smoothed chain with the droplet split on the positions' own densities (its pass, or
 #: the SPH stage's, over the whole frame before the surface-only subset).
-SPLIT = {"filter": "narrow_range", "droplet_densities": "computed"}
+SPLIT: dict[str, object] = {"filter": "narrow_range", "droplet_densities": "computed"}
 
 
 @pytest.mark.parametrize(("adaptive", "split"), [(False, False), (True, False), (True, True)])
