@@ -19,15 +19,18 @@ from sphrender.server.scene import QualityConfig
 F32 = npt.NDArray[np.float32]
 
 
-def _wanted_sigma(zc: float, radius: float, px_per_unit: float, q: QualityConfig) -> float:
-    """The kernel's sigma in pixels before any cap, in the shader's float32 maths."""
+def _wanted_sigma(
+    zc: float, radius: float, px_per_unit: float, q: QualityConfig, scale: float = 1.0
+) -> float:
+    """The kernel's sigma in pixels before any cap, in the shader's float32 maths (times
+    `scale`: the separable filter's u_sigma_scale, quality.destreak on its last light pass)."""
     if q.kernel_size == "eq25":
         beyond = max(np.float32(zc) - np.float32(q.eq25_threshold), np.float32(0.0))
         sigma32 = np.float32(q.eq25_sigma_px) - beyond * np.float32(q.eq25_decline) / np.float32(3)
     else:
         r_px = np.float32(radius) * np.float32(px_per_unit) / np.float32(zc)
         sigma32 = np.float32(q.kernel_scale) * r_px
-    return float(sigma32)
+    return float(sigma32 * np.float32(scale))
 
 
 def _clamped_reach(sigma: float, q: QualityConfig, limit: float) -> float:
@@ -44,7 +47,7 @@ def kernel(zc: float, radius: float, px_per_unit: float, q: QualityConfig) -> tu
 
 
 def separable_kernels(
-    depth: F32, axis: int, radius: float, px_per_unit: float, q: QualityConfig
+    depth: F32, axis: int, radius: float, px_per_unit: float, q: QualityConfig, scale: float = 1.0
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.int64]]:
     """Per pixel of a 1-D pass along `axis` (0: rows, 1: columns): the reach and sigma in
     pixels and the tap spacing beyond kernel_max_px, as smooth_depth_separable.frag.glsl
@@ -71,7 +74,7 @@ def separable_kernels(
             )
             wanted, lanes = {}, {}
             for col in cols:
-                wanted[col] = _wanted_sigma(float(depth[row, col]), radius, px_per_unit, q)
+                wanted[col] = _wanted_sigma(float(depth[row, col]), radius, px_per_unit, q, scale)
                 limit = float(cap)
                 if plain:
                     room = min(col, w - 1 - col) if axis == 0 else min(gl_y, h - 1 - gl_y)
@@ -98,12 +101,14 @@ def tap_offsets(reach: int, stride: int, q: QualityConfig, axis: int) -> list[tu
 
 
 def ambiguous_reach(zc: float, radius: float, px_per_unit: float, q: QualityConfig) -> bool:
-    """True where 3 sigma is so close to an integer that float rounding may change the reach."""
+    """True where 3 sigma is so close to an integer that float rounding may change the reach
+    (of the full kernel, or of the destreak pass's scaled one)."""
     if q.kernel_size == "eq25":
         three_sigma = 3.0 * q.eq25_sigma_px - max(zc - q.eq25_threshold, 0.0) * q.eq25_decline
     else:
         three_sigma = 3.0 * q.kernel_scale * radius * px_per_unit / zc
-    return abs(three_sigma - round(three_sigma)) < 1e-4
+    scales = (1.0, q.destreak) if q.separable and q.destreak > 0.0 else (1.0,)
+    return any(abs(t - round(t)) < 1e-4 for t in (three_sigma * s for s in scales))
 
 
 def _fetch(depth: F32, y: int, x: int) -> float:
@@ -128,14 +133,16 @@ def _pass(
     px_per_unit: float,
     q: QualityConfig,
     box: bool = False,
+    scale: float = 1.0,
 ) -> F32:
-    """One filter pass. `directions` = [(dx, dy)] for a 1-D pass, None for the 2-D kernel.
+    """One filter pass. `directions` = [(dx, dy)] for a 1-D pass, None for the 2-D kernel;
+    `scale` multiplies a 1-D pass's sigma.
     Offsets are (x, y) in image coordinates with y pointing *up* (GL), rows stored top first."""
     h, w = depth.shape
     out = np.zeros_like(depth)
     if directions is not None:
         axis = 0 if directions[0][0] else 1
-        reaches, sigmas, strides = separable_kernels(depth, axis, radius, px_per_unit, q)
+        reaches, sigmas, strides = separable_kernels(depth, axis, radius, px_per_unit, q, scale)
     for row in range(h):
         for col in range(w):
             zc = float(depth[row, col])
@@ -305,16 +312,21 @@ def _fit_intercept(
 def filter_depth(
     depth: F32, radius: float, px_per_unit: float, q: QualityConfig, *, box: bool = False
 ) -> F32:
-    """The whole smoothing step: iterations x (x then y, alternating with y then x) or
-    iterations x 2-D pass."""
+    """The whole smoothing step: iterations x (x then y, alternating with y then x), then with
+    quality.destreak one pass across the last with sigma x destreak; or iterations x 2-D
+    pass."""
     image = depth.astype(np.float32)
+    last = (1, 0)
     for iteration in range(q.iterations):
         if q.separable:
             order = ((1, 0), (0, 1)) if iteration % 2 == 0 else ((0, 1), (1, 0))
-            for direction in order:
-                image = _pass(image, [direction], radius, px_per_unit, q, box)
+            for last in order:
+                image = _pass(image, [last], radius, px_per_unit, q, box)
         else:
             image = _pass(image, None, radius, px_per_unit, q, box)
+    if q.separable and q.destreak > 0.0:
+        across = (last[1], last[0])
+        image = _pass(image, [across], radius, px_per_unit, q, box, q.destreak)
     return image
 
 

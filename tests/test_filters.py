@@ -44,6 +44,10 @@ QUALITIES = {
     "bilateral-2d": QualityConfig(filter="bilateral", separable=False, iterations=1),
     "narrow-range-separable": QualityConfig(filter="narrow_range", separable=True, iterations=2),
     "narrow-range-2d": QualityConfig(filter="narrow_range", separable=False, iterations=1),
+    # the light last pass across the axis filtered last (x y y x, then y at 0.3 sigma; x y,
+    # then x at 0.45 sigma; values whose reaches on these images are unambiguous)
+    "narrow-range-destreak": QualityConfig(filter="narrow_range", iterations=2, destreak=0.3),
+    "gaussian-destreak": QualityConfig(filter="gaussian", iterations=1, destreak=0.45),
     # eq 25's linear decline: depths 1.65..2.2 straddle the 2.0 threshold; 3 sigma = 7.5 px up
     # to it, losing 9 px per unit beyond it (down to 5.7 px)
     "gaussian-eq25": QualityConfig(

@@ -27,6 +27,16 @@ class QualityConfig:
     )
     separable: bool = spec(True, "filter rows then columns (1-D kernels) instead of one 2-D kernel")
     iterations: int = spec(2, "how many times the whole filter is applied", low=1, high=16)
+    destreak: float = spec(
+        0.0,
+        "separable filters: after the iterations one more 1-D pass across the axis filtered "
+        "last, sigma = destreak x the kernel's. Each row's kernel is cut where its row meets "
+        "a silhouette, so the last pass leaves streaks along its axis near every silhouette "
+        "(close-ups of real frames); a light pass across them removes them. 0: off",
+        low=0.0,
+        high=1.0,
+        unit="fraction of the kernel's sigma",
+    )
     kernel_size: Literal["projected_radius", "eq25"] = spec(
         "projected_radius",
         "how the kernel follows depth: projected_radius (sigma = kernel_scale * r_px(z)) or "

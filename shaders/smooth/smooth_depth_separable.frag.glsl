@@ -38,6 +38,8 @@
 #include "common/packed_image.glsl"
 
 uniform sampler2D u_packed_depth;
+// The kernel's sigma times this (1; quality.destreak for the last light pass, passes/smooth.py).
+uniform float u_sigma_scale;
 
 layout(location = 0) out vec4 out_packed_depth;
 
@@ -185,6 +187,7 @@ void main() {
     // Thesis eq 25, read as a continuous decline (see smooth_depth.frag.glsl).
     vec4 sigma = u_eq25_sigma_px - max(z - u_eq25_threshold, 0.0) * u_eq25_decline / 3.0;
 #endif
+    sigma *= u_sigma_scale;
     int stride;
     vec4 reach = kernel_reach(texel, sigma, surface, stride);
     sigma = max(min(sigma, reach / 3.0), 1e-3);

@@ -100,9 +100,7 @@ class SmoothPass:
             if quality.keep_features != "none":
                 defines["KEEP_FEATURES"] = _KEEP_FEATURES_DEFINES[quality.keep_features]
             margin_px = max(quality.kernel_max_px, quality.kernel_min_px)
-            smoothed = self._separable(
-                targets, depth, defines, uniforms, quality.iterations, box, margin_px
-            )
+            smoothed = self._separable(targets, depth, defines, uniforms, quality, box, margin_px)
         else:
             smoothed = self._two_d(targets, depth, defines, uniforms, quality.iterations, box)
         if quality.close_gaps > 0.0:  # pinholes (GapPass.close_again)
@@ -140,7 +138,7 @@ class SmoothPass:
         depth: moderngl.Texture,
         defines: dict[str, int],
         uniforms: _FilterUniforms,
-        iterations: int,
+        quality: QualityConfig,
         box: ScreenBox | None,
         margin_px: int,
     ) -> moderngl.Texture:
@@ -158,17 +156,15 @@ class SmoothPass:
             for axis in (0, 1)
         }
         read_index = 0
-        for iteration in range(iterations):
-            # The passes alternate their order (x y, y x, ...): the nonlinear filters leave
-            # streaks along the axis filtered last, and alternating keeps them from piling up.
-            for axis in (0, 1) if iteration % 2 == 0 else (1, 0):
-                packed[read_index].texture.use(0)
-                fbo = packed[1 - read_index].fbo
-                for program, scissor in draws[axis]:
-                    set_scissor(fbo, scissor)
-                    fbo.use()
-                    draw(program)
-                read_index = 1 - read_index
+        for axis, sigma_scale in separable_passes(quality.iterations, quality.destreak):
+            packed[read_index].texture.use(0)
+            fbo = packed[1 - read_index].fbo
+            for program, scissor in draws[axis]:
+                set_if_used(program, "u_sigma_scale", sigma_scale)
+                set_scissor(fbo, scissor)
+                fbo.use()
+                draw(program)
+            read_index = 1 - read_index
         for target in packed:
             set_scissor(target.fbo, None)
         unpack = programs.get(FULLSCREEN_VERT, UNPACK_SHADER, samplers={"u_packed": 0})
@@ -213,6 +209,23 @@ class SmoothPass:
     def release(self) -> None:
         self._targets.release()
         self._gaps.release()
+
+
+def separable_passes(iterations: int, destreak: float) -> list[tuple[int, float]]:
+    """The 1-D passes of a separable filter in order: (axis, sigma scale) each. The iterations
+    alternate their order (x y, y x, ...): the nonlinear filters leave streaks along the axis
+    filtered last, and alternating keeps them from piling up. A kernel is cut where its row
+    (column) meets a silhouette, at a place that changes from row to row along a beaded edge,
+    so even so the last pass leaves streaks along its axis near silhouettes; `destreak` > 0
+    adds one light pass across them (sigma scaled by `destreak`)."""
+    passes = [
+        (axis, 1.0)
+        for iteration in range(iterations)
+        for axis in ((0, 1) if iteration % 2 == 0 else (1, 0))
+    ]
+    if destreak > 0.0:
+        passes.append((1 - passes[-1][0], destreak))
+    return passes
 
 
 class _FilterUniforms:
