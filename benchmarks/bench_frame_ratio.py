@@ -45,7 +45,6 @@ SETTINGS = {
     "balanced, no field": scene_for("balanced", {"quality": {"field_normals": 0.0}}),
     "balanced, no stencil": scene_for("balanced", {"quality": {"normal_stencil": 0.0}}),
     "balanced + destreak": scene_for("balanced", {"quality": {"destreak": 0.25}}),
-    "fast + destreak": scene_for("fast", {"quality": {"destreak": 0.25}}),
     "fast": scene_for("fast", {}),
 }
 

@@ -379,6 +379,25 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="the ellipsoid impostor shows its back surface",
     ),
     Mutation(
+        name="destreak-at-full-sigma",
+        path="shaders/smooth/smooth_depth_separable.frag.glsl",
+        old="    sigma *= u_sigma_scale;\n",
+        new="",
+        tests=(
+            "tests/test_filters.py::test_filter_matches_numpy_reference[narrow-range-destreak]",
+            "tests/test_filters.py::test_filter_matches_numpy_reference[gaussian-destreak]",
+        ),
+        description="the destreak pass smooths with the full kernel, not a light one",
+    ),
+    Mutation(
+        name="destreak-along-the-last-axis",
+        path="server/engine/passes/smooth.py",
+        old="passes.append((1 - passes[-1][0], destreak))",
+        new="passes.append((passes[-1][0], destreak))",
+        tests=("tests/test_surfaces.py::test_destreak_makes_a_spheres_rim_isotropic_again",),
+        description="the destreak pass runs along the streaks instead of across them",
+    ),
+    Mutation(
         name="droplet-densities-computed-ignored",
         path="server/engine/sph/frame.py",
         old='densities = frame.densities if scene.quality.droplet_densities == "frame" else None',
