@@ -24,6 +24,7 @@ import numpy as np
 
 from sphrender.client.frame import make_frame
 from sphrender.server.bench import peers
+from sphrender.server.bench.closeup_crop import write_closeup_crop
 from sphrender.server.bench.report import write_plot, write_report
 from sphrender.server.bench.results import BenchResults
 from sphrender.server.bench.scenes import (
@@ -236,6 +237,18 @@ def run_bench(
                     cache=out / ".reference-cache",
                     gl=gl,
                     prefix="crop-field",
+                )
+                # what destreak changes on a close-up of a real frame
+                write_closeup_crop(
+                    renderer,
+                    out,
+                    results.surfaces,
+                    before=preset_setting("balanced"),
+                    after=Setting(
+                        "balanced + destreak 0.25",
+                        {"quality": {"destreak": 0.25}},
+                        preset="balanced",
+                    ),
                 )
             if not quick:
                 log("scaling (balanced preset)")
