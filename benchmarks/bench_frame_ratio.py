@@ -45,6 +45,7 @@ SETTINGS = {
     "balanced, no field": scene_for("balanced", {"quality": {"field_normals": 0.0}}),
     "balanced, no stencil": scene_for("balanced", {"quality": {"normal_stencil": 0.0}}),
     "balanced + destreak": scene_for("balanced", {"quality": {"destreak": 0.25}}),
+    "balanced, equal passes": scene_for("balanced", {"quality": {"last_pass_sigma": 1.0}}),
     "fast": scene_for("fast", {}),
 }
 

@@ -34,6 +34,7 @@ SETTINGS = {
                 "kernel_max_px": 32,
                 "kernel_max_stride": 1,
                 "normal_stencil": 0.0,
+                "last_pass_sigma": 1.0,
                 "close_gaps": 0.0,
                 "field_normals": 0.0,
             }

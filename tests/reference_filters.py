@@ -101,14 +101,39 @@ def tap_offsets(reach: int, stride: int, q: QualityConfig, axis: int) -> list[tu
 
 
 def ambiguous_reach(zc: float, radius: float, px_per_unit: float, q: QualityConfig) -> bool:
-    """True where 3 sigma is so close to an integer that float rounding may change the reach
-    (of the full kernel, or of the destreak pass's scaled one)."""
+    """True where 3 sigma of the first pass, which reads this depth, is so close to an integer
+    that float rounding may change the reach (later passes read smoothed depths this cannot
+    foresee; a rounding there would show as a mismatch, and has not)."""
     if q.kernel_size == "eq25":
         three_sigma = 3.0 * q.eq25_sigma_px - max(zc - q.eq25_threshold, 0.0) * q.eq25_decline
     else:
         three_sigma = 3.0 * q.kernel_scale * radius * px_per_unit / zc
-    scales = (1.0, q.destreak) if q.separable and q.destreak > 0.0 else (1.0,)
-    return any(abs(t - round(t)) < 1e-4 for t in (three_sigma * s for s in scales))
+    if q.separable:
+        three_sigma *= _separable_passes(q)[0][1]
+    return abs(three_sigma - round(three_sigma)) < 1e-4
+
+
+def _separable_passes(q: QualityConfig) -> list[tuple[tuple[int, int], float]]:
+    """The separable filter's 1-D passes: (direction, sigma scale). x then y, y then x on the
+    next iteration, ...; with quality.last_pass_sigma s < 1 and two passes or more along the
+    last pass's axis, that axis's last pass at s and its first at sqrt(2 - s^2) (their
+    variances sum as two equal passes'); with quality.destreak one more pass across the last,
+    at sigma x destreak."""
+    directions = [
+        direction
+        for iteration in range(q.iterations)
+        for direction in (((1, 0), (0, 1)) if iteration % 2 == 0 else ((0, 1), (1, 0)))
+    ]
+    scales = [1.0] * len(directions)
+    last = directions[-1]
+    along = [i for i, direction in enumerate(directions) if direction == last]
+    if q.last_pass_sigma < 1.0 and len(along) >= 2:
+        scales[along[0]] = math.sqrt(2.0 - q.last_pass_sigma**2)
+        scales[along[-1]] = q.last_pass_sigma
+    passes = list(zip(directions, scales, strict=True))
+    if q.destreak > 0.0:
+        passes.append(((last[1], last[0]), q.destreak))
+    return passes
 
 
 def _fetch(depth: F32, y: int, x: int) -> float:
@@ -312,21 +337,15 @@ def _fit_intercept(
 def filter_depth(
     depth: F32, radius: float, px_per_unit: float, q: QualityConfig, *, box: bool = False
 ) -> F32:
-    """The whole smoothing step: iterations x (x then y, alternating with y then x), then with
-    quality.destreak one pass across the last with sigma x destreak; or iterations x 2-D
-    pass."""
+    """The whole smoothing step: the separable passes (`_separable_passes`) or iterations x
+    2-D pass."""
     image = depth.astype(np.float32)
-    last = (1, 0)
-    for iteration in range(q.iterations):
-        if q.separable:
-            order = ((1, 0), (0, 1)) if iteration % 2 == 0 else ((0, 1), (1, 0))
-            for last in order:
-                image = _pass(image, [last], radius, px_per_unit, q, box)
-        else:
+    if not q.separable:
+        for _ in range(q.iterations):
             image = _pass(image, None, radius, px_per_unit, q, box)
-    if q.separable and q.destreak > 0.0:
-        across = (last[1], last[0])
-        image = _pass(image, [across], radius, px_per_unit, q, box, q.destreak)
+        return image
+    for direction, scale in _separable_passes(q):
+        image = _pass(image, [direction], radius, px_per_unit, q, box, scale)
     return image
 
 

@@ -44,6 +44,10 @@ QUALITIES = {
     "bilateral-2d": QualityConfig(filter="bilateral", separable=False, iterations=1),
     "narrow-range-separable": QualityConfig(filter="narrow_range", separable=True, iterations=2),
     "narrow-range-2d": QualityConfig(filter="narrow_range", separable=False, iterations=1),
+    # the passes as they were before quality.last_pass_sigma (the others: its default 0.5)
+    "narrow-range-equal-passes": QualityConfig(
+        filter="narrow_range", iterations=2, last_pass_sigma=1.0
+    ),
     # the light last pass across the axis filtered last (x y y x, then y at 0.3 sigma; x y,
     # then x at 0.45 sigma; values whose reaches on these images are unambiguous)
     "narrow-range-destreak": QualityConfig(filter="narrow_range", iterations=2, destreak=0.3),

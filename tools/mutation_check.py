@@ -379,6 +379,25 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="the ellipsoid impostor shows its back surface",
     ),
     Mutation(
+        name="last-pass-sigma-first-not-widened",
+        path="server/engine/passes/smooth.py",
+        old="        passes[along[0]] = (last_axis, math.sqrt(2.0 - last_pass_sigma**2))\n",
+        new="",
+        tests=("tests/test_filters.py::test_filter_matches_numpy_reference[narrow-range-separable]",),
+        description="the last pass shrinks, the first along its axis does not widen",
+    ),
+    Mutation(
+        name="last-pass-sigma-ignored",
+        path="server/engine/passes/smooth.py",
+        old="        passes[along[-1]] = (last_axis, last_pass_sigma)\n",
+        new="",
+        tests=(
+            "tests/test_surfaces.py::"
+            "test_last_pass_sigma_and_destreak_make_a_spheres_rim_isotropic_again",
+        ),
+        description="the last pass keeps its full sigma (the first still widens)",
+    ),
+    Mutation(
         name="destreak-at-full-sigma",
         path="shaders/smooth/smooth_depth_separable.frag.glsl",
         old="    sigma *= u_sigma_scale;\n",
@@ -392,9 +411,12 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         name="destreak-along-the-last-axis",
         path="server/engine/passes/smooth.py",
-        old="passes.append((1 - passes[-1][0], destreak))",
-        new="passes.append((passes[-1][0], destreak))",
-        tests=("tests/test_surfaces.py::test_destreak_makes_a_spheres_rim_isotropic_again",),
+        old="passes.append((1 - last_axis, destreak))",
+        new="passes.append((last_axis, destreak))",
+        tests=(
+            "tests/test_surfaces.py::"
+            "test_last_pass_sigma_and_destreak_make_a_spheres_rim_isotropic_again",
+        ),
         description="the destreak pass runs along the streaks instead of across them",
     ),
     Mutation(

@@ -1,6 +1,6 @@
-"""A before/after crop of a close-up of the real dam-break frame (`sphrender bench`'s report):
+"""Before/after crops of a close-up of the real dam-break frame (`sphrender bench`'s report):
 what the bench's distance does not show, such as the streaks the separable filter leaves along
-silhouettes when kernels are long (`quality.destreak`).
+silhouettes when kernels are long (`quality.last_pass_sigma`, `quality.destreak`).
 
 The frame is SPlisHSPlasH output outside this repository (`scenes.dambreak_frame`); without it
 nothing is written. The camera looks down at the front's rim, 1.0-1.7 units away in the crop
@@ -25,6 +25,10 @@ from sphrender.server.engine.renderer import SurfaceRenderer
 CLOSEUP_CAMERA = {"eye": [-0.4, 0.9, 0.9], "target": [-0.6, 0.3, 0.0], "fov_y": 40.0}
 #: The crop of the 640x360 image, (top, left, height, width): the rim and the surface inside it.
 CLOSEUP_WINDOW = (60, 380, 300, 260)
+#: balanced with the separable filter's passes all at one sigma (before last_pass_sigma).
+EQUAL_PASSES = Setting("balanced, equal passes", {"quality": {"last_pass_sigma": 1.0}}, "balanced")
+#: balanced with best's light last pass across the last.
+BALANCED_DESTREAK = Setting("balanced + destreak 0.25", {"quality": {"destreak": 0.25}}, "balanced")
 
 
 def write_closeup_crop(

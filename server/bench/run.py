@@ -24,7 +24,7 @@ import numpy as np
 
 from sphrender.client.frame import make_frame
 from sphrender.server.bench import peers
-from sphrender.server.bench.closeup_crop import write_closeup_crop
+from sphrender.server.bench.closeup_crop import BALANCED_DESTREAK, EQUAL_PASSES, write_closeup_crop
 from sphrender.server.bench.report import write_plot, write_report
 from sphrender.server.bench.results import BenchResults
 from sphrender.server.bench.scenes import (
@@ -238,18 +238,15 @@ def run_bench(
                     gl=gl,
                     prefix="crop-field",
                 )
-                # what destreak changes on a close-up of a real frame
-                write_closeup_crop(
-                    renderer,
-                    out,
-                    results.surfaces,
-                    before=preset_setting("balanced"),
-                    after=Setting(
-                        "balanced + destreak 0.25",
-                        {"quality": {"destreak": 0.25}},
-                        preset="balanced",
-                    ),
-                )
+                # what last_pass_sigma and destreak change on a close-up of a real frame
+                balanced = preset_setting("balanced")
+                for before, after, name in (
+                    (EQUAL_PASSES, balanced, "crop-closeup-dambreak.png"),
+                    (balanced, BALANCED_DESTREAK, "crop-closeup-destreak-dambreak.png"),
+                ):
+                    write_closeup_crop(
+                        renderer, out, results.surfaces, before=before, after=after, name=name
+                    )
             if not quick:
                 log("scaling (balanced preset)")
                 for count in (10_000, 100_000, 1_000_000):

@@ -22,6 +22,8 @@ Owns: two plain ping-pong targets and two packed ones, per image size.
 
 from __future__ import annotations
 
+import math
+
 import moderngl
 
 from sphrender.server.engine.geometry.screen_box import (
@@ -156,7 +158,8 @@ class SmoothPass:
             for axis in (0, 1)
         }
         read_index = 0
-        for axis, sigma_scale in separable_passes(quality.iterations, quality.destreak):
+        passes = separable_passes(quality.iterations, quality.last_pass_sigma, quality.destreak)
+        for axis, sigma_scale in passes:
             packed[read_index].texture.use(0)
             fbo = packed[1 - read_index].fbo
             for program, scissor in draws[axis]:
@@ -211,20 +214,31 @@ class SmoothPass:
         self._gaps.release()
 
 
-def separable_passes(iterations: int, destreak: float) -> list[tuple[int, float]]:
-    """The 1-D passes of a separable filter in order: (axis, sigma scale) each. The iterations
-    alternate their order (x y, y x, ...): the nonlinear filters leave streaks along the axis
-    filtered last, and alternating keeps them from piling up. A kernel is cut where its row
-    (column) meets a silhouette, at a place that changes from row to row along a beaded edge,
-    so even so the last pass leaves streaks along its axis near silhouettes; `destreak` > 0
-    adds one light pass across them (sigma scaled by `destreak`)."""
+def separable_passes(
+    iterations: int, last_pass_sigma: float = 1.0, destreak: float = 0.0
+) -> list[tuple[int, float]]:
+    """The 1-D passes of a separable filter in order: (axis, sigma scale) each.
+
+    The iterations alternate their order (x y, y x, ...): the nonlinear filters leave streaks
+    along the axis filtered last, and alternating keeps them from piling up. A kernel is cut
+    where its row (column) meets a silhouette, at a place that changes from row to row along a
+    beaded rim, so even so the last pass leaves streaks along its axis near silhouettes, of an
+    amplitude that grows with its sigma squared. `last_pass_sigma` < 1 shrinks that pass's
+    sigma and widens the first pass along the same axis to keep the axis's total variance
+    (needs two passes along it); `destreak` > 0 adds one light pass across the last (sigma
+    scaled by `destreak`)."""
     passes = [
         (axis, 1.0)
         for iteration in range(iterations)
         for axis in ((0, 1) if iteration % 2 == 0 else (1, 0))
     ]
+    last_axis = passes[-1][0]
+    along = [i for i, (axis, _) in enumerate(passes) if axis == last_axis]
+    if last_pass_sigma < 1.0 and len(along) >= 2:
+        passes[along[0]] = (last_axis, math.sqrt(2.0 - last_pass_sigma**2))
+        passes[along[-1]] = (last_axis, last_pass_sigma)
     if destreak > 0.0:
-        passes.append((1 - passes[-1][0], destreak))
+        passes.append((1 - last_axis, destreak))
     return passes
 
 
