@@ -112,7 +112,11 @@ def test_packed_filters_with_wide_and_capped_kernels(renderer: SurfaceRenderer, 
     cap (every pixel out to 7, then every 2nd or 3rd out to 3 sigma, less near the image's
     ends: groups of each spacing, per texel, and reaches cut by the room to the ends)."""
     depth = synthetic_depth(height=72, width=90)
+    # last_pass_sigma 0.5 (first pass sqrt(1.75) sigma): the default 0.7's first pass at
+    # sqrt(1.51) sigma has ambiguous reaches on this image (the other tests run the default)
     quality = QUALITIES[name]
+    if quality.last_pass_sigma == QualityConfig().last_pass_sigma:
+        quality = replace(quality, last_pass_sigma=0.5)
     assert_matches_reference(renderer, depth, 920.0, quality)
     capped = replace(quality, kernel_max_px=11, kernel_max_stride=1)
     assert_matches_reference(renderer, depth, 920.0, capped)

@@ -28,15 +28,19 @@ class QualityConfig:
     separable: bool = spec(True, "filter rows then columns (1-D kernels) instead of one 2-D kernel")
     iterations: int = spec(2, "how many times the whole filter is applied", low=1, high=16)
     last_pass_sigma: float = spec(
-        0.5,
+        0.7,
         "separable filters with two or more passes along the axis filtered last (iterations "
         ">= 2): that axis's last pass smooths with sigma x this, its first with sigma x "
         "sqrt(2 - this^2), so the axis's smoothing (the sum of the passes' variances) stays. "
         "The last pass's kernels are cut where rows meet a silhouette, at places that change "
         "from row to row along a beaded rim: the streaks it leaves scale with its sigma "
-        "squared. balanced and best 0.5, at no cost (dam-break frame 5 close-up: angle "
-        "between adjacent rows' normals 2.11 -> 1.97 deg, along rows 1.77 -> 1.80; a 4k "
-        "ball's rim rows/columns ratio 1.45 -> 1.11, the sphere's 1.0). 1: equal passes",
+        "squared. Less of it trades them for those the other axis's passes leave, which the "
+        "lighter last pass smooths less. balanced 0.7, best 0.5 (with destreak), at no cost. "
+        "Near rims, angle between vertically / horizontally adjacent normals at 1, 0.7 and "
+        "0.5 (the 2-D filter's): dam-break frame 5 close-up 2.11 / 1.77, 2.01 / 1.77, "
+        "1.97 / 1.80 (1.81 / 1.69); the demo 1.91 / 0.94, 1.82 / 0.99, 1.77 / 1.05 (1.65 / "
+        "0.92). A 4k ball's rim rows/columns ratio 1.45, 1.25, 1.11 (the sphere's 0.99). "
+        "1: equal passes",
         low=0.0,
         high=1.0,
         low_open=True,
@@ -48,11 +52,11 @@ class QualityConfig:
         "last, sigma = destreak x the kernel's. Each row's kernel is cut where its row meets "
         "a silhouette, at a place that changes from row to row along a beaded rim, so the "
         "last pass leaves streaks along its axis near silhouettes on close-ups; a light pass "
-        "across them takes what last_pass_sigma leaves (dam-break frame 5 close-up at 0.25 "
-        "over last_pass_sigma 0.5: angle between adjacent rows' normals 1.97 -> 1.84 deg, "
-        "the 2-D filter's 1.81; a 4k ball's rim rows/columns ratio 1.11 -> 0.95, the "
-        "sphere's 0.99). best: 0.25; balanced and fast: 0 (+2.4-4 ms on the 100k ball at "
-        "1280x720 on llvmpipe). 0: off",
+        "across them takes what last_pass_sigma leaves (0.25 over balanced's last_pass_sigma "
+        "0.7: dam-break frame 5 close-up, angle between vertically / horizontally adjacent "
+        "normals near rims 2.01 / 1.77 -> 1.84 / 1.75 deg, the 2-D filter's 1.81 / 1.69; a "
+        "4k ball's rim rows/columns ratio 1.25 -> 0.99, the sphere's 0.99). best: 0.25; "
+        "balanced and fast: 0 (+2.4-4 ms on the 100k ball at 1280x720 on llvmpipe). 0: off",
         low=0.0,
         high=1.0,
         unit="fraction of the kernel's sigma",
