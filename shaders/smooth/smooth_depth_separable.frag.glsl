@@ -38,7 +38,8 @@
 #include "common/packed_image.glsl"
 
 uniform sampler2D u_packed_depth;
-// The kernel's sigma times this (1; quality.destreak for the last light pass, passes/smooth.py).
+// The kernel's sigma times this: per pass, from quality.last_pass_sigma and quality.destreak
+// (passes/smooth.py separable_passes); 1 for equal passes.
 uniform float u_sigma_scale;
 
 layout(location = 0) out vec4 out_packed_depth;

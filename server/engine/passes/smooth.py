@@ -4,9 +4,10 @@ Filters (`[quality] filter`): gaussian | bilateral | narrow_range (Truong & Yuks
 Kernel sigma = kernel_scale x the projected particle radius (or the thesis's eq 25), reach
 3 sigma: every pixel out to kernel_max_px, then (separable filters, close-ups) every stride-th
 out to kernel_max_px x kernel_max_stride; past that, capped. Separable filters (x y, then y x
-on the next iteration, so the nonlinear filters' streaks do not pile up on one axis) run on a
-packed copy of the image, four pixels of a row per RGBA32F texel: pack, the 1-D passes, unpack;
-one fetch serves four pixels.
+on the next iteration, so the nonlinear filters' streaks do not pile up on one axis; the last
+pass along the last axis lighter, `last_pass_sigma`, and optionally one light pass across it,
+`destreak`: `separable_passes`) run on a packed copy of the image, four pixels of a row per
+RGBA32F texel: pack, the 1-D passes, unpack; one fetch serves four pixels.
 
 The narrow range averages inverse depth. Where a kernel reaches past the image's end it goes on
 one-sided and fits a line through the taps inside; a 1-D pass draws that variant (IMAGE_BORDER)
