@@ -267,8 +267,8 @@ def test_last_pass_sigma_and_destreak_make_a_spheres_rim_isotropic_again(
     row: with equal passes rows differ by more than columns (measured 1.45). The streaks'
     amplitude goes with the last pass's sigma squared: at the default 0.7 the excess over the
     sphere's ratio should be about half, bound at 70 % (measured 1.25: 56 %); the light column
-    pass on top: 0.99 (0.95-1.01 on balls of 4k-30k at 320x240-640x480 with it: the bound
-    0.1). The band's error against the sphere: 6.84, 6.65, 6.56 deg."""
+    pass on top: 0.99 (0.95-1.01 on balls of 4k-30k at 320x240-640x480 over equal passes: the
+    bound 0.1). The band's error against the sphere: 6.84, 6.65, 6.56 deg."""
     ball = ball_scene(4000)
     camera = {key: ball.camera[key] for key in ("eye", "target", "fov_y")}
     errors, ratios, true_ratios = [], [], []
