@@ -68,7 +68,7 @@ def assert_matches_reference(
     renderer: SurfaceRenderer, depth: np.ndarray, px_per_unit: float, quality: QualityConfig
 ) -> None:
     quality = replace(quality, close_gaps=0.0)  # the reference is the filter alone
-    gpu = renderer.filter_depth_image(
+    gpu = renderer.single_passes.filter_depth_image(
         depth, particle_radius=RADIUS, px_per_unit=px_per_unit, quality=quality
     )
     reference = filter_depth(depth, RADIUS, px_per_unit, quality)
@@ -160,7 +160,7 @@ def test_narrow_range_keeps_a_plane_in_perspective_up_to_the_image_edges(
     quality = replace(PLANE_QUALITIES[name], close_gaps=0.0)
     height, width = (180, 320) if quality.separable else (60, 90)
     depth = perspective_plane(height, width, px_per_unit)
-    out = renderer.filter_depth_image(
+    out = renderer.single_passes.filter_depth_image(
         depth, particle_radius=RADIUS, px_per_unit=px_per_unit, quality=quality
     )
     error = np.abs(out.astype(np.float64) - depth) / RADIUS
@@ -212,7 +212,7 @@ def test_border_variant_gives_the_packed_walks_result_bit_for_bit_inside(
     )
 
     def run() -> np.ndarray:
-        return renderer.filter_depth_image(
+        return renderer.single_passes.filter_depth_image(
             depth, particle_radius=RADIUS, px_per_unit=920.0, quality=quality
         )
 
@@ -229,7 +229,7 @@ def test_filter_smooths_noise_and_keeps_steps(renderer: SurfaceRenderer) -> None
     to the nearer block stays a step (not blurred into a ramp)."""
     depth = synthetic_depth()
     quality = QualityConfig()
-    out = renderer.filter_depth_image(
+    out = renderer.single_passes.filter_depth_image(
         depth, particle_radius=RADIUS, px_per_unit=PX_PER_UNIT, quality=quality
     )
     flat = np.s_[14:20, 20:28]
@@ -241,10 +241,10 @@ def test_filter_smooths_noise_and_keeps_steps(renderer: SurfaceRenderer) -> None
 
 def test_kernel_scale_changes_result(renderer: SurfaceRenderer) -> None:
     depth = synthetic_depth()
-    narrow = renderer.filter_depth_image(
+    narrow = renderer.single_passes.filter_depth_image(
         depth, particle_radius=RADIUS, px_per_unit=PX_PER_UNIT, quality=QualityConfig()
     )
-    wide = renderer.filter_depth_image(
+    wide = renderer.single_passes.filter_depth_image(
         depth,
         particle_radius=RADIUS,
         px_per_unit=PX_PER_UNIT,
@@ -270,7 +270,7 @@ def test_temperature_blur_matches_numpy_reference(renderer: SurfaceRenderer) -> 
     kelvin = (300.0 + 25.0 * columns + rng.uniform(-150, 150, depth.shape)).astype(np.float32)
     kelvin[depth <= 0] = 0.0
     for px_per_unit in (260.0, 900.0):  # reach 2-3 px, and 8-10 px
-        gpu = renderer.blur_temperature_image(
+        gpu = renderer.single_passes.blur_temperature_image(
             kelvin, depth, particle_radius=RADIUS, px_per_unit=px_per_unit
         )
         reference = temperature_blur(
@@ -308,7 +308,7 @@ def test_temperature_border_variant_gives_the_same_bits_inside(
     kelvin = np.where(depth > 0, 300.0 + 20.0 * columns + 0 * depth, 0.0).astype(np.float32)
 
     def run() -> np.ndarray:
-        return renderer.blur_temperature_image(
+        return renderer.single_passes.blur_temperature_image(
             kelvin, depth, particle_radius=RADIUS, px_per_unit=900.0
         )
 

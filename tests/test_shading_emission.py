@@ -80,7 +80,9 @@ def test_shader_emission_is_one_minus_fresnel_times_planck(renderer: SurfaceRend
     mu = np.linspace(0.05, 1.0, 12)[None, :].repeat(8, axis=0)
     normals = ref.directions_with_nv(views, mu, np.zeros_like(mu))
     kelvin = np.linspace(500.0, 3000.0, 8, dtype=np.float32)[:, None].repeat(12, axis=1)
-    rgba = renderer.shade_normal_depth(ref.normal_depth_image(camera, normals), scene, kelvin)
+    rgba = renderer.single_passes.shade_normal_depth(
+        ref.normal_depth_image(camera, normals), scene, kelvin
+    )
     emissivity = 1.0 - np.array(METAL_F0["iron"])
     want = np.zeros((8, 12, 3))
     for row in range(8):
@@ -147,7 +149,7 @@ def test_direct_lights_and_eq55_combination(renderer: SurfaceRenderer) -> None:
 
     def shade(**shading: object) -> np.ndarray:
         scene = scene_from_dict({**sections, "shading": shading})
-        return renderer.shade_normal_depth(image, scene)[..., :3].astype(np.float64)
+        return renderer.single_passes.shade_normal_depth(image, scene)[..., :3].astype(np.float64)
 
     direct = shade(debug_view="direct")
     from sphrender.server.bench.analytic import pixel_rays

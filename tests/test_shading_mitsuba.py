@@ -147,7 +147,7 @@ def our_render(
     )
     camera = Camera.from_config(scene.camera, WIDTH, HEIGHT)
     normal_depth, hit = ref.sphere_normal_depth(camera, np.zeros(3), 1.0)
-    rgba = renderer.shade_normal_depth(normal_depth, scene)
+    rgba = renderer.single_passes.shade_normal_depth(normal_depth, scene)
     facing = np.einsum("hwk,hwk->hw", normal_depth[..., :3], ref.view_vectors(camera))
     inside = hit.copy()
     for axis in (0, 1):
@@ -383,7 +383,7 @@ def our_workshop_render(
     )
     camera = Camera.from_config(scene.camera, size, size)
     normal_depth, hit = ref.sphere_normal_depth(camera, np.zeros(3), 1.0)
-    rgba = renderer.shade_normal_depth(normal_depth, scene)
+    rgba = renderer.single_passes.shade_normal_depth(normal_depth, scene)
     facing = np.einsum("hwk,hwk->hw", normal_depth[..., :3], ref.view_vectors(camera))
     inside = hit.copy()
     for axis in (0, 1):

@@ -106,7 +106,6 @@ def markdown_table(rows: list[SweepRow]) -> list[str]:
 
 
 def write_report(results: BenchResults, path: Path, *, plot_name: str) -> None:
-
     lines = [
         "# Benchmark report: speed against error, peers side by side",
         "",
@@ -120,6 +119,21 @@ def write_report(results: BenchResults, path: Path, *, plot_name: str) -> None:
         "Other processes may have been running (see the load averages): compare ratios within "
         "this run, not absolute times across runs.",
         "",
+    ]
+    lines += _headline_section(results)
+    lines += _sweep_section(results, plot_name)
+    if results.surfaces is not None:
+        lattice = next(
+            (r for r in results.rows if r.scene == "ball" and r.setting == "preset balanced"), None
+        )
+        lines += surface_section(results.surfaces, lattice)
+    lines += _scaling_section(results)
+    path.write_text("\n".join(lines))
+
+
+def _headline_section(results: BenchResults) -> list[str]:
+    """`sphrender render` against the peers, and the CPU peers."""
+    lines = [
         "## Headline: `sphrender render` against the peers",
         "",
         f"{results.headline_scene}. Steady per-frame time (median after the first frame) from "
@@ -158,6 +172,13 @@ def write_report(results: BenchResults, path: Path, *, plot_name: str) -> None:
         "|---|---|---|",
         *(f"| {name} | {_ms(ms)} | {note} |" for name, ms, note in results.cpu_peers),
         "",
+    ]
+    return lines
+
+
+def _sweep_section(results: BenchResults, plot_name: str) -> list[str]:
+    """The sweep's table, its Pareto plot and how to read it."""
+    return [
         "## Sweep",
         "",
         "Milliseconds per engine stage (median of the timed frames; `readback` includes the "
@@ -205,33 +226,32 @@ def write_report(results: BenchResults, path: Path, *, plot_name: str) -> None:
         "spheres at splashes and thin sheets, so its errors measure agreement with splashsurf.",
         "",
     ]
-    if results.surfaces is not None:
-        lattice = next(
-            (r for r in results.rows if r.scene == "ball" and r.setting == "preset balanced"), None
-        )
-        lines += surface_section(results.surfaces, lattice)
-    if results.scaling_particles:
-        counts = [float(n) for n, _ in results.scaling_particles]
-        times = [ms for _, ms in results.scaling_particles]
-        pixels = [float(w * h) for w, h, _ in results.scaling_resolution]
-        res_times = [ms for _, _, ms in results.scaling_resolution]
-        lines += [
-            "## Scaling (balanced preset, engine frame time without encoding)",
-            "",
-            "| particles | 1280x720 ms |",
-            "|---|---|",
-            *(f"| {n:,} | {ms:.1f} |" for n, ms in results.scaling_particles),
-            "",
-            f"Growth with particle count: time ~ N^{growth_exponent(counts, times):.2f}.",
-            "",
-            "| resolution | ms |",
-            "|---|---|",
-            *(f"| {w}x{h} | {ms:.1f} |" for w, h, ms in results.scaling_resolution),
-            "",
-            f"Growth with pixel count: time ~ P^{growth_exponent(pixels, res_times):.2f}.",
-            "",
-        ]
-    path.write_text("\n".join(lines))
+
+
+def _scaling_section(results: BenchResults) -> list[str]:
+    """Frame time against particle count and resolution (empty when not measured)."""
+    if not results.scaling_particles:
+        return []
+    counts = [float(n) for n, _ in results.scaling_particles]
+    times = [ms for _, ms in results.scaling_particles]
+    pixels = [float(w * h) for w, h, _ in results.scaling_resolution]
+    res_times = [ms for _, _, ms in results.scaling_resolution]
+    return [
+        "## Scaling (balanced preset, engine frame time without encoding)",
+        "",
+        "| particles | 1280x720 ms |",
+        "|---|---|",
+        *(f"| {n:,} | {ms:.1f} |" for n, ms in results.scaling_particles),
+        "",
+        f"Growth with particle count: time ~ N^{growth_exponent(counts, times):.2f}.",
+        "",
+        "| resolution | ms |",
+        "|---|---|",
+        *(f"| {w}x{h} | {ms:.1f} |" for w, h, ms in results.scaling_resolution),
+        "",
+        f"Growth with pixel count: time ~ P^{growth_exponent(pixels, res_times):.2f}.",
+        "",
+    ]
 
 
 def _f(value: float, digits: int = 2) -> str:

@@ -171,35 +171,12 @@ def run_bench(
         f"{platform.system()} {platform.release()}",
         f"at start: {_load()}",
     ]
-    if quick:
-        scenes = [ball_scene(3000), slab_scene(0.3, 3)]
-        settings: tuple[Setting, ...] = QUICK_SWEEP
-    else:
-        scenes = [ball_scene(90_000), slab_scene(1.2, 4), slab_scene(1.0, 1, "sheet")]
-        scenes.append(droplets_scene(150))
-        settings = SWEEP
     mesh_note = ""
-    # The surface figures of issue 12 were measured at 960x540; quick runs use a quarter.
-    surface_w, surface_h = (480, 270) if quick else (960, 540)
     with GLContext() as gl:
         results.machine.insert(0, f"GL: {gl.renderer}")
         renderer = SurfaceRenderer(gl)
         try:
-            dam = dambreak_frame()
-            if not quick and dam is not None:
-                from sphrender.server.bench.mesh_reference import rasterise
-
-                def mesh_truth(positions: Any, radius: float, camera: Any) -> Any:
-                    result, mesh = peers.run_pysplashsurf(positions, radius)
-                    label = f"{result.name} (dam break, {len(positions)} particles)"
-                    results.cpu_peers.append((label, result.ms, result.note))
-                    if mesh is None:
-                        raise ImportError(result.note)
-                    return rasterise(gl, renderer.programs, mesh, camera)
-
-                scenes.append(dambreak_scene(dam, mesh_truth, DAMBREAK_RADIUS))
-            elif not quick:
-                mesh_note = "dam break skipped: ../shared/data not found"
+            scenes, settings, mesh_note = _sweep_scenes(gl, renderer, results, quick)
             for scene in scenes:
                 log(f"{scene.name}: {scene.description}, {width}x{height}")
                 try:
@@ -215,50 +192,9 @@ def run_bench(
                 except ImportError as exc:
                     log(f"  {scene.name} skipped: {exc}")
             results.rows += _device_prepare_rows(gl, scenes[0], width, height, frames, log)
-            log(f"real SPH surfaces (spatter, dam break, ball), {surface_w}x{surface_h}")
-            results.surfaces = run_surface_bench(
-                gl,
-                renderer,
-                QUICK_SURFACE_SETTINGS if quick else SURFACE_SETTINGS,
-                width=surface_w,
-                height=surface_h,
-                cache=out / ".reference-cache",
-                log=log,
-            )
-            log(f"  {results.surfaces.dam_note}")
-            write_crops(renderer, out, results.surfaces, cache=out / ".reference-cache", gl=gl)
-            if not quick:  # what field normals change
-                write_crops(
-                    renderer,
-                    out,
-                    results.surfaces,
-                    before=NO_FIELD_NORMALS,
-                    after=preset_setting("balanced"),
-                    cache=out / ".reference-cache",
-                    gl=gl,
-                    prefix="crop-field",
-                )
-                # what last_pass_sigma and destreak change on a close-up of a real frame
-                balanced = preset_setting("balanced")
-                for before, after, name in (
-                    (EQUAL_PASSES, balanced, "crop-closeup-dambreak.png"),
-                    (balanced, BALANCED_DESTREAK, "crop-closeup-destreak-dambreak.png"),
-                ):
-                    write_closeup_crop(
-                        renderer, out, results.surfaces, before=before, after=after, name=name
-                    )
+            _run_surfaces(gl, renderer, results, out, quick, log)
             if not quick:
-                log("scaling (balanced preset)")
-                for count in (10_000, 100_000, 1_000_000):
-                    scene = ball_scene(count)
-                    ms = _median_frame_ms(renderer, scene, 1280, 720)
-                    results.scaling_particles.append((len(scene.positions), ms))
-                    log(f"  {len(scene.positions):8d} particles 1280x720: {ms:8.1f} ms")
-                ball = ball_scene(90_000)
-                for w, h in ((640, 360), (1280, 720), (1920, 1080)):
-                    ms = _median_frame_ms(renderer, ball, w, h)
-                    results.scaling_resolution.append((w, h, ms))
-                    log(f"  {len(ball.positions):8d} particles {w}x{h}: {ms:8.1f} ms")
+                _run_scaling(renderer, results, log)
         finally:
             renderer.release()
     if mesh_note:
@@ -266,15 +202,109 @@ def run_bench(
     if with_peers and not quick:
         _run_peers(results, frames, log)
     results.machine.append(f"at end: {_load()}")
-    write_csv(results.rows, out / "bench-table.csv")
+    _write_outputs(results, out, log)
+    return results
 
+
+def _sweep_scenes(
+    gl: GLContext, renderer: SurfaceRenderer, results: BenchResults, quick: bool
+) -> tuple[list[BenchScene], tuple[Setting, ...], str]:
+    """The sweep's scenes and settings, and a note when the dam break could not be added (its
+    splashsurf reconstruction's time goes into `results.cpu_peers`)."""
+    if quick:
+        return [ball_scene(3000), slab_scene(0.3, 3)], QUICK_SWEEP, ""
+    scenes = [ball_scene(90_000), slab_scene(1.2, 4), slab_scene(1.0, 1, "sheet")]
+    scenes.append(droplets_scene(150))
+    dam = dambreak_frame()
+    if dam is None:
+        return scenes, SWEEP, "dam break skipped: ../shared/data not found"
+    from sphrender.server.bench.mesh_reference import rasterise
+
+    def mesh_truth(positions: Any, radius: float, camera: Any) -> Any:
+        result, mesh = peers.run_pysplashsurf(positions, radius)
+        label = f"{result.name} (dam break, {len(positions)} particles)"
+        results.cpu_peers.append((label, result.ms, result.note))
+        if mesh is None:
+            raise ImportError(result.note)
+        return rasterise(gl, renderer.programs, mesh, camera)
+
+    scenes.append(dambreak_scene(dam, mesh_truth, DAMBREAK_RADIUS))
+    return scenes, SWEEP, ""
+
+
+def _run_surfaces(
+    gl: GLContext,
+    renderer: SurfaceRenderer,
+    results: BenchResults,
+    out: Path,
+    quick: bool,
+    log: Callable[[str], None],
+) -> None:
+    """Issue 12's surface measurements and the report's before / after crops."""
+    # The surface figures of issue 12 were measured at 960x540; quick runs use a quarter.
+    surface_w, surface_h = (480, 270) if quick else (960, 540)
+    cache = out / ".reference-cache"
+    log(f"real SPH surfaces (spatter, dam break, ball), {surface_w}x{surface_h}")
+    surfaces = run_surface_bench(
+        gl,
+        renderer,
+        QUICK_SURFACE_SETTINGS if quick else SURFACE_SETTINGS,
+        width=surface_w,
+        height=surface_h,
+        cache=cache,
+        log=log,
+    )
+    results.surfaces = surfaces
+    log(f"  {surfaces.dam_note}")
+    write_crops(renderer, out, surfaces, cache=cache, gl=gl)
+    if quick:
+        return
+    balanced = preset_setting("balanced")
+    # what field normals change
+    write_crops(
+        renderer,
+        out,
+        surfaces,
+        before=NO_FIELD_NORMALS,
+        after=balanced,
+        cache=cache,
+        gl=gl,
+        prefix="crop-field",
+    )
+    # what last_pass_sigma and destreak change on a close-up of a real frame
+    for before, after, name in (
+        (EQUAL_PASSES, balanced, "crop-closeup-dambreak.png"),
+        (balanced, BALANCED_DESTREAK, "crop-closeup-destreak-dambreak.png"),
+    ):
+        write_closeup_crop(renderer, out, surfaces, before=before, after=after, name=name)
+
+
+def _run_scaling(
+    renderer: SurfaceRenderer, results: BenchResults, log: Callable[[str], None]
+) -> None:
+    """The balanced preset's frame time against particle count and against resolution."""
+    log("scaling (balanced preset)")
+    for count in (10_000, 100_000, 1_000_000):
+        scene = ball_scene(count)
+        ms = _median_frame_ms(renderer, scene, 1280, 720)
+        results.scaling_particles.append((len(scene.positions), ms))
+        log(f"  {len(scene.positions):8d} particles 1280x720: {ms:8.1f} ms")
+    ball = ball_scene(90_000)
+    for w, h in ((640, 360), (1280, 720), (1920, 1080)):
+        ms = _median_frame_ms(renderer, ball, w, h)
+        results.scaling_resolution.append((w, h, ms))
+        log(f"  {len(ball.positions):8d} particles {w}x{h}: {ms:8.1f} ms")
+
+
+def _write_outputs(results: BenchResults, out: Path, log: Callable[[str], None]) -> None:
+    """The sweep's and the surfaces' tables, the Pareto plot and REPORT.md, under `out`."""
+    write_csv(results.rows, out / "bench-table.csv")
     plot = write_plot(results.rows, out / "pareto.png")
     if plot is not None:
         log(plot)
     write_surface_csv(results.surfaces, out / "surface-table.csv")
     write_report(results, out / "REPORT.md", plot_name="pareto.png")
     log(f"wrote {out / 'bench-table.csv'}")
-    return results
 
 
 def _run_peers(results: BenchResults, frames: int, log: Callable[[str], None]) -> None:

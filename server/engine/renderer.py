@@ -19,9 +19,6 @@ from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-import numpy.typing as npt
-
 from sphrender.client.errors import InputError
 from sphrender.client.frame import ParticleFrame
 from sphrender.server.engine.frame_output import (
@@ -31,22 +28,24 @@ from sphrender.server.engine.frame_output import (
     RenderStats,
 )
 from sphrender.server.engine.geometry.camera import Camera
-from sphrender.server.engine.gpu.draw import FullscreenTriangle, image_bytes, read_image
+from sphrender.server.engine.geometry.screen_box import ScreenBox
+from sphrender.server.engine.gpu.draw import FullscreenTriangle, Target
 from sphrender.server.engine.gpu.gl_clock import StageTimer
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.programs import ProgramCache
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.display import DisplayPass
 from sphrender.server.engine.passes.normals import NormalsPass
-from sphrender.server.engine.passes.prepare_stage import PrepareMode, PrepareStage
+from sphrender.server.engine.passes.prepare_stage import PreparedFrame, PrepareMode, PrepareStage
 from sphrender.server.engine.passes.readback import ReadbackPass
 from sphrender.server.engine.passes.shade import ShadePass
 from sphrender.server.engine.passes.smooth import SmoothPass
-from sphrender.server.engine.passes.splat import SplatPass
+from sphrender.server.engine.passes.splat import SplatOutput, SplatPass
 from sphrender.server.engine.passes.temperature import TemperaturePass
+from sphrender.server.engine.single_passes import SinglePasses
 from sphrender.server.engine.sph.engine import SphEngine
 from sphrender.server.engine.sph.frame import SphOutcome, SphStage
-from sphrender.server.scene import QualityConfig, Scene
+from sphrender.server.scene import Scene
 
 
 class SurfaceRenderer:
@@ -77,6 +76,9 @@ class SurfaceRenderer:
         self._shade = ShadePass(self._context, environment_dirs)
         self._display = DisplayPass(self._context)
         self._readback = ReadbackPass(self._context)
+        self._single = SinglePasses(
+            gl, self._splat, self._smooth, self._normals, self._temperature, self._shade
+        )
 
     @property
     def gl(self) -> GLContext:
@@ -91,6 +93,11 @@ class SurfaceRenderer:
     def splat_pass(self) -> SplatPass:
         """The splat pass and its targets (tests read the splatted temperature from them)."""
         return self._splat
+
+    @property
+    def single_passes(self) -> SinglePasses:
+        """Single passes on given images through this renderer's passes (tests)."""
+        return self._single
 
     @property
     def shade_pass(self) -> ShadePass:
@@ -136,86 +143,20 @@ class SurfaceRenderer:
         self.check_image_size(scene)
         camera = Camera.from_config(scene.camera, scene.image.width, scene.image.height)
         stats = RenderStats(particles_in=frame.count)
-
-        sph = SphOutcome(frame)
-        if self._sph.wanted(scene, frame):
-            self._sph.warm(frame, scene)  # outside the stage: first use builds the CL program
-            with self._stage(stats, "sph"):
-                sph = self._sph.run(frame, scene)
-        frame = sph.frame
-
+        sph = self._run_sph(frame, scene, stats)
         with self._stage(stats, "prepare"):
             prepared = self._prepare.run(sph, camera, scene)
             stats.particles_drawn = prepared.visible
             stats.far = prepared.far
-            box = prepared.box
-
-        with self._stage(stats, "splat"):
-            splat = self._splat.run(
-                camera,
-                prepared.bulk,
-                bounds=prepared.bounds,
-                box=box,
-                antialias=scene.quality.antialias,
-                device_cull=prepared.device_cull,
-            )
-            bulk_splatted = splat.splatted  # -1: counted on the device, read after the frame
-
-        px_per_unit = camera.pixels_per_unit_at_unit_depth
-        surface = splat.depth
-        if scene.quality.filter != "none" and stats.particles_drawn:
-            with self._stage(stats, "smooth"):
-                surface = self._smooth.run(
-                    splat.depth,
-                    px_per_unit=px_per_unit,
-                    particle_radius=prepared.reference_radius,
-                    quality=scene.quality,
-                    box=box,
-                    temperature=splat.temperature,  # filled where gaps close
-                )
-        if prepared.droplets is not None:
-            with self._stage(stats, "droplets"):
-                drops = self._prepare.droplets(prepared)
-                if drops is not None:
-                    splat = self._splat.run_droplets(
-                        camera, drops, surface, splat.temperature, splat.coverage
-                    )
-                    surface = splat.depth
-                    stats.particles_splatted += max(splat.splatted, 0)  # host prepare
-
+        surface, bulk_splatted = self._draw_surface(prepared, camera, scene, stats)
         with self._stage(stats, "normals"):
-            field = self._prepare.field_particles(prepared) if scene.quality.field_normals else None
-            support = scene.quality.field_normals_support * prepared.reference_radius
-            normal_depth = self._normals.run(
-                surface, camera, box, prepared.reference_radius, scene.quality, field, support
-            )
-
+            normal_depth = self._surface_normals(surface, prepared, camera, scene)
         with self._stage(stats, "shade"):
-            temperature = splat.temperature
-            if temperature is not None and stats.particles_drawn:
-                temperature = self._temperature.run(
-                    temperature, surface, px_per_unit, prepared.reference_radius
-                )
-            color = self._shade.run(
-                scene, camera, normal_depth.texture, temperature, box, splat.coverage
-            )
-
+            color = self._shade_surface(surface, normal_depth, camera, scene, prepared, stats)
         with self._stage(stats, "readback"):
-            transparent = scene.shading.background == "transparent"
-            # Device prepare (a GPU): the driver copies whole images, the host zeroes nothing;
-            # host prepare (llvmpipe): only the box's rows are read, the rest memset to 0.
-            read_box = None if self._prepare.mode == "device" else box
-            rendered = self._readback.run(
-                color,
-                normal_depth,
-                want_depth=depth,
-                want_normals=normals,
-                color_box=read_box if transparent else None,
-                surface_box=read_box,
+            rendered = self._read_back(
+                color, normal_depth, scene, prepared.box, depth, normals, display
             )
-            if display is not None:
-                codes = self._display.run(color.texture, display, box if transparent else None)
-                rendered = replace(rendered, display=DisplayCodes(codes, display))
         # After the read-back, so a count the device kept waits for nothing.
         stats.particles_splatted += self._splat.splatted(bulk_splatted, prepared.visible)
         wall_ms = (time.perf_counter() - start) * 1e3
@@ -223,69 +164,114 @@ class SurfaceRenderer:
         stats.host_ms = max(wall_ms - device_ms - stats.stage_ms.get("sph", 0.0), 0.0)
         return rendered, stats
 
-    # -- single passes on given images (the same code paths, for tests against references) --
+    # -- the stages of `render` ------------------------------------------------------------
 
-    def shade_normal_depth(
-        self,
-        normal_depth: npt.NDArray[np.float32],
-        scene: Scene,
-        temperatures: npt.NDArray[np.float32] | None = None,
-    ) -> npt.NDArray[np.float32]:
-        """Run only the shade pass on given world normals + eye depth (H, W, 4), rows top first
-        (depth 0 = no surface), and optional per-pixel kelvin (H, W); returns straight RGBA.
-        Shading can so be compared with references on exact normals."""
-        self._gl.check_owner()
-        height, width = normal_depth.shape[:2]
-        if (width, height) != (scene.image.width, scene.image.height):
-            raise ValueError("normal_depth must have the scene's image size")
-        target = self._normals.target((width, height))
-        target.texture.write(image_bytes(normal_depth))
-        temperature = None
-        if temperatures is not None:
-            temperature, _ = self._splat.targets((width, height)).temperature_targets()
-            temperature.write(image_bytes(temperatures))
-        camera = Camera.from_config(scene.camera, width, height)
-        color = self._shade.run(scene, camera, target.texture, temperature)
-        rgba = np.frombuffer(color.texture.read(), dtype=np.float32).reshape(height, width, 4)
-        return np.ascontiguousarray(rgba[::-1])
+    def _run_sph(self, frame: ParticleFrame, scene: Scene, stats: RenderStats) -> SphOutcome:
+        """The SPH stage's outcome: the frame itself when the scene needs no SPH quantity."""
+        if not self._sph.wanted(scene, frame):
+            return SphOutcome(frame)
+        self._sph.warm(frame, scene)  # outside the stage: first use builds the CL program
+        with self._stage(stats, "sph"):
+            return self._sph.run(frame, scene)
 
-    def filter_depth_image(
-        self,
-        depth: npt.NDArray[np.float32],
-        *,
-        particle_radius: float,
-        px_per_unit: float,
-        quality: QualityConfig,
-    ) -> npt.NDArray[np.float32]:
-        """Run only the smoothing pass on an eye-depth image (rows top first, 0 = background),
-        to compare the filters with a numpy reference on synthetic images."""
-        self._gl.check_owner()
-        height, width = depth.shape
-        source = self._splat.targets((width, height)).depth
-        source.write(image_bytes(depth))
-        result = self._smooth.run(
-            source, px_per_unit=px_per_unit, particle_radius=particle_radius, quality=quality
+    def _draw_surface(
+        self, prepared: PreparedFrame, camera: Camera, scene: Scene, stats: RenderStats
+    ) -> tuple[SplatOutput, int]:
+        """Splat the bulk, smooth it, draw the exact droplets over it: the surface's eye depth
+        (+ temperature and coverage) and the bulk's splat count (-1: counted on the device,
+        read after the frame)."""
+        with self._stage(stats, "splat"):
+            splat = self._splat.run(
+                camera,
+                prepared.bulk,
+                bounds=prepared.bounds,
+                box=prepared.box,
+                antialias=scene.quality.antialias,
+                device_cull=prepared.device_cull,
+            )
+        bulk_splatted = splat.splatted
+        if scene.quality.filter != "none" and stats.particles_drawn:
+            with self._stage(stats, "smooth"):
+                smoothed = self._smooth.run(
+                    splat.depth,
+                    px_per_unit=camera.pixels_per_unit_at_unit_depth,
+                    particle_radius=prepared.reference_radius,
+                    quality=scene.quality,
+                    box=prepared.box,
+                    temperature=splat.temperature,  # filled where gaps close
+                )
+            splat = replace(splat, depth=smoothed)
+        if prepared.droplets is not None:
+            with self._stage(stats, "droplets"):
+                drops = self._prepare.droplets(prepared)
+                if drops is not None:
+                    splat = self._splat.run_droplets(
+                        camera, drops, splat.depth, splat.temperature, splat.coverage
+                    )
+                    stats.particles_splatted += max(splat.splatted, 0)  # host prepare
+        return splat, bulk_splatted
+
+    def _surface_normals(
+        self, surface: SplatOutput, prepared: PreparedFrame, camera: Camera, scene: Scene
+    ) -> Target:
+        """World normals + eye depth of the surface's eye depth (field normals near rims from
+        the prepared particles when the scene asks for them)."""
+        quality = scene.quality
+        field = self._prepare.field_particles(prepared) if quality.field_normals else None
+        support = quality.field_normals_support * prepared.reference_radius
+        return self._normals.run(
+            surface.depth, camera, prepared.box, prepared.reference_radius, quality, field, support
         )
-        return read_image(result.read(), width, height)
 
-    def blur_temperature_image(
+    def _shade_surface(
         self,
-        temperature: npt.NDArray[np.float32],
-        depth: npt.NDArray[np.float32],
-        *,
-        particle_radius: float,
-        px_per_unit: float,
-    ) -> npt.NDArray[np.float32]:
-        """Run only the temperature blur on a kelvin image guided by an eye-depth image (both
-        rows top first, depth 0 = background), to compare it with a numpy reference."""
-        self._gl.check_owner()
-        height, width = depth.shape
-        targets = self._splat.targets((width, height))
-        kelvin, _ = targets.temperature_targets()
-        kelvin.write(image_bytes(temperature))
-        targets.depth.write(image_bytes(depth))
-        result = self._temperature.run(kelvin, targets.depth, px_per_unit, particle_radius)
-        return read_image(result.read(), width, height)
+        surface: SplatOutput,
+        normal_depth: Target,
+        camera: Camera,
+        scene: Scene,
+        prepared: PreparedFrame,
+        stats: RenderStats,
+    ) -> Target:
+        """The shaded colour target (the temperature blurred along the surface first)."""
+        temperature = surface.temperature
+        if temperature is not None and stats.particles_drawn:
+            temperature = self._temperature.run(
+                temperature,
+                surface.depth,
+                camera.pixels_per_unit_at_unit_depth,
+                prepared.reference_radius,
+            )
+        return self._shade.run(
+            scene, camera, normal_depth.texture, temperature, prepared.box, surface.coverage
+        )
+
+    def _read_back(
+        self,
+        color: Target,
+        normal_depth: Target,
+        scene: Scene,
+        box: ScreenBox | None,
+        depth: bool,
+        normals: bool,
+        display: DisplayRequest | None,
+    ) -> RenderedFrame:
+        """The frame's images on the host: colour, the AOVs asked for, the display codes."""
+        transparent = scene.shading.background == "transparent"
+        # Device prepare (a GPU): the driver copies whole images, the host zeroes nothing;
+        # host prepare (llvmpipe): only the box's rows are read, the rest memset to 0.
+        read_box = None if self._prepare.mode == "device" else box
+        rendered = self._readback.run(
+            color,
+            normal_depth,
+            want_depth=depth,
+            want_normals=normals,
+            color_box=read_box if transparent else None,
+            surface_box=read_box,
+        )
+        if display is None:
+            return rendered
+        codes = self._display.run(color.texture, display, box if transparent else None)
+        return replace(rendered, display=DisplayCodes(codes, display))
 
     def release(self) -> None:
         """Release every GPU object this renderer owns (on the owner thread)."""
