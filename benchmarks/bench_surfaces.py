@@ -35,6 +35,7 @@ SETTINGS = {
                 "kernel_max_stride": 1,
                 "normal_stencil": 0.0,
                 "last_pass_sigma": 1.0,
+                "normal_rules": "hard",
                 "close_gaps": 0.0,
                 "field_normals": 0.0,
             }

@@ -115,26 +115,28 @@ class TruthBounds(NamedTuple):
 
 # filter -> bounds on the true-sphere metric: seed 0 + 4 sd over jitter seeds 0-7, rounded up to
 # 0.05. Measured on llvmpipe (seed 0 / sd): normal mean, normal p95 (deg), depth mean, p95 (r).
-# The filters are measured with normals from the 1-pixel difference (normal_stencil = 0).
+# The filters are measured with normals from the 1-pixel differences (normal_stencil = 0, the
+# default smooth normal_rules).
 BALL_TRUTH_BOUNDS: dict[str, TruthBounds] = {
-    # 2.23/0.029, 4.45/0.080, 2.828/0.005, 5.009/0.029
-    "narrow_range": TruthBounds(2.35, 4.8, 2.85, 5.15),
-    # 2.13/0.028, 4.07/0.051, 2.807/0.005, 4.926/0.026
-    "narrow_range-2d": TruthBounds(2.25, 4.3, 2.85, 5.05),
-    # 2.24/0.024, 5.72/0.115, 2.546/0.005, 3.521/0.016
-    "bilateral": TruthBounds(2.35, 6.2, 2.6, 3.6),
-    # 2.61/0.024, 7.42/0.121, 2.700/0.005, 4.028/0.011
-    "gaussian": TruthBounds(2.75, 7.95, 2.75, 4.1),
+    # 2.379/0.027, 4.577/0.082, 2.820/0.005, 4.968/0.029
+    "narrow_range": TruthBounds(2.5, 4.95, 2.85, 5.1),
+    # 2.335/0.028, 4.321/0.048, 2.807/0.005, 4.926/0.026
+    "narrow_range-2d": TruthBounds(2.45, 4.55, 2.85, 5.05),
+    # 2.285/0.025, 5.683/0.107, 2.530/0.005, 3.480/0.016
+    "bilateral": TruthBounds(2.4, 6.15, 2.55, 3.55),
+    # 2.567/0.024, 6.282/0.132, 2.690/0.005, 3.988/0.010
+    "gaussian": TruthBounds(2.7, 6.85, 2.75, 4.05),
 }
 
 # The default preset (narrow range, normals over a 1-radius stencil of at most 2 px), derived
-# alike: 2.41/0.029, 4.65/0.085, 2.828/0.005, 5.009/0.029. Its true-hit normal error is higher
-# than the 1-pixel difference's (2.23) while the issue's metric is lower (1.48 vs 1.63): the
-# rendered surface lies 2.8 r behind the true sphere, so even its exact normals (the radial
-# direction at the rendered point) are 2.12 deg off the true hit's on average; the 1-pixel rule
-# (the smaller one-sided slope) tilts normals 0.66 deg towards the viewer, which hides part of
-# that offset, the stencil only 0.31 deg (measured on seed 0).
-DEFAULT_TRUTH_BOUNDS = TruthBounds(2.55, 5.0, 2.85, 5.15)
+# alike: 2.384/0.027, 4.585/0.083, 2.820/0.005, 4.968/0.029. The true-hit normal error is not
+# the issue's metric (1.47 deg here): the rendered surface lies 2.8 r behind the true sphere, so
+# even its exact normals (the radial direction at the rendered point) are 2.12 deg off the true
+# hit's on average, and a rule that leans normals towards the viewer hides part of that offset.
+# The hard normal_rules' 1-pixel difference (the smaller one-sided slope) does: on seed 0 it
+# reads 2.17 deg on this metric against the smooth rules' 2.38, while on the issue's metric it
+# is the worse (1.59 / 3.91 against 1.50 / 3.79 deg).
+DEFAULT_TRUTH_BOUNDS = TruthBounds(2.5, 4.95, 2.85, 5.1)
 
 
 def test_default_quality_on_90k_ball_meets_issue_bounds(

@@ -132,11 +132,29 @@ MUTATIONS: tuple[Mutation, ...] = (
         path="shaders/normals/surface_normals.frag.glsl",
         old="if (has_plus && (!has_minus || abs(z_plus - zc) <= abs(zc - z_minus))) {",
         new="if (has_plus) {",
+        tests=("tests/test_normals_stencil.py::test_normals_match_numpy_reference",),
+        description="hard normal_rules: always the forward difference, not the smaller step's",
+    ),
+    Mutation(
+        name="normals-weighted-towards-the-steeper-side",
+        path="shaders/normals/surface_normals.frag.glsl",
+        old="(step_minus * plus + step_plus * minus) / total",
+        new="(step_plus * plus + step_minus * minus) / total",
         tests=(
             "tests/test_engine_groundtruth.py::test_normals_beside_a_nearer_surface_come_from_their_own_surface",
-            "tests/test_engine_groundtruth.py::test_each_filter_on_ball",
+            "tests/test_normals_stencil.py::test_normals_match_numpy_reference",
         ),
-        description="normals always from the forward difference, not the smaller one-sided one",
+        description="smooth normal_rules: each 1-pixel difference weighted by its own step",
+    ),
+    Mutation(
+        name="normals-smooth-rules-switch-again",
+        path="shaders/normals/surface_normals.frag.glsl",
+        old="u_smooth_rules ? 1.0 - smoothstep(0.0, 2.0, kink) : hard",
+        new="hard",
+        tests=(
+            "tests/test_normals_stencil.py::test_smooth_rules_leave_no_switch_for_a_small_move_to_flip",
+        ),
+        description="smooth normal_rules: the wide stencil cut at the kink limit as the hard ones",
     ),
     Mutation(
         name="gaussian-weight-with-1/sigma^2",
@@ -464,8 +482,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         name="normal-stencil-no-kink-test",
         path="shaders/normals/surface_normals.frag.glsl",
-        old="if (same && abs(d_plus - d_minus) <= limit) {",
-        new="if (same) {",
+        old="u_smooth_rules ? 1.0 - smoothstep(0.0, 2.0, kink) : hard",
+        new="1.0",
         tests=(
             "tests/test_normals_stencil.py::test_normals_match_numpy_reference",
             "tests/test_normals_stencil.py::test_wide_stencil_on_a_sphere_stays_within_the_chord_bound",

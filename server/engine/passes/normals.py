@@ -124,4 +124,5 @@ def _frame_uniforms(
         "u_stencil_radii": quality.normal_stencil if quality is not None else 0.0,
         "u_stencil_max_px": quality.normal_stencil_max_px if quality is not None else 1,
         "u_kink": KINK,
+        "u_smooth_rules": quality is None or quality.normal_rules == "smooth",
     }
