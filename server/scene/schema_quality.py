@@ -88,7 +88,7 @@ class QualityConfig:
         unit="px",
     )
     kernel_max_stride: int = spec(
-        2,
+        3,
         "close-ups, separable filters: a kernel whose 3 sigma lies past kernel_max_px goes on "
         "beyond it with every stride-th pixel, stride = ceil(3 sigma / kernel_max_px) up to "
         "this, so sigma stays kernel_scale projected radii out to kernel_max_px x stride for "
