@@ -14,14 +14,24 @@ F64 = npt.NDArray[np.float64]
 MAX_REACH_PX = 5  # the shader's FIELD_MAX_REACH
 
 
-def rim_distances(
-    depth: F64, edge_jump: float, footprint_jump: F64, limit: int
-) -> npt.NDArray[np.int64]:
-    """Per pixel the smallest d = |dx| + |dy| (1 .. limit) to a pixel without surface or whose
-    depth differs by more than max(edge_jump, d footprint_jump) (the pixel's own; the image
-    border is none); limit + 1 where there is none."""
+RIM_FEATHER = 2.0  # the shader's FIELD_RIM_FEATHER
+
+
+def _smoothstep(edge0: F64, edge1: F64, x: F64) -> F64:
+    t = np.clip((x - edge0) / (edge1 - edge0), 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+def rim_weights(
+    depth: F64, edge_jump: float, footprint_jump: F64, reach: npt.NDArray[np.int64]
+) -> F64:
+    """Per pixel the field's weight: the largest over the pixels q at d = |dx| + |dy| <= reach
+    + 1 of strength(q) x (1 - (d - 1) / (reach + 1)), strength 1 without surface and, for a
+    depth step beyond jump = max(edge_jump, d footprint_jump) (the pixel's own), smoothstep
+    from 1 to RIM_FEATHER jumps; 0 on the pixel's own surface and off the image."""
     h, w = depth.shape
-    out = np.full((h, w), limit + 1, np.int64)
+    out = np.zeros((h, w))
+    limit = MAX_REACH_PX + 1
     for dy in range(-limit, limit + 1):
         for dx in range(-limit, limit + 1):
             d = abs(dx) + abs(dy)
@@ -36,8 +46,10 @@ def rim_distances(
             shifted[yt, xt] = depth[ys, xs]
             inside[yt, xt] = True
             jump = np.maximum(edge_jump, d * footprint_jump)
-            other = inside & ((shifted <= 0.0) | (np.abs(shifted - depth) > jump))
-            out = np.where(other & (d < out), d, out)
+            step = _smoothstep(jump, RIM_FEATHER * jump, np.abs(shifted - depth))
+            strength = np.where(inside, np.where(shifted <= 0.0, 1.0, step), 0.0)
+            ring = np.where(d <= reach + 1, 1.0 - (d - 1) / (reach + 1), 0.0)
+            out = np.maximum(out, strength * ring)
     return out
 
 
@@ -74,8 +86,8 @@ def field_normals_reference(
         radius_px = np.where(depth > 0.0, particle_radius * focal_px / depth, 0.0)
     # GLSL round() may go either way at .5; the scenes here keep away from it.
     reach = np.clip(np.floor(reach_radii * radius_px + 0.5), 1, MAX_REACH_PX).astype(np.int64)
-    dist = rim_distances(depth, edge_jump, edge_jump_px * depth / focal_px, MAX_REACH_PX + 1)
-    rim = (depth > 0.0) & (dist <= reach + 1)
+    weight = rim_weights(depth, edge_jump, edge_jump_px * depth / focal_px, reach)
+    rim = (depth > 0.0) & (weight > 0.0)
     ys, xs = np.nonzero(rim)
     ndc_x = (xs + 0.5) / w * 2.0 - 1.0
     ndc_y = (ys + 0.5) / h * 2.0 - 1.0
@@ -94,8 +106,7 @@ def field_normals_reference(
         if away > 0.0:  # facing away: mirrored at the plane perpendicular to the ray
             n_field = n_field - 2.0 * away * ray
             n_field /= np.linalg.norm(n_field)
-        k_px = reach[ys[k], xs[k]]
-        t = 1.0 - (dist[ys[k], xs[k]] - 1) / (k_px + 1)
+        t = weight[ys[k], xs[k]]
         n = normals[ys[k], xs[k]]
         blended = (1.0 - t) * n + t * n_field
         if np.linalg.norm(blended) > 1e-3:

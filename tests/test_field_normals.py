@@ -202,6 +202,74 @@ def test_rims_of_a_nearer_sheet_over_a_wall_filling_the_image(gl_context: GLCont
     assert assert_matches_the_reference(gl_context, centres) > 100
 
 
+def test_a_depth_step_turns_into_a_rim_smoothly(
+    gl_context: GLContext, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A wall (eye depth 0.61) and a nearer rectangle on it, the depth images given exactly (no
+    silhouette moves between steps), over a lattice of wall particles (tilted, so that
+    their field's normal differs from the depth image's) and one of the rectangle's, which
+    moves with it: the rectangle's step swept from 7 to 24 r. The rim rule's
+    jump next to it is 8 footprints x d (0.79 r each here) = 6.3 r x d, so the wall's pixels
+    at d = 2 and 3 from the rectangle meet it at 12.6 and 18.9 r (the d = 1 ring, where the
+    depth normals stop differencing across the step at 6.3 r, keeps its one-sided ones over
+    the whole sweep). With the rim strength rising smoothly from one jump to
+    FIELD_RIM_FEATHER (2) jumps, and the field turning smoothly as the rectangle's particles
+    leave the wall's support, the largest change of a wall normal between neighbouring steps
+    halves when the steps do (ratio ~2, asserted >= 1.6). Cut at the jump instead (the
+    reference with RIM_FEATHER -> 1) the weight jumps at each ring's jump, whatever the step
+    (ratio ~1, asserted <= 1.3: the test tells the two rules apart)."""
+    import reference_field_normals
+
+    # The wall's particles tilted by 30 degrees about y, so that its field normal differs from
+    # the depth image's (a plane facing the eye) and the weight shows in the blend.
+    ys, xs = np.mgrid[-0.2:0.2001:0.01, -0.3:0.3001:0.01]
+    wall = np.stack([xs.ravel(), ys.ravel(), -0.62 + np.tan(np.radians(30)) * xs.ravel()], -1)
+    ys, xs = np.mgrid[-0.06:0.0601:0.01, -0.1:0.1001:0.01]
+    rectangle = np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], -1)
+    lift = np.array([0.0, 0.0, 1.0])
+
+    def normals_at(step_radii: float, feather: float | None) -> np.ndarray:
+        depth = np.full((H, W), 0.61)
+        depth[20:44, 30:66] -= step_radii * R
+        centres = np.concatenate([wall, rectangle + (step_radii * R - 0.62) * lift])
+        if feather is None:
+            return gl_normals(gl_context, depth, centres)[..., :3]
+        monkeypatch.setattr(reference_field_normals, "RIM_FEATHER", feather)
+        expected, _ = field_normals_reference(
+            depth.astype(np.float32).astype(np.float64),
+            gl_normals(gl_context, depth, None)[..., :3],
+            centres,
+            tan_half_fov=TAN,
+            focal_px=FOCAL,
+            particle_radius=R,
+            support=SUPPORT,
+            reach_radii=REACH,
+            edge_jump=EDGE_JUMP_RADII * R,
+            edge_jump_px=EDGE_JUMP_FOOTPRINTS,
+        )
+        return expected
+
+    on_wall = np.ones((H, W), bool)
+    on_wall[20:44, 30:66] = False
+
+    def largest_change(feather: float | None, increment: float) -> float:
+        largest, previous = 0.0, None
+        for step in np.arange(7.0, 24.0 + 1e-9, increment):
+            normals = normals_at(step, feather)[on_wall]
+            if previous is not None:
+                largest = max(largest, float(angle_deg(normals, previous).max()))
+            previous = normals
+        return largest
+
+    ratios = {}
+    for name, feather in (("smooth", None), ("cut", 1.0 + 1e-6)):
+        coarse, fine = largest_change(feather, 1.0), largest_change(feather, 0.5)
+        ratios[name] = coarse / fine
+        print(f"{name}: largest change per 1 r of step {coarse:.2f} deg, per 0.5 r {fine:.2f}")
+    assert ratios["smooth"] >= 1.6, ratios
+    assert ratios["cut"] <= 1.3, ratios
+
+
 def test_rows_wrapping_at_the_tables_end(
     gl_context: GLContext, monkeypatch: pytest.MonkeyPatch
 ) -> None:

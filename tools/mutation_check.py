@@ -491,6 +491,14 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="the wide central difference taken across a kink (crease, rim)",
     ),
     Mutation(
+        name="field-rims-cut-at-the-jump",
+        path="shaders/field/field_normals.glsl",
+        old="#define FIELD_RIM_FEATHER 2.0",
+        new="#define FIELD_RIM_FEATHER 1.001",
+        tests=("tests/test_field_normals.py::test_a_depth_step_turns_into_a_rim_smoothly",),
+        description="a depth step is a full rim just past the jump (no feather): rims switch",
+    ),
+    Mutation(
         name="normal-stencil-one-sided-scale",
         path="shaders/normals/surface_normals.frag.glsl",
         old="int s = u_stencil_radii > 0.0",

@@ -9,12 +9,18 @@
 // surface point and blends in by the distance to the rim (`field_weight`):
 // * reach k = u_reach_radii projected particle radii at the pixel's depth, rounded, in
 //   1 .. FIELD_MAX_REACH pixels (the rim tiles' +-8 pixels must hold distance k + 1);
-// * rim distance d: the smallest d = |dx| + |dy| <= k + 1 to a pixel without surface or whose
-//   depth differs by more than max(u_edge_jump, d u_edge_jump_px footprints) (nearer or
+// * rims: a pixel q at d = |dx| + |dy| <= k + 1 without surface (strength 1), or whose depth
+//   differs by more than jump = max(u_edge_jump, d u_edge_jump_px footprints) (nearer or
 //   farther; the image border is no rim): the normals pass's edge rule between neighbours,
 //   whose footprint part (a grazing surface far away steps by more than 4 r per pixel and is
-//   still one surface) adds up over d pixels;
-//   weight t = 1 - (d - 1) / (k + 1) (1 next to the rim, 0 beyond the reach);
+//   still one surface) adds up over d pixels. A step's strength rises smoothly from 0 at the
+//   jump to 1 at FIELD_RIM_FEATHER jumps: a step just past it is barely a rim, so no small
+//   move of a particle turns a rim on or off. (At 960x540: the spatter's droplets 0.84 -> 0.55
+//   deg and its band 2.25 -> 1.66, a droplet a few radii before the pool no longer pulls the
+//   pool's normals beside it, nor the pool its; the dam break's tolerant band 8.31 -> 8.32;
+//   a feather of 3: 0.41, 1.28, 8.38; of 1.5: 0.70, 2.08, 8.31);
+//   weight t = the largest over the rims of strength x (1 - (d - 1) / (k + 1)) (1 next to a
+//   full rim, 0 beyond the reach);
 // * grad phi at the pixel's view-space point x from every centre of the field grid
 //   (common/field_grid.glsl: rows of cells of side h / 2) within h of x: the cubic spline's dW/dq / q times (x - x_j)
 //   (constants dropped: only the direction is used);
@@ -32,6 +38,8 @@
 // 7 px, 8.52 at 5, 8.64 at 4; on the 100k ball at 1280x720 (reach 2 r = 8.6 px there) the
 // listed pixels fall by a third (the normals stage 29 -> 24 ms on llvmpipe).
 #define FIELD_MAX_REACH 5
+// A depth step is a full rim from this many edge jumps on (see the header).
+#define FIELD_RIM_FEATHER 2.0
 
 #include "common/field_grid.glsl"
 
@@ -44,24 +52,14 @@ uniform float u_reach_radii;  // quality.field_normals: the reach in projected p
 // Also read, declared by the including shader: u_depth (the eye depth image), u_edge_jump,
 // u_edge_jump_px, u_focal_px and u_particle_radius.
 
-// True when q is a rim pixel for a pixel of depth zc: no surface, or a depth step beyond
-// `jump`.
-bool other_surface(ivec2 q, ivec2 size, float zc, float jump) {
-    if (any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, size))) {
-        return false;
-    }
-    float z = texelFetch(u_depth, q, 0).r;
-    return z <= 0.0 || abs(z - zc) > jump;
-}
-
 // The first ring d (1 .. limit) of the diamond around p that can hold a rim pixel for a pixel
 // of depth zc, limit + 1 if none, from the extremes of the 4 x 4 tiles (u_tile_extremes) that
 // the square within +-limit of p overlaps: a tile whose nearest pixel lies dm = |dx| + |dy|
 // from p holds rim pixels only at d >= dm, whose jump is at least that at max(dm, 1), so it can
 // hold one only if a depth in it differs from zc by more (the same float comparisons as
-// other_surface's on its farthest and its nearest depth: no rim is ever missed). On the 100k
-// ball at 1280x720 the pixels near a silhouette with no rim within reach stop here after ~20
-// fetches instead of walking every ring's ~4 d.
+// rim_strength's test for a step, on its farthest and its nearest depth: no rim is ever
+// missed). On the 100k ball at 1280x720 the pixels near a silhouette with no rim within reach
+// stop here after ~20 fetches instead of walking every ring's ~4 d.
 int first_rim_ring(ivec2 p, float zc, float footprint_jump, int limit) {
     ivec2 last_tile = textureSize(u_tile_extremes, 0) - 1;
     ivec2 lo = max(p - limit, ivec2(0)) / 4;
@@ -84,33 +82,50 @@ int first_rim_ring(ivec2 p, float zc, float footprint_jump, int limit) {
     return first;
 }
 
-// The smallest Manhattan distance d (1 .. reach + 1) to a rim pixel at that distance's jump,
-// reach + 2 if none. `tile`: the farthest and the nearest depth of a window holding every pixel
-// within reach + 1 (the rim tiles); once no depth in it differs from zc by more than the next
-// ring's jump, no farther ring can hold a rim (the jump only grows with d): on a smooth slope
-// the search stops there instead of walking every ring. The walk starts at first_rim_ring's
-// (the 100k ball at 1280x720: 61k pixels search, 49k of them find no rim).
-int rim_distance(ivec2 p, ivec2 size, float zc, float footprint_jump, int reach, vec2 tile) {
+// How much of a rim q is for a pixel of depth zc at the jump `jump`: 1 without surface, 0 on
+// the pixel's own surface (and off the image), smoothly in between for a depth step from 1 to
+// FIELD_RIM_FEATHER jumps.
+float rim_strength(ivec2 q, ivec2 size, float zc, float jump) {
+    if (any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, size))) {
+        return 0.0;
+    }
+    float z = texelFetch(u_depth, q, 0).r;
+    return z <= 0.0 ? 1.0 : smoothstep(jump, FIELD_RIM_FEATHER * jump, abs(z - zc));
+}
+
+// The field's weight from the rims within reach + 1 (header): the largest of strength x
+// (1 - (d - 1) / (reach + 1)) over the rings d. `tile`: the farthest and the nearest depth of a
+// window holding every pixel within reach + 1 (the rim tiles); once no depth in it differs from
+// zc by more than the next ring's jump, no farther ring can hold a rim (the jump only grows
+// with d): on a smooth slope the search stops there instead of walking every ring. The walk
+// starts at first_rim_ring's and stops at the first ring whose weight a rim found already
+// reaches (a full rim: that ring; the 100k ball at 1280x720: 61k pixels search, 49k of them
+// find no rim).
+float rim_weight(ivec2 p, ivec2 size, float zc, float footprint_jump, int reach, vec2 tile) {
     int limit = reach + 1;
+    float best = 0.0;
     for (int d = first_rim_ring(p, zc, footprint_jump, limit); d <= FIELD_MAX_REACH + 1; ++d) {
         if (d > limit) {
             break;
         }
+        float ring = 1.0 - float(d - 1) / float(reach + 1);
+        if (best >= ring) {
+            break;
+        }
         float jump = max(u_edge_jump, footprint_jump * float(d));
         if (tile.r - zc <= jump && zc - tile.g <= jump) {
-            break;  // |z - zc| <= jump for every z of the window, in float as in other_surface
+            break;
         }
-        for (int k = 0; k < d; ++k) {
-            // The four edges of the diamond |dx| + |dy| = d, each point once.
-            if (other_surface(p + ivec2(d - k, k), size, zc, jump)
-                || other_surface(p + ivec2(-k, d - k), size, zc, jump)
-                || other_surface(p + ivec2(k - d, -k), size, zc, jump)
-                || other_surface(p + ivec2(k, k - d), size, zc, jump)) {
-                return d;
-            }
+        float strongest = 0.0;
+        for (int k = 0; k < d && strongest < 1.0; ++k) {
+            strongest = max(strongest, rim_strength(p + ivec2(d - k, k), size, zc, jump));
+            strongest = max(strongest, rim_strength(p + ivec2(-k, d - k), size, zc, jump));
+            strongest = max(strongest, rim_strength(p + ivec2(k - d, -k), size, zc, jump));
+            strongest = max(strongest, rim_strength(p + ivec2(k, k - d), size, zc, jump));
         }
+        best = max(best, strongest * ring);
     }
-    return limit + 1;
+    return best;
 }
 
 // (dW/dq) / q of the cubic spline without its constant; zero from q = 1 on.
@@ -189,8 +204,8 @@ vec4 field_gradient(vec3 x) {
     return vec4(outward, scale);
 }
 
-// The field's weight t at the pixel p of eye depth zc (> 0): 1 - (d - 1) / (reach + 1) at rim
-// distance d <= reach + 1, else 0 (the depth normal stays).
+// The field's weight t at the pixel p of eye depth zc (> 0): rim_weight's, 0 where no rim lies
+// within reach + 1 (the depth normal stays).
 float field_weight(ivec2 p, ivec2 size, float zc) {
     float jump = max(u_edge_jump, u_edge_jump_px * zc / u_focal_px);
     vec2 tile = texelFetch(u_tiles, p / 4, 0).rg;
@@ -199,11 +214,7 @@ float field_weight(ivec2 p, ivec2 size, float zc) {
     }
     float radius_px = u_particle_radius * u_focal_px / zc;
     int reach = clamp(int(round(u_reach_radii * radius_px)), 1, FIELD_MAX_REACH);
-    int d = rim_distance(p, size, zc, u_edge_jump_px * zc / u_focal_px, reach, tile);
-    if (d > reach + 1) {
-        return 0.0;
-    }
-    return 1.0 - float(d - 1) / float(reach + 1);
+    return rim_weight(p, size, zc, u_edge_jump_px * zc / u_focal_px, reach, tile);
 }
 
 // The view-space normal n at the view point x taken towards the field's by the weight t, in
