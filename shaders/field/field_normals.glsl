@@ -16,9 +16,9 @@
 //   still one surface) adds up over d pixels. A step's strength rises smoothly from 0 at the
 //   jump to 1 at FIELD_RIM_FEATHER jumps: a step just past it is barely a rim, so no small
 //   move of a particle turns a rim on or off. (At 960x540: the spatter's droplets 0.84 -> 0.55
-//   deg and its band 2.25 -> 1.66, a droplet a few radii before the pool no longer pulls the
-//   pool's normals beside it, nor the pool its; the dam break's tolerant band 8.31 -> 8.32;
-//   a feather of 3: 0.41, 1.28, 8.38; of 1.5: 0.70, 2.08, 8.31);
+//   deg and its band 2.25 -> 1.66: a droplet a few radii in front of the pool no longer pulls
+//   the pool's normals beside it, nor the pool the droplet's; the dam break's tolerant band
+//   8.31 -> 8.32; a feather of 3: 0.41, 1.28, 8.38; of 1.5: 0.70, 2.08, 8.31);
 //   weight t = the largest over the rims of strength x (1 - (d - 1) / (k + 1)) (1 next to a
 //   full rim, 0 beyond the reach);
 // * grad phi at the pixel's view-space point x from every centre of the field grid

@@ -8,7 +8,8 @@ the spheres' beads and stays flat up to a hole's edge, where the surface a recon
 draws (splashsurf's iso-surface of the SPH field) turns smoothly towards the rim. The normal of
 that iso-surface is -grad phi / |grad phi| of phi(x) = sum_j W(|x - x_j|, h), evaluated at each
 pixel's own surface point within `field_normals` projected particle radii (at most 5 pixels) of
-a rim and blended in by the distance to it (full next to the rim, none beyond the reach).
+a rim and blended in by the distance to it (full next to the rim, none beyond the reach)
+times the rim's strength (a depth step just past the edge jump is barely one).
 Droplets (lone particles) get their exact sphere normal from it. Depth, coverage and the rim's
 place are unchanged. The rule in full: `shaders/field/field_normals.glsl`.
 
