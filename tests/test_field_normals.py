@@ -95,6 +95,26 @@ def gl_normals(
         context.programs.release()
 
 
+def reference_blend(
+    depth: np.ndarray, plain: np.ndarray, centres: np.ndarray, radius: float = R
+) -> tuple[np.ndarray, np.ndarray]:
+    """The reference's field normals of `centres` (particle radius `radius`) over the depth
+    normals `plain`, and which pixels it changed, with this module's camera and the pass's
+    settings; the depth and centres rounded to float32 as the GPU gets them."""
+    return field_normals_reference(
+        depth.astype(np.float32).astype(np.float64),
+        plain,
+        centres.astype(np.float32).astype(np.float64),
+        tan_half_fov=TAN,
+        focal_px=FOCAL,
+        particle_radius=radius,
+        support=SUPPORT_RADII * radius,
+        reach_radii=REACH,
+        edge_jump=EDGE_JUMP_RADII * radius,
+        edge_jump_px=EDGE_JUMP_FOOTPRINTS,
+    )
+
+
 def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     cos = np.sum(a * b, axis=-1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
@@ -118,18 +138,7 @@ def assert_matches_the_reference(gl: GLContext, centres: np.ndarray, facing_away
     depth, _ = ray_cast(centres, R)
     plain = gl_normals(gl, depth, None)
     field = gl_normals(gl, depth, centres)
-    expected, changed = field_normals_reference(
-        depth.astype(np.float32).astype(np.float64),
-        plain[..., :3],
-        centres.astype(np.float32).astype(np.float64),
-        tan_half_fov=TAN,
-        focal_px=FOCAL,
-        particle_radius=R,
-        support=SUPPORT,
-        reach_radii=REACH,
-        edge_jump=EDGE_JUMP_RADII * R,
-        edge_jump_px=EDGE_JUMP_FOOTPRINTS,
-    )
+    expected, changed = reference_blend(depth, plain[..., :3], centres)
     np.testing.assert_array_equal(field[..., 3], plain[..., 3])  # depth untouched
     # Away from rims the pass changes nothing, bit for bit.
     np.testing.assert_array_equal(field[~changed][:, :3], plain[~changed][:, :3])
@@ -235,19 +244,7 @@ def test_a_depth_step_turns_into_a_rim_smoothly(
         if feather is None:
             return gl_normals(gl_context, depth, centres)[..., :3]
         monkeypatch.setattr(reference_field_normals, "RIM_FEATHER", feather)
-        expected, _ = field_normals_reference(
-            depth.astype(np.float32).astype(np.float64),
-            gl_normals(gl_context, depth, None)[..., :3],
-            centres,
-            tan_half_fov=TAN,
-            focal_px=FOCAL,
-            particle_radius=R,
-            support=SUPPORT,
-            reach_radii=REACH,
-            edge_jump=EDGE_JUMP_RADII * R,
-            edge_jump_px=EDGE_JUMP_FOOTPRINTS,
-        )
-        return expected
+        return reference_blend(depth, gl_normals(gl_context, depth, None)[..., :3], centres)[0]
 
     on_wall = np.ones((H, W), bool)
     on_wall[20:44, 30:66] = False
@@ -395,18 +392,7 @@ def test_a_lone_droplet_gets_its_exact_sphere_normal(gl_context: GLContext) -> N
     plain = gl_normals(gl_context, depth, None, radius)
     field = gl_normals(gl_context, depth, centre, radius)
     hit = depth > 0
-    _, changed = field_normals_reference(
-        depth,
-        plain[..., :3],
-        centre,
-        tan_half_fov=TAN,
-        focal_px=FOCAL,
-        particle_radius=radius,
-        support=SUPPORT_RADII * radius,
-        reach_radii=REACH,
-        edge_jump=EDGE_JUMP_RADII * radius,
-        edge_jump_px=EDGE_JUMP_FOOTPRINTS,
-    )
+    _, changed = reference_blend(depth, plain[..., :3], centre, radius)
     on_rim = hit & changed
     assert on_rim.sum() == hit.sum()
     before = angle_deg(plain[hit][:, :3], truth[hit])
