@@ -448,7 +448,10 @@ def test_the_same_frame_gives_the_same_normals_bit_for_bit(gl_context: GLContext
     """The grid's count ranks the centres of a bucket in the order its atomics ran; its last
     phase places them by source index, so a reader sums them in one order and the normals
     repeat bit for bit (the service's frames are compared byte for byte with in-process
-    renders). Fresh renderers, many shared buckets (a dense ball: ~2 centres per cell)."""
+    renders). Fresh renderers, many shared buckets (a dense ball: ~2 centres per cell). Eight
+    renders: the atomics' order varies with llvmpipe's thread timing, and a grid that kept it
+    gave three equal renders in one of four tries (tools/mutation_check.py's
+    field-grid-atomic-order)."""
     positions = jittered_lattice_ball(0.12, 0.01, seed=4)
     scene = scene_from_dict(
         {
@@ -459,7 +462,7 @@ def test_the_same_frame_gives_the_same_normals_bit_for_bit(gl_context: GLContext
         }
     )
     normals = []
-    for _ in range(3):
+    for _ in range(8):
         renderer = SurfaceRenderer(gl_context)
         try:
             frame, _ = renderer.render(make_frame(positions), scene, normals=True)
@@ -467,8 +470,8 @@ def test_the_same_frame_gives_the_same_normals_bit_for_bit(gl_context: GLContext
             renderer.release()
         assert frame.normals is not None
         normals.append(frame.normals)
-    np.testing.assert_array_equal(normals[1], normals[0])
-    np.testing.assert_array_equal(normals[2], normals[0])
+    for other in normals[1:]:
+        np.testing.assert_array_equal(other, normals[0])
 
 
 def test_the_grid_leaves_out_only_particles_far_from_every_rim(
