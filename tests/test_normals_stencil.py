@@ -172,7 +172,7 @@ def test_wide_stencil_averages_ripple_on_a_plane(gl_context: GLContext) -> None:
 
 
 def sweep_normals(gl: GLContext, depth: np.ndarray, quality: QualityConfig, x0: int) -> np.ndarray:
-    """The x and z of the normal at column x0, one per row (rows bottom first)."""
+    """The normal's angle in the x-z plane (degrees) at column x0, one per row (bottom first)."""
     n = gl_normals(gl, depth, quality)[:, x0]
     return np.degrees(np.arctan2(n[:, 0], n[:, 2]))
 
