@@ -263,6 +263,18 @@ def surface_section(surfaces: SurfaceResults, lattice: SweepRow | None = None) -
     the pre-issue default and the unfiltered splat, and the before/after crops. `lattice`: the
     sweep's default-preset row of its lattice ball (the ball the issue's 1.4 degrees were
     measured on), checked beside this section's smaller, coarser ball."""
+    lines = _surface_table(surfaces)
+    lines += _surface_done_when(surfaces, lattice)
+    if surfaces.crops:
+        lines += ["", "Before / after (the middle half of each image):", ""]
+        for caption, file in surfaces.crops:
+            lines += [f"![{caption}]({file})", "", caption, ""]
+    return [*lines, ""]
+
+
+def _surface_table(surfaces: SurfaceResults) -> list[str]:
+    """The section's heading, what its columns measure, and one row per setting (bold: on the
+    front)."""
     front = {row.setting for row in surface_front(surfaces.rows)}
     head = ["setting", "spatter ms", "droplet°", "edge alpha", "flicker°", "spatter band°"]
     head += ["dam band°", "dam band (1 px tol.)°", "dam flicker°", "ball mean/p95°"]
@@ -294,56 +306,59 @@ def surface_section(surfaces: SurfaceResults, lattice: SweepRow | None = None) -
         cells += [_f(r.dam_band_fair_deg), _f(r.dam_flicker_deg)]
         cells += [f"{_f(r.ball_mean_deg)} / {_f(r.ball_p95_deg)}"]
         lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+def _surface_done_when(surfaces: SurfaceResults, lattice: SweepRow | None) -> list[str]:
+    """The issue's done-when items checked on the default preset's row (empty when the
+    default, the pre-issue or the unfiltered row is missing)."""
     by_name = {r.setting: r for r in surfaces.rows}
     default, before, raw = (
         by_name.get("preset balanced"),
         by_name.get(PRE_ISSUE.name),
         by_name.get(UNFILTERED.name),
     )
-    if default is not None and before is not None and raw is not None:
+    if default is None or before is None or raw is None:
+        return []
 
-        def verdict(ok: bool) -> str:
-            return "met" if ok else "NOT met"
+    def verdict(ok: bool) -> str:
+        return "met" if ok else "NOT met"
 
-        band_ratio = default.dam_band_fair_deg / before.dam_band_fair_deg
-        lines += [
-            "",
-            "Done-when of the issue, default preset (balanced) in this run:",
-            "",
-            f"* droplet error {_f(default.droplet_deg)}° vs unfiltered {_f(raw.droplet_deg)}° "
-            f"(<= 1.2x): {verdict(default.droplet_deg <= 1.2 * raw.droplet_deg)}",
-            f"* edge alpha error {_f(default.edge_alpha_err, 3)} (<= 0.1): "
-            f"{verdict(default.edge_alpha_err <= 0.1)}",
-            f"* dam-break band (tolerant) {_f(default.dam_band_fair_deg)}° = "
-            f"{_f(100 * band_ratio, 0)} % of the pre-issue {_f(before.dam_band_fair_deg)}° "
-            f"(<= 40 %): {verdict(band_ratio <= 0.4)}; plain band {_f(default.dam_band_deg)}° "
-            f"vs {_f(before.dam_band_deg)}°",
-            *_no_field_band_line(by_name.get(NO_FIELD_NORMALS.name), before),
-            f"* flicker {_f(default.flicker_deg)}° spatter / {_f(default.dam_flicker_deg)}° "
-            f"dam break (<= 0.3°): "
-            f"{verdict(max(default.flicker_deg, default.dam_flicker_deg) <= 0.3)}; the truth "
-            f"alone flickers {_f(surfaces.spatter_flicker_floor)}° / "
-            f"{_f(surfaces.dam_flicker_floor)}°, so the renderer flickers "
-            f"{_f(default.flicker_deg / surfaces.spatter_flicker_floor)}x / "
-            f"{_f(default.dam_flicker_deg / surfaces.dam_flicker_floor)}x the truth",
-            *_flicker_split_line(default, surfaces),
-            f"* ball {_f(default.ball_mean_deg)}° / {_f(default.ball_p95_deg)}° (<= 2 / 5) on "
-            f"this section's 30k ball at {surfaces.width // 2}x{surfaces.height // 2} (about 2 px "
-            f"per radius): {verdict(default.ball_mean_deg <= 2 and default.ball_p95_deg <= 5)}",
-        ]
-        if lattice is not None:
-            m = lattice.metrics
-            lines.append(
-                f"* the sweep's lattice ball ({lattice.particles} particles, {lattice.width}x"
-                f"{lattice.height}, the ball of the issue's 1.4°): {_f(m.normal_mean_deg)}° / "
-                f"{_f(m.normal_p95_deg)}° (<= 2 / 5): "
-                f"{verdict(m.normal_mean_deg <= 2 and m.normal_p95_deg <= 5)}"
-            )
-    if surfaces.crops:
-        lines += ["", "Before / after (the middle half of each image):", ""]
-        for caption, file in surfaces.crops:
-            lines += [f"![{caption}]({file})", "", caption, ""]
-    return [*lines, ""]
+    band_ratio = default.dam_band_fair_deg / before.dam_band_fair_deg
+    lines = [
+        "",
+        "Done-when of the issue, default preset (balanced) in this run:",
+        "",
+        f"* droplet error {_f(default.droplet_deg)}° vs unfiltered {_f(raw.droplet_deg)}° "
+        f"(<= 1.2x): {verdict(default.droplet_deg <= 1.2 * raw.droplet_deg)}",
+        f"* edge alpha error {_f(default.edge_alpha_err, 3)} (<= 0.1): "
+        f"{verdict(default.edge_alpha_err <= 0.1)}",
+        f"* dam-break band (tolerant) {_f(default.dam_band_fair_deg)}° = "
+        f"{_f(100 * band_ratio, 0)} % of the pre-issue {_f(before.dam_band_fair_deg)}° "
+        f"(<= 40 %): {verdict(band_ratio <= 0.4)}; plain band {_f(default.dam_band_deg)}° "
+        f"vs {_f(before.dam_band_deg)}°",
+        *_no_field_band_line(by_name.get(NO_FIELD_NORMALS.name), before),
+        f"* flicker {_f(default.flicker_deg)}° spatter / {_f(default.dam_flicker_deg)}° "
+        f"dam break (<= 0.3°): "
+        f"{verdict(max(default.flicker_deg, default.dam_flicker_deg) <= 0.3)}; the truth "
+        f"alone flickers {_f(surfaces.spatter_flicker_floor)}° / "
+        f"{_f(surfaces.dam_flicker_floor)}°, so the renderer flickers "
+        f"{_f(default.flicker_deg / surfaces.spatter_flicker_floor)}x / "
+        f"{_f(default.dam_flicker_deg / surfaces.dam_flicker_floor)}x the truth",
+        *_flicker_split_line(default, surfaces),
+        f"* ball {_f(default.ball_mean_deg)}° / {_f(default.ball_p95_deg)}° (<= 2 / 5) on "
+        f"this section's 30k ball at {surfaces.width // 2}x{surfaces.height // 2} (about 2 px "
+        f"per radius): {verdict(default.ball_mean_deg <= 2 and default.ball_p95_deg <= 5)}",
+    ]
+    if lattice is not None:
+        m = lattice.metrics
+        lines.append(
+            f"* the sweep's lattice ball ({lattice.particles} particles, {lattice.width}x"
+            f"{lattice.height}, the ball of the issue's 1.4°): {_f(m.normal_mean_deg)}° / "
+            f"{_f(m.normal_p95_deg)}° (<= 2 / 5): "
+            f"{verdict(m.normal_mean_deg <= 2 and m.normal_p95_deg <= 5)}"
+        )
+    return lines
 
 
 def _flicker_split_line(row: SurfaceRow, surfaces: SurfaceResults) -> list[str]:
