@@ -358,8 +358,27 @@ class SphEngine:
                 np.zeros(0, bool),
                 np.zeros(0, bool) if splat_mask else None,
             )
-        grid = self._build_grid(points, params.support_radius)
-        args = self._grid_args(grid)
+        args = self._grid_args(self._build_grid(points, params.support_radius))
+        sorted_volume, density_out = self._volumes(args, n, params, client_densities)
+        sorted_flag = self._colour_field(args, n, params, sorted_volume)
+        if splat_mask:
+            keep_out = self._buffer("splat_keep", n)
+            reach = np.float32(params.safety_reach)
+            self._run("dilate_flags", n, *args, sorted_flag, reach, keep_out)
+        density = client_densities
+        if density is None:
+            density = self._download(density_out, np.empty(n, np.float32))
+        return self._read_result(n, density, client_densities is None, gradient, splat_mask)
+
+    def _volumes(
+        self,
+        args: tuple[Any, ...],
+        n: int,
+        params: SphParameters,
+        client_densities: F32 | None,
+    ) -> tuple[Any, Any]:
+        """Each particle's volume m / rho in grid order and the density buffer (eq 2's, or the
+        client's uploaded)."""
         f32 = np.float32
         sorted_volume = self._buffer("sorted_volume", 4 * n)
         density_out = self._buffer("density", 4 * n)
@@ -376,9 +395,14 @@ class SphEngine:
                 f32(params.mass),
                 sorted_volume,
             )
-        color_out = self._buffer("color", 4 * n)
-        gradient_out = self._buffer("gradient", 16 * n)
-        surface_out = self._buffer("surface", n)
+        return sorted_volume, density_out
+
+    def _colour_field(
+        self, args: tuple[Any, ...], n: int, params: SphParameters, sorted_volume: Any
+    ) -> Any:
+        """The colour field, its gradient and the surface flags (in input order), and the flags
+        in grid order, which the splat mask's dilation reads."""
+        f32 = np.float32
         sorted_flag = self._buffer("sorted_flag", n)
         self._run(
             "color_field",
@@ -388,31 +412,27 @@ class SphEngine:
             sorted_volume,
             f32(params.surface_threshold),
             f32(params.sparse_density),
-            color_out,
-            gradient_out,
-            surface_out,
+            self._buffer("color", 4 * n),
+            self._buffer("gradient", 16 * n),
+            self._buffer("surface", n),
             sorted_flag,
         )
-        keep_out = None
-        if splat_mask:
-            keep_out = self._buffer("splat_keep", n)
-            self._run("dilate_flags", n, *args, sorted_flag, f32(params.safety_reach), keep_out)
+        return sorted_flag
 
-        density = (
-            client_densities
-            if client_densities is not None
-            else self._download(density_out, np.empty(n, np.float32))
-        )
-        color = self._download(color_out, np.empty(n, np.float32))
-        surface = self._download(surface_out, np.empty(n, np.uint8)).astype(bool)
+    def _read_result(
+        self, n: int, density: F32, computed: bool, gradient: bool, splat_mask: bool
+    ) -> SphResult:
+        """The colour field, the surface flags and what else was asked for, read back."""
+        color = self._download(self._buffers["color"], np.empty(n, np.float32))
+        surface = self._download(self._buffers["surface"], np.empty(n, np.uint8)).astype(bool)
         gradient_xyz = None
         if gradient:
-            gradient4 = self._download(gradient_out, np.empty((n, 4), np.float32))
+            gradient4 = self._download(self._buffers["gradient"], np.empty((n, 4), np.float32))
             gradient_xyz = np.ascontiguousarray(gradient4[:, :3])
         keep = None
-        if keep_out is not None:
-            keep = self._download(keep_out, np.empty(n, np.uint8)).astype(bool)
-        return SphResult(density, client_densities is None, color, gradient_xyz, surface, keep)
+        if splat_mask:
+            keep = self._download(self._buffers["splat_keep"], np.empty(n, np.uint8)).astype(bool)
+        return SphResult(density, computed, color, gradient_xyz, surface, keep)
 
     def density(self, positions: npt.ArrayLike, params: SphParameters) -> F32:
         """Eq 2 only (no colour field): the kernel density of every particle, in input order."""
