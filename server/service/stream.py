@@ -41,6 +41,7 @@ from collections import deque
 from typing import Any, ClassVar, Literal
 
 from sphrender.client.errors import InputError, show
+from sphrender.client.frame import ParticleFrame
 from sphrender.client.protocol import (
     MAX_FRAME_ID,
     PREFIX_SIZE,
@@ -55,7 +56,7 @@ from sphrender.client.protocol import (
     plan_frame_arrays,
 )
 from sphrender.server.scene import Scene, merge_scene_dicts
-from sphrender.server.service.admission import Busy, decoding, frame_estimate
+from sphrender.server.service.admission import Busy, Reservation, decoding, frame_estimate
 from sphrender.server.service.facade import ServiceFacade
 from sphrender.server.service.jobs import ErrorOutcome, FrameJob, Outcome
 from sphrender.server.service.scheduler import QueueFull, SchedulerClosed
@@ -366,44 +367,79 @@ class StreamConnection:
             message = f"FRAME needs an integer id in [0, 2^53 - 1], got {show(frame_id)}"
             return Slot(None, outcome=ErrorOutcome(ErrorCode.PROTOCOL, message, "id"), fatal=True)
         assert self.session is not None
-        service = self.service
-        limits = service.config.limits
         try:
-            with decoding("arrays", "stream"):
-                for key in header:
-                    if key not in _FRAME_KEYS:
-                        allowed = ", ".join(_FRAME_KEYS)
-                        raise InputError(f"header.{key}", f"unknown key; allowed: {allowed}")
-                _slots, count = plan_frame_arrays(
-                    header.get("arrays"), payload_len, max_particles=limits.max_particles
-                )
-                scene = self._frame_scene(header)
-            image = scene.image
-            estimate = frame_estimate(payload_len, count, image.width * image.height)
-            what = f"{count} particles at {image.width}x{image.height}"
-            reservation = service.memory.reserve(
-                estimate,
-                what,
-                "arrays",
-                timeout=max(0.0, deadline - time.monotonic()),
-                abort=lambda: self._dead.is_set() or self._draining.is_set(),
-            )
-            if reservation is None:
-                raise Busy(
-                    "the server's memory budget for frames in progress is used up "
-                    "(limits.memory_budget_bytes); send it again later"
-                )
+            scene, reservation = self._plan_frame(header, payload_len, deadline)
         except (InputError, Busy) as exc:
             self._refuse(frame_id, exc, payload_len, deadline)
             return None
+        particles = self._receive_particles(header, payload_len, deadline, frame_id, reservation)
+        if particles is None:
+            return None
+        self.session.frames += 1  # only this connection's reader thread touches it
+        job = FrameJob(
+            self.session.id, particles, scene, scene.output.format, "stream", frame_id=frame_id
+        )
+        self._push(Slot(frame_id, job=job, release=reservation.release))
+        # On QueueFull/SchedulerClosed the job has been answered with the error; its slot has it.
+        with contextlib.suppress(QueueFull, SchedulerClosed):
+            self.service.submit(
+                job,
+                latest=self.mode == "latest",
+                block=self.mode == "queue",
+                abort=self._dead.is_set,
+            )
+        return None
+
+    def _plan_frame(
+        self, header: dict[str, Any], payload_len: int, deadline: float
+    ) -> tuple[Scene, Reservation]:
+        """The FRAME's scene and its memory reservation, from the header alone (the payload is
+        still unread); `InputError` for a bad header, `Busy` when the budget stays used up."""
+        service = self.service
+        with decoding("arrays", "stream"):
+            for key in header:
+                if key not in _FRAME_KEYS:
+                    allowed = ", ".join(_FRAME_KEYS)
+                    raise InputError(f"header.{key}", f"unknown key; allowed: {allowed}")
+            _slots, count = plan_frame_arrays(
+                header.get("arrays"), payload_len, max_particles=service.config.limits.max_particles
+            )
+            scene = self._frame_scene(header)
+        image = scene.image
+        estimate = frame_estimate(payload_len, count, image.width * image.height)
+        what = f"{count} particles at {image.width}x{image.height}"
+        reservation = service.memory.reserve(
+            estimate,
+            what,
+            "arrays",
+            timeout=max(0.0, deadline - time.monotonic()),
+            abort=lambda: self._dead.is_set() or self._draining.is_set(),
+        )
+        if reservation is None:
+            raise Busy(
+                "the server's memory budget for frames in progress is used up "
+                "(limits.memory_budget_bytes); send it again later"
+            )
+        return scene, reservation
+
+    def _receive_particles(
+        self,
+        header: dict[str, Any],
+        payload_len: int,
+        deadline: float,
+        frame_id: int,
+        reservation: Reservation,
+    ) -> ParticleFrame | None:
+        """The FRAME's payload read and decoded into particles; None (the error answered, the
+        reservation released) when its arrays are bad."""
+        service = self.service
+        max_particles = service.config.limits.max_particles
         try:
             payload = self.channel.recv(payload_len, deadline) if payload_len else bytearray()
             service.metrics.bytes_in.inc("stream", amount=payload_len)
             with decoding("arrays", "stream"):
-                arrays = decode_frame_arrays(
-                    header["arrays"], payload, max_particles=limits.max_particles
-                )
-                particles = service.make_particles(arrays)
+                arrays = decode_frame_arrays(header["arrays"], payload, max_particles=max_particles)
+                return service.make_particles(arrays)
         except InputError as exc:
             reservation.release()
             code = ErrorCode.TOO_LARGE if isinstance(exc, LimitError) else ErrorCode.BAD_INPUT
@@ -413,20 +449,6 @@ class StreamConnection:
         except BaseException:
             reservation.release()
             raise
-        self.session.frames += 1  # only this connection's reader thread touches it
-        job = FrameJob(
-            self.session.id, particles, scene, scene.output.format, "stream", frame_id=frame_id
-        )
-        self._push(Slot(frame_id, job=job, release=reservation.release))
-        # On QueueFull/SchedulerClosed the job has been answered with the error; its slot has it.
-        with contextlib.suppress(QueueFull, SchedulerClosed):
-            service.submit(
-                job,
-                latest=self.mode == "latest",
-                block=self.mode == "queue",
-                abort=self._dead.is_set,
-            )
-        return None
 
     def _push(self, slot: Slot) -> None:
         with self._cond:
