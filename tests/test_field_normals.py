@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import reference_field_normals
 from reference_field_normals import field_gradient, field_normals_reference
 
 from sphrender.client.frame import make_frame
@@ -227,8 +228,6 @@ def test_a_depth_step_turns_into_a_rim_smoothly(
     halves when the steps do (ratio ~2, asserted >= 1.6). Cut at the jump instead (the
     reference with RIM_FEATHER -> 1) the weight jumps at each ring's jump, whatever the step
     (ratio ~1, asserted <= 1.3: the test tells the two rules apart)."""
-    import reference_field_normals
-
     # The wall's particles tilted by 30 degrees about y, so that its field normal differs from
     # the depth image's (a plane facing the eye) and the weight shows in the blend.
     ys, xs = np.mgrid[-0.2:0.2001:0.01, -0.3:0.3001:0.01]

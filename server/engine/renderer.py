@@ -152,7 +152,7 @@ class SurfaceRenderer:
         with self._stage(stats, "normals"):
             normal_depth = self._surface_normals(surface, prepared, camera, scene)
         with self._stage(stats, "shade"):
-            color = self._shade_surface(surface, normal_depth, camera, scene, prepared, stats)
+            color = self._shade_surface(surface, normal_depth, camera, scene, prepared)
         with self._stage(stats, "readback"):
             rendered = self._read_back(
                 color, normal_depth, scene, prepared.box, depth, normals, display
@@ -190,7 +190,7 @@ class SurfaceRenderer:
                 device_cull=prepared.device_cull,
             )
         bulk_splatted = splat.splatted
-        if scene.quality.filter != "none" and stats.particles_drawn:
+        if scene.quality.filter != "none" and prepared.visible:
             with self._stage(stats, "smooth"):
                 smoothed = self._smooth.run(
                     splat.depth,
@@ -230,11 +230,10 @@ class SurfaceRenderer:
         camera: Camera,
         scene: Scene,
         prepared: PreparedFrame,
-        stats: RenderStats,
     ) -> Target:
         """The shaded colour target (the temperature blurred along the surface first)."""
         temperature = surface.temperature
-        if temperature is not None and stats.particles_drawn:
+        if temperature is not None and prepared.visible:
             temperature = self._temperature.run(
                 temperature,
                 surface.depth,
