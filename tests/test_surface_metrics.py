@@ -7,8 +7,14 @@ import math
 
 import numpy as np
 
+from sphrender.server.bench.dam_frames import (
+    DamFrameRow,
+    all_finite,
+    band_ratios,
+    dam_frames_section,
+)
 from sphrender.server.bench.scenes import Truth, sphere_truth
-from sphrender.server.bench.surface_bench import SurfaceRow, surface_front
+from sphrender.server.bench.surface_bench import PRE_ISSUE, SurfaceRow, surface_front
 from sphrender.server.bench.surface_quality import (
     band_error_deg,
     shift_tolerant_band_error_deg,
@@ -96,3 +102,30 @@ def test_surface_front_keeps_rows_not_beaten_on_every_column() -> None:
     names = [r.setting for r in surface_front(rows)]
     # slow: beaten by ball; worse: by fast; two equal rows do not beat each other
     assert names == ["fast", "nan", "ball", "ball again"]
+
+
+def test_dam_frames_section_counts_the_frames_that_meet_each_item() -> None:
+    def row(frame: str, setting: str, band: float, flicker: float, floor: float) -> DamFrameRow:
+        return DamFrameRow(frame, setting, 5.0, band, flicker, floor, True)
+
+    before, after = PRE_ISSUE.name, "preset balanced"
+    rows = [row("F_1", before, 10.0, 1.0, 0.2), row("F_1", after, 3.0, 0.1, 0.2)]
+    rows += [row("F_9", before, 20.0, 2.0, 1.2), row("F_9", after, 9.0, 1.1, 1.2)]
+    assert band_ratios(rows, after) == {"F_1": 0.3, "F_9": 0.45}
+    text = "\n".join(dam_frames_section(rows, after))
+    assert "| 9 | 20.00 | 9.00 | 45 % |" in text
+    assert "on 1 of 2 frames (worst 45 %)" in text  # band: F_1 only
+    assert "flicker <= 0.3° on 1 of 2 frames; the truth's own flicker is <= 0.3° on 1" in text
+    assert "finite on every frame and setting: yes" in text
+    # no baseline rows: no section
+    assert dam_frames_section([r for r in rows if r.setting == after], after) == []
+
+
+def test_all_finite_takes_inf_depth_as_no_surface_and_nothing_else() -> None:
+    frame = as_frame(sphere_truth(CAMERA, np.zeros(3), R))
+    assert frame.depth is not None and np.isinf(frame.depth).any()
+    assert all_finite(frame)
+    for name, index in (("rgba", (40, 60, 3)), ("normals", (40, 60, 0)), ("depth", (40, 60))):
+        broken = as_frame(sphere_truth(CAMERA, np.zeros(3), R))
+        getattr(broken, name)[index] = np.nan
+        assert not all_finite(broken), name

@@ -6,6 +6,7 @@ import math
 import time
 from pathlib import Path
 
+from sphrender.server.bench.dam_frames import dam_frames_section
 from sphrender.server.bench.results import BenchResults, growth_exponent, ratio
 from sphrender.server.bench.surface_bench import (
     NO_FIELD_NORMALS,
@@ -127,6 +128,8 @@ def write_report(results: BenchResults, path: Path, *, plot_name: str) -> None:
             (r for r in results.rows if r.scene == "ball" and r.setting == "preset balanced"), None
         )
         lines += surface_section(results.surfaces, lattice)
+    if results.dam_frames:
+        lines += [*dam_frames_section(results.dam_frames), ""]
     lines += _scaling_section(results)
     path.write_text("\n".join(lines))
 
@@ -333,7 +336,8 @@ def _surface_done_when(surfaces: SurfaceResults, lattice: SweepRow | None) -> li
         f"(<= 1.2x): {verdict(default.droplet_deg <= 1.2 * raw.droplet_deg)}",
         f"* edge alpha error {_f(default.edge_alpha_err, 3)} (<= 0.1): "
         f"{verdict(default.edge_alpha_err <= 0.1)}",
-        f"* dam-break band (tolerant) {_f(default.dam_band_fair_deg)}° = "
+        f"* dam-break band (tolerant, this frame; every frame: below) "
+        f"{_f(default.dam_band_fair_deg)}° = "
         f"{_f(100 * band_ratio, 0)} % of the pre-issue {_f(before.dam_band_fair_deg)}° "
         f"(<= 40 %): {verdict(band_ratio <= 0.4)}; plain band {_f(default.dam_band_deg)}° "
         f"vs {_f(before.dam_band_deg)}°",

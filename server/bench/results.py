@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sphrender.server.bench import peers
+from sphrender.server.bench.dam_frames import DamFrameRow
 from sphrender.server.bench.surface_bench import SurfaceResults
 from sphrender.server.bench.sweep import SweepRow
 
@@ -23,6 +24,8 @@ class BenchResults:
     scaling_particles: list[tuple[int, float]] = field(default_factory=list)
     scaling_resolution: list[tuple[int, int, float]] = field(default_factory=list)
     surfaces: SurfaceResults | None = None
+    #: The dam break's figures on every frame of the data set (empty without it).
+    dam_frames: list[DamFrameRow] = field(default_factory=list)
 
 
 def growth_exponent(xs: list[float], ys: list[float]) -> float:

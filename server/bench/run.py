@@ -25,6 +25,7 @@ import numpy as np
 from sphrender.client.frame import make_frame
 from sphrender.server.bench import peers
 from sphrender.server.bench.closeup_crop import BALANCED_DESTREAK, EQUAL_PASSES, write_closeup_crop
+from sphrender.server.bench.dam_frames import dam_frame_paths, run_dam_frames
 from sphrender.server.bench.report import write_plot, write_report
 from sphrender.server.bench.results import BenchResults
 from sphrender.server.bench.scenes import (
@@ -38,6 +39,7 @@ from sphrender.server.bench.scenes import (
 )
 from sphrender.server.bench.surface_bench import (
     NO_FIELD_NORMALS,
+    PRE_ISSUE,
     QUICK_SURFACE_SETTINGS,
     SURFACE_SETTINGS,
     SurfaceResults,
@@ -260,6 +262,7 @@ def _run_surfaces(
     if quick:
         return
     balanced = preset_setting("balanced")
+    _run_dam_frames(gl, renderer, results, (PRE_ISSUE, balanced), surface_w, surface_h, cache, log)
     # what field normals change
     write_crops(
         renderer,
@@ -277,6 +280,30 @@ def _run_surfaces(
         (balanced, BALANCED_DESTREAK, "crop-closeup-destreak-dambreak.png"),
     ):
         write_closeup_crop(renderer, out, surfaces, before=before, after=after, name=name)
+
+
+def _run_dam_frames(
+    gl: GLContext,
+    renderer: SurfaceRenderer,
+    results: BenchResults,
+    settings: tuple[Setting, ...],
+    width: int,
+    height: int,
+    cache: Path,
+    log: Callable[[str], None],
+) -> None:
+    """The dam break on every frame of the data set (skipped without it or pysplashsurf)."""
+    paths = dam_frame_paths()
+    if not paths:
+        log("dam break, every frame: skipped (../shared/data not found)")
+        return
+    log(f"dam break, every frame ({len(paths)}), {width}x{height}")
+    try:
+        results.dam_frames = run_dam_frames(
+            gl, renderer, settings, paths, width=width, height=height, cache=cache, log=log
+        )
+    except ImportError as exc:
+        log(f"  skipped: {exc}")
 
 
 def _run_scaling(

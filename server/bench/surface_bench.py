@@ -189,7 +189,7 @@ def cached_reconstruction(positions: F64, radius: float, cache: Path) -> Referen
 
 
 @dataclass(frozen=True)
-class _Case:
+class Case:
     """One scene of the surface bench: frames (as rendered and jittered) and truths."""
 
     scene: BenchScene
@@ -202,7 +202,7 @@ class _Case:
 
 def _spatter_case(
     renderer: SurfaceRenderer, width: int, height: int
-) -> tuple[_Case, float, tuple[float, float, float]]:
+) -> tuple[Case, float, tuple[float, float, float]]:
     spatter = spatter_scene()
     camera = Camera.from_config(spatter.camera_config(), width, height)
     params = SphParameters.from_scene(
@@ -218,7 +218,7 @@ def _spatter_case(
     floor = truth_flicker_deg(truth, moved)
     band = silhouette_band(truth, spatter.radius)
     split = split_flicker_deg(truth.normals, moved.normals, truth.hit & moved.hit, band)
-    case = _Case(
+    case = Case(
         spatter,
         camera,
         make_frame(spatter.positions, densities=densities),
@@ -229,13 +229,20 @@ def _spatter_case(
     return case, floor, split
 
 
-def _dam_case(
-    gl: GLContext, renderer: SurfaceRenderer, width: int, height: int, cache: Path
-) -> tuple[_Case | None, float, str]:
+def dam_case(
+    gl: GLContext,
+    renderer: SurfaceRenderer,
+    width: int,
+    height: int,
+    cache: Path,
+    path: Path | None = None,
+) -> tuple[Case | None, float, str]:
+    """The dam break's case (frame `path`, the bench's frame 5 by default), the floor of its
+    flicker (the reference's own) and a note naming the frame, or why it was skipped."""
     from sphrender.client.readers import read_particles
     from sphrender.server.bench.scenes import dambreak_scene
 
-    path = dambreak_frame()
+    path = path or dambreak_frame()
     if path is None:
         return None, math.nan, "dam break skipped: ../shared/data not found"
     particles = read_particles(path)
@@ -251,7 +258,7 @@ def _dam_case(
     camera = Camera.from_config(scene.camera_config(), width, height)
     truth = scene.truth(camera)
     floor = truth_flicker_deg(truth, rasterise(gl, renderer.programs, moved_mesh, camera))
-    case = _Case(
+    case = Case(
         scene,
         camera,
         make_frame(particles.positions, densities=particles.densities),
@@ -262,7 +269,7 @@ def _dam_case(
     return case, floor, f"{path.name}, {len(particles.positions)} particles"
 
 
-def _render(renderer: SurfaceRenderer, frame: Any, setting: Setting, case: _Case) -> Any:
+def render_case(renderer: SurfaceRenderer, frame: Any, setting: Setting, case: Case) -> Any:
     w, h = case.camera.width, case.camera.height
     scene = scene_for(setting, bench_scene_dict(case.scene, w, h))
     return renderer.render(frame, scene, depth=True, normals=True)[0]
@@ -288,7 +295,7 @@ def run_surface_bench(
         width,
         height,
     )
-    dam, results.dam_flicker_floor, results.dam_note = _dam_case(gl, renderer, width, height, cache)
+    dam, results.dam_flicker_floor, results.dam_note = dam_case(gl, renderer, width, height, cache)
     ball = ball_scene(30_000)
     ball_camera = Camera.from_config(ball.camera_config(), width // 2, height // 2)
     ball_truth = ball.truth(ball_camera)
@@ -306,18 +313,18 @@ def run_surface_bench(
             "edge_alpha_err": edge_alpha_error(rendered.rgba[..., 3].astype(np.float64), coverage),
             "spatter_band_deg": band_error_deg(rendered, truth, spatter.band),
         }
-        moved_render = _render(renderer, spatter.moved, setting, spatter)
+        moved_render = render_case(renderer, spatter.moved, setting, spatter)
         values["flicker_deg"] = flicker_deg(rendered, moved_render)[0]
         values["flicker_band_deg"], values["flicker_inside_deg"], _ = _split(
             rendered, moved_render, spatter.band
         )
         if dam is not None:
-            dam_render: RenderedFrame = _render(renderer, dam.frame, setting, dam)
+            dam_render: RenderedFrame = render_case(renderer, dam.frame, setting, dam)
             values["dam_band_deg"] = band_error_deg(dam_render, dam.truth, dam.band)
             values["dam_band_fair_deg"] = shift_tolerant_band_error_deg(
                 dam_render, dam.truth, dam.band
             )
-            moved = _render(renderer, dam.moved, setting, dam)
+            moved = render_case(renderer, dam.moved, setting, dam)
             values["dam_flicker_deg"] = flicker_deg(dam_render, moved)[0]
         ball_scene_ = scene_for(setting, bench_scene_dict(ball, width // 2, height // 2))
         ball_frame, _ = renderer.render(
@@ -361,12 +368,12 @@ def write_crops(
     after = after or preset_setting("balanced")
     spatter, _, _ = _spatter_case(renderer, width, height)
     cases: list[tuple[str, Callable[[Setting], RenderedFrame]]] = [
-        ("spatter", lambda s: _render(renderer, spatter.frame, s, spatter))
+        ("spatter", lambda s: render_case(renderer, spatter.frame, s, spatter))
     ]
     if gl is not None and cache is not None:
-        dam, _, _ = _dam_case(gl, renderer, width, height, cache)
+        dam, _, _ = dam_case(gl, renderer, width, height, cache)
         if dam is not None:
-            cases.append(("dambreak", lambda s: _render(renderer, dam.frame, s, dam)))
+            cases.append(("dambreak", lambda s: render_case(renderer, dam.frame, s, dam)))
     demo_sections = tomllib.loads(
         resources.files("sphrender.configs").joinpath("demo.toml").read_text()
     )
