@@ -43,6 +43,7 @@ SETTINGS = {
     "balanced (default)": scene_for("balanced", {}),
     "balanced, no gaps": scene_for("balanced", {"quality": {"close_gaps": 0.0}}),
     "balanced, no field": scene_for("balanced", {"quality": {"field_normals": 0.0}}),
+    "balanced, no pairs": scene_for("balanced", {"quality": {"narrow_range_pairs": 0.0}}),
     "balanced, no stencil": scene_for("balanced", {"quality": {"normal_stencil": 0.0}}),
     "balanced + destreak": scene_for("balanced", {"quality": {"destreak": 0.25}}),
     "balanced, equal passes": scene_for("balanced", {"quality": {"last_pass_sigma": 1.0}}),

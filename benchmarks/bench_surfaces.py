@@ -36,6 +36,7 @@ SETTINGS = {
                 "normal_stencil": 0.0,
                 "last_pass_sigma": 1.0,
                 "normal_rules": "hard",
+                "narrow_range_pairs": 0.0,
                 "close_gaps": 0.0,
                 "field_normals": 0.0,
             }

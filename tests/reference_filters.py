@@ -159,9 +159,11 @@ def _pass(
     q: QualityConfig,
     box: bool = False,
     scale: float = 1.0,
+    pair_limit: float | None = None,
 ) -> F32:
     """One filter pass. `directions` = [(dx, dy)] for a 1-D pass, None for the 2-D kernel;
-    `scale` multiplies a 1-D pass's sigma.
+    `scale` multiplies a 1-D pass's sigma; `pair_limit` (scene units): the narrow range's pair
+    test on this pass (None: off).
     Offsets are (x, y) in image coordinates with y pointing *up* (GL), rows stored top first."""
     h, w = depth.shape
     out = np.zeros_like(depth)
@@ -186,7 +188,7 @@ def _pass(
 
             if q.filter == "narrow_range":
                 out[row, col] = _narrow_range(
-                    depth, row, col, directions, reach, taps, spatial, radius, q
+                    depth, row, col, directions, reach, taps, spatial, radius, q, pair_limit
                 )
                 continue
             out[row, col] = _gaussian_or_bilateral(
@@ -257,13 +259,16 @@ def _narrow_range(
     spatial: Callable[[tuple[int, int]], float],
     radius: float,
     q: QualityConfig,
+    pair_limit: float | None = None,
 ) -> float:
     """Truong & Yuksel's narrow range at one pixel: a sample behind the centre by more than
     lambda r drops its mirror too, one in front by more is clamped to z - mu r, the range grows
     around each accepted sample, walking outwards; the samples' inverse depths are averaged. A
     sample whose mirror lies past the image's end counts alone, and then the result is the
     intercept at the pixel of the weighted line (1-D) or plane (2-D) fit through the inverse
-    depths taken, kept within those the kernel can have taken."""
+    depths taken, kept within those the kernel can have taken. With `pair_limit`, a pair
+    with both sides inside the image whose midpoint in inverse depth departs from the centre's
+    by more than it (as a depth, times zc^2) is dropped (quality.narrow_range_pairs)."""
     h, w = depth.shape
     zc = float(depth[row, col])
     thr = q.narrow_range_threshold * radius
@@ -288,6 +293,9 @@ def _narrow_range(
             valid_a, valid_b = 0.0 < za <= upper, 0.0 < zb <= upper
             use_a = not out_a and valid_a and (valid_b or out_b)
             use_b = not out_b and valid_b and (valid_a or out_a)
+            if pair_limit is not None and use_a and use_b:
+                mid = (0.5 * (1.0 / za + 1.0 / zb) - 1.0 / zc) * zc * zc
+                use_a = use_b = abs(mid) <= pair_limit
             for z, use, o in ((za, use_a, off), (zb, use_b, mirror)):
                 if not use:
                     continue
@@ -344,8 +352,10 @@ def filter_depth(
         for _ in range(q.iterations):
             image = _pass(image, None, radius, px_per_unit, q, box)
         return image
-    for direction, scale in _separable_passes(q):
-        image = _pass(image, [direction], radius, px_per_unit, q, box, scale)
+    limit = q.narrow_range_pairs * radius if q.narrow_range_pairs > 0.0 else None
+    for index, (direction, scale) in enumerate(_separable_passes(q)):
+        pair_limit = limit if index > 0 else None  # never on the first pass (the raw splat)
+        image = _pass(image, [direction], radius, px_per_unit, q, box, scale, pair_limit)
     return image
 
 

@@ -65,8 +65,15 @@ QUALITIES = {
 
 
 def assert_matches_reference(
-    renderer: SurfaceRenderer, depth: np.ndarray, px_per_unit: float, quality: QualityConfig
+    renderer: SurfaceRenderer,
+    depth: np.ndarray,
+    px_per_unit: float,
+    quality: QualityConfig,
+    *,
+    box_check: bool = True,
 ) -> None:
+    """GPU = numpy within TOLERANCE; `box_check`: and the image tells a Gaussian from a box
+    (off for images too smooth for it: the test then shows its own sensitivity)."""
     quality = replace(quality, close_gaps=0.0)  # the reference is the filter alone
     gpu = renderer.single_passes.filter_depth_image(
         depth, particle_radius=RADIUS, px_per_unit=px_per_unit, quality=quality
@@ -82,6 +89,8 @@ def assert_matches_reference(
 
     # The comparison is sharp enough to catch the classic porting bug: spatial weights that
     # degenerate to a box filter.
+    if not box_check:
+        return
     box = filter_depth(depth, RADIUS, px_per_unit, quality, box=True)
     assert np.abs(gpu - box).max() > BOX_DIFFERENCE
 
@@ -237,6 +246,58 @@ def test_filter_smooths_noise_and_keeps_steps(renderer: SurfaceRenderer) -> None
     step_before = depth[26, 17] - depth[26, 14]
     step_after = out[26, 17] - out[26, 14]
     assert step_after > 0.8 * step_before
+
+
+def filament_on_a_slope(height: int = 30, width: int = 40) -> np.ndarray:
+    """A plane sloping by 0.4 r per pixel along x with particle-scale noise, and a filament
+    (rows 13-17, 5 px tall, along x) 6 r in front of it: inside lambda = 10 r, so the narrow
+    range alone takes the plane into the filament's average across it (the kernel, reach
+    8 px, is wider than it); the first pass, along x, runs along it."""
+    rng = np.random.default_rng(7)
+    x = np.mgrid[0:height, 0:width][1].astype(np.float64)
+    depth = 2.0 + 0.4 * RADIUS * (x - width / 2) + rng.uniform(-0.3, 0.3, x.shape) * RADIUS
+    depth[13:18, 6:34] -= 6.0 * RADIUS
+    return depth.astype(np.float32)
+
+
+def test_pair_test_keeps_a_filament_in_front_of_a_surface_and_leaves_the_slope(
+    renderer: SurfaceRenderer,
+) -> None:
+    """quality.narrow_range_pairs: across the filament, a mirrored pair whose two taps both lie
+    on the plane 6 r behind departs from the filament's centre line by 6 r > 4 r and is
+    dropped (from the second pass on: the first runs along the filament); without it the
+    filament is pulled back towards the plane. Both match the numpy reference, and so does the
+    transposed image (a filament across the first pass's axis, where only the first pass
+    differs from the reference if it tests pairs: it must not). What the test
+    keeps is the filament's middle: its edge rows still average with the plane across their
+    one-sided pairs (a pair with one tap on each departs by 3 r), and the next pass takes
+    those into the middle's average, so the centre line moves back by 1.89 r with the test
+    and by 3.03 r without (measured); bounds 2.3 / 2.6 r, either side of both. Far from it the
+    plane's noise is smoothed the same with and without (the slope's pairs never depart;
+    1e-4 r)."""
+    depth = filament_on_a_slope()
+    on = QualityConfig(filter="narrow_range", iterations=2, narrow_range_pairs=4.0)
+    off = replace(on, narrow_range_pairs=0.0)
+    results = {}
+    for name, quality in (("on", on), ("off", off)):
+        # too smooth for the box check; the on/off difference below is this test's own
+        assert_matches_reference(renderer, depth, PX_PER_UNIT, quality, box_check=False)
+        results[name] = renderer.single_passes.filter_depth_image(
+            depth,
+            particle_radius=RADIUS,
+            px_per_unit=PX_PER_UNIT,
+            quality=replace(quality, close_gaps=0.0),
+        )
+    # across the first pass's axis (a filament along y): the first pass keeps its pairs
+    # there, and the reference, which never tests them on the first pass, must still agree
+    assert_matches_reference(
+        renderer, np.ascontiguousarray(depth.T), PX_PER_UNIT, on, box_check=False
+    )
+    line = np.s_[15, 14:26]
+    pulled = {n: float(np.mean(out[line] - depth[line])) / RADIUS for n, out in results.items()}
+    assert pulled["on"] < 2.3 and pulled["off"] > 2.6, pulled
+    far = np.s_[:5, :]  # 8 px from the filament: out of every kernel's reach
+    assert np.abs(results["on"][far] - results["off"][far]).max() / RADIUS < 1e-4
 
 
 def test_kernel_scale_changes_result(renderer: SurfaceRenderer) -> None:

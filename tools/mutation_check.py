@@ -204,10 +204,30 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         name="narrow-range-keeps-the-unmatched-mirror-sample",
         path="shaders/smooth/smooth_depth_separable.frag.glsl",
-        old="bvec4 accept = both(in_reach, both(valid_a, valid_b));",
-        new="bvec4 accept = both(in_reach, valid_a);",
+        old="both(both(in_reach, both(valid_a, valid_b)), pair_kept(za, zb));",
+        new="both(both(in_reach, valid_a), pair_kept(za, zb));",
         tests=("tests/test_filters.py",),
         description="narrow range: a dropped sample's mirror sample is still averaged",
+    ),
+    Mutation(
+        name="narrow-range-pairs-never-dropped",
+        path="shaders/smooth/smooth_depth_separable.frag.glsl",
+        old="    return lessThanEqual(abs(mid) * g_center * g_center, vec4(u_nr_pair_limit));",
+        new="    return bvec4(true);",
+        tests=(
+            "tests/test_filters.py::test_pair_test_keeps_a_filament_in_front_of_a_surface_and_leaves_the_slope",
+        ),
+        description="quality.narrow_range_pairs: the pair test keeps every pair",
+    ),
+    Mutation(
+        name="narrow-range-pairs-on-the-first-pass",
+        path="server/engine/passes/smooth.py",
+        old="    return [PAIR_TEST_OFF] + [limit] * (count - 1)",
+        new="    return [limit] * count",
+        tests=(
+            "tests/test_filters.py::test_pair_test_keeps_a_filament_in_front_of_a_surface_and_leaves_the_slope",
+        ),
+        description="the pair test on the first pass too, which sees the raw splat",
     ),
     Mutation(
         name="splat-back-surface",

@@ -79,6 +79,7 @@ PRE_ISSUE = Setting(
             "normal_stencil": 0.0,  # the 1-pixel difference, as then
             "last_pass_sigma": 1.0,  # equal passes, as then
             "normal_rules": "hard",  # the normals' switches, as then
+            "narrow_range_pairs": 0.0,  # no pair test, as then
             "close_gaps": 0.0,
             "field_normals": 0.0,
         }

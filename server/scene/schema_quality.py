@@ -149,6 +149,23 @@ class QualityConfig:
         low_open=True,
         unit="particle radii",
     )
+    narrow_range_pairs: float = spec(
+        4.0,
+        "separable narrow_range: a mirrored tap pair whose midpoint departs from the centre "
+        "by more than this many particle radii (in inverse depth, so the pairs of a plane "
+        "seen in perspective never depart, whatever its slope or the kernel's length) is "
+        "dropped, from the second 1-D pass on (the first sees the raw splat, whose relief "
+        "between particles would trip it). It tells a step from a slope, which lambda alone "
+        "cannot: a blob of a few particles 4-10 r in front of a surface keeps its depth "
+        "instead of melting into it, where the grazing rim of a smooth body (whose pairs "
+        "depart little) keeps its kernel. Measured at 960x540, balanced, the dam break's "
+        "eight frames against pysplashsurf: 1-px tolerant silhouette band 8.32 -> 8.10 deg on "
+        "frame 5, 9.23 -> 8.00 on frame 9, mean error 0.1-1.4 deg lower on every frame; the "
+        "90k lattice ball and the spatter unchanged, dam-break flicker 0.957 -> 0.981 deg. "
+        "4: the edge jump of the normals pass. 0: off (the fast preset)",
+        low=0.0,
+        unit="particle radii",
+    )
     keep_features: Literal["none", "truncate", "blend", "both"] = spec(
         "none",
         "keep features smaller than the kernel (droplets, thin edges; separable narrow_range "

@@ -50,6 +50,10 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     bvec4 valid_b = both(greaterThan(zb, vec4(0.0)), lessThanEqual(zb, g_upper));
     bvec4 use_a = both(both(in_reach, not(out_a)), both(valid_a, either(valid_b, out_b)));
     bvec4 use_b = both(both(in_reach, not(out_b)), both(valid_b, either(valid_a, out_a)));
+    // the pair test where both taps lie inside the image (a side alone has no midpoint)
+    bvec4 kept = either(pair_kept(za, zb), either(out_a, out_b));
+    use_a = both(use_a, kept);
+    use_b = both(use_b, kept);
 #if (KEEP_FEATURES & 1) != 0
     // A pair wholly past the image's ends rejects nothing.
     bvec4 rejected = both(both(in_reach, not(both(out_a, out_b))), not(either(use_a, use_b)));

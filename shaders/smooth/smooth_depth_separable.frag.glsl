@@ -41,6 +41,9 @@ uniform sampler2D u_packed_depth;
 // The kernel's sigma times this: per pass, from quality.last_pass_sigma and quality.destreak
 // (passes/smooth.py separable_passes); 1 for equal passes.
 uniform float u_sigma_scale;
+// The narrow range's pair limit (quality.narrow_range_pairs x r, scene units) on this pass;
+// 3e38 where it is off (passes/smooth.py: always on the first pass).
+uniform float u_nr_pair_limit;
 
 layout(location = 0) out vec4 out_packed_depth;
 
@@ -64,6 +67,17 @@ vec4 g_lower_clamp;
 // 35 degrees) and tilt its normals where the kernel's size changes. Finite for background 0.
 vec4 inverse_depth(vec4 z) {
     return 1.0 / max(z, vec4(1e-30));
+}
+
+// Whether a mirrored pair (za at +k, zb at -k) stays on the centre's surface: its midpoint in
+// inverse depth departs from the centre's by at most the pair limit, as a depth difference
+// (d(1/z) x z^2). A plane's pair never departs (1/z is affine in the image over a plane, at
+// any slope and kernel length); a pair whose taps both lie on a surface h behind (a blob
+// narrower than the kernel, in front of a pool) departs by about h, a pair across one step
+// of h by h / 2.
+bvec4 pair_kept(vec4 za, vec4 zb) {
+    vec4 mid = 0.5 * (inverse_depth(za) + inverse_depth(zb)) - inverse_depth(g_center);
+    return lessThanEqual(abs(mid) * g_center * g_center, vec4(u_nr_pair_limit));
 }
 
 // One sample `z` of the narrow range: clamped to z_centre - mu r when in front by more than
@@ -119,7 +133,7 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     // clamped to z - mu*r; the accepted range grows around every accepted sample.
     bvec4 valid_a = both(greaterThan(za, vec4(0.0)), lessThanEqual(za, g_upper));
     bvec4 valid_b = both(greaterThan(zb, vec4(0.0)), lessThanEqual(zb, g_upper));
-    bvec4 accept = both(in_reach, both(valid_a, valid_b));
+    bvec4 accept = both(both(in_reach, both(valid_a, valid_b)), pair_kept(za, zb));
 #if (KEEP_FEATURES & 1) != 0
     accept = both(accept, g_open);
     g_open = both(g_open, not(both(in_reach, not(accept))));
