@@ -12,17 +12,19 @@ default's on each frame. Needs ../shared/data and pysplashsurf (or the reference
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from sphrender.server.bench.analytic import angle_deg
-from sphrender.server.bench.scenes import DAMBREAK_DIR, Truth
+from sphrender.server.bench.scenes import DAMBREAK_VTK
 from sphrender.server.bench.surface_bench import PRE_ISSUE, dam_case, render_case
-from sphrender.server.bench.surface_quality import flicker_deg, shift_tolerant_band_error_deg
+from sphrender.server.bench.surface_quality import (
+    band_error_deg,
+    flicker_deg,
+    shift_tolerant_band_error_deg,
+)
 from sphrender.server.bench.sweep import Setting
 from sphrender.server.engine.frame_output import RenderedFrame
 from sphrender.server.engine.gpu.gl_context import GLContext
@@ -49,8 +51,7 @@ def frame_number(path: Path) -> int:
 
 def dam_frame_paths(numbers: Sequence[int] | None = None) -> list[Path]:
     """The data set's VTK frames in time order (only `numbers` when given)."""
-    folder = DAMBREAK_DIR / "dambreak-splishsplash" / "vtk"
-    paths = sorted(folder.glob("ParticleData_Fluid_*.vtk"), key=frame_number)
+    paths = sorted(DAMBREAK_VTK.glob("ParticleData_Fluid_*.vtk"), key=frame_number)
     return [p for p in paths if numbers is None or frame_number(p) in numbers]
 
 
@@ -60,15 +61,6 @@ def all_finite(frame: RenderedFrame) -> bool:
     assert frame.depth is not None and frame.normals is not None
     depth_ok = not np.isnan(frame.depth).any() and not np.isneginf(frame.depth).any()
     return bool(np.isfinite(frame.rgba).all() and np.isfinite(frame.normals).all() and depth_ok)
-
-
-def mean_error_deg(frame: RenderedFrame, truth: Truth) -> float:
-    """Mean normal error over the pixels the render and the truth both cover."""
-    assert frame.normals is not None and frame.depth is not None
-    mask = truth.hit & np.isfinite(frame.depth)
-    if not mask.any():
-        return math.nan
-    return float(angle_deg(frame.normals.astype(np.float64)[mask], truth.normals[mask]).mean())
 
 
 def run_dam_frames(
@@ -95,7 +87,7 @@ def run_dam_frames(
             row = DamFrameRow(
                 path.stem,
                 setting.name,
-                mean_error_deg(frame, case.truth),
+                band_error_deg(frame, case.truth, case.truth.hit),  # every covered pixel
                 shift_tolerant_band_error_deg(frame, case.truth, case.band),
                 flicker_deg(frame, moved)[0],
                 floor,

@@ -178,8 +178,12 @@ def droplets_scene(count: int, radius: float = 0.01, seed: int = 3) -> BenchScen
     )
 
 
+#: The data set's VTK frames (ParticleData_Fluid_<n>.vtk, n = 1, 3, ..., 15).
+DAMBREAK_VTK = DAMBREAK_DIR / "dambreak-splishsplash" / "vtk"
+
+
 def dambreak_frame() -> Path | None:
-    path = DAMBREAK_DIR / "dambreak-splishsplash" / "vtk" / "ParticleData_Fluid_5.vtk"
+    path = DAMBREAK_VTK / "ParticleData_Fluid_5.vtk"
     return path if path.exists() else None
 
 
