@@ -1,5 +1,5 @@
 """The surface bench's metrics against analytic cases: the shift-tolerant band error, the
-truth's own flicker, and the multi-metric front."""
+truth's own flicker, the multi-metric front, and the jitter's two readings."""
 
 from __future__ import annotations
 
@@ -13,10 +13,23 @@ from sphrender.server.bench.dam_frames import (
     band_ratios,
     dam_frames_section,
 )
+from sphrender.server.bench.jitter_readings import (
+    READINGS,
+    JitterReadingRow,
+    case_flicker_deg,
+    jitter_readings_section,
+    mean_move_r,
+)
 from sphrender.server.bench.scenes import Truth, sphere_truth
-from sphrender.server.bench.surface_bench import PRE_ISSUE, SurfaceRow, surface_front
+from sphrender.server.bench.surface_bench import (
+    PRE_ISSUE,
+    SurfaceRow,
+    spatter_case,
+    surface_front,
+)
 from sphrender.server.bench.surface_quality import (
     band_error_deg,
+    jittered,
     shift_tolerant_band_error_deg,
     silhouette_band,
     split_flicker_deg,
@@ -24,6 +37,7 @@ from sphrender.server.bench.surface_quality import (
 )
 from sphrender.server.engine.frame_output import RenderedFrame
 from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import CameraConfig
 
 CAMERA = Camera.from_config(CameraConfig(eye=(0.0, 0.0, 1.0), target=(0.0, 0.0, 0.0)), 120, 90)
@@ -129,3 +143,64 @@ def test_all_finite_takes_inf_depth_as_no_surface_and_nothing_else() -> None:
         broken = as_frame(sphere_truth(CAMERA, np.zeros(3), R))
         getattr(broken, name)[index] = np.nan
         assert not all_finite(broken), name
+
+
+def test_jitter_moves_by_a_gaussian_per_axis_or_by_exactly_the_fraction() -> None:
+    """Per axis (the bench's): the same draws as before the fixed-length reading existed (the
+    reference caches are keyed by the moved positions), lengths averaging sqrt(8 / pi) sigma
+    = 1.596 sigma (a 3-D Gaussian's length; over 20,000 particles its standard error is
+    0.673 sigma / sqrt(20,000) = 0.005 sigma: 0.03 sigma is 6 of them). Fixed length: every
+    particle moved by exactly fraction * r, in directions with no preferred side (the mean
+    offset within 6 standard errors of 0, each axis's spread r f / sqrt(3))."""
+    rng = np.random.default_rng(3)
+    positions = rng.uniform(-1e5, 1e5, (20_000, 3))  # far from the origin: float64 throughout
+    r, f = 0.01, 0.02
+    gaussian = jittered(positions, r, f, seed=4)
+    expected = positions + np.random.default_rng(4).normal(0.0, f * r, positions.shape)
+    np.testing.assert_array_equal(gaussian, expected)
+    lengths = np.linalg.norm(gaussian - positions, axis=1) / (f * r)
+    assert abs(lengths.mean() - math.sqrt(8.0 / math.pi)) < 0.03
+    offsets = jittered(positions, r, f, seed=4, fixed_length=True) - positions
+    np.testing.assert_allclose(np.linalg.norm(offsets, axis=1), f * r, rtol=1e-6)
+    spread = f * r / math.sqrt(3.0)
+    assert np.all(np.abs(offsets.mean(axis=0)) < 6 * spread / math.sqrt(len(offsets)))
+
+
+def test_spatter_case_moves_its_particles_as_its_reading_says(renderer: SurfaceRenderer) -> None:
+    """The spatter case under each reading (real EGL and PoCL, 160x90): the measured mean move
+    is the reading's (exactly 2 % r; 1.596 x 2 % r within 5 % over its ~4,000 particles), and
+    the flicker of the balanced preset is finite and not zero (the particles did move)."""
+    from sphrender.server.bench.sweep import preset_setting
+
+    balanced = preset_setting("balanced")
+    moves = {}
+    for _, fixed_length in READINGS:
+        case, floor, _ = spatter_case(renderer, 160, 90, fixed_length=fixed_length)
+        moves[fixed_length] = mean_move_r(case)
+        flicker = case_flicker_deg(renderer, case, balanced)
+        assert math.isfinite(flicker) and flicker > 0.0
+        assert math.isfinite(floor) and floor > 0.0
+    assert math.isclose(moves[True], 0.02, rel_tol=1e-6)
+    assert math.isclose(moves[False], 0.02 * math.sqrt(8.0 / math.pi), rel_tol=0.05)
+
+
+def test_jitter_readings_section_says_who_meets_the_item_under_each_reading() -> None:
+    (gauss, _), (fixed, _) = READINGS
+    rows = [
+        JitterReadingRow(gauss, "before", 0.032, 1.9, 0.5, 2.1, 0.8),
+        JitterReadingRow(gauss, "after", 0.032, 0.65, 0.5, 0.98, 0.8),
+        JitterReadingRow(fixed, "before", 0.02, 1.4, 0.25, 1.5, 0.28),
+        JitterReadingRow(fixed, "after", 0.02, 0.29, 0.25, math.nan, 0.28),
+    ]
+    text = "\n".join(jitter_readings_section(rows))
+    assert f"| {fixed} | 0.0200 r | after | 0.29 | 0.25 | nan | 0.28 |" in text
+    assert (
+        f"* {gauss}: flicker <= 0.3°: before does not meet it, after does not meet it; the "
+        "truth itself does not meet it" in text
+    )
+    # a NaN (no dam break) is not a verdict: after meets it on the spatter alone
+    assert (
+        f"* {fixed}: flicker <= 0.3°: before does not meet it, after meets it; the truth "
+        "itself meets it" in text
+    )
+    assert jitter_readings_section([]) == []

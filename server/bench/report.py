@@ -7,6 +7,7 @@ import time
 from pathlib import Path
 
 from sphrender.server.bench.dam_frames import dam_frames_section
+from sphrender.server.bench.jitter_readings import jitter_readings_section
 from sphrender.server.bench.results import BenchResults, growth_exponent, ratio
 from sphrender.server.bench.surface_bench import (
     NO_FIELD_NORMALS,
@@ -130,6 +131,8 @@ def write_report(results: BenchResults, path: Path, *, plot_name: str) -> None:
         lines += surface_section(results.surfaces, lattice)
     if results.dam_frames:
         lines += [*dam_frames_section(results.dam_frames), ""]
+    if results.jitter_readings:
+        lines += [*jitter_readings_section(results.jitter_readings), ""]
     lines += _scaling_section(results)
     path.write_text("\n".join(lines))
 

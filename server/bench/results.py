@@ -10,6 +10,7 @@ import numpy as np
 
 from sphrender.server.bench import peers
 from sphrender.server.bench.dam_frames import DamFrameRow
+from sphrender.server.bench.jitter_readings import JitterReadingRow
 from sphrender.server.bench.surface_bench import SurfaceResults
 from sphrender.server.bench.sweep import SweepRow
 
@@ -26,6 +27,8 @@ class BenchResults:
     surfaces: SurfaceResults | None = None
     #: The dam break's figures on every frame of the data set (empty without it).
     dam_frames: list[DamFrameRow] = field(default_factory=list)
+    #: The flicker under both readings of the issue's jitter (empty in quick runs).
+    jitter_readings: list[JitterReadingRow] = field(default_factory=list)
 
 
 def growth_exponent(xs: list[float], ys: list[float]) -> float:

@@ -26,6 +26,7 @@ from sphrender.client.frame import make_frame
 from sphrender.server.bench import peers
 from sphrender.server.bench.closeup_crop import BALANCED_DESTREAK, EQUAL_PASSES, write_closeup_crop
 from sphrender.server.bench.dam_frames import dam_frame_paths, run_dam_frames
+from sphrender.server.bench.jitter_readings import run_jitter_readings
 from sphrender.server.bench.report import write_plot, write_report
 from sphrender.server.bench.results import BenchResults
 from sphrender.server.bench.scenes import (
@@ -263,6 +264,10 @@ def _run_surfaces(
         return
     balanced = preset_setting("balanced")
     _run_dam_frames(gl, renderer, results, (PRE_ISSUE, balanced), surface_w, surface_h, cache, log)
+    log("flicker under both readings of the jitter")
+    results.jitter_readings = run_jitter_readings(
+        gl, renderer, (PRE_ISSUE, balanced), width=surface_w, height=surface_h, cache=cache, log=log
+    )
     # what field normals change
     write_crops(
         renderer,

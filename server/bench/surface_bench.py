@@ -201,9 +201,11 @@ class Case:
     band: npt.NDArray[np.bool_]
 
 
-def _spatter_case(
-    renderer: SurfaceRenderer, width: int, height: int
+def spatter_case(
+    renderer: SurfaceRenderer, width: int, height: int, *, fixed_length: bool = False
 ) -> tuple[Case, float, tuple[float, float, float]]:
+    """The spatter's case, its truth's own flicker (the floor) and that flicker's split
+    (band, inside, the band's share); `fixed_length`: see `surface_quality.jittered`."""
     spatter = spatter_scene()
     camera = Camera.from_config(spatter.camera_config(), width, height)
     params = SphParameters.from_scene(
@@ -211,7 +213,7 @@ def _spatter_case(
     )
     # As a simulator writes them: the frame's kernel densities (eq 2, computed once here).
     densities = renderer.sph_engine().density(spatter.positions, params)
-    moved_positions = jittered(spatter.positions, spatter.radius, JITTER)
+    moved_positions = jittered(spatter.positions, spatter.radius, JITTER, fixed_length=fixed_length)
     truth = spatter.truth(camera)
     n_pool = len(spatter.positions) - 40
     moved_truth = spatter_truth(moved_positions[:n_pool], moved_positions[n_pool:], spatter.radius)
@@ -237,9 +239,12 @@ def dam_case(
     height: int,
     cache: Path,
     path: Path | None = None,
+    *,
+    fixed_length: bool = False,
 ) -> tuple[Case | None, float, str]:
     """The dam break's case (frame `path`, the bench's frame 5 by default), the floor of its
-    flicker (the reference's own) and a note naming the frame, or why it was skipped."""
+    flicker (the reference's own) and a note naming the frame, or why it was skipped;
+    `fixed_length`: see `surface_quality.jittered`."""
     from sphrender.client.readers import read_particles
     from sphrender.server.bench.scenes import dambreak_scene
 
@@ -247,7 +252,9 @@ def dam_case(
     if path is None:
         return None, math.nan, "dam break skipped: ../shared/data not found"
     particles = read_particles(path)
-    moved_positions = jittered(particles.positions, DAMBREAK_RADIUS, JITTER)
+    moved_positions = jittered(
+        particles.positions, DAMBREAK_RADIUS, JITTER, fixed_length=fixed_length
+    )
     try:
         mesh = cached_reconstruction(particles.positions, DAMBREAK_RADIUS, cache)
         moved_mesh = cached_reconstruction(moved_positions, DAMBREAK_RADIUS, cache)
@@ -287,7 +294,7 @@ def run_surface_bench(
     log: Callable[[str], None] = print,
 ) -> SurfaceResults:
     results = SurfaceResults(width, height)
-    spatter, results.spatter_flicker_floor, results.spatter_floor_split = _spatter_case(
+    spatter, results.spatter_flicker_floor, results.spatter_floor_split = spatter_case(
         renderer, width, height
     )
     coverage = supersampled_coverage(
@@ -367,7 +374,7 @@ def write_crops(
     from sphrender.server.output.encoders import write_png
 
     after = after or preset_setting("balanced")
-    spatter, _, _ = _spatter_case(renderer, width, height)
+    spatter, _, _ = spatter_case(renderer, width, height)
     cases: list[tuple[str, Callable[[Setting], RenderedFrame]]] = [
         ("spatter", lambda s: render_case(renderer, spatter.frame, s, spatter))
     ]

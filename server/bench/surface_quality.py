@@ -124,10 +124,19 @@ def edge_alpha_error(alpha: F64, coverage: F64) -> float:
     return float(np.abs(alpha[edge] - coverage[edge]).mean()) if edge.any() else float("nan")
 
 
-def jittered(positions: F64, radius: float, fraction: float, seed: int = 11) -> F64:
-    """Every particle moved by a Gaussian offset of `fraction` r per axis."""
+def jittered(
+    positions: F64, radius: float, fraction: float, seed: int = 11, *, fixed_length: bool = False
+) -> F64:
+    """Every particle moved by a Gaussian offset of `fraction` r per axis (on average by
+    1.60 `fraction` r: the mean of a 3-D Gaussian's length), or with `fixed_length` by
+    exactly `fraction` r in a uniformly random direction (the issue's "moving every particle
+    by 2 % of r" read literally; `jitter_readings.py` measures both)."""
     rng = np.random.default_rng(seed)
-    return positions + rng.normal(0.0, fraction * radius, positions.shape)
+    offsets = rng.normal(0.0, fraction * radius, positions.shape)
+    if fixed_length:
+        lengths = np.linalg.norm(offsets, axis=-1, keepdims=True)
+        offsets *= fraction * radius / np.maximum(lengths, np.finfo(np.float64).tiny)
+    return positions + offsets
 
 
 def flicker_deg(a: RenderedFrame, b: RenderedFrame) -> tuple[float, float]:
