@@ -83,6 +83,26 @@ def test_sph_on_real_frame_matches_ckdtree(
     assert_matches_reference(computed, None, frame.positions)
 
 
+def test_densities_in_other_units_are_computed_instead(
+    dambreak: Path, scene_toml: Path, tmp_path: Path
+) -> None:
+    """The real frame's densities written x 7 (molten steel in kg/m^3 against the scene's rest
+    density 1000) peak outside 0.5-1.5 x rest: `sphrender sph` warns, naming the field, and
+    computes them, as `--densities compute` does (the same arrays)."""
+    frame = read_particles(dambreak / "vtk" / "ParticleData_Fluid_11.vtk")
+    assert frame.densities is not None
+    steel = tmp_path / "steel.npz"
+    np.savez(steel, positions=frame.positions, densities=7.0 * frame.densities)
+    result = run_sphrender(
+        "sph", str(steel), "--scene", str(scene_toml), "-o", str(tmp_path / "s.npz")
+    )
+    assert result.returncode == 0, result.stderr
+    assert "densities computed" in result.stdout and "sph.rest_density" in result.stderr
+    with np.load(tmp_path / "s.npz") as data:
+        arrays = {key: data[key] for key in data.files}
+    assert_matches_reference(arrays, None, frame.positions)
+
+
 def test_surface_fraction_of_the_initial_block(
     dambreak: Path, scene_toml: Path, tmp_path: Path
 ) -> None:

@@ -136,6 +136,45 @@ def test_computed_droplet_densities_ignore_the_frames(renderer: SurfaceRenderer)
     assert np.abs(trusted.depth[shown] - own.depth[shown]).max() > 0.5 * R
 
 
+@pytest.mark.parametrize(
+    ("scale", "what"), [(7.0, "molten steel, kg/m^3"), (1e-3, "normalised, rho / rho_0")]
+)
+def test_densities_in_other_units_are_replaced_by_computed_ones(
+    renderer: SurfaceRenderer, caplog: pytest.LogCaptureFixture, scale: float, what: str
+) -> None:
+    """The kernel's own densities (pool 1000, droplets 1000 / pi) written in other units or for
+    another fluid, against the default sph.rest_density 1000: taken as they come, x 7 would
+    make no particle a droplet and x 1e-3 every particle one (checked below). Their peak (7 x
+    and 1e-3 x rest) lies outside 0.5-1.5 x rest, so the split runs on densities computed from
+    the positions: exactly the six droplets, one warning naming the field to set, and the same
+    image, exactly, as a frame without densities under droplet_density_pass. With the scene's
+    rest density set to match, the frame's densities are used and split the same way."""
+    pool, droplets = pool_and_droplets()
+    positions = np.concatenate([pool, droplets])
+    kernel = np.full(len(positions), 1000.0, np.float32)
+    kernel[len(pool) :] = 1000.0 / np.pi
+    other = make_frame(positions, densities=kernel * np.float32(scale))
+    expected = np.arange(len(positions)) >= len(pool)
+    naive = np.asarray(other.densities) < 0.45 * 1000.0
+    assert naive.all() if scale < 1.0 else not naive.any()  # what trusting them would split
+    caplog.set_level("WARNING", logger="sphrender.sph")
+    stage = SphStage()
+    try:
+        for _ in range(2):
+            outcome = stage.run(other, make_scene())
+            assert outcome.droplets is not None and np.array_equal(outcome.droplets, expected)
+        matched = stage.run(other, make_scene(sph={"rest_density": 1000.0 * scale}))
+        assert matched.droplets is not None and np.array_equal(matched.droplets, expected)
+    finally:
+        stage.release()
+    warnings = [r.getMessage() for r in caplog.records if r.name == "sphrender.sph"]
+    assert len(warnings) == 1 and "sph.rest_density" in warnings[0], warnings
+    computed = render(renderer, positions, make_scene(quality={"droplet_density_pass": True}))
+    drawn = render(renderer, positions, make_scene(), densities=other.densities)
+    assert computed.depth is not None and drawn.depth is not None
+    assert np.array_equal(drawn.depth, computed.depth), what
+
+
 def test_computed_droplet_densities_count_the_whole_frame_under_surface_only() -> None:
     """`droplet_densities = "computed"` with `sph.surface_only`: the split's densities are the
     whole frame's, then subset with the splat. Over the splatted subset alone a surface

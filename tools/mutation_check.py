@@ -220,6 +220,17 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="quality.narrow_range_pairs: the pair test keeps every pair",
     ),
     Mutation(
+        name="frame-densities-always-trusted",
+        path="server/engine/sph/frame_densities.py",
+        old="    return ratio is None or FIT_RANGE[0] <= ratio <= FIT_RANGE[1]",
+        new="    return True",
+        tests=(
+            "tests/test_surfaces.py::test_densities_in_other_units_are_replaced_by_computed_ones",
+            "tests/test_sph_cli.py::test_densities_in_other_units_are_computed_instead",
+        ),
+        description="a frame's densities in other units are used as they come",
+    ),
+    Mutation(
         name="narrow-range-pairs-on-the-first-pass",
         path="server/engine/passes/smooth.py",
         old="    return [PAIR_TEST_OFF] + [limit] * (count - 1)",

@@ -15,6 +15,11 @@ from sphrender.client.frame import ParticleFrame
 from sphrender.server.engine.gpu.cl_context import CLContext, CLUnavailableError
 from sphrender.server.engine.sph.anisotropy import AnisotropyParameters, AnisotropyResult
 from sphrender.server.engine.sph.engine import SphEngine, SphParameters, SphResult
+from sphrender.server.engine.sph.frame_densities import (
+    FIT_RANGE,
+    largest_density_ratio,
+    without_unfit_densities,
+)
 from sphrender.server.engine.sph.radii import F32, adaptive_radii, surface_density
 from sphrender.server.scene import Scene
 
@@ -183,6 +188,7 @@ class SphStage:
     def __init__(self, cl_device: str | None = None) -> None:
         self._cl_device = cl_device
         self._warned = False
+        self._warned_units = False
         self._cl: CLContext | None = None
         self._engine: SphEngine | None = None
 
@@ -203,6 +209,7 @@ class SphStage:
     def warm(self, frame: ParticleFrame, scene: Scene) -> None:
         """Build the CL context and program now if this frame will need them (so the first
         frame's stage time is the pass's, not LLVM's)."""
+        frame, scene = without_unfit_densities(frame, scene)
         if needs_sph(scene) or computes_droplet_densities(scene, frame):
             try:
                 self.engine()
@@ -213,7 +220,9 @@ class SphStage:
     def run(self, frame: ParticleFrame, scene: Scene) -> SphOutcome:
         """Everything the scene asks of SPH for this frame (on the owner thread). Exact droplets
         without OpenCL (and without client densities) are skipped with one warning: the frame
-        still renders, its droplets smoothed as without the option."""
+        still renders, its droplets smoothed as without the option. Densities that do not fit
+        the scene's rest density are replaced by computed ones (frame_densities.py)."""
+        frame, scene = self._fitting_densities(frame, scene)
         reference_radius = frame_particle_radius(frame, scene)
         ellipsoids = droplets = computed = None
         drawn = frame
@@ -234,6 +243,22 @@ class SphStage:
                     )
                     self._warned = True
         return SphOutcome(drawn, reference_radius, droplets, ellipsoids)
+
+    def _fitting_densities(self, frame: ParticleFrame, scene: Scene) -> tuple[ParticleFrame, Scene]:
+        """`without_unfit_densities`, with one warning the first time a frame's are replaced."""
+        fitted, fitted_scene = without_unfit_densities(frame, scene)
+        if fitted is not frame and not self._warned_units:
+            log.warning(
+                "the frame's densities peak at %.3g x sph.rest_density (%g), outside %g-%g x: "
+                "taken as other units or another fluid, they are replaced by densities "
+                "computed from the positions; set sph.rest_density to the simulation's rest "
+                "density (e.g. ~7000 for molten steel in kg/m^3) to use the frame's",
+                largest_density_ratio(frame, scene),
+                scene.sph.rest_density,
+                *FIT_RANGE,
+            )
+            self._warned_units = True
+        return fitted, fitted_scene
 
     def release(self) -> None:
         if self._engine is not None:
