@@ -81,6 +81,12 @@ class StreamResult:
     header: dict[str, Any]
     data: bytes = b""
 
+    @property
+    def notes(self) -> list[dict[str, str]]:
+        """What the server changed about the frame's input to render it (IMAGE ``notes``,
+        PROTOCOL.md 4.3): ``{"field", "message"}`` objects; empty for most frames."""
+        return list(self.header.get("notes", []))
+
     def raw_arrays(self) -> dict[str, np.ndarray]:
         """The arrays of a raw IMAGE (``format`` "raw"), by name."""
         if self.kind != "image" or self.header.get("format") != "raw":

@@ -7,6 +7,7 @@ right: one client's garbage must never disturb another's frames.
 
 from __future__ import annotations
 
+import json
 import socket
 import struct
 import threading
@@ -36,6 +37,7 @@ from sphrender.client.protocol import (
     MessageType,
     encode_frame,
     encode_message,
+    encode_npz_frame,
 )
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.output.encoders import read_exr
@@ -276,6 +278,37 @@ def test_framing_errors_are_fatal_for_that_connection_only(
         kind, header, _payload = client.receive()
         assert (kind, header["id"]) == (MessageType.IMAGE, 1)
         expect_fatal(client, code, field)
+
+
+def test_densities_in_other_units_are_rendered_with_a_note(
+    service: ServerProcess, tmp_path: Path
+) -> None:
+    """A ball whose densities are written x 7 (molten steel in kg/m^3 against the default
+    sph.rest_density 1000): the frame is rendered, on densities computed from the positions,
+    and its IMAGE carries one note naming `densities` and the field to set, over the stream and
+    (the same array as JSON) over HTTP; the same frame in the scene's units has no note, and a
+    client's next frame is not affected."""
+    positions = ball(2000, seed=3)
+    steel = np.full(len(positions), 7000.0, np.float32)
+    water = np.full(len(positions), 1000.0, np.float32)
+    with service.stream() as client:
+        client.hello(SMALL_SCENE)
+        client.frame(1, positions, densities=steel)
+        client.frame(2, positions, densities=water)
+        answers = [client.receive(), client.receive()]
+    (kind, noted, payload), (kind2, plain, _) = answers
+    assert kind == kind2 == MessageType.IMAGE, answers
+    assert png_pixels(payload, tmp_path)[..., 3].max() == 255  # rendered
+    assert [n["field"] for n in noted["notes"]] == ["densities"]
+    message = noted["notes"][0]["message"]
+    assert "7 x sph.rest_density (1000)" in message and "computed from the positions" in message
+    assert "notes" not in plain
+    body = encode_npz_frame(positions, densities=steel, scene=SMALL_SCENE)
+    status, headers, data = service.request(
+        "POST", "/v1/render", body, {"Content-Type": "application/x-npz"}
+    )
+    assert status == 200, data
+    assert json.loads(headers["X-Sphrender-Notes"]) == noted["notes"]
 
 
 def test_content_errors_answer_that_frame_and_the_connection_goes_on(

@@ -146,8 +146,9 @@ def test_densities_in_other_units_are_replaced_by_computed_ones(
     another fluid, against the default sph.rest_density 1000: taken as they come, x 7 would
     make no particle a droplet and x 1e-3 every particle one (checked below). Their peak (7 x
     and 1e-3 x rest) lies outside 0.5-1.5 x rest, so the split runs on densities computed from
-    the positions: exactly the six droplets, one warning naming the field to set, and the same
-    image, exactly, as a frame without densities under droplet_density_pass. With the scene's
+    the positions: exactly the six droplets, one warning naming the field to set, the same
+    image, exactly, as a frame without densities under droplet_density_pass, and a note on
+    `densities` in the frame's stats (what the service tells the client). With the scene's
     rest density set to match, the frame's densities are used and split the same way."""
     pool, droplets = pool_and_droplets()
     positions = np.concatenate([pool, droplets])
@@ -170,9 +171,12 @@ def test_densities_in_other_units_are_replaced_by_computed_ones(
     warnings = [r.getMessage() for r in caplog.records if r.name == "sphrender.sph"]
     assert len(warnings) == 1 and "sph.rest_density" in warnings[0], warnings
     computed = render(renderer, positions, make_scene(quality={"droplet_density_pass": True}))
-    drawn = render(renderer, positions, make_scene(), densities=other.densities)
+    drawn, stats = renderer.render(other, make_scene(), depth=True)
     assert computed.depth is not None and drawn.depth is not None
     assert np.array_equal(drawn.depth, computed.depth), what
+    assert [note.field for note in stats.notes] == ["densities"]  # told to the client
+    _, plain = renderer.render(make_frame(positions, densities=kernel), make_scene(), depth=True)
+    assert plain.notes == []
 
 
 def test_computed_droplet_densities_count_the_whole_frame_under_surface_only() -> None:

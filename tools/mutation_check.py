@@ -231,6 +231,17 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="a frame's densities in other units are used as they come",
     ),
     Mutation(
+        name="input-notes-not-passed-on",
+        path="server/engine/renderer.py",
+        old="        stats.notes.extend(outcome.notes)",
+        new="        pass",
+        tests=(
+            "tests/test_surfaces.py::test_densities_in_other_units_are_replaced_by_computed_ones",
+            "tests/test_service_stream.py::test_densities_in_other_units_are_rendered_with_a_note",
+        ),
+        description="what the SPH stage changed about a frame's input is not told to the client",
+    ),
+    Mutation(
         name="narrow-range-pairs-on-the-first-pass",
         path="server/engine/passes/smooth.py",
         old="    return [PAIR_TEST_OFF] + [limit] * (count - 1)",

@@ -115,9 +115,19 @@ class DisplayCodes:
     request: DisplayRequest
 
 
+@dataclass(frozen=True)
+class InputNote:
+    """Something the renderer changed about a frame's input to render it, said to the client
+    (IMAGE `notes`, PROTOCOL.md 4.3): the input field, and what was done, in words."""
+
+    field: str
+    message: str
+
+
 @dataclass
 class RenderStats:
-    """What one frame cost and did: milliseconds per stage (only stages that ran), counts."""
+    """What one frame cost and did: milliseconds per stage (only stages that ran), counts,
+    and notes on its input."""
 
     stage_ms: dict[str, float] = field(default_factory=dict)
     particles_in: int = 0
@@ -128,6 +138,7 @@ class RenderStats:
     #: GPU. Wall time of the render less the time inside the GL calls that do the device's work
     #: (gpu/gl_clock.py) and less the SPH stage (OpenCL, its own stage time).
     host_ms: float = 0.0
+    notes: list[InputNote] = field(default_factory=list)
 
     @property
     def total_ms(self) -> float:

@@ -172,7 +172,9 @@ class SurfaceRenderer:
             return SphOutcome(frame)
         self._sph.warm(frame, scene)  # outside the stage: first use builds the CL program
         with self._stage(stats, "sph"):
-            return self._sph.run(frame, scene)
+            outcome = self._sph.run(frame, scene)
+        stats.notes.extend(outcome.notes)
+        return outcome
 
     def _draw_surface(
         self, prepared: PreparedFrame, camera: Camera, scene: Scene, stats: RenderStats

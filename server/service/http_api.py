@@ -400,6 +400,10 @@ class ApiHandler(ViewerRoutes):
             }
             if outcome.arrays is not None:
                 headers["X-Sphrender-Arrays"] = json.dumps(outcome.arrays, separators=(",", ":"))
+            if outcome.notes:  # JSON, ASCII (json escapes the rest)
+                headers["X-Sphrender-Notes"] = json.dumps(
+                    list(outcome.notes), separators=(",", ":")
+                )
             self._send(200, outcome.data, CONTENT_TYPES[outcome.format], headers)
         elif isinstance(outcome, ErrorOutcome):
             status = ErrorCode.HTTP_STATUS.get(outcome.code, 500)

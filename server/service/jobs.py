@@ -42,6 +42,8 @@ class ImageOutcome:
     timings_ms: dict[str, float]
     #: raw only: the payload's array descriptors (name, dtype, shape), in payload order.
     arrays: list[dict[str, Any]] | None = None
+    #: What the renderer changed about the frame's input ({"field", "message"}; PROTOCOL 4.3).
+    notes: tuple[dict[str, str], ...] = ()
 
 
 @dataclass(frozen=True)

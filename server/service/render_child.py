@@ -242,6 +242,7 @@ class _Child:
                 "host_ms": stats.host_ms,
                 "recv_ms": recv_ms,
                 "arrays": raw_layout(scene, fmt),  # type: ignore[arg-type]
+                "notes": [{"field": n.field, "message": n.message} for n in stats.notes],
             }
             del frame
             self.send(header, data)

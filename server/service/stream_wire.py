@@ -59,6 +59,8 @@ def answer_bytes(slot: Slot, outcome: Outcome) -> bytes:
         }
         if outcome.arrays is not None:
             header["arrays"] = outcome.arrays
+        if outcome.notes:
+            header["notes"] = list(outcome.notes)
         return encode_message(MessageType.IMAGE, header, outcome.data)
     if isinstance(outcome, DroppedOutcome):
         if outcome.reason == "superseded":

@@ -311,6 +311,7 @@ class RenderWorker(threading.Thread):
                     drawn=int(header["drawn"]),
                     timings_ms={k: round(v, 3) for k, v in timings.items()},
                     arrays=header.get("arrays"),
+                    notes=tuple(header.get("notes", ())),
                 )
             )
         else:

@@ -12,14 +12,11 @@ import numpy as np
 import numpy.typing as npt
 
 from sphrender.client.frame import ParticleFrame
+from sphrender.server.engine.frame_output import InputNote
 from sphrender.server.engine.gpu.cl_context import CLContext, CLUnavailableError
 from sphrender.server.engine.sph.anisotropy import AnisotropyParameters, AnisotropyResult
 from sphrender.server.engine.sph.engine import SphEngine, SphParameters, SphResult
-from sphrender.server.engine.sph.frame_densities import (
-    FIT_RANGE,
-    largest_density_ratio,
-    without_unfit_densities,
-)
+from sphrender.server.engine.sph.frame_densities import unfit_note, without_unfit_densities
 from sphrender.server.engine.sph.radii import F32, adaptive_radii, surface_density
 from sphrender.server.scene import Scene
 
@@ -179,6 +176,7 @@ class SphOutcome:
     reference_radius: float | None = None  # the radius the smoothing follows (None: frame's)
     droplets: npt.NDArray[np.bool_] | None = None  # which particles skip smoothing
     ellipsoids: tuple[npt.NDArray[np.float64], F32] | None = None  # (centres, semi-axes)
+    notes: tuple[InputNote, ...] = ()  # what was changed about the frame's input
 
 
 class SphStage:
@@ -222,7 +220,9 @@ class SphStage:
         without OpenCL (and without client densities) are skipped with one warning: the frame
         still renders, its droplets smoothed as without the option. Densities that do not fit
         the scene's rest density are replaced by computed ones (frame_densities.py)."""
-        frame, scene = self._fitting_densities(frame, scene)
+        fitted, scene = without_unfit_densities(frame, scene)
+        notes = () if fitted is frame else (self._unfit(frame, scene),)
+        frame = fitted
         reference_radius = frame_particle_radius(frame, scene)
         ellipsoids = droplets = computed = None
         drawn = frame
@@ -242,23 +242,15 @@ class SphStage:
                         "exact droplets need densities or OpenCL, rendering without: %s", exc
                     )
                     self._warned = True
-        return SphOutcome(drawn, reference_radius, droplets, ellipsoids)
+        return SphOutcome(drawn, reference_radius, droplets, ellipsoids, notes)
 
-    def _fitting_densities(self, frame: ParticleFrame, scene: Scene) -> tuple[ParticleFrame, Scene]:
-        """`without_unfit_densities`, with one warning the first time a frame's are replaced."""
-        fitted, fitted_scene = without_unfit_densities(frame, scene)
-        if fitted is not frame and not self._warned_units:
-            log.warning(
-                "the frame's densities peak at %.3g x sph.rest_density (%g), outside %g-%g x: "
-                "taken as other units or another fluid, they are replaced by densities "
-                "computed from the positions; set sph.rest_density to the simulation's rest "
-                "density (e.g. ~7000 for molten steel in kg/m^3) to use the frame's",
-                largest_density_ratio(frame, scene),
-                scene.sph.rest_density,
-                *FIT_RANGE,
-            )
+    def _unfit(self, frame: ParticleFrame, scene: Scene) -> InputNote:
+        """The note of a frame whose densities were replaced; logged the first time."""
+        note = unfit_note(frame, scene)
+        if not self._warned_units:
+            log.warning("%s: %s", note.field, note.message)
             self._warned_units = True
-        return fitted, fitted_scene
+        return note
 
     def release(self) -> None:
         if self._engine is not None:

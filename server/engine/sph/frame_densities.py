@@ -26,6 +26,7 @@ from dataclasses import replace
 import numpy as np
 
 from sphrender.client.frame import ParticleFrame
+from sphrender.server.engine.frame_output import InputNote
 from sphrender.server.scene import Scene
 
 #: The frame's largest density over sph.rest_density within which its densities are used.
@@ -56,3 +57,16 @@ def without_unfit_densities(frame: ParticleFrame, scene: Scene) -> tuple[Particl
         return frame, scene
     quality = replace(scene.quality, droplet_densities="computed")
     return replace(frame, densities=None), replace(scene, quality=quality)
+
+
+def unfit_note(frame: ParticleFrame, scene: Scene) -> InputNote:
+    """What the client is told about a frame whose densities were replaced."""
+    ratio = largest_density_ratio(frame, scene)
+    return InputNote(
+        "densities",
+        f"the frame's densities peak at {ratio:.3g} x sph.rest_density ({scene.sph.rest_density:g}"
+        f"), outside {FIT_RANGE[0]:g}-{FIT_RANGE[1]:g} x: taken as other units or another "
+        "fluid, they were replaced by densities computed from the positions; set "
+        "sph.rest_density to the simulation's rest density (e.g. ~7000 for molten steel in "
+        "kg/m^3) to use the frame's",
+    )
