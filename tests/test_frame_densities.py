@@ -1,6 +1,7 @@
-"""When a frame's own densities are used: their peak within 0.5-1.5 x sph.rest_density
-(server/engine/sph/frame_densities.py). Pure host logic; the renders that depend on it are in
-test_surfaces.py (the droplet split) and test_sph_cli.py (`sphrender sph`)."""
+"""When a frame's own densities are used: their peak within 0.5-1.5 x sph.rest_density and not
+one value for every particle (server/engine/sph/frame_densities.py). Pure host logic; the
+renders that depend on it are in test_surfaces.py (the droplet split), test_sph_cli.py
+(`sphrender sph`) and test_service_stream.py (the note on the answer)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,8 @@ from sphrender.server.engine.sph.frame_densities import (
     FIT_RANGE,
     densities_fit,
     largest_density_ratio,
+    unfit_note,
+    unfit_reason,
     without_unfit_densities,
 )
 from sphrender.server.scene import Scene, scene_from_dict
@@ -41,12 +44,26 @@ def test_the_peak_decides(peak: float, fits: bool) -> None:
     assert densities_fit(frame, scene()) is fits
     ratio = largest_density_ratio(frame, scene())
     assert ratio is not None and ratio == pytest.approx(peak / 1000.0, rel=1e-6)
+    reason = unfit_reason(frame, scene())
+    assert (reason is None) is fits
+    if reason is not None:
+        assert f"{peak / 1000.0:.3g} x sph.rest_density (1000)" in reason
 
 
 def test_the_rest_density_sets_the_units() -> None:
-    steel = make_frame(POSITIONS, densities=np.full(3, 7100.0))
+    steel = make_frame(POSITIONS, densities=np.array([7100.0, 6900.0, 5000.0]))
     assert not densities_fit(steel, scene())
     assert densities_fit(steel, scene(7000.0))
+
+
+def test_one_density_for_every_particle_tells_nothing() -> None:
+    """An exporter writing its rest density for every particle: in the right units, yet no
+    droplet can be told from the bulk; one particle alone is no such case."""
+    constant = make_frame(POSITIONS, densities=np.full(3, 1000.0))
+    reason = unfit_reason(constant, scene())
+    assert reason is not None and "same density (1000)" in reason
+    assert densities_fit(make_frame(POSITIONS[:1], densities=np.full(1, 1000.0)), scene())
+    assert densities_fit(make_frame(POSITIONS, densities=[1000.0, 1000.0, 999.0]), scene())
 
 
 def test_frames_without_densities_or_particles_have_nothing_to_distrust() -> None:
@@ -65,7 +82,9 @@ def test_unfit_densities_are_dropped_and_the_split_computes_its_own() -> None:
     assert fitted.radii is frame.radii and fitted.positions is frame.positions
     assert fitted_scene.quality.droplet_densities == "computed"
     assert fitted_scene.sph == scene().sph  # nothing else changes
-    kept = make_frame(POSITIONS, densities=np.full(3, 1000.0))
+    note = unfit_note(frame, scene())
+    assert note.field == "densities" and note.message.endswith("computed from the positions")
+    kept = make_frame(POSITIONS, densities=np.array([1000.0, 990.0, 400.0]))
     same = scene()
     fitted, fitted_scene = without_unfit_densities(kept, same)
     assert fitted is kept and fitted_scene is same

@@ -289,8 +289,8 @@ def test_densities_in_other_units_are_rendered_with_a_note(
     (the same array as JSON) over HTTP; the same frame in the scene's units has no note, and a
     client's next frame is not affected."""
     positions = ball(2000, seed=3)
-    steel = np.full(len(positions), 7000.0, np.float32)
-    water = np.full(len(positions), 1000.0, np.float32)
+    water = np.linspace(980.0, 1010.0, len(positions), dtype=np.float32)  # a fluid at rest
+    steel = np.float32(7.0) * water
     with service.stream() as client:
         client.hello(SMALL_SCENE)
         client.frame(1, positions, densities=steel)
@@ -301,7 +301,7 @@ def test_densities_in_other_units_are_rendered_with_a_note(
     assert png_pixels(payload, tmp_path)[..., 3].max() == 255  # rendered
     assert [n["field"] for n in noted["notes"]] == ["densities"]
     message = noted["notes"][0]["message"]
-    assert "7 x sph.rest_density (1000)" in message and "computed from the positions" in message
+    assert "7.07 x sph.rest_density (1000)" in message and "computed from the positions" in message
     assert "notes" not in plain
     body = encode_npz_frame(positions, densities=steel, scene=SMALL_SCENE)
     status, headers, data = service.request(

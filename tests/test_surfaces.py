@@ -115,12 +115,13 @@ def test_exact_droplets_from_client_densities_need_no_sph_pass(
 
 def test_computed_droplet_densities_ignore_the_frames(renderer: SurfaceRenderer) -> None:
     """Densities that count what the frame does not hold (a simulator's walls, not exported):
-    every particle written at rest density, so the frame's densities split nothing off. With
+    every particle written at about rest density (0.98-1.02: one value for all would not be
+    used at all, frame_densities.py), so the frame's densities split nothing off. With
     droplet_densities = "computed" the split follows the positions' own eq 2 densities: the
     same image as on a frame without densities with droplet_density_pass."""
     pool, droplets = pool_and_droplets()
     positions = np.concatenate([pool, droplets])
-    walls = np.full(len(positions), 1000.0, np.float32)
+    walls = np.random.default_rng(0).uniform(980.0, 1020.0, len(positions)).astype(np.float32)
     trusted = render(renderer, positions, make_scene(), densities=walls)
     scene = make_scene(quality={"droplet_densities": "computed"})
     own, stats = renderer.render(make_frame(positions, densities=walls), scene, depth=True)
@@ -179,6 +180,24 @@ def test_densities_in_other_units_are_replaced_by_computed_ones(
     assert plain.notes == []
 
 
+def test_one_density_for_every_particle_is_replaced_by_computed_ones() -> None:
+    """An exporter that writes rest density (1000) for every particle: taken as they come, no
+    particle would be a droplet. The split runs on computed densities instead: exactly the six
+    droplets, and the note says why."""
+    pool, droplets = pool_and_droplets()
+    positions = np.concatenate([pool, droplets])
+    frame = make_frame(positions, densities=np.full(len(positions), 1000.0, np.float32))
+    stage = SphStage()
+    try:
+        outcome = stage.run(frame, make_scene())
+    finally:
+        stage.release()
+    assert outcome.droplets is not None
+    assert np.array_equal(outcome.droplets, np.arange(len(positions)) >= len(pool))
+    assert [n.field for n in outcome.notes] == ["densities"]
+    assert "same density (1000)" in outcome.notes[0].message
+
+
 def test_computed_droplet_densities_count_the_whole_frame_under_surface_only() -> None:
     """`droplet_densities = "computed"` with `sph.surface_only`: the split's densities are the
     whole frame's, then subset with the splat. Over the splatted subset alone a surface
@@ -191,7 +210,8 @@ def test_computed_droplet_densities_count_the_whole_frame_under_surface_only() -
     lone = np.array([[0.45, 0.0, 0.0], [0.0, 0.45, 0.0], [-0.45, 0.0, 0.1], [0.0, 0.0, 0.5]])
     pair = np.array([[0.3, 0.3, 0.3], [0.3 + 1.9 * R, 0.3, 0.3]])
     positions = np.concatenate([ball, lone, pair])
-    frame = make_frame(positions, densities=np.full(len(positions), 1000.0, np.float32))
+    walls = np.random.default_rng(1).uniform(980.0, 1020.0, len(positions)).astype(np.float32)
+    frame = make_frame(positions, densities=walls)
     scene = make_scene(
         quality={"droplet_densities": "computed"}, sph={"surface_only": True, "safety_layer": 0.3}
     )

@@ -222,13 +222,24 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         name="frame-densities-always-trusted",
         path="server/engine/sph/frame_densities.py",
-        old="    return ratio is None or FIT_RANGE[0] <= ratio <= FIT_RANGE[1]",
-        new="    return True",
+        old="    if not FIT_RANGE[0] <= ratio <= FIT_RANGE[1]:",
+        new="    if False:",
         tests=(
             "tests/test_surfaces.py::test_densities_in_other_units_are_replaced_by_computed_ones",
             "tests/test_sph_cli.py::test_densities_in_other_units_are_computed_instead",
         ),
         description="a frame's densities in other units are used as they come",
+    ),
+    Mutation(
+        name="constant-densities-trusted",
+        path="server/engine/sph/frame_densities.py",
+        old="    if smallest == largest and frame.count > 1:",
+        new="    if False:",
+        tests=(
+            "tests/test_surfaces.py::test_one_density_for_every_particle_is_replaced_by_computed_ones",
+            "tests/test_frame_densities.py::test_one_density_for_every_particle_tells_nothing",
+        ),
+        description="a frame with one density for every particle splits no droplet",
     ),
     Mutation(
         name="input-notes-not-passed-on",

@@ -32,9 +32,9 @@ def add_parser(commands: Subcommands, common: argparse.ArgumentParser) -> None:
         "--densities",
         choices=["input", "compute"],
         default="input",
-        help="input: use the file's densities when it has them and they fit "
-        "sph.rest_density (peak within 0.5-1.5x of it), as the renderer does (default); "
-        "compute: always compute them (eq 2)",
+        help="input: use the file's densities when it has them, they fit sph.rest_density "
+        "(peak within 0.5-1.5x of it) and they are not all one value, as the renderer does "
+        "(default); compute: always compute them (eq 2)",
     )
     add_cl_device(sph)
     sph.set_defaults(run=run)
@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from sphrender.server.engine.gpu.cl_context import CLContext
     from sphrender.server.engine.sph.engine import SphEngine, SphParameters
     from sphrender.server.engine.sph.frame import eq29_radii, frame_particle_radius
-    from sphrender.server.engine.sph.frame_densities import densities_fit, largest_density_ratio
+    from sphrender.server.engine.sph.frame_densities import unfit_reason
     from sphrender.server.engine.sph.radii import surface_density
     from sphrender.server.scene import Scene, load_scene
 
@@ -59,15 +59,10 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     radius = frame_particle_radius(frame, scene)
     params = SphParameters.from_scene(scene, radius)
-    use_input = args.densities == "input" and densities_fit(frame, scene)
-    if args.densities == "input" and not use_input:
-        log.warning(
-            "%s: its densities peak at %.3g x sph.rest_density (%g): computing them instead "
-            "(set sph.rest_density in --scene to the simulation's to use them)",
-            args.input,
-            largest_density_ratio(frame, scene),
-            scene.sph.rest_density,
-        )
+    reason = unfit_reason(frame, scene) if args.densities == "input" else None
+    use_input = args.densities == "input" and reason is None
+    if reason is not None:
+        log.warning("%s: %s; computing them instead", args.input, reason)
     with CLContext(args.cl_device) as cl:
         log.info("OpenCL device: %s", cl.device_info.label)
         engine = SphEngine(cl)

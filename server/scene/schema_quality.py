@@ -310,8 +310,8 @@ class SphConfig:
         1000.0,
         "rest density rho_0 (kg/m^3 in SI scenes: water 1000, molten steel ~7000), the units "
         "of the frames' densities: a frame whose densities peak outside 0.5-1.5 x rho_0 "
-        "(another fluid, rho / rho_0, g/cm^3) gets densities computed from its positions "
-        "instead, with one warning",
+        "(another fluid, rho / rho_0, g/cm^3), or are one value for every particle, gets "
+        "densities computed from its positions instead, with a warning and a note on its answer",
         low=0.0,
         low_open=True,
         unit="mass per scene unit^3",
