@@ -253,6 +253,22 @@ class Client:
     ) -> bytes:
         return self.render(frame.positions, scene, **_frame_arrays(frame), **kwargs)
 
+    def render_frame_noted(
+        self,
+        frame: ParticleFrame,
+        scene: Mapping[str, Any] | None = None,
+        *,
+        format: ImageFormat | None = None,
+    ) -> tuple[bytes, list[dict[str, str]]]:
+        """`render_frame`, and the answer's notes: what the server changed about the frame's
+        input to render it, ``{"field", "message"}`` (``X-Sphrender-Notes``, PROTOCOL.md 4.3;
+        usually none)."""
+        headers, data = self._render(
+            frame.positions, scene, frame.densities, frame.radii, frame.temperatures, format
+        )
+        notes: list[dict[str, str]] = json.loads(headers.get("x-sphrender-notes", "[]"))
+        return data, notes
+
     # -- streaming -------------------------------------------------------------------------
 
     def stream(

@@ -14,6 +14,7 @@ engine, or a server). This module owns what a simulation engineer relies on:
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
 import threading
@@ -33,6 +34,8 @@ from sphrender.client.readers import read_particles
 from sphrender.client.sequences import FrameJob
 
 PARTIAL_SUFFIX = ".partial"
+
+log = logging.getLogger("sphrender.submit")
 
 
 class TransientError(RuntimeError):
@@ -169,16 +172,31 @@ class RemoteFrameRenderer:
         self.client = Client(url, token=token, timeout=timeout, retries=0)
         self.scene = scene
         self.format: ImageFormat = fmt
+        self._noted: set[str] = set()  # the fields the server has noted once already
+        self._lock = threading.Lock()
 
     def render(self, frame: ParticleFrame) -> bytes:
         try:
-            return self.client.render_frame(frame, self.scene, format=self.format)
+            data, notes = self.client.render_frame_noted(frame, self.scene, format=self.format)
         except ServerUnavailable as exc:
             raise TransientError(str(exc)) from None
         except ServerError as exc:
             if exc.retryable or exc.code == "render_failed":
                 raise TransientError(str(exc)) from None
             raise InputError(exc.field or "server", exc.message) from None
+        self._log_notes(notes)
+        return data
+
+    def _log_notes(self, notes: list[dict[str, str]]) -> None:
+        """The server's notes on a frame (what it changed about the input to render it),
+        logged the first time each field is noted in this submission."""
+        for note in notes:
+            field_name = str(note.get("field", "?"))
+            with self._lock:
+                if field_name in self._noted:
+                    continue
+                self._noted.add(field_name)
+            log.warning("the server noted %s: %s", field_name, note.get("message", ""))
 
 
 def run_submission(

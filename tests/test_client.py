@@ -33,6 +33,47 @@ def test_render_matches_the_engine(service: ServerProcess, renderer: SurfaceRend
     assert png == reference_png(renderer, positions, SMALL_SCENE)
 
 
+def test_server_notes_reach_the_client_and_the_submitter_logs_them_once(
+    service: ServerProcess, tmp_path: Path
+) -> None:
+    """Densities in other units (x 7: molten steel in kg/m^3 against sph.rest_density 1000):
+    `render_frame_noted` returns the image and the server's note on `densities`; frames in
+    the scene's units come back without one; `sphrender submit --server` over three such
+    frames renders all three and logs the note once."""
+    positions = ball(1500, seed=2)
+    water = np.linspace(980.0, 1010.0, len(positions), dtype=np.float32)
+    client = Client(url(service))
+    png, notes = client.render_frame_noted(make_frame(positions, densities=7 * water), SMALL_SCENE)
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    assert [n["field"] for n in notes] == ["densities"], notes
+    _, none = client.render_frame_noted(make_frame(positions, densities=water), SMALL_SCENE)
+    assert none == []
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for n in range(3):
+        np.savez(frames / f"f_{n}.npz", positions=positions, densities=7 * water)
+    scene = tmp_path / "scene.toml"
+    scene.write_text(
+        "[image]\nwidth = 64\nheight = 48\n[camera]\neye = [0.0, 0.4, 1.6]\n"
+        "[particles]\nradius = 0.02\n"
+    )
+    command = [
+        SPHRENDER,
+        "submit",
+        str(frames),
+        "--server",
+        url(service),
+        "-o",
+        str(tmp_path / "o"),
+    ]
+    result = subprocess.run(
+        [*command, "--scene", str(scene)], capture_output=True, text=True, timeout=300
+    )
+    assert result.returncode == 0, result.stderr
+    assert "3 rendered" in result.stderr
+    assert result.stderr.count("the server noted densities") == 1, result.stderr
+
+
 def test_render_arrays_decodes_exr_with_numpy_only(
     service: ServerProcess, renderer: SurfaceRenderer
 ) -> None:
