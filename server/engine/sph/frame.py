@@ -186,7 +186,7 @@ class SphStage:
     def __init__(self, cl_device: str | None = None) -> None:
         self._cl_device = cl_device
         self._warned = False
-        self._warned_units = False
+        self._warned_densities = False
         self._cl: CLContext | None = None
         self._engine: SphEngine | None = None
 
@@ -218,8 +218,9 @@ class SphStage:
     def run(self, frame: ParticleFrame, scene: Scene) -> SphOutcome:
         """Everything the scene asks of SPH for this frame (on the owner thread). Exact droplets
         without OpenCL (and without client densities) are skipped with one warning: the frame
-        still renders, its droplets smoothed as without the option. Densities that do not fit
-        the scene's rest density are replaced by computed ones (frame_densities.py)."""
+        still renders, its droplets smoothed as without the option. Densities the stage cannot
+        use (other units, one value for all: frame_densities.py) are replaced by computed ones,
+        with a note for the client."""
         fitted, scene = without_unfit_densities(frame, scene)
         notes = () if fitted is frame else (self._unfit(frame, scene),)
         frame = fitted
@@ -247,9 +248,9 @@ class SphStage:
     def _unfit(self, frame: ParticleFrame, scene: Scene) -> InputNote:
         """The note of a frame whose densities were replaced; logged the first time."""
         note = unfit_note(frame, scene)
-        if not self._warned_units:
+        if not self._warned_densities:
             log.warning("%s: %s", note.field, note.message)
-            self._warned_units = True
+            self._warned_densities = True
         return note
 
     def release(self) -> None:
