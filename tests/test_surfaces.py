@@ -198,6 +198,27 @@ def test_one_density_for_every_particle_is_replaced_by_computed_ones() -> None:
     assert "same density (1000)" in outcome.notes[0].message
 
 
+def test_without_opencl_the_notes_say_the_droplets_were_not_split() -> None:
+    """No OpenCL device (a device choice that matches none): a frame whose densities cannot be
+    used, or one without densities under droplet_density_pass, renders without the split, and
+    the note says so instead of claiming computed densities."""
+    pool, droplets = pool_and_droplets()
+    positions = np.concatenate([pool, droplets])
+    steel = make_frame(positions, densities=np.linspace(6900.0, 7100.0, len(positions)))
+    stage = SphStage(cl_device="99:0")
+    try:
+        unfit = stage.run(steel, make_scene())
+        bare = stage.run(make_frame(positions), make_scene(quality={"droplet_density_pass": True}))
+    finally:
+        stage.release()
+    assert unfit.droplets is None and bare.droplets is None
+    assert [(n.field, n.message.endswith("no droplet split")) for n in unfit.notes] == [
+        ("densities", True)
+    ]
+    assert [n.field for n in bare.notes] == ["quality.exact_droplets"]
+    assert "no OpenCL device" in bare.notes[0].message
+
+
 def test_computed_droplet_densities_count_the_whole_frame_under_surface_only() -> None:
     """`droplet_densities = "computed"` with `sph.surface_only`: the split's densities are the
     whole frame's, then subset with the splat. Over the splatted subset alone a surface

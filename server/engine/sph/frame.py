@@ -221,9 +221,8 @@ class SphStage:
         still renders, its droplets smoothed as without the option. Densities the stage cannot
         use (other units, one value for all: frame_densities.py) are replaced by computed ones,
         with a note for the client."""
-        fitted, scene = without_unfit_densities(frame, scene)
-        notes = () if fitted is frame else (self._unfit(frame, scene),)
-        frame = fitted
+        given = frame
+        frame, scene = without_unfit_densities(frame, scene)
         reference_radius = frame_particle_radius(frame, scene)
         ellipsoids = droplets = computed = None
         drawn = frame
@@ -232,26 +231,41 @@ class SphStage:
             drawn, computed = result.frame, result.sph
             if result.anisotropy is not None:
                 ellipsoids = (result.anisotropy.centers, result.anisotropy.axes)
+        skipped: CLUnavailableError | None = None
         if splits_droplets(scene, drawn):
             try:
                 droplets = droplet_mask(frame, scene, self.engine, computed)
                 if computed is not None and computed.splat_keep is not None:
                     droplets = droplets[computed.splat_keep]
             except CLUnavailableError as exc:
+                skipped = exc
                 if not self._warned:
                     log.warning(
                         "exact droplets need densities or OpenCL, rendering without: %s", exc
                     )
                     self._warned = True
+        notes = self._notes(given, frame, scene, skipped)
         return SphOutcome(drawn, reference_radius, droplets, ellipsoids, notes)
 
-    def _unfit(self, frame: ParticleFrame, scene: Scene) -> InputNote:
-        """The note of a frame whose densities were replaced; logged the first time."""
-        note = unfit_note(frame, scene)
-        if not self._warned_densities:
-            log.warning("%s: %s", note.field, note.message)
-            self._warned_densities = True
-        return note
+    def _notes(
+        self,
+        given: ParticleFrame,
+        used: ParticleFrame,
+        scene: Scene,
+        skipped: CLUnavailableError | None,
+    ) -> tuple[InputNote, ...]:
+        """What the client is told: the frame's densities replaced (`used` is not `given`;
+        logged the first time), or exact droplets skipped for want of OpenCL."""
+        if used is not given:
+            note = unfit_note(given, scene, computed=skipped is None)
+            if not self._warned_densities:
+                log.warning("%s: %s", note.field, note.message)
+                self._warned_densities = True
+            return (note,)
+        if skipped is not None:
+            message = f"skipped: no OpenCL device to compute the frame's densities ({skipped})"
+            return (InputNote("quality.exact_droplets", message),)
+        return ()
 
     def release(self) -> None:
         if self._engine is not None:

@@ -92,7 +92,12 @@ def without_unfit_densities(frame: ParticleFrame, scene: Scene) -> tuple[Particl
     return replace(frame, densities=None), replace(scene, quality=quality)
 
 
-def unfit_note(frame: ParticleFrame, scene: Scene) -> InputNote:
-    """What the client is told about a frame whose densities were replaced."""
+def unfit_note(frame: ParticleFrame, scene: Scene, *, computed: bool = True) -> InputNote:
+    """What the client is told about a frame whose densities were not used: replaced by
+    computed ones, or (`computed` False: no OpenCL device) no droplet split at all."""
     reason = unfit_reason(frame, scene) or "the frame's densities could not be used"
-    return InputNote("densities", f"{reason}; replaced by densities computed from the positions")
+    if computed:
+        return InputNote(
+            "densities", f"{reason}; replaced by densities computed from the positions"
+        )
+    return InputNote("densities", f"{reason}; no OpenCL device to compute others: no droplet split")
