@@ -124,6 +124,28 @@ def test_particle_temperatures_glow_where_the_hot_particles_are(
     assert glow[covered].max() < 1e4  # no 1e4 K particle leaked in (that would be ~1e5)
 
 
+def test_temperatures_in_celsius_render_as_sent_with_a_note(renderer: SurfaceRenderer) -> None:
+    """A weld bead in degrees Celsius (20 at the cold end, 1500 at the hot): the frame renders
+    exactly as sent (the glow reads kelvin), and its stats carry one note on `temperatures`
+    saying what to add; the same frame in kelvin (+ 273.15) has none. The note's "~12x" is the
+    Planck ratio at 600 nm, checked here."""
+    positions = jittered_lattice_ball(0.2, 0.02, seed=3)
+    celsius = np.linspace(20.0, 1500.0, len(positions))
+    scene = scene_from_dict(
+        {"image": {"width": 48, "height": 32}, "camera": {"eye": [0.0, 0.0, 1.5]},
+         "particles": {"radius": 0.02}}
+    )  # fmt: skip
+    sent, stats = renderer.render(make_frame(positions, temperatures=celsius), scene)
+    as_kelvin, plain = renderer.render(make_frame(positions, temperatures=celsius + 273.15), scene)
+    assert [n.field for n in stats.notes] == ["temperatures"]
+    assert "from 20 K to 1500 K" in stats.notes[0].message
+    assert "add 273.15" in stats.notes[0].message
+    assert plain.notes == []
+    assert not np.array_equal(sent.rgba, as_kelvin.rgba)  # rendered as sent: not converted
+    c2 = 0.014388 / 600e-9  # hc / (lambda k), K
+    assert np.expm1(c2 / 1500.0) / np.expm1(c2 / 1773.15) == pytest.approx(11.7, abs=0.1)
+
+
 def test_direct_lights_and_eq55_combination(renderer: SurfaceRenderer) -> None:
     """A directional and a point light on a flat patch facing +z, against the numpy BRDF times
     irradiance (E cos for the sun, I cos / d^2 for the point light, positions relative to an

@@ -242,6 +242,16 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="a frame with one density for every particle splits no droplet",
     ),
     Mutation(
+        name="celsius-not-noted",
+        path="server/engine/frame_temperatures.py",
+        old="    if coldest >= COLDEST_KELVIN:",
+        new="    if True:",
+        tests=(
+            "tests/test_shading_emission.py::test_temperatures_in_celsius_render_as_sent_with_a_note",
+        ),
+        description="temperatures in degrees Celsius pass without a note",
+    ),
+    Mutation(
         name="input-notes-not-passed-on",
         path="server/engine/renderer.py",
         old="        stats.notes.extend(outcome.notes)",

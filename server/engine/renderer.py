@@ -14,6 +14,7 @@ them in `release`.
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Sequence
 from dataclasses import replace
@@ -27,6 +28,7 @@ from sphrender.server.engine.frame_output import (
     RenderedFrame,
     RenderStats,
 )
+from sphrender.server.engine.frame_temperatures import celsius_note
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.screen_box import ScreenBox
 from sphrender.server.engine.gpu.draw import FullscreenTriangle, Target
@@ -46,6 +48,8 @@ from sphrender.server.engine.single_passes import SinglePasses
 from sphrender.server.engine.sph.engine import SphEngine
 from sphrender.server.engine.sph.frame import SphOutcome, SphStage
 from sphrender.server.scene import Scene
+
+log = logging.getLogger("sphrender.render")
 
 
 class SurfaceRenderer:
@@ -68,6 +72,7 @@ class SurfaceRenderer:
         self._stage_timings = stage_timings
         self._context = PassContext(gl, ProgramCache(gl), FullscreenTriangle(gl))
         self._sph = SphStage(cl_device)  # OpenCL is created on the first frame that needs it
+        self._warned_temperatures = False
         self._splat = SplatPass(self._context)
         self._prepare = PrepareStage(self._context, self._splat, prepare)
         self._smooth = SmoothPass(self._context)
@@ -143,6 +148,7 @@ class SurfaceRenderer:
         self.check_image_size(scene)
         camera = Camera.from_config(scene.camera, scene.image.width, scene.image.height)
         stats = RenderStats(particles_in=frame.count)
+        self._note_temperatures(frame, stats)
         sph = self._run_sph(frame, scene, stats)
         with self._stage(stats, "prepare"):
             prepared = self._prepare.run(sph, camera, scene)
@@ -165,6 +171,16 @@ class SurfaceRenderer:
         return rendered, stats
 
     # -- the stages of `render` ------------------------------------------------------------
+
+    def _note_temperatures(self, frame: ParticleFrame, stats: RenderStats) -> None:
+        """Temperatures that look like degrees Celsius: a note (logged the first time)."""
+        note = celsius_note(frame)
+        if note is None:
+            return
+        stats.notes.append(note)
+        if not self._warned_temperatures:
+            log.warning("%s: %s", note.field, note.message)
+            self._warned_temperatures = True
 
     def _run_sph(self, frame: ParticleFrame, scene: Scene, stats: RenderStats) -> SphOutcome:
         """The SPH stage's outcome: the frame itself when the scene needs no SPH quantity."""
