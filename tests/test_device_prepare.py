@@ -185,11 +185,21 @@ def test_droplets_and_a_far_limit(renderers: tuple[SurfaceRenderer, SurfaceRende
 
 
 def test_nothing_to_draw(renderers: tuple[SurfaceRenderer, SurfaceRenderer]) -> None:
-    """Zero particles, and particles all behind the camera: background, no error."""
+    """Zero particles, and particles all behind the camera: background, no error. The frame
+    with particles none of which is in view says so in a note (their extent and the camera,
+    the same from both prepares); the empty frame has nothing to say."""
     for positions in (np.zeros((0, 3)), np.array([[1.0, 1.0, 1.5], [2.0, 1.5, 2.0]])):
         host, device = both(renderers, scene_at(), positions)
         assert device[1].particles_drawn == 0
         assert_same_image(host, device)
+        assert host[1].notes == device[1].notes
+        if len(positions):
+            (note,) = device[1].notes
+            assert note.field == "camera"
+            assert "none of the frame's 2 particles is in view" in note.message
+            assert "x 1 to 2, y 1 to 1.5, z 1.5 to 2" in note.message
+        else:
+            assert device[1].notes == []
 
 
 def test_ellipsoids_match_the_host_prepare(gl_context: GLContext) -> None:

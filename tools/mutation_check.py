@@ -243,13 +243,21 @@ MUTATIONS: tuple[Mutation, ...] = (
     ),
     Mutation(
         name="celsius-not-noted",
-        path="server/engine/frame_temperatures.py",
+        path="server/engine/input_notes.py",
         old="    if coldest >= COLDEST_KELVIN:",
         new="    if True:",
         tests=(
             "tests/test_shading_emission.py::test_temperatures_in_celsius_render_as_sent_with_a_note",
         ),
         description="temperatures in degrees Celsius pass without a note",
+    ),
+    Mutation(
+        name="out-of-view-not-noted",
+        path="server/engine/renderer.py",
+        old="        if not prepared.visible and frame.count:",
+        new="        if False:",
+        tests=("tests/test_device_prepare.py::test_nothing_to_draw",),
+        description="a frame none of whose particles is in view comes back blank without a word",
     ),
     Mutation(
         name="input-notes-not-passed-on",

@@ -28,13 +28,13 @@ from sphrender.server.engine.frame_output import (
     RenderedFrame,
     RenderStats,
 )
-from sphrender.server.engine.frame_temperatures import celsius_note
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.screen_box import ScreenBox
 from sphrender.server.engine.gpu.draw import FullscreenTriangle, Target
 from sphrender.server.engine.gpu.gl_clock import StageTimer
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.programs import ProgramCache
+from sphrender.server.engine.input_notes import celsius_note, out_of_view_note
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.display import DisplayPass
 from sphrender.server.engine.passes.normals import NormalsPass
@@ -154,6 +154,8 @@ class SurfaceRenderer:
             prepared = self._prepare.run(sph, camera, scene)
             stats.particles_drawn = prepared.visible
             stats.far = prepared.far
+        if not prepared.visible and frame.count:
+            stats.notes.append(out_of_view_note(frame, scene.camera))
         surface, bulk_splatted = self._draw_surface(prepared, camera, scene, stats)
         with self._stage(stats, "normals"):
             normal_depth = self._surface_normals(surface, prepared, camera, scene)
