@@ -98,7 +98,11 @@ def test_no_import_circles_among_product_modules() -> None:
 LAYERS = (
     ("sphrender.client",),
     ("sphrender.server.scene", "sphrender.server.content"),
-    ("sphrender.server.engine.frame_output", "sphrender.server.engine.geometry"),
+    (
+        "sphrender.server.engine.frame_output",
+        "sphrender.server.engine.input_notes",
+        "sphrender.server.engine.geometry",
+    ),
     ("sphrender.server.engine.gpu",),
     ("sphrender.server.engine.lighting", "sphrender.server.engine.sph"),
     ("sphrender.server.engine.passes",),

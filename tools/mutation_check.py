@@ -253,8 +253,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     ),
     Mutation(
         name="out-of-view-not-noted",
-        path="server/engine/renderer.py",
-        old="        if not prepared.visible and frame.count:",
+        path="server/engine/input_notes.py",
+        old="        if not visible and frame.count:",
         new="        if False:",
         tests=("tests/test_device_prepare.py::test_nothing_to_draw",),
         description="a frame none of whose particles is in view comes back blank without a word",

@@ -19,11 +19,15 @@ replaces are noted there: sph/frame_densities.py.)
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from sphrender.client.frame import ParticleFrame
 from sphrender.server.engine.frame_output import InputNote
 from sphrender.server.scene import CameraConfig
+
+log = logging.getLogger("sphrender.render")
 
 #: Below this (kelvin) a temperature is taken to be in degrees Celsius, for the note.
 COLDEST_KELVIN = 200.0
@@ -61,3 +65,22 @@ def out_of_view_note(frame: ParticleFrame, camera: CameraConfig) -> InputNote:
         f"{camera.fov_y:g} deg, near {camera.near:g}"
         + (f", far {camera.far:g})" if camera.far is not None else ")"),
     )
+
+
+class InputNotes:
+    """The renderer's own notes on each frame (those above), each kind logged the first time
+    it appears in this renderer's life."""
+
+    def __init__(self) -> None:
+        self._logged: set[str] = set()
+
+    def of(self, frame: ParticleFrame, camera: CameraConfig, visible: int) -> list[InputNote]:
+        """The notes of `frame`, of which `visible` particles are in view of `camera`."""
+        notes = [note for note in (celsius_note(frame),) if note is not None]
+        if not visible and frame.count:
+            notes.append(out_of_view_note(frame, camera))
+        for note in notes:
+            if note.field not in self._logged:
+                log.warning("%s: %s", note.field, note.message)
+                self._logged.add(note.field)
+        return notes

@@ -14,7 +14,6 @@ them in `release`.
 
 from __future__ import annotations
 
-import logging
 import time
 from collections.abc import Sequence
 from dataclasses import replace
@@ -34,7 +33,7 @@ from sphrender.server.engine.gpu.draw import FullscreenTriangle, Target
 from sphrender.server.engine.gpu.gl_clock import StageTimer
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.programs import ProgramCache
-from sphrender.server.engine.input_notes import celsius_note, out_of_view_note
+from sphrender.server.engine.input_notes import InputNotes
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.display import DisplayPass
 from sphrender.server.engine.passes.normals import NormalsPass
@@ -48,8 +47,6 @@ from sphrender.server.engine.single_passes import SinglePasses
 from sphrender.server.engine.sph.engine import SphEngine
 from sphrender.server.engine.sph.frame import SphOutcome, SphStage
 from sphrender.server.scene import Scene
-
-log = logging.getLogger("sphrender.render")
 
 
 class SurfaceRenderer:
@@ -72,7 +69,7 @@ class SurfaceRenderer:
         self._stage_timings = stage_timings
         self._context = PassContext(gl, ProgramCache(gl), FullscreenTriangle(gl))
         self._sph = SphStage(cl_device)  # OpenCL is created on the first frame that needs it
-        self._warned_temperatures = False
+        self._input_notes = InputNotes()
         self._splat = SplatPass(self._context)
         self._prepare = PrepareStage(self._context, self._splat, prepare)
         self._smooth = SmoothPass(self._context)
@@ -148,14 +145,12 @@ class SurfaceRenderer:
         self.check_image_size(scene)
         camera = Camera.from_config(scene.camera, scene.image.width, scene.image.height)
         stats = RenderStats(particles_in=frame.count)
-        self._note_temperatures(frame, stats)
         sph = self._run_sph(frame, scene, stats)
         with self._stage(stats, "prepare"):
             prepared = self._prepare.run(sph, camera, scene)
             stats.particles_drawn = prepared.visible
             stats.far = prepared.far
-        if not prepared.visible and frame.count:
-            stats.notes.append(out_of_view_note(frame, scene.camera))
+        stats.notes += self._input_notes.of(frame, scene.camera, prepared.visible)
         surface, bulk_splatted = self._draw_surface(prepared, camera, scene, stats)
         with self._stage(stats, "normals"):
             normal_depth = self._surface_normals(surface, prepared, camera, scene)
@@ -173,16 +168,6 @@ class SurfaceRenderer:
         return rendered, stats
 
     # -- the stages of `render` ------------------------------------------------------------
-
-    def _note_temperatures(self, frame: ParticleFrame, stats: RenderStats) -> None:
-        """Temperatures that look like degrees Celsius: a note (logged the first time)."""
-        note = celsius_note(frame)
-        if note is None:
-            return
-        stats.notes.append(note)
-        if not self._warned_temperatures:
-            log.warning("%s: %s", note.field, note.message)
-            self._warned_temperatures = True
 
     def _run_sph(self, frame: ParticleFrame, scene: Scene, stats: RenderStats) -> SphOutcome:
         """The SPH stage's outcome: the frame itself when the scene needs no SPH quantity."""
