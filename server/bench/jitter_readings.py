@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sphrender.server.bench.dam_frames import FLICKER_LIMIT_DEG
 from sphrender.server.bench.surface_bench import (
     JITTER,
     Case,
@@ -31,7 +32,6 @@ from sphrender.server.bench.sweep import Setting
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
 
-FLICKER_LIMIT_DEG = 0.3
 #: (name in the report, surface_quality.jittered's fixed_length)
 READINGS = (
     (f"Gaussian, {100 * JITTER:g} % r per axis (the bench's)", False),
