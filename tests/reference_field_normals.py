@@ -22,14 +22,37 @@ def _smoothstep(edge0: F64, edge1: F64, x: F64) -> F64:
     return t * t * (3.0 - 2.0 * t)
 
 
+def _shifted(image: F64, dy: int, dx: int) -> tuple[F64, npt.NDArray[np.bool_]]:
+    """`image` at each pixel's neighbour (+dx, +dy), 0 off the image, and where it is inside."""
+    h, w = image.shape
+    shifted = np.zeros((h, w))
+    inside = np.zeros((h, w), bool)
+    ys = slice(max(dy, 0), h + min(dy, 0))
+    xs = slice(max(dx, 0), w + min(dx, 0))
+    yt = slice(max(-dy, 0), h + min(-dy, 0))
+    xt = slice(max(-dx, 0), w + min(-dx, 0))
+    shifted[yt, xt] = image[ys, xs]
+    inside[yt, xt] = True
+    return shifted, inside
+
+
 def rim_weights(
-    depth: F64, edge_jump: float, footprint_jump: F64, reach: npt.NDArray[np.int64]
+    depth: F64,
+    edge_jump: float,
+    footprint_jump: F64,
+    reach: npt.NDArray[np.int64],
+    bulk: F64 | None = None,
 ) -> F64:
     """Per pixel the field's weight: the largest over the pixels q at d = |dx| + |dy| <= reach
     + 1 of strength(q) x (1 - (d - 1) / (reach + 1)), strength 1 without surface and, for a
     depth step beyond jump = max(edge_jump, d footprint_jump) (the pixel's own), smoothstep
-    from 1 to RIM_FEATHER jumps; 0 on the pixel's own surface and off the image."""
+    from 1 to RIM_FEATHER jumps; 0 on the pixel's own surface and off the image.
+    `bulk`: the bulk's depth before the droplets drew over it (None: `depth` is the bulk's);
+    at a pixel of the bulk (bulk == depth) a nearer q is measured at the bulk's depth there,
+    at most the pixel's (a droplet in front of the bulk is no rim of it)."""
     h, w = depth.shape
+    bulk = depth if bulk is None else bulk
+    bulk_pixel = bulk == depth
     out = np.zeros((h, w))
     limit = MAX_REACH_PX + 1
     for dy in range(-limit, limit + 1):
@@ -37,16 +60,12 @@ def rim_weights(
             d = abs(dx) + abs(dy)
             if d == 0 or d > limit:
                 continue
-            shifted = np.zeros((h, w))
-            inside = np.zeros((h, w), bool)
-            ys = slice(max(dy, 0), h + min(dy, 0))
-            xs = slice(max(dx, 0), w + min(dx, 0))
-            yt = slice(max(-dy, 0), h + min(-dy, 0))
-            xt = slice(max(-dx, 0), w + min(-dx, 0))
-            shifted[yt, xt] = depth[ys, xs]
-            inside[yt, xt] = True
+            shifted, inside = _shifted(depth, dy, dx)
+            under, _ = _shifted(bulk, dy, dx)
+            behind_droplet = bulk_pixel & (shifted > 0.0) & (shifted < depth) & (under > 0.0)
+            z = np.where(behind_droplet, np.minimum(under, depth), shifted)
             jump = np.maximum(edge_jump, d * footprint_jump)
-            step = _smoothstep(jump, RIM_FEATHER * jump, np.abs(shifted - depth))
+            step = _smoothstep(jump, RIM_FEATHER * jump, np.abs(z - depth))
             strength = np.where(inside, np.where(shifted <= 0.0, 1.0, step), 0.0)
             ring = np.where(d <= reach + 1, 1.0 - (d - 1) / (reach + 1), 0.0)
             out = np.maximum(out, strength * ring)
@@ -78,15 +97,16 @@ def field_normals_reference(
     reach_radii: float,
     edge_jump: float,
     edge_jump_px: float,
+    bulk: F64 | None = None,
 ) -> tuple[F64, npt.NDArray[np.bool_]]:
     """View-space normals (H, W, 3) after the field blend of the depth normals `normals`, and
-    which pixels the field changed."""
+    which pixels the field changed (`bulk`: see `rim_weights`)."""
     h, w = depth.shape
     with np.errstate(divide="ignore"):
         radius_px = np.where(depth > 0.0, particle_radius * focal_px / depth, 0.0)
     # GLSL round() may go either way at .5; the scenes here keep away from it.
     reach = np.clip(np.floor(reach_radii * radius_px + 0.5), 1, MAX_REACH_PX).astype(np.int64)
-    weight = rim_weights(depth, edge_jump, edge_jump_px * depth / focal_px, reach)
+    weight = rim_weights(depth, edge_jump, edge_jump_px * depth / focal_px, reach, bulk)
     rim = (depth > 0.0) & (weight > 0.0)
     ys, xs = np.nonzero(rim)
     ndc_x = (xs + 0.5) / w * 2.0 - 1.0

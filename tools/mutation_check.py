@@ -562,6 +562,22 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="the wide central difference taken across a kink (crease, rim)",
     ),
     Mutation(
+        name="droplets-rims-of-the-bulk",
+        path="shaders/field/field_normals.glsl",
+        old="bool bulk_pixel = texelFetch(u_bulk_depth, p, 0).r == zc;",
+        new="bool bulk_pixel = false;",
+        tests=("tests/test_field_normals.py::test_a_droplet_in_front_of_the_bulk_is_no_rim_of_it",),
+        description="an exact droplet in front of the bulk taken as a rim of it (a ring around it)",
+    ),
+    Mutation(
+        name="bulk-depth-not-passed-on",
+        path="server/engine/renderer.py",
+        old="bulk=surface.bulk_depth,",
+        new="bulk=None,",
+        tests=("tests/test_field_normals.py::test_a_droplet_leaves_no_ring_on_the_pool_behind_it",),
+        description="the normals pass not given the bulk's depth under the droplets",
+    ),
+    Mutation(
         name="field-rims-cut-at-the-jump",
         path="shaders/field/field_normals.glsl",
         old="#define FIELD_RIM_FEATHER 2.0",

@@ -225,7 +225,14 @@ class SurfaceRenderer:
         field = self._prepare.field_particles(prepared) if quality.field_normals else None
         support = quality.field_normals_support * prepared.reference_radius
         return self._normals.run(
-            surface.depth, camera, prepared.box, prepared.reference_radius, quality, field, support
+            surface.depth,
+            camera,
+            prepared.box,
+            prepared.reference_radius,
+            quality,
+            field,
+            support,
+            bulk=surface.bulk_depth,
         )
 
     def _shade_surface(

@@ -278,7 +278,8 @@ class QualityConfig:
         "x_j|, field_normals_support) at the pixel's own surface point "
         "(passes/field_normals.py): smooth rims where the particles leave beads, rounded edges "
         "round a sheet's holes, exact droplet spheres; blended in by the distance to the rim, "
-        "depth unchanged. Builds a particle grid on the device each frame (on llvmpipe ~15 ms "
+        "depth unchanged. An exact droplet is no rim of the surface behind it (no ring "
+        "around it on a pool). Builds a particle grid on the device each frame (on llvmpipe ~15 ms "
         "of a 100k-particle 1280x720 frame; balanced and best: 2, fast: off). 0: off",
         low=0.0,
         high=8.0,

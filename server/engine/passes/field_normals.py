@@ -58,8 +58,9 @@ from sphrender.server.engine.passes.field_grid import (
 
 BLEND_SHADER = "field/field_blend.comp.glsl"
 LIST_SHADER = "field/field_list.comp.glsl"
-#: Its texture units: the eye depth, the rim tiles' windows and their own extremes.
-_LIST_SAMPLERS = {"u_depth": 0, "u_tiles": 1, "u_tile_extremes": 2}
+#: Its texture units: the eye depth, the rim tiles' windows and their own extremes, and the
+#: bulk's depth under the exact droplets (the eye depth itself when none were drawn).
+_LIST_SAMPLERS = {"u_depth": 0, "u_tiles": 1, "u_tile_extremes": 2, "u_bulk_depth": 3}
 #: Storage bindings of the list and of its count + the blend's dispatch arguments, and of the
 #: listed rim tiles and their count + the listing's dispatch arguments.
 RIMS, COUNT, TILES, TILE_COUNT = 17, 18, 21, 22
@@ -92,16 +93,19 @@ class FieldNormals:
         field: tuple[FieldParticles, float],
         *,
         reach_radii: float,
+        bulk: moderngl.Texture | None = None,
     ) -> BuiltGrid:
         """Before the normals pass draws from the eye-depth image `depth`: list its pixels
         inside `box` (None: all) within `reach_radii` projected particle radii of a rim
         (`tiles`: its rim tiles, the +-8 px windows and each tile's own extremes;
         `frame_uniforms`: the normals pass's uniform group, its key and values), then sort the
         particles of `field` (and its SPH support) that can reach a listed pixel into the
-        field grid; `blend` takes what this returns. Neither reads the normals, so the normals
+        field grid; `blend` takes what this returns. `bulk`: the bulk's depth under the exact
+        droplets drawn into `depth` (`SplatOutput.bulk_depth`; None: `depth` is the bulk's),
+        so that a droplet is no rim of the bulk behind it. Neither reads the normals, so the normals
         draw queued after them need not finish first (on llvmpipe a compute dispatch waits
         for the drawing before it: 117 against 122 ms a frame on the 100k ball at 1280x720)."""
-        self._list_rims(depth, tiles, box, frame_uniforms, reach_radii)
+        self._list_rims(depth, tiles, box, frame_uniforms, reach_radii, bulk or depth)
         tan_y = camera.tan_half_fov_y
         cull = RimCulling(self._blocks, depth.size, (tan_y * camera.aspect, tan_y))
         return self._grid.build(*field, cull)
@@ -113,6 +117,7 @@ class FieldNormals:
         box: ScreenBox | None,
         frame_uniforms: tuple[object, Callable[[], dict[str, object]]],
         reach_radii: float,
+        bulk: moderngl.Texture,
     ) -> None:
         """The list of rim pixels, its count and the rim blocks, fresh."""
         size = depth.size
@@ -146,6 +151,7 @@ class FieldNormals:
             depth.use(0)
             tiles[0].use(1)
             tiles[1].use(2)
+            bulk.use(3)
         set_if_used(shader, "u_phase", 0)
         self._run(shader.run, -(-tile_box[2] * tile_box[3] // LIST_GROUP))
         set_if_used(shader, "u_phase", 1)

@@ -58,13 +58,15 @@ class NormalsPass:
         quality: QualityConfig | None = None,
         field: FieldParticles | None = None,
         support: float = 0.0,
+        bulk: moderngl.Texture | None = None,
     ) -> Target:
         """Normals of the eye-depth image `surface`, inside `box` (None: everywhere);
         `particle_radius` sizes the largest depth step that still counts as one surface;
         `quality` gives the wide stencil (`normal_stencil`, off without it), the field normals
         (`field_normals`, over the particles `field` with kernel support `support`) and the
         silhouette normals (`silhouette_normals`); the last of them that ran returns its
-        target."""
+        target. `bulk`: the bulk's depth under the exact droplets drawn into `surface`
+        (`SplatOutput.bulk_depth`), for the field normals' rims."""
         target = self.target(surface.size)
         reach = quality.field_normals if quality is not None and field is not None else 0.0
         rim = quality.silhouette_normals if quality is not None else 0.0
@@ -88,6 +90,7 @@ class NormalsPass:
                 (key, values),
                 (field, support),
                 reach_radii=reach,
+                bulk=bulk,
             )
         clear_and_scissor(target.fbo, box)
         target.fbo.use()

@@ -78,6 +78,8 @@ class SplatOutput:
     temperature: moderngl.Texture | None  # kelvin of the front sphere, when the frame has them
     splatted: int  # particles rasterised (visible less those found hidden); -1: device prepare
     coverage: moderngl.Texture | None = None  # sub-pixel coverage (R32F), when anti-aliasing
+    # The bulk's eye depth the droplets drew over (run_droplets); None: `depth` is the bulk's.
+    bulk_depth: moderngl.Texture | None = None
 
 
 class SplatTargets:
@@ -297,7 +299,7 @@ class SplatPass:
         if coverage is not None and count:
             self._draw_coverage(targets.coverage_target().fbo, camera, droplets, 0, count)
         splatted = count if droplets.host is not None else -1  # -1: the device prepare counts
-        return SplatOutput(composite, temperature, splatted, coverage)
+        return SplatOutput(composite, temperature, splatted, coverage, bulk_depth=surface)
 
     def _depth_draw(self, camera: Camera, batch: SplatBatch) -> moderngl.VertexArray:
         """The vertex array of `batch`'s depth splat, its uniforms set."""
