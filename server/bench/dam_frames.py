@@ -135,7 +135,8 @@ def dam_frames_section(rows: Sequence[DamFrameRow], setting: str = "preset balan
     for frame, ratio in ratios.items():
         a, b = after[frame], before[frame]
         cells = [frame.rsplit("_", 1)[-1], f"{b.band_deg:.2f}", f"{a.band_deg:.2f}"]
-        cells += [f"{100 * ratio:.0f} %", f"{a.mean_deg:.2f}", f"{a.flicker_deg:.3f}"]
+        # One decimal: a frame just past the limit must not read as on it (40.3 % is not 40).
+        cells += [f"{100 * ratio:.1f} %", f"{a.mean_deg:.2f}", f"{a.flicker_deg:.3f}"]
         cells += [f"{a.floor_deg:.3f}", "yes" if a.finite else "NO"]
         lines.append("| " + " | ".join(cells) + " |")
     band_ok = [f for f, r in ratios.items() if r <= BAND_LIMIT]
@@ -145,7 +146,7 @@ def dam_frames_section(rows: Sequence[DamFrameRow], setting: str = "preset balan
     lines += [
         "",
         f"* band <= {100 * BAND_LIMIT:.0f} % of the pre-issue default's on {len(band_ok)} of "
-        f"{len(ratios)} frames (worst {100 * max(ratios.values()):.0f} %)",
+        f"{len(ratios)} frames (worst {100 * max(ratios.values()):.1f} %)",
         f"* flicker <= {FLICKER_LIMIT_DEG}° on {len(flicker_ok)} of {len(ratios)} frames; the "
         f"truth's own flicker is <= {FLICKER_LIMIT_DEG}° on {len(floor_low)} of them",
         f"* every output pixel finite on every frame and setting: {'yes' if all_ok else 'NO'}",
