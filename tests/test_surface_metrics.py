@@ -125,11 +125,14 @@ def test_dam_frames_section_counts_the_frames_that_meet_each_item() -> None:
     before, after = PRE_ISSUE.name, "preset balanced"
     rows = [row("F_1", before, 10.0, 1.0, 0.2), row("F_1", after, 3.0, 0.1, 0.2)]
     rows += [row("F_9", before, 20.0, 2.0, 1.2), row("F_9", after, 9.0, 1.1, 1.2)]
-    assert band_ratios(rows, after) == {"F_1": 0.3, "F_9": 0.45}
+    # Just past the limit: its ratio must not print as the limit itself.
+    rows += [row("F_13", before, 22.10, 1.0, 0.9), row("F_13", after, 8.90, 0.8, 0.9)]
+    assert band_ratios(rows, after) == {"F_1": 0.3, "F_9": 0.45, "F_13": 8.90 / 22.10}
     text = "\n".join(dam_frames_section(rows, after))
-    assert "| 9 | 20.00 | 9.00 | 45 % |" in text
-    assert "on 1 of 2 frames (worst 45 %)" in text  # band: F_1 only
-    assert "flicker <= 0.3° on 1 of 2 frames; the truth's own flicker is <= 0.3° on 1" in text
+    assert "| 9 | 20.00 | 9.00 | 45.0 % |" in text
+    assert "| 13 | 22.10 | 8.90 | 40.3 % |" in text
+    assert "on 1 of 3 frames (worst 45.0 %)" in text  # band: F_1 only
+    assert "flicker <= 0.3° on 1 of 3 frames; the truth's own flicker is <= 0.3° on 1" in text
     assert "finite on every frame and setting: yes" in text
     # no baseline rows: no section
     assert dam_frames_section([r for r in rows if r.setting == after], after) == []

@@ -564,10 +564,18 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         name="droplets-rims-of-the-bulk",
         path="shaders/field/field_normals.glsl",
-        old="bool bulk_pixel = texelFetch(u_bulk_depth, p, 0).r == zc;",
-        new="bool bulk_pixel = false;",
+        old="bool on_bulk = u_droplets && texelFetch(u_bulk_depth, p, 0).r == zc;",
+        new="bool on_bulk = false;",
         tests=("tests/test_field_normals.py::test_a_droplet_in_front_of_the_bulk_is_no_rim_of_it",),
         description="an exact droplet in front of the bulk taken as a rim of it (a ring around it)",
+    ),
+    Mutation(
+        name="droplets-flag-never-set",
+        path="server/engine/passes/field_normals.py",
+        old='set_if_used(shader, "u_droplets", bulk is not depth)',
+        new='set_if_used(shader, "u_droplets", False)',
+        tests=("tests/test_field_normals.py::test_a_droplet_leaves_no_ring_on_the_pool_behind_it",),
+        description="the listing never told that droplets were drawn over the bulk",
     ),
     Mutation(
         name="bulk-depth-not-passed-on",

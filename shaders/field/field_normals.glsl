@@ -57,6 +57,7 @@ layout(std430, binding = 16) readonly buffer Sorted { vec4 sorted_centres[]; };
 uniform sampler2D u_tiles;    // (farthest, nearest) depth within 8 px, per 4 x 4 tile
 uniform sampler2D u_tile_extremes;  // the same of each tile's own 4 x 4 pixels
 uniform sampler2D u_bulk_depth;  // the bulk's eye depth under the droplets (u_depth if none)
+uniform bool u_droplets;          // whether droplets were drawn over the bulk (u_bulk_depth)
 uniform float u_reach_radii;  // quality.field_normals: the reach in projected particle radii
 // Also read, declared by the including shader: u_depth (the eye depth image), u_edge_jump,
 // u_edge_jump_px, u_focal_px and u_particle_radius.
@@ -234,7 +235,8 @@ float field_weight(ivec2 p, ivec2 size, float zc) {
     }
     float radius_px = u_particle_radius * u_focal_px / zc;
     int reach = clamp(int(round(u_reach_radii * radius_px)), 1, FIELD_MAX_REACH);
-    bool on_bulk = texelFetch(u_bulk_depth, p, 0).r == zc;  // the composite copies it exactly
+    // The composite copies the bulk's depth exactly; without droplets there is nothing to test.
+    bool on_bulk = u_droplets && texelFetch(u_bulk_depth, p, 0).r == zc;
     return rim_weight(p, size, zc, u_edge_jump_px * zc / u_focal_px, reach, tile, on_bulk);
 }
 

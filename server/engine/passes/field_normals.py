@@ -136,6 +136,7 @@ class FieldNormals:
         set_if_used(shader, "u_groups_x", GROUPS_X)
         set_if_used(shader, "u_tile_box", tile_box)
         set_if_used(shader, "u_box", box)
+        set_if_used(shader, "u_droplets", bulk is not depth)
         with self._context.gl.clock:
             self._count.clear()
             self._blocks.clear()
