@@ -18,8 +18,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from crop_pinholes import over_white
-from PIL import Image
+from crop_pinholes import over_white, side_by_side
 from scipy import ndimage
 
 from sphrender.client.frame import ParticleFrame, make_frame
@@ -107,9 +106,7 @@ def main() -> None:
         )
     x, y, w, h = BOX
     crops = [over_white(f.rgba)[y : y + h, x : x + w] for f in (before, after)]
-    big = [np.kron(c, np.ones((3, 3, 1), np.uint8)) for c in crops]
-    gap = np.full((big[0].shape[0], 8, 3), 255, np.uint8)
-    Image.fromarray(np.concatenate([big[0], gap, big[1]], axis=1)).save(out)
+    side_by_side(crops, 3).save(out)
     print("wrote", out)
 
 

@@ -31,6 +31,13 @@ def over_white(rgba: npt.NDArray[np.float32]) -> npt.NDArray[np.uint8]:
     return (out * 255).astype(np.uint8)
 
 
+def side_by_side(crops: list[npt.NDArray[np.uint8]], scale: int) -> Image.Image:
+    """Two 8-bit RGB crops, each `scale` x nearest-neighbour, 8 white pixels between them."""
+    big = [np.kron(c, np.ones((scale, scale, 1), np.uint8)) for c in crops]
+    gap = np.full((big[0].shape[0], 8, 3), 255, np.uint8)
+    return Image.fromarray(np.concatenate([big[0], gap, big[1]], axis=1))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("-o", "--output", default="benchmarks/crop-pinholes-plate.png")
@@ -59,9 +66,7 @@ def main() -> None:
     print(f"{len(ys)} pinhole pixels without the second run, {int(ndimage.label(holes)[1])} holes")
     y0, x0 = max(int(np.median(ys)) - 40, 0), max(int(np.median(xs)) - 60, 0)
     crops = [over_white(f.rgba)[y0 : y0 + 80, x0 : x0 + 120] for f in (before, after)]
-    big = [np.kron(c, np.ones((4, 4, 1), np.uint8)) for c in crops]
-    gap = np.full((big[0].shape[0], 8, 3), 255, np.uint8)
-    Image.fromarray(np.concatenate([big[0], gap, big[1]], axis=1)).save(out)
+    side_by_side(crops, 4).save(out)
     print("wrote", out)
 
 
