@@ -12,7 +12,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from sphrender.server.bench.dam_frames import band_ratios, dam_frame_paths, run_dam_frames
+from sphrender.server.bench.dam_frames import (
+    band_ratios,
+    dam_frame_paths,
+    dam_frames_section,
+    run_dam_frames,
+)
 from sphrender.server.bench.surface_bench import PRE_ISSUE, UNFILTERED
 from sphrender.server.bench.sweep import preset_setting
 from sphrender.server.engine.gpu.gl_context import GLContext
@@ -54,6 +59,9 @@ def main() -> None:
         ratios = band_ratios(rows, setting.name)
         cells = " ".join(f"{r:5.0%}" for r in ratios.values())
         print(f"  {setting.name[:20]:>20}: {cells}   worst {max(ratios.values()):.0%}")
+    for setting in settings:
+        if setting is not PRE_ISSUE:  # REPORT.md's section, for each setting against the baseline
+            print("\n" + "\n".join(dam_frames_section(rows, setting.name)))
 
 
 if __name__ == "__main__":

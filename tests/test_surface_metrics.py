@@ -4,6 +4,7 @@ truth's own flicker, the multi-metric front, and the jitter's two readings."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -23,6 +24,7 @@ from sphrender.server.bench.jitter_readings import (
 from sphrender.server.bench.scenes import Truth, sphere_truth
 from sphrender.server.bench.surface_bench import (
     PRE_ISSUE,
+    UNFILTERED,
     SurfaceRow,
     spatter_case,
     surface_front,
@@ -118,24 +120,58 @@ def test_surface_front_keeps_rows_not_beaten_on_every_column() -> None:
     assert names == ["fast", "nan", "ball", "ball again"]
 
 
-def test_dam_frames_section_counts_the_frames_that_meet_each_item() -> None:
-    def row(frame: str, setting: str, band: float, flicker: float, floor: float) -> DamFrameRow:
-        return DamFrameRow(frame, setting, 5.0, band, flicker, floor, True)
+def _dam_row(frame: str, setting: str, band: float, flicker: float, floor: float) -> DamFrameRow:
+    return DamFrameRow(frame, setting, 5.0, band, flicker, floor, True)
 
+
+def _with_analytic(row: DamFrameRow, alpha: float, silhouettes: float, drops: float) -> DamFrameRow:
+    """`row` with sphere-union figures: half of its edge pixels gaps, lone droplets unless nan."""
+    return replace(
+        row,
+        edge_alpha=alpha,
+        edge_alpha_silhouettes=silhouettes,
+        gap_share=0.5,
+        gap_spheres=0.6,
+        gap_alpha=0.9,
+        gap_reference=1.0,
+        droplet_deg=drops,
+        droplet_px=10 if math.isfinite(drops) else 0,
+    )
+
+
+def test_dam_frames_section_counts_the_frames_that_meet_each_item() -> None:
     before, after = PRE_ISSUE.name, "preset balanced"
-    rows = [row("F_1", before, 10.0, 1.0, 0.2), row("F_1", after, 3.0, 0.1, 0.2)]
-    rows += [row("F_9", before, 20.0, 2.0, 1.2), row("F_9", after, 9.0, 1.1, 1.2)]
-    # Just past the limit: its ratio must not print as the limit itself.
-    rows += [row("F_13", before, 22.10, 1.0, 0.9), row("F_13", after, 8.90, 0.8, 0.9)]
+    rows = [
+        _dam_row("F_1", before, 10.0, 1.0, 0.2),
+        _with_analytic(_dam_row("F_1", after, 3.0, 0.1, 0.2), 0.05, 0.04, math.nan),
+        _dam_row("F_9", before, 20.0, 2.0, 1.2),
+        _with_analytic(_dam_row("F_9", after, 9.0, 1.1, 1.2), 0.15, 0.05, 2.0),
+        # Just past the limit: its ratio must not print as the limit itself.
+        _dam_row("F_13", before, 22.10, 1.0, 0.9),
+        _with_analytic(_dam_row("F_13", after, 8.90, 0.8, 0.9), 0.2, 0.12, 5.0),
+    ]
+    for frame in ("F_1", "F_9", "F_13"):
+        rows.append(replace(_dam_row(frame, UNFILTERED.name, 30.0, 4.0, 1.0), droplet_deg=3.0))
     assert band_ratios(rows, after) == {"F_1": 0.3, "F_9": 0.45, "F_13": 8.90 / 22.10}
     text = "\n".join(dam_frames_section(rows, after))
-    assert "| 9 | 20.00 | 9.00 | 45.0 % |" in text
+    row_9 = (
+        "| 9 | 20.00 | 9.00 | 45.0 % | 5.00 | 1.100 | 1.200 | 0.150 / 0.050 | 2.00 (3.00) | yes |"
+    )
+    assert row_9 in text
     assert "| 13 | 22.10 | 8.90 | 40.3 % |" in text
     assert "on 1 of 3 frames (worst 45.0 %)" in text  # band: F_1 only
     assert "flicker <= 0.3° on 1 of 3 frames; the truth's own flicker is <= 0.3° on 1" in text
+    assert "edge pixels on 1 of 3 frames (worst 0.200)" in text
+    assert "silhouettes against background on 2 of 3 (worst 0.120)" in text
+    assert "(50 % of the edge pixels, mean over the frames): there the spheres cover 0.60" in text
+    # F_1 has no lone particle in view; F_13's 5.0 deg is past 1.2 x 3.0
+    assert "droplet error <= 1.2x the unfiltered splat's on 1 of the 2 frames" in text
     assert "finite on every frame and setting: yes" in text
     # no baseline rows: no section
     assert dam_frames_section([r for r in rows if r.setting == after], after) == []
+    # no unfiltered rows: no droplet verdict, no unfiltered figure in the table
+    text = "\n".join(dam_frames_section([r for r in rows if r.setting != UNFILTERED.name], after))
+    assert "droplet error" not in text and "| 2.00 | yes |" in text
 
 
 def test_all_finite_takes_inf_depth_as_no_surface_and_nothing_else() -> None:

@@ -336,9 +336,10 @@ def _surface_done_when(surfaces: SurfaceResults, lattice: SweepRow | None) -> li
         "Done-when of the issue, default preset (balanced) in this run:",
         "",
         f"* droplet error {_f(default.droplet_deg)}° vs unfiltered {_f(raw.droplet_deg)}° "
-        f"(<= 1.2x): {verdict(default.droplet_deg <= 1.2 * raw.droplet_deg)}",
-        f"* edge alpha error {_f(default.edge_alpha_err, 3)} (<= 0.1): "
-        f"{verdict(default.edge_alpha_err <= 0.1)}",
+        f"(<= 1.2x, spatter; every dam-break frame: below): "
+        f"{verdict(default.droplet_deg <= 1.2 * raw.droplet_deg)}",
+        f"* edge alpha error {_f(default.edge_alpha_err, 3)} (<= 0.1, spatter; every dam-break "
+        f"frame: below): {verdict(default.edge_alpha_err <= 0.1)}",
         f"* dam-break band (tolerant, this frame; every frame: below) "
         f"{_f(default.dam_band_fair_deg)}° = "
         f"{_f(100 * band_ratio, 0)} % of the pre-issue {_f(before.dam_band_fair_deg)}° "

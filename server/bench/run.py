@@ -43,6 +43,7 @@ from sphrender.server.bench.surface_bench import (
     PRE_ISSUE,
     QUICK_SURFACE_SETTINGS,
     SURFACE_SETTINGS,
+    UNFILTERED,
     SurfaceResults,
     SurfaceRow,
     run_surface_bench,
@@ -263,7 +264,8 @@ def _run_surfaces(
     if quick:
         return
     balanced = preset_setting("balanced")
-    _run_dam_frames(gl, renderer, results, (PRE_ISSUE, balanced), surface_w, surface_h, cache, log)
+    dam_settings = (PRE_ISSUE, UNFILTERED, balanced)  # unfiltered: the droplet item's baseline
+    _run_dam_frames(gl, renderer, results, dam_settings, surface_w, surface_h, cache, log)
     log("flicker under both readings of the jitter")
     results.jitter_readings = run_jitter_readings(
         gl, renderer, (PRE_ISSUE, balanced), width=surface_w, height=surface_h, cache=cache, log=log
