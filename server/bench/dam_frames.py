@@ -122,26 +122,7 @@ def run_dam_frames(
         for setting in settings:
             frame = render_case(renderer, case.frame, setting, case)
             moved = render_case(renderer, case.moved, setting, case)
-            alpha = frame.rgba[..., 3].astype(np.float64)
-            edges = edge_alpha(alpha, union.coverage, reference)
-            gaps = gap_coverage(alpha, union.coverage, reference)
-            row = DamFrameRow(
-                path.stem,
-                setting.name,
-                band_error_deg(frame, case.truth, case.truth.hit),  # every covered pixel
-                shift_tolerant_band_error_deg(frame, case.truth, case.band),
-                flicker_deg(frame, moved)[0],
-                floor,
-                all_finite(frame) and all_finite(moved),
-                edges.all,
-                edges.silhouettes,
-                edges.gap_share,
-                gaps.spheres,
-                gaps.alpha,
-                gaps.reference,
-                droplet_error_deg(frame, union),
-                int(union.droplet.sum()),
-            )
+            row = _row(path.stem, setting.name, case, floor, (frame, moved), (union, reference))
             rows.append(row)
             log(
                 f"  {row.frame} {row.setting}: mean {row.mean_deg:.2f} band {row.band_deg:.2f} "
@@ -150,6 +131,40 @@ def run_dam_frames(
                 f"droplets {row.droplet_deg:.2f} ({row.droplet_px} px)"
             )
     return rows
+
+
+def _row(
+    frame_name: str,
+    setting: str,
+    case: Case,
+    floor: float,
+    renders: tuple[RenderedFrame, RenderedFrame],
+    truths: tuple[SphereUnion, F64],
+) -> DamFrameRow:
+    """One frame's figures for one setting: its `renders` of the frame and of the jittered
+    copy against the case's reference, and against `truths` (`_analytic_truths`)."""
+    frame, moved = renders
+    union, reference = truths
+    alpha = frame.rgba[..., 3].astype(np.float64)
+    edges = edge_alpha(alpha, union.coverage, reference)
+    gaps = gap_coverage(alpha, union.coverage, reference)
+    return DamFrameRow(
+        frame_name,
+        setting,
+        mean_deg=band_error_deg(frame, case.truth, case.truth.hit),  # every covered pixel
+        band_deg=shift_tolerant_band_error_deg(frame, case.truth, case.band),
+        flicker_deg=flicker_deg(frame, moved)[0],
+        floor_deg=floor,
+        finite=all_finite(frame) and all_finite(moved),
+        edge_alpha=edges.all,
+        edge_alpha_silhouettes=edges.silhouettes,
+        gap_share=edges.gap_share,
+        gap_spheres=gaps.spheres,
+        gap_alpha=gaps.alpha,
+        gap_reference=gaps.reference,
+        droplet_deg=droplet_error_deg(frame, union),
+        droplet_px=int(union.droplet.sum()),
+    )
 
 
 def _analytic_truths(
