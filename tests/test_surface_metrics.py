@@ -243,3 +243,17 @@ def test_jitter_readings_section_says_who_meets_the_item_under_each_reading() ->
         "itself meets it" in text
     )
     assert jitter_readings_section([]) == []
+
+
+def test_dam_frames_section_worst_edge_alpha_skips_frames_without_edges() -> None:
+    """A frame without edge pixels (nan) is not the worst of them, whatever its place."""
+    after = "preset balanced"
+    rows = [
+        _dam_row("F_1", PRE_ISSUE.name, 10.0, 1.0, 0.2),
+        _dam_row("F_1", after, 3.0, 0.1, 0.2),  # its sphere-union figures: nan
+        _dam_row("F_9", PRE_ISSUE.name, 20.0, 2.0, 1.2),
+        _with_analytic(_dam_row("F_9", after, 9.0, 1.1, 1.2), 0.15, 0.05, 2.0),
+    ]
+    text = "\n".join(dam_frames_section(rows, after))
+    assert "edge pixels on 0 of 2 frames (worst 0.150)" in text
+    assert "background on 1 of 2 (worst 0.050)" in text

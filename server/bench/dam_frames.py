@@ -14,7 +14,8 @@ default's on each frame. Needs ../shared/data and pysplashsurf (or the reference
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import math
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -232,6 +233,13 @@ def dam_frames_section(rows: Sequence[DamFrameRow], setting: str = "preset balan
     return [*lines, "", *_verdicts(rows, ratios, after, raw)]
 
 
+def _worst(values: Iterable[float]) -> float:
+    """The largest of `values` that is a number (nan: none is; a frame without edge pixels
+    has nothing to be worst at)."""
+    numbers = [v for v in values if not math.isnan(v)]
+    return max(numbers) if numbers else math.nan
+
+
 def _verdicts(
     rows: Sequence[DamFrameRow],
     ratios: dict[str, float],
@@ -246,7 +254,8 @@ def _verdicts(
     alpha_ok = [f for f in ratios if after[f].edge_alpha <= EDGE_ALPHA_LIMIT]
     silhouettes_ok = [f for f in ratios if after[f].edge_alpha_silhouettes <= EDGE_ALPHA_LIMIT]
     all_ok = all(r.finite for r in rows)
-    worst_alpha = max(after[f].edge_alpha for f in ratios)
+    worst_alpha = _worst(after[f].edge_alpha for f in ratios)
+    worst_silhouettes = _worst(after[f].edge_alpha_silhouettes for f in ratios)
     lines = [
         f"* band <= {100 * BAND_LIMIT:.0f} % of the pre-issue default's on {len(band_ok)} of "
         f"{n} frames (worst {100 * max(ratios.values()):.1f} %)",
@@ -254,8 +263,7 @@ def _verdicts(
         f"truth's own flicker is <= {FLICKER_LIMIT_DEG}° on {len(floor_low)} of them",
         f"* edge alpha <= {EDGE_ALPHA_LIMIT} over all the union's edge pixels on "
         f"{len(alpha_ok)} of {n} frames (worst {worst_alpha:.3f}); over its silhouettes "
-        f"against background on {len(silhouettes_ok)} of {n} (worst "
-        f"{max(after[f].edge_alpha_silhouettes for f in ratios):.3f})",
+        f"against background on {len(silhouettes_ok)} of {n} (worst {worst_silhouettes:.3f})",
     ]
     gaps = [after[f] for f in ratios if np.isfinite(after[f].gap_spheres)]
     if gaps:
