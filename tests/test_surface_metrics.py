@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 
 from sphrender.server.bench.dam_frames import (
+    DamCounts,
     DamFrameRow,
     all_finite,
     band_ratios,
@@ -21,10 +22,12 @@ from sphrender.server.bench.jitter_readings import (
     jitter_readings_section,
     mean_move_r,
 )
+from sphrender.server.bench.report import surface_section
 from sphrender.server.bench.scenes import Truth, sphere_truth
 from sphrender.server.bench.surface_bench import (
     PRE_ISSUE,
     UNFILTERED,
+    SurfaceResults,
     SurfaceRow,
     spatter_case,
     surface_front,
@@ -257,3 +260,38 @@ def test_dam_frames_section_worst_edge_alpha_skips_frames_without_edges() -> Non
     text = "\n".join(dam_frames_section(rows, after))
     assert "edge pixels on 0 of 2 frames (worst 0.150)" in text
     assert "background on 1 of 2 (worst 0.050)" in text
+
+
+def test_the_reports_done_when_names_the_dam_frames_beside_the_spatter() -> None:
+    """The spatter's droplet and edge alpha verdicts, and the one dam frame's band, carry the
+    counts over every dam-break frame, so a 'met' on the spatter never reads as the whole item;
+    without the per-frame rows the lines say nothing of them."""
+    rows = [
+        SurfaceRow("preset balanced", 200, 0.55, 0.093, 0.64, 1.3, 18.7, 8.13, 0.98, 1.5, 3.7),
+        SurfaceRow(PRE_ISSUE.name, 100, 23.4, 0.25, 1.9, 35.8, 35.9, 21.53, 2.1, 2.2, 6.5),
+        SurfaceRow(UNFILTERED.name, 55, 0.88, 0.038, 4.5, 17.4, 42.7, 31.19, 4.6, 40.0, 77.5),
+    ]
+    surfaces = SurfaceResults(960, 540, rows, 0.5, dam_flicker_floor=0.8)
+    dam = DamCounts(
+        frames=8,
+        band_ok=7,
+        worst_band_ratio=0.403,
+        flicker_ok=2,
+        floor_low=2,
+        alpha_ok=2,
+        worst_alpha=0.248,
+        silhouettes_ok=8,
+        worst_silhouettes=0.045,
+        droplet_frames=6,
+        droplets_ok=6,
+        finite=True,
+    )
+    text = "\n".join(surface_section(surfaces, None, dam))
+    assert "(<= 1.2x) on the spatter: met; on the dam-break frames (below) on 6 of the 6" in text
+    assert "edge alpha error 0.093 (<= 0.1) on the spatter: met; on the dam-break frames" in text
+    assert (
+        "on 2 of 8 over all its edge pixels (worst 0.248), on 8 of 8 over its silhouettes" in text
+    )
+    assert "every frame (below): on 7 of 8 (worst 40.3 %)" in text
+    alone = "\n".join(surface_section(surfaces))
+    assert "(<= 0.1) on the spatter: met\n" in alone and "dam-break frames (below)" not in alone

@@ -230,7 +230,7 @@ def dam_frames_section(rows: Sequence[DamFrameRow], setting: str = "preset balan
         cells += [f"{a.floor_deg:.3f}", f"{a.edge_alpha:.3f} / {a.edge_alpha_silhouettes:.3f}"]
         cells += [f"{a.droplet_deg:.2f}{unfiltered}", "yes" if a.finite else "NO"]
         lines.append("| " + " | ".join(cells) + " |")
-    return [*lines, "", *_verdicts(rows, ratios, after, raw)]
+    return [*lines, "", *_verdicts(rows, setting, ratios, after)]
 
 
 def _worst(values: Iterable[float]) -> float:
@@ -240,30 +240,72 @@ def _worst(values: Iterable[float]) -> float:
     return max(numbers) if numbers else math.nan
 
 
+@dataclass(frozen=True)
+class DamCounts:
+    """On how many of the `frames` each of the issue's items holds for one setting, and the
+    worst value of each; droplets count only the frames with lone particles in view and an
+    unfiltered row to compare with (`droplet_frames`)."""
+
+    frames: int
+    band_ok: int
+    worst_band_ratio: float
+    flicker_ok: int
+    floor_low: int  # the truth's own flicker within the limit
+    alpha_ok: int
+    worst_alpha: float
+    silhouettes_ok: int
+    worst_silhouettes: float
+    droplet_frames: int
+    droplets_ok: int
+    finite: bool
+
+
+def dam_frame_counts(rows: Sequence[DamFrameRow], setting: str) -> DamCounts | None:
+    """`DamCounts` of `setting` (None without rows for it and the pre-issue default)."""
+    ratios = band_ratios(rows, setting)
+    if not ratios:
+        return None
+    after = {r.frame: r for r in rows if r.setting == setting}
+    raw = {r.frame: r for r in rows if r.setting == UNFILTERED.name}
+    mine = [after[f] for f in ratios]
+    with_drops = [f for f in ratios if after[f].droplet_px > 0 and f in raw]
+    return DamCounts(
+        frames=len(ratios),
+        band_ok=sum(r <= BAND_LIMIT for r in ratios.values()),
+        worst_band_ratio=max(ratios.values()),
+        flicker_ok=sum(r.flicker_deg <= FLICKER_LIMIT_DEG for r in mine),
+        floor_low=sum(r.floor_deg <= FLICKER_LIMIT_DEG for r in mine),
+        alpha_ok=sum(r.edge_alpha <= EDGE_ALPHA_LIMIT for r in mine),
+        worst_alpha=_worst(r.edge_alpha for r in mine),
+        silhouettes_ok=sum(r.edge_alpha_silhouettes <= EDGE_ALPHA_LIMIT for r in mine),
+        worst_silhouettes=_worst(r.edge_alpha_silhouettes for r in mine),
+        droplet_frames=len(with_drops),
+        droplets_ok=sum(
+            after[f].droplet_deg <= DROPLET_LIMIT * raw[f].droplet_deg for f in with_drops
+        ),
+        finite=all(r.finite for r in rows),
+    )
+
+
 def _verdicts(
     rows: Sequence[DamFrameRow],
+    setting: str,
     ratios: dict[str, float],
     after: dict[str, DamFrameRow],
-    raw: dict[str, DamFrameRow],
 ) -> list[str]:
     """The per-frame section's bullets: on how many frames each item holds."""
-    n = len(ratios)
-    band_ok = [f for f, r in ratios.items() if r <= BAND_LIMIT]
-    flicker_ok = [f for f in ratios if after[f].flicker_deg <= FLICKER_LIMIT_DEG]
-    floor_low = [f for f in ratios if after[f].floor_deg <= FLICKER_LIMIT_DEG]
-    alpha_ok = [f for f in ratios if after[f].edge_alpha <= EDGE_ALPHA_LIMIT]
-    silhouettes_ok = [f for f in ratios if after[f].edge_alpha_silhouettes <= EDGE_ALPHA_LIMIT]
-    all_ok = all(r.finite for r in rows)
-    worst_alpha = _worst(after[f].edge_alpha for f in ratios)
-    worst_silhouettes = _worst(after[f].edge_alpha_silhouettes for f in ratios)
+    counts = dam_frame_counts(rows, setting)
+    assert counts is not None  # the section has rows for both
+    n = counts.frames
     lines = [
-        f"* band <= {100 * BAND_LIMIT:.0f} % of the pre-issue default's on {len(band_ok)} of "
-        f"{n} frames (worst {100 * max(ratios.values()):.1f} %)",
-        f"* flicker <= {FLICKER_LIMIT_DEG}° on {len(flicker_ok)} of {n} frames; the "
-        f"truth's own flicker is <= {FLICKER_LIMIT_DEG}° on {len(floor_low)} of them",
+        f"* band <= {100 * BAND_LIMIT:.0f} % of the pre-issue default's on {counts.band_ok} of "
+        f"{n} frames (worst {100 * counts.worst_band_ratio:.1f} %)",
+        f"* flicker <= {FLICKER_LIMIT_DEG}° on {counts.flicker_ok} of {n} frames; the "
+        f"truth's own flicker is <= {FLICKER_LIMIT_DEG}° on {counts.floor_low} of them",
         f"* edge alpha <= {EDGE_ALPHA_LIMIT} over all the union's edge pixels on "
-        f"{len(alpha_ok)} of {n} frames (worst {worst_alpha:.3f}); over its silhouettes "
-        f"against background on {len(silhouettes_ok)} of {n} (worst {worst_silhouettes:.3f})",
+        f"{counts.alpha_ok} of {n} frames (worst {counts.worst_alpha:.3f}); over its "
+        f"silhouettes against background on {counts.silhouettes_ok} of {n} (worst "
+        f"{counts.worst_silhouettes:.3f})",
     ]
     gaps = [after[f] for f in ratios if np.isfinite(after[f].gap_spheres)]
     if gaps:
@@ -275,16 +317,14 @@ def _verdicts(
             f"reference {np.mean([g.gap_reference for g in gaps]):.2f} and the render's alpha "
             f"is {np.mean([g.gap_alpha for g in gaps]):.2f} (gap closing draws the sheet whole)"
         )
-    with_drops = [f for f in ratios if after[f].droplet_px > 0 and f in raw]
-    if with_drops:
-        drop_ok = [
-            f for f in with_drops if after[f].droplet_deg <= DROPLET_LIMIT * raw[f].droplet_deg
-        ]
+    if counts.droplet_frames:
         lines.append(
-            f"* droplet error <= {DROPLET_LIMIT}x the unfiltered splat's on {len(drop_ok)} of "
-            f"the {len(with_drops)} frames with lone particles in view"
+            f"* droplet error <= {DROPLET_LIMIT}x the unfiltered splat's on "
+            f"{counts.droplets_ok} of the {counts.droplet_frames} frames with lone particles "
+            f"in view"
         )
     lines.append(
-        f"* every output pixel finite on every frame and setting: {'yes' if all_ok else 'NO'}"
+        f"* every output pixel finite on every frame and setting: "
+        f"{'yes' if counts.finite else 'NO'}"
     )
     return lines

@@ -6,7 +6,7 @@ import math
 import time
 from pathlib import Path
 
-from sphrender.server.bench.dam_frames import dam_frames_section
+from sphrender.server.bench.dam_frames import DamCounts, dam_frame_counts, dam_frames_section
 from sphrender.server.bench.jitter_readings import jitter_readings_section
 from sphrender.server.bench.results import BenchResults, growth_exponent, ratio
 from sphrender.server.bench.surface_bench import (
@@ -128,7 +128,8 @@ def write_report(results: BenchResults, path: Path, *, plot_name: str) -> None:
         lattice = next(
             (r for r in results.rows if r.scene == "ball" and r.setting == "preset balanced"), None
         )
-        lines += surface_section(results.surfaces, lattice)
+        dam = dam_frame_counts(results.dam_frames, "preset balanced")
+        lines += surface_section(results.surfaces, lattice, dam)
     if results.dam_frames:
         lines += [*dam_frames_section(results.dam_frames), ""]
     if results.jitter_readings:
@@ -264,13 +265,16 @@ def _f(value: float, digits: int = 2) -> str:
     return "-" if math.isnan(value) else f"{value:.{digits}f}"
 
 
-def surface_section(surfaces: SurfaceResults, lattice: SweepRow | None = None) -> list[str]:
+def surface_section(
+    surfaces: SurfaceResults, lattice: SweepRow | None = None, dam: DamCounts | None = None
+) -> list[str]:
     """The real-SPH-surface table (issue 12's figures), its front, the done-when check against
     the pre-issue default and the unfiltered splat, and the before/after crops. `lattice`: the
     sweep's default-preset row of its lattice ball (the ball the issue's 1.4 degrees were
-    measured on), checked beside this section's smaller, coarser ball."""
+    measured on), checked beside this section's smaller, coarser ball; `dam`: the default's
+    counts over every dam-break frame (`dam_frames.py`), named beside the one frame's."""
     lines = _surface_table(surfaces)
-    lines += _surface_done_when(surfaces, lattice)
+    lines += _surface_done_when(surfaces, lattice, dam)
     if surfaces.crops:
         lines += ["", "Before / after (the middle half of each image):", ""]
         for caption, file in surfaces.crops:
@@ -315,7 +319,9 @@ def _surface_table(surfaces: SurfaceResults) -> list[str]:
     return lines
 
 
-def _surface_done_when(surfaces: SurfaceResults, lattice: SweepRow | None) -> list[str]:
+def _surface_done_when(
+    surfaces: SurfaceResults, lattice: SweepRow | None, dam: DamCounts | None
+) -> list[str]:
     """The issue's done-when items checked on the default preset's row (empty when the
     default, the pre-issue or the unfiltered row is missing)."""
     by_name = {r.setting: r for r in surfaces.rows}
@@ -336,15 +342,14 @@ def _surface_done_when(surfaces: SurfaceResults, lattice: SweepRow | None) -> li
         "Done-when of the issue, default preset (balanced) in this run:",
         "",
         f"* droplet error {_f(default.droplet_deg)}° vs unfiltered {_f(raw.droplet_deg)}° "
-        f"(<= 1.2x, spatter; every dam-break frame: below): "
-        f"{verdict(default.droplet_deg <= 1.2 * raw.droplet_deg)}",
-        f"* edge alpha error {_f(default.edge_alpha_err, 3)} (<= 0.1, spatter; every dam-break "
-        f"frame: below): {verdict(default.edge_alpha_err <= 0.1)}",
-        f"* dam-break band (tolerant, this frame; every frame: below) "
-        f"{_f(default.dam_band_fair_deg)}° = "
+        f"(<= 1.2x) on the spatter: {verdict(default.droplet_deg <= 1.2 * raw.droplet_deg)}"
+        f"{_dam_droplets(dam)}",
+        f"* edge alpha error {_f(default.edge_alpha_err, 3)} (<= 0.1) on the spatter: "
+        f"{verdict(default.edge_alpha_err <= 0.1)}{_dam_edge_alpha(dam)}",
+        f"* dam-break band (tolerant, this frame) {_f(default.dam_band_fair_deg)}° = "
         f"{_f(100 * band_ratio, 0)} % of the pre-issue {_f(before.dam_band_fair_deg)}° "
         f"(<= 40 %): {verdict(band_ratio <= 0.4)}; plain band {_f(default.dam_band_deg)}° "
-        f"vs {_f(before.dam_band_deg)}°",
+        f"vs {_f(before.dam_band_deg)}°{_dam_band(dam)}",
         *_no_field_band_line(by_name.get(NO_FIELD_NORMALS.name), before),
         f"* flicker {_f(default.flicker_deg)}° spatter / {_f(default.dam_flicker_deg)}° "
         f"dam break (<= 0.3°): "
@@ -367,6 +372,35 @@ def _surface_done_when(surfaces: SurfaceResults, lattice: SweepRow | None) -> li
             f"{verdict(m.normal_mean_deg <= 2 and m.normal_p95_deg <= 5)}"
         )
     return lines
+
+
+def _dam_droplets(dam: DamCounts | None) -> str:
+    if dam is None or not dam.droplet_frames:
+        return ""
+    return (
+        f"; on the dam-break frames (below) on {dam.droplets_ok} of the {dam.droplet_frames} "
+        f"with lone particles in view"
+    )
+
+
+def _dam_edge_alpha(dam: DamCounts | None) -> str:
+    if dam is None:
+        return ""
+    return (
+        f"; on the dam-break frames (below), against the union of their particle spheres, on "
+        f"{dam.alpha_ok} of {dam.frames} over all its edge pixels (worst {_f(dam.worst_alpha, 3)}"
+        f"), on {dam.silhouettes_ok} of {dam.frames} over its silhouettes against background "
+        f"(worst {_f(dam.worst_silhouettes, 3)})"
+    )
+
+
+def _dam_band(dam: DamCounts | None) -> str:
+    if dam is None:
+        return ""
+    return (
+        f"; every frame (below): on {dam.band_ok} of {dam.frames} (worst "
+        f"{100 * dam.worst_band_ratio:.1f} %)"
+    )
 
 
 def _flicker_split_line(row: SurfaceRow, surfaces: SurfaceResults) -> list[str]:
