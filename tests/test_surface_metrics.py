@@ -175,6 +175,7 @@ def test_dam_frames_section_counts_the_frames_that_meet_each_item() -> None:
     # no unfiltered rows: no droplet verdict, no unfiltered figure in the table
     text = "\n".join(dam_frames_section([r for r in rows if r.setting != UNFILTERED.name], after))
     assert "droplet error" not in text and "| 2.00 | yes |" in text
+    assert "| 1 | 10.00 | 3.00 | 30.0 % | 5.00 | 0.100 | 0.200 | 0.050 / 0.040 | - | yes |" in text
 
 
 def test_all_finite_takes_inf_depth_as_no_surface_and_nothing_else() -> None:
@@ -259,6 +260,7 @@ def test_dam_frames_section_worst_edge_alpha_skips_frames_without_edges() -> Non
     ]
     text = "\n".join(dam_frames_section(rows, after))
     assert "edge pixels on 0 of 2 frames (worst 0.150)" in text
+    assert "| 1 | 10.00 | 3.00 | 30.0 % | 5.00 | 0.100 | 0.200 | - / - | - | yes |" in text
     assert "background on 1 of 2 (worst 0.050)" in text
 
 

@@ -223,14 +223,20 @@ def dam_frames_section(rows: Sequence[DamFrameRow], setting: str = "preset balan
     ]
     for frame, ratio in ratios.items():
         a, b = after[frame], before[frame]
-        unfiltered = f" ({raw[frame].droplet_deg:.2f})" if frame in raw else ""
+        unfiltered = f" ({_cell(raw[frame].droplet_deg, 2)})" if frame in raw else ""
         cells = [frame.rsplit("_", 1)[-1], f"{b.band_deg:.2f}", f"{a.band_deg:.2f}"]
         # One decimal: a frame just past the limit must not read as on it (40.3 % is not 40).
         cells += [f"{100 * ratio:.1f} %", f"{a.mean_deg:.2f}", f"{a.flicker_deg:.3f}"]
-        cells += [f"{a.floor_deg:.3f}", f"{a.edge_alpha:.3f} / {a.edge_alpha_silhouettes:.3f}"]
-        cells += [f"{a.droplet_deg:.2f}{unfiltered}", "yes" if a.finite else "NO"]
+        alpha = f"{_cell(a.edge_alpha, 3)} / {_cell(a.edge_alpha_silhouettes, 3)}"
+        cells += [f"{a.floor_deg:.3f}", alpha, f"{_cell(a.droplet_deg, 2)}{unfiltered}"]
+        cells += ["yes" if a.finite else "NO"]
         lines.append("| " + " | ".join(cells) + " |")
     return [*lines, "", *_verdicts(rows, setting, ratios, after)]
+
+
+def _cell(value: float, digits: int) -> str:
+    """A table cell: '-' for a figure not measured on the frame (no lone particle in view)."""
+    return "-" if math.isnan(value) else f"{value:.{digits}f}"
 
 
 def _worst(values: Iterable[float]) -> float:

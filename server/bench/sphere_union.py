@@ -36,8 +36,8 @@ Mask = npt.NDArray[np.bool_]
 @dataclass(frozen=True)
 class SphereUnion:
     """The union of a frame's particle spheres seen by one camera: its 4 x 4 supersampled
-    coverage per pixel, and its truth (`Truth`) at the pixels whose nearest sphere is a lone
-    particle (`droplet`)."""
+    coverage per pixel, its truth (`Truth`: the nearest sphere's hit, depth and normal per
+    pixel) and the pixels whose nearest sphere is a lone particle (`droplet`)."""
 
     coverage: F64
     truth: Truth
