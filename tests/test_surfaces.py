@@ -94,14 +94,15 @@ def test_exact_droplets_are_the_unfiltered_spheres_over_the_smoothed_pool(
 def test_exact_droplets_from_client_densities_need_no_sph_pass(
     renderer: SurfaceRenderer,
 ) -> None:
-    """Client densities decide the droplets without OpenCL (the default: no density pass): the
-    same image as computed ones when the client's densities are the kernel's (a lone particle
-    has m W(0) = 1000 / pi); without densities and without the pass there is no split."""
+    """Client densities decide the droplets without a density pass (with droplet_lone_density
+    off; the default also looks for lone particles, test_lone_particles_...): the same image as
+    computed ones when the client's densities are the kernel's (a lone particle has m W(0) =
+    1000 / pi); without densities and without the pass there is no split."""
     pool, droplets = pool_and_droplets()
     positions = np.concatenate([pool, droplets])
     densities = np.full(len(positions), 1000.0, np.float32)
     densities[len(pool) :] = 1000.0 / np.pi
-    scene = make_scene(quality={"exact_droplets": True})
+    scene = make_scene(quality={"exact_droplets": True, "droplet_lone_density": 0.0})
     computed = render(renderer, positions, make_scene(quality={"droplet_density_pass": True}))
     given, stats = renderer.render(make_frame(positions, densities=densities), scene, depth=True)
     assert given.depth is not None and computed.depth is not None
@@ -116,13 +117,15 @@ def test_exact_droplets_from_client_densities_need_no_sph_pass(
 def test_computed_droplet_densities_ignore_the_frames(renderer: SurfaceRenderer) -> None:
     """Densities that count what the frame does not hold (a simulator's walls, not exported):
     every particle written at about rest density (0.98-1.02: one value for all would not be
-    used at all, frame_densities.py), so the frame's densities split nothing off. With
+    used at all, frame_densities.py), so the frame's densities alone (droplet_lone_density
+    off) split nothing off. With
     droplet_densities = "computed" the split follows the positions' own eq 2 densities: the
     same image as on a frame without densities with droplet_density_pass."""
     pool, droplets = pool_and_droplets()
     positions = np.concatenate([pool, droplets])
     walls = np.random.default_rng(0).uniform(980.0, 1020.0, len(positions)).astype(np.float32)
-    trusted = render(renderer, positions, make_scene(), densities=walls)
+    frame_only = make_scene(quality={"droplet_lone_density": 0.0})
+    trusted = render(renderer, positions, frame_only, densities=walls)
     scene = make_scene(quality={"droplet_densities": "computed"})
     own, stats = renderer.render(make_frame(positions, densities=walls), scene, depth=True)
     reference = render(renderer, positions, make_scene(quality={"droplet_density_pass": True}))
@@ -135,6 +138,54 @@ def test_computed_droplet_densities_ignore_the_frames(renderer: SurfaceRenderer)
     shown = np.isfinite(raw.depth) & (raw.depth == own.depth)
     assert shown.sum() > 200
     assert np.abs(trusted.depth[shown] - own.depth[shown]).max() > 0.5 * R
+
+
+def test_lone_particles_are_droplets_whatever_the_frames_densities_say() -> None:
+    """Densities that count walls the frame does not hold (every particle near rest): by
+    default the particles alone in the frame are droplets all the same (their own density
+    0.318 rest < droplet_lone_density 0.36), and those with one neighbour 3 r away (0.328);
+    a touching pair 2 r apart (0.398) is not, nor the pool. Off, the frame's densities alone
+    split nothing off."""
+    pool, lone = pool_and_droplets()
+    far_pair = np.array([[0.2, 0.3, 0.2], [0.2 + 3 * R, 0.3, 0.2]])
+    touching = np.array([[-0.2, 0.3, -0.2], [-0.2 + 2 * R, 0.3, -0.2]])
+    positions = np.concatenate([pool, lone, far_pair, touching])
+    walls = np.random.default_rng(2).uniform(980.0, 1020.0, len(positions)).astype(np.float32)
+    frame = make_frame(positions, densities=walls)
+    expected = np.zeros(len(positions), bool)
+    expected[len(pool) : len(pool) + len(lone) + 2] = True
+    stage = SphStage()
+    try:
+        outcome = stage.run(frame, make_scene())
+        off = stage.run(frame, make_scene(quality={"droplet_lone_density": 0.0}))
+        densities = stage.engine().density(positions, SphParameters.from_scene(make_scene(), R))
+    finally:
+        stage.release()
+    assert outcome.droplets is not None and np.array_equal(outcome.droplets, expected)
+    assert off.droplets is not None and not off.droplets.any()
+    assert outcome.notes == ()
+    ratio = densities / 1000.0  # the values the rule's 0.36 lies between
+    assert np.allclose(ratio[len(pool)], 1 / np.pi, rtol=1e-4)
+    assert 0.32 < ratio[-4] < 0.34 and 0.39 < ratio[-1] < 0.41
+
+
+def test_without_opencl_lone_particles_fall_back_to_the_frames_densities() -> None:
+    """No OpenCL device: the frame's own densities still split the droplets they mark (the
+    kernel's 1000 / pi for the lone ones here), and a note says the lone particles were not
+    looked for; the frame is not left unsplit."""
+    pool, droplets = pool_and_droplets()
+    positions = np.concatenate([pool, droplets])
+    densities = np.full(len(positions), 1000.0, np.float32)
+    densities[len(pool) :] = 1000.0 / np.pi
+    stage = SphStage(cl_device="99:0")
+    try:
+        outcome = stage.run(make_frame(positions, densities=densities), make_scene())
+    finally:
+        stage.release()
+    assert outcome.droplets is not None
+    assert np.array_equal(outcome.droplets, np.arange(len(positions)) >= len(pool))
+    assert [n.field for n in outcome.notes] == ["quality.droplet_lone_density"]
+    assert "no OpenCL device" in outcome.notes[0].message
 
 
 @pytest.mark.parametrize(

@@ -520,7 +520,7 @@ MUTATIONS: tuple[Mutation, ...] = (
         name="droplet-densities-over-the-splat-subset",
         path="server/engine/sph/frame.py",
         old=(
-            "droplets = droplet_mask(frame, scene, self.engine, computed)\n"
+            "droplets, lone_skipped = self._with_lone(droplets, frame, scene, computed)\n"
             "                if computed is not None and computed.splat_keep is not None:\n"
             "                    droplets = droplets[computed.splat_keep]"
         ),
@@ -534,8 +534,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         name="droplet-densities-second-pass",
         path="server/engine/sph/frame.py",
-        old="if densities is None and computed is not None and computed.density_computed:",
-        new="if densities is None and computed is not None and not computed.density_computed:",
+        old="if computed is not None and computed.density_computed:",
+        new="if computed is not None and not computed.density_computed:",
         tests=("tests/test_surfaces.py::test_computed_droplet_densities_reuse_the_sph_stages_pass",),
         description="the split repeats the density pass the SPH stage already ran",
     ),
@@ -568,6 +568,28 @@ MUTATIONS: tuple[Mutation, ...] = (
         new="bool on_bulk = false;",
         tests=("tests/test_field_normals.py::test_a_droplet_in_front_of_the_bulk_is_no_rim_of_it",),
         description="an exact droplet in front of the bulk taken as a rim of it (a ring around it)",
+    ),
+    Mutation(
+        name="lone-particles-never-added",
+        path="server/engine/sph/frame.py",
+        old="return (droplets if lone is None else droplets | lone), None",
+        new="return droplets, None",
+        tests=(
+            "tests/test_surfaces.py::"
+            "test_lone_particles_are_droplets_whatever_the_frames_densities_say",
+        ),
+        description="the particles alone in the frame not split off when its densities say bulk",
+    ),
+    Mutation(
+        name="lone-threshold-at-the-pair",
+        path="server/engine/sph/frame.py",
+        old="return np.asarray(densities) < quality.droplet_lone_density * scene.sph.rest_density",
+        new="return np.asarray(densities) <= 0.4 * scene.sph.rest_density",
+        tests=(
+            "tests/test_surfaces.py::"
+            "test_lone_particles_are_droplets_whatever_the_frames_densities_say",
+        ),
+        description="the lone rule's threshold ignored (a touching pair taken as lone)",
     ),
     Mutation(
         name="droplets-flag-never-set",

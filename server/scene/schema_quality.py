@@ -243,6 +243,28 @@ class QualityConfig:
         high=1.0,
         unit="fraction of sph.rest_density",
     )
+    droplet_lone_density: float = spec(
+        0.36,
+        "exact_droplets on frames whose own densities are used (droplet_densities = frame): "
+        "also a droplet, whatever its density there, is a particle whose density computed "
+        "from the frame's positions (an SPH pass, OpenCL) is below this fraction of "
+        "sph.rest_density: alone in the frame (cubic spline, support 4 r: a lone particle "
+        "0.318, one neighbour 3 r away 0.328, a touching pair 2 r apart 0.398; 0.36 lies "
+        "midway). A simulator's densities can count what the frame does not hold: "
+        "SPlisHSPlasH's count its walls, so a lone particle near one reads 0.45-1.0 rest and "
+        "was smoothed into a lens. Dam break at 960x540, frames 5-15: lone droplets 0.97 / "
+        "6.86 / 5.07 / 3.65 / 4.37 / 2.99 -> 0.97 / 5.42 / 2.64 / 2.56 / 2.43 / 2.55 deg, "
+        "tolerant band 8.13 / 7.74 / 7.93 / 8.01 / 8.90 / 9.18 -> 8.07 / 7.67 / 7.88 / 7.93 / "
+        "8.76 / 9.13 deg, flicker 0.980 / 1.298 / 1.101 / 0.879 / 0.830 / 0.873 -> 0.967 / "
+        "1.258 / 1.095 / 0.887 / 0.845 / 0.856 deg (0.33: frame 13's band 8.85, 0.38: its "
+        "flicker 0.840, frame 9's 1.156). One density pass per frame with densities "
+        "(OpenCL; the dam break's 32k particles at 960x540: 13.8 ms on PoCL, 154 -> 165 ms a "
+        "frame on llvmpipe). 0: off "
+        "(the frame's densities alone); without OpenCL the frame's alone, with a note",
+        low=0.0,
+        high=1.0,
+        unit="fraction of sph.rest_density",
+    )
     close_gaps: float = spec(
         2.0,
         "close the gaps a sparse sheet or spray leaves between its splatted particles, before "

@@ -139,11 +139,13 @@ def splits_droplets(scene: Scene, frame: ParticleFrame) -> bool:
 
 
 def computes_droplet_densities(scene: Scene, frame: ParticleFrame) -> bool:
-    """Whether the droplet split needs the positions' own densities: the frame has none, or the
-    scene asks for them (`quality.droplet_densities = "computed"`). They come from the SPH
-    stage's pass when an [sph] feature computed them, else from a pass of the split's own."""
-    own = frame.densities is None or scene.quality.droplet_densities == "computed"
-    return own and splits_droplets(scene, frame)
+    """Whether the droplet split needs the positions' own densities: the frame has none, the
+    scene asks for them (`quality.droplet_densities = "computed"`), or it finds the lone
+    particles the frame's densities miss (`quality.droplet_lone_density`). They come from the
+    SPH stage's pass when an [sph] feature computed them, else from a pass of the split's own."""
+    quality = scene.quality
+    own = frame.densities is None or quality.droplet_densities == "computed"
+    return (own or quality.droplet_lone_density > 0.0) and splits_droplets(scene, frame)
 
 
 def droplet_mask(
@@ -154,18 +156,48 @@ def droplet_mask(
 ) -> npt.NDArray[np.bool_]:
     """Which of the INPUT frame's particles are droplets: kernel density below
     `quality.droplet_density` x `sph.rest_density`. The densities are the frame's when it has
-    them and the scene trusts them (`quality.droplet_densities = "frame"`); else those the SPH
-    stage computed from the positions (`computed`, when its densities are its own: no second
-    pass); else an eq 2 pass on `engine()`. Always over the whole input frame: a surface-only
-    subset would undercount every neighbourhood (its caller subsets the mask)."""
+    them and the scene trusts them (`quality.droplet_densities = "frame"`); else the positions'
+    own (`own_densities`). Always over the whole input frame: a surface-only subset would
+    undercount every neighbourhood (its caller subsets the mask). The frame's densities alone:
+    see `lone_particles`, which the caller adds."""
     densities = frame.densities if scene.quality.droplet_densities == "frame" else None
-    if densities is None and computed is not None and computed.density_computed:
-        densities = computed.density
     if densities is None:
-        params = SphParameters.from_scene(scene, frame_particle_radius(frame, scene))
-        densities = engine().density(frame.positions, params)
+        densities = own_densities(frame, scene, engine, computed)
     threshold = scene.quality.droplet_density * scene.sph.rest_density
     return np.asarray(densities) < threshold
+
+
+def lone_particles(
+    frame: ParticleFrame,
+    scene: Scene,
+    engine: Callable[[], SphEngine],
+    computed: SphResult | None = None,
+) -> npt.NDArray[np.bool_] | None:
+    """The particles alone in the frame (`quality.droplet_lone_density`), which `droplet_mask`
+    misses when the frame's densities count what the frame does not hold (a simulator's walls);
+    None when the rule does not apply (off, or the split already uses the positions' own
+    densities)."""
+    quality = scene.quality
+    if quality.droplet_lone_density <= 0.0 or frame.densities is None:
+        return None
+    if quality.droplet_densities != "frame":
+        return None
+    densities = own_densities(frame, scene, engine, computed)
+    return np.asarray(densities) < quality.droplet_lone_density * scene.sph.rest_density
+
+
+def own_densities(
+    frame: ParticleFrame,
+    scene: Scene,
+    engine: Callable[[], SphEngine],
+    computed: SphResult | None = None,
+) -> npt.NDArray[np.float32]:
+    """The positions' own eq 2 densities: those the SPH stage computed (`computed`, when its
+    densities are its own: no second pass), else a pass on `engine()`."""
+    if computed is not None and computed.density_computed:
+        return np.asarray(computed.density, np.float32)
+    params = SphParameters.from_scene(scene, frame_particle_radius(frame, scene))
+    return engine().density(frame.positions, params)
 
 
 @dataclass(frozen=True)
@@ -187,6 +219,7 @@ class SphStage:
         self._cl_device = cl_device
         self._warned = False
         self._warned_densities = False
+        self._warned_lone = False
         self._cl: CLContext | None = None
         self._engine: SphEngine | None = None
 
@@ -232,11 +265,10 @@ class SphStage:
             if result.anisotropy is not None:
                 ellipsoids = (result.anisotropy.centers, result.anisotropy.axes)
         skipped: CLUnavailableError | None = None
+        lone_skipped: CLUnavailableError | None = None
         if splits_droplets(scene, drawn):
             try:
                 droplets = droplet_mask(frame, scene, self.engine, computed)
-                if computed is not None and computed.splat_keep is not None:
-                    droplets = droplets[computed.splat_keep]
             except CLUnavailableError as exc:
                 skipped = exc
                 if not self._warned:
@@ -244,8 +276,35 @@ class SphStage:
                         "exact droplets need densities or OpenCL, rendering without: %s", exc
                     )
                     self._warned = True
+            if droplets is not None:
+                droplets, lone_skipped = self._with_lone(droplets, frame, scene, computed)
+                if computed is not None and computed.splat_keep is not None:
+                    droplets = droplets[computed.splat_keep]
         notes = self._notes(given, frame, scene, skipped)
+        if lone_skipped is not None:
+            message = f"skipped: no OpenCL device to find the lone particles ({lone_skipped})"
+            notes += (InputNote("quality.droplet_lone_density", message),)
         return SphOutcome(drawn, reference_radius, droplets, ellipsoids, notes)
+
+    def _with_lone(
+        self,
+        droplets: npt.NDArray[np.bool_],
+        frame: ParticleFrame,
+        scene: Scene,
+        computed: SphResult | None,
+    ) -> tuple[npt.NDArray[np.bool_], CLUnavailableError | None]:
+        """`droplets` and the frame's lone particles (`lone_particles`); without OpenCL the
+        frame's densities' droplets alone, and why (warned once)."""
+        try:
+            lone = lone_particles(frame, scene, self.engine, computed)
+        except CLUnavailableError as exc:
+            if not self._warned_lone:
+                log.warning(
+                    "lone droplets need OpenCL, splitting on the frame's densities: %s", exc
+                )
+                self._warned_lone = True
+            return droplets, exc
+        return (droplets if lone is None else droplets | lone), None
 
     def _notes(
         self,
