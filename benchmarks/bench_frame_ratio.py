@@ -1,7 +1,11 @@
 """The default preset's frame time against the pre-issue-12 default, side by side (issue 12's
 "within 1.5x of today's"; `fast` "no slower").
 
-Not a test. Run:  .venv/bin/python benchmarks/bench_frame_ratio.py [--cycles 20]
+Not a test. Run:  .venv/bin/python benchmarks/bench_frame_ratio.py [--cycles 20] [--densities]
+
+`--densities` gives the ball its kernel densities (computed once, as a simulator would write
+them), so the droplet split runs as on such frames; "balanced + lone droplets" then pays its
+SPH density pass (`quality.droplet_lone_density`; 2026-12-02: 1.44x -> 2.0x).
 
 Renders the bench's jittered-lattice ball (~100k particles, no densities) at 1280x720 with each
 setting in turn, one frame each per cycle, all in one process on one renderer, so the settings
@@ -24,6 +28,7 @@ from sphrender.server.bench.surface_bench import PRE_ISSUE
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
+from sphrender.server.engine.sph.engine import SphParameters
 from sphrender.server.scene import Scene, merge_scene_dicts, scene_from_dict
 from sphrender.server.scene.presets import preset_sections
 
@@ -47,6 +52,7 @@ SETTINGS = {
     "balanced, no stencil": scene_for("balanced", {"quality": {"normal_stencil": 0.0}}),
     "balanced + destreak": scene_for("balanced", {"quality": {"destreak": 0.25}}),
     "balanced, equal passes": scene_for("balanced", {"quality": {"last_pass_sigma": 1.0}}),
+    "balanced + lone droplets": scene_for("balanced", {"quality": {"droplet_lone_density": 0.36}}),
     "fast": scene_for("fast", {}),
 }
 
@@ -54,11 +60,17 @@ SETTINGS = {
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cycles", type=int, default=20)
+    parser.add_argument("--densities", action="store_true", help="frames that carry densities")
     args = parser.parse_args()
-    frame = make_frame(jittered_lattice_ball(0.58, 0.01, seed=0))
+    positions = jittered_lattice_ball(0.58, 0.01, seed=0)
     with GLContext() as gl:
         renderer = SurfaceRenderer(gl)
         try:
+            frame = make_frame(positions)
+            if args.densities:
+                params = SphParameters.from_scene(SETTINGS["balanced (default)"], 0.01)
+                densities = renderer.sph_engine().density(positions, params)
+                frame = make_frame(positions, densities=densities)
             for scene in SETTINGS.values():  # warm-up: programs, targets, IBL caches
                 renderer.render(frame, scene)
                 renderer.render(frame, scene)
@@ -71,7 +83,8 @@ def main() -> None:
         finally:
             renderer.release()
     base = times["pre-issue default"]
-    print(f"{gl.renderer}; {frame.count} particles, 1280x720, {args.cycles} cycles")
+    with_densities = ", with densities" if args.densities else ""
+    print(f"{gl.renderer}; {frame.count} particles{with_densities}, 1280x720, {args.cycles} cycles")
     for name, values in times.items():
         per_cycle = statistics.median(a / b for a, b in zip(values, base, strict=True))
         print(

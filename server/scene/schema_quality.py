@@ -244,7 +244,7 @@ class QualityConfig:
         unit="fraction of sph.rest_density",
     )
     droplet_lone_density: float = spec(
-        0.36,
+        0.0,
         "exact_droplets on frames whose own densities are used (droplet_densities = frame): "
         "also a droplet, whatever its density there, is a particle whose density computed "
         "from the frame's positions (an SPH pass, OpenCL) is below this fraction of "
@@ -259,7 +259,9 @@ class QualityConfig:
         "1.258 / 1.095 / 0.887 / 0.845 / 0.856 deg (0.33: frame 13's band 8.85, 0.38: its "
         "flicker 0.840, frame 9's 1.156). One density pass per frame with densities "
         "(OpenCL; the dam break's 32k particles at 960x540: 13.8 ms on PoCL, 154 -> 165 ms a "
-        "frame on llvmpipe). 0: off "
+        "frame on llvmpipe; a 100k frame with densities at 1280x720: 47 ms, balanced 1.44x -> "
+        "2.0x the pre-issue default on this CPU, so only best turns it on: 0.36; on a GPU the "
+        "pass is the device's). 0: off "
         "(the frame's densities alone); without OpenCL the frame's alone, with a note",
         low=0.0,
         high=1.0,
