@@ -88,7 +88,7 @@ def main() -> None:
     for name, values in times.items():
         per_cycle = statistics.median(a / b for a, b in zip(values, base, strict=True))
         print(
-            f"{name:22} median {statistics.median(values):7.1f} ms  ratio of medians "
+            f"{name:24} median {statistics.median(values):7.1f} ms  ratio of medians "
             f"{statistics.median(values) / statistics.median(base):.3f}  median per-cycle "
             f"ratio {per_cycle:.3f}"
         )
