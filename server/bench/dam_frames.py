@@ -231,7 +231,9 @@ def dam_frames_section(rows: Sequence[DamFrameRow], setting: str = "preset balan
         cells += [f"{a.floor_deg:.3f}", alpha, f"{_cell(a.droplet_deg, 2)}{unfiltered}"]
         cells += ["yes" if a.finite else "NO"]
         lines.append("| " + " | ".join(cells) + " |")
-    return [*lines, "", *_verdicts(rows, setting, ratios, after)]
+    counts = dam_frame_counts(rows, setting)
+    assert counts is not None  # the same rows as `ratios`
+    return [*lines, "", *_verdicts(counts, [after[f] for f in ratios])]
 
 
 def _cell(value: float, digits: int) -> str:
@@ -293,15 +295,9 @@ def dam_frame_counts(rows: Sequence[DamFrameRow], setting: str) -> DamCounts | N
     )
 
 
-def _verdicts(
-    rows: Sequence[DamFrameRow],
-    setting: str,
-    ratios: dict[str, float],
-    after: dict[str, DamFrameRow],
-) -> list[str]:
-    """The per-frame section's bullets: on how many frames each item holds."""
-    counts = dam_frame_counts(rows, setting)
-    assert counts is not None  # the section has rows for both
+def _verdicts(counts: DamCounts, mine: Sequence[DamFrameRow]) -> list[str]:
+    """The per-frame section's bullets: on how many frames each item holds (`counts`), and
+    what the gaps hold on the setting's own rows (`mine`)."""
     n = counts.frames
     lines = [
         f"* band <= {100 * BAND_LIMIT:.0f} % of the pre-issue default's on {counts.band_ok} of "
@@ -313,7 +309,7 @@ def _verdicts(
         f"silhouettes against background on {counts.silhouettes_ok} of {n} (worst "
         f"{counts.worst_silhouettes:.3f})",
     ]
-    gaps = [after[f] for f in ratios if np.isfinite(after[f].gap_spheres)]
+    gaps = [r for r in mine if np.isfinite(r.gap_spheres)]
     if gaps:
         share = np.mean([g.gap_share for g in gaps])
         lines.append(
