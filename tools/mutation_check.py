@@ -583,13 +583,40 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         name="lone-threshold-at-the-pair",
         path="server/engine/sph/frame.py",
-        old="return np.asarray(densities) < quality.droplet_lone_density * scene.sph.rest_density",
-        new="return np.asarray(densities) <= 0.4 * scene.sph.rest_density",
+        old="below = quality.droplet_lone_density * scene.sph.rest_density",
+        new="below = 0.4 * scene.sph.rest_density",
         tests=(
             "tests/test_surfaces.py::"
             "test_lone_particles_are_droplets_whatever_the_frames_densities_say",
         ),
         description="the lone rule's threshold ignored (a touching pair taken as lone)",
+    ),
+    Mutation(
+        name="lone-full-bucket-ignored",
+        path="shaders/sph/lone.cl",
+        old="lone[i] = sum >= limit ? LONE_NOT : (lost ? LONE_UNDECIDED : LONE_YES);",
+        new="lone[i] = sum >= limit ? LONE_NOT : LONE_YES;",
+        tests=("tests/test_sph_lone.py::test_a_full_bucket_is_answered_exactly",),
+        description="a particle whose walk met a bucket that lost particles taken as lone",
+    ),
+    Mutation(
+        name="lone-shared-bucket-counted-twice",
+        path="shaders/sph/lone.cl",
+        old="                if (again)\n                    continue;",
+        new=(
+            "                if (again && dx == 0 && dy == 0 && dz == 0)\n"
+            "                    continue;"
+        ),
+        tests=("tests/test_sph_lone.py::test_a_bucket_two_cells_share_is_counted_once",),
+        description="a bucket two cells of the walk share summed twice (the own cell's excepted)",
+    ),
+    Mutation(
+        name="lone-self-counted",
+        path="shaders/sph/lone.cl",
+        old="if (r2 < h * h && j != i)",
+        new="if (r2 < h * h)",
+        tests=("tests/test_sph_lone.py::test_small_frames",),
+        description="a particle's own weight added again when its bucket lists it",
     ),
     Mutation(
         name="droplets-flag-never-set",

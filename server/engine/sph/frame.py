@@ -176,14 +176,18 @@ def lone_particles(
     """The particles alone in the frame (`quality.droplet_lone_density`), which `droplet_mask`
     misses when the frame's densities count what the frame does not hold (a simulator's walls);
     None when the rule does not apply (off, or the split already uses the positions' own
-    densities)."""
+    densities). The positions' own densities below the limit: those the SPH stage computed,
+    else `SphEngine.lone`, which answers the same without a density pass (lone.py)."""
     quality = scene.quality
     if quality.droplet_lone_density <= 0.0 or frame.densities is None:
         return None
     if quality.droplet_densities != "frame":
         return None
-    densities = own_densities(frame, scene, engine, computed)
-    return np.asarray(densities) < quality.droplet_lone_density * scene.sph.rest_density
+    below = quality.droplet_lone_density * scene.sph.rest_density
+    if computed is None or not computed.density_computed:
+        params = SphParameters.from_scene(scene, frame_particle_radius(frame, scene))
+        return engine().lone(frame.positions, params, below)
+    return np.asarray(computed.density) < below
 
 
 def own_densities(
