@@ -15,11 +15,18 @@ R = 1.0 h and the default 1.5 h, N_eps = 25, k_r = 4) against the density + colo
 (`SphEngine.compute`, no gradient read-back, as the renderer calls it) on the same balls, median
 of 3 warm runs each, host work and read-back included.
 
+Part 4 (`--below`, instead of parts 1 and 2): `SphEngine.density_below` (the droplet split's
+and the lone rule's question, shaders/sph/density_below.cl) against `SphEngine.density` and a
+comparison with the limit, at 0.36 and 0.45 rest density, on the balls, the balls with 3 %
+spray over them, and every dam-break frame of ../shared/data (when present): median of 5
+warm runs each, host work and read-back included, and the particles whose answers differ.
+
 Part 2: the renderer at 1280x720 with and without `[sph] surface_only`, on the 500k ball and a
 dam-break frame: stage times, particles drawn, and the error (coverage must be identical; share
 of covered pixels whose depth moves by more than 1%).
 
-    .venv/bin/python benchmarks/bench_sph.py [--sizes 100000 500000] [--no-render] [--anisotropy]
+    .venv/bin/python benchmarks/bench_sph.py [--sizes 100000 500000] [--no-render]
+        [--anisotropy | --below]
 """
 
 from __future__ import annotations
@@ -118,6 +125,38 @@ def bench_anisotropy(engine: SphEngine, count: int) -> None:
         )
 
 
+def bench_below(engine: SphEngine, name: str, positions: np.ndarray) -> None:
+    """density_below against density + comparison, at the lone rule's and the split's limits."""
+    params = SphParameters(H, MASS, 1000.0, 0.5 / H, 750.0, 0.9 * H)
+    engine.density(positions, params)  # warm-up: buffers, programs
+    t_density, density = timed(lambda: engine.density(positions, params), 5)
+    print(f"\n{name}: {len(positions)} particles, h = {H}")
+    print(f"  density pass, then < limit:                  {t_density * 1e3:8.1f} ms")
+    for fraction in (0.36, 0.45):
+        below = fraction * 1000.0
+        engine.density_below(positions, params, below)
+        t_below, answer = timed(lambda b=below: engine.density_below(positions, params, b), 5)
+        differ = int((answer != (density < below)).sum())
+        print(
+            f"  density_below({fraction:.2f} rest): {int(answer.sum()):6d} below  "
+            f"{t_below * 1e3:8.1f} ms   = {t_density / t_below:4.1f}x faster, "
+            f"{differ} answers differ"
+        )
+
+
+def bench_below_all(engine: SphEngine, sizes: list[int]) -> None:
+    rng = np.random.default_rng(2)
+    for count in sizes:
+        positions = ball(count)
+        bench_below(engine, "ball", positions)
+        extent = float(np.abs(positions).max())
+        spray = rng.uniform(-1.5 * extent, 1.5 * extent, (count * 3 // 100, 3))
+        bench_below(engine, "ball + 3 % spray", np.concatenate([positions, spray]))
+    frames = sorted(DAMBREAK.glob("*.vtk"), key=lambda p: int(p.stem.rsplit("_", 1)[1]))
+    for path in frames:
+        bench_below(engine, f"dam break {path.stem}", read_particles(path).positions)
+
+
 def render_scene(radius: float, eye: list[float], target: list[float], **sph: Any) -> Scene:
     return scene_from_dict(
         {
@@ -173,16 +212,20 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[100_000, 500_000])
     parser.add_argument("--no-render", action="store_true", help="skip part 2")
     parser.add_argument("--anisotropy", action="store_true", help="part 3 only")
+    parser.add_argument("--below", action="store_true", help="part 4 only")
     args = parser.parse_args()
     with CLContext() as cl:
         print(f"OpenCL device: {cl.device_info.label}")
         engine = SphEngine(cl)
         try:
-            for count in args.sizes:
-                (bench_anisotropy if args.anisotropy else bench_pass)(engine, count)
+            if args.below:
+                bench_below_all(engine, args.sizes)
+            else:
+                for count in args.sizes:
+                    (bench_anisotropy if args.anisotropy else bench_pass)(engine, count)
         finally:
             engine.release()
-    if args.no_render or args.anisotropy:
+    if args.no_render or args.anisotropy or args.below:
         return
     big = ball(max(args.sizes))
     extent = float(np.abs(big).max())

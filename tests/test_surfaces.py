@@ -313,7 +313,8 @@ def test_computed_droplet_densities_reuse_the_sph_stages_pass(
 ) -> None:
     """A frame without densities under an [sph] feature (eq 29 radii): the stage's own pass
     computed the positions' densities already, and the split takes them, with no second
-    density pass (counted on the real engine); the droplets are the same as a lone pass's."""
+    pass over the positions (`density` or `density_below`, counted on the real engine); the
+    droplets are the same as a lone pass's."""
     pool, droplets = pool_and_droplets()
     positions = np.concatenate([pool, droplets])
     scene = make_scene(quality={"droplet_densities": "computed"}, sph={"adaptive_radius": True})
@@ -321,14 +322,15 @@ def test_computed_droplet_densities_reuse_the_sph_stages_pass(
     try:
         engine = stage.engine()
         alone = engine.density(positions, SphParameters.from_scene(scene, R)) < 0.45 * 1000.0
-        calls: list[int] = []
-        density = engine.density
+        calls: list[str] = []
+        for name in ("density", "density_below"):
+            method = getattr(engine, name)
 
-        def counted(*args: Any) -> Any:
-            calls.append(len(args[0]))
-            return density(*args)
+            def counted(*args: Any, _name: str = name, _method: Any = method) -> Any:
+                calls.append(_name)
+                return _method(*args)
 
-        monkeypatch.setattr(engine, "density", counted)
+            monkeypatch.setattr(engine, name, counted)
         outcome = stage.run(make_frame(positions), scene)
     finally:
         stage.release()

@@ -433,11 +433,9 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         name="droplet-threshold-inverted",
         path="server/engine/sph/frame.py",
-        old="return np.asarray(densities) < threshold",
-        new="return np.asarray(densities) >= threshold",
-        tests=(
-            "tests/test_surfaces.py::test_exact_droplets_are_the_unfiltered_spheres_over_the_smoothed_pool",
-        ),
+        old="return np.asarray(frame.densities) < below",
+        new="return np.asarray(frame.densities) >= below",
+        tests=("tests/test_surfaces.py::test_exact_droplets_from_client_densities_need_no_sph_pass",),
         description="the dense particles are taken for droplets and the droplets smoothed",
     ),
     Mutation(
@@ -511,8 +509,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation(
         name="droplet-densities-computed-ignored",
         path="server/engine/sph/frame.py",
-        old='densities = frame.densities if scene.quality.droplet_densities == "frame" else None',
-        new="densities = frame.densities",
+        old='if frame.densities is not None and scene.quality.droplet_densities == "frame":',
+        new="if frame.densities is not None:",
         tests=("tests/test_surfaces.py::test_computed_droplet_densities_ignore_the_frames",),
         description='droplet_densities = "computed" still trusts the frame\'s densities',
     ),
@@ -592,30 +590,43 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="the lone rule's threshold ignored (a touching pair taken as lone)",
     ),
     Mutation(
-        name="lone-full-bucket-ignored",
-        path="shaders/sph/lone.cl",
-        old="lone[i] = sum >= limit ? LONE_NOT : (lost ? LONE_UNDECIDED : LONE_YES);",
-        new="lone[i] = sum >= limit ? LONE_NOT : LONE_YES;",
-        tests=("tests/test_sph_lone.py::test_a_full_bucket_is_answered_exactly",),
-        description="a particle whose walk met a bucket that lost particles taken as lone",
+        name="below-overflow-list-ignored",
+        path="shaders/sph/density_below.cl",
+        old="    if (sum < limit && full) {",
+        new="    if (sum < limit && full && false) {",
+        tests=(
+            "tests/test_sph_density_below.py::test_a_full_bucket_is_answered_exactly",
+            "tests/test_sph_density_below.py::test_crowded_buckets_are_read_from_the_overflow_list",
+        ),
+        description="the particles past a full bucket's slots never counted",
     ),
     Mutation(
-        name="lone-shared-bucket-counted-twice",
-        path="shaders/sph/lone.cl",
+        name="below-limit-inverted",
+        path="shaders/sph/density_below.cl",
+        old="    out[i] = sum >= limit ? BELOW_NOT : BELOW_YES;",
+        new="    out[i] = sum >= limit ? BELOW_YES : BELOW_NOT;",
+        tests=(
+            "tests/test_surfaces.py::test_exact_droplets_are_the_unfiltered_spheres_over_the_smoothed_pool",
+        ),
+        description="the positions' own densities: the dense particles taken for droplets",
+    ),
+    Mutation(
+        name="below-shared-bucket-counted-twice",
+        path="shaders/sph/density_below.cl",
         old="                if (again)\n                    continue;",
         new=(
             "                if (again && dx == 0 && dy == 0 && dz == 0)\n"
             "                    continue;"
         ),
-        tests=("tests/test_sph_lone.py::test_a_bucket_two_cells_share_is_counted_once",),
+        tests=("tests/test_sph_density_below.py::test_a_bucket_two_cells_share_is_counted_once",),
         description="a bucket two cells of the walk share summed twice (the own cell's excepted)",
     ),
     Mutation(
-        name="lone-self-counted",
-        path="shaders/sph/lone.cl",
+        name="below-self-counted",
+        path="shaders/sph/density_below.cl",
         old="if (r2 < h * h && j != i)",
         new="if (r2 < h * h)",
-        tests=("tests/test_sph_lone.py::test_small_frames",),
+        tests=("tests/test_sph_density_below.py::test_small_frames",),
         description="a particle's own weight added again when its bucket lists it",
     ),
     Mutation(

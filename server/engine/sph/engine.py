@@ -47,8 +47,8 @@ from sphrender.server.engine.sph.anisotropy import (
     AnisotropyResult,
     check_radii,
 )
-from sphrender.server.engine.sph.lone import LoneKernels, spline_limit
-from sphrender.server.engine.sph.lone import fits as lone_fits
+from sphrender.server.engine.sph.density_below import DensityBelowKernels, spline_limit
+from sphrender.server.engine.sph.density_below import fits as below_fits
 
 if TYPE_CHECKING:
     from sphrender.server.scene import Scene
@@ -194,7 +194,7 @@ class SphEngine:
         }
         self._buffers: dict[str, Any] = {}
         self._anisotropy: AnisotropyKernels | None = None  # built on first use
-        self._lone: LoneKernels | None = None  # built on first use
+        self._below: DensityBelowKernels | None = None  # built on first use
 
     # -- buffers ---------------------------------------------------------------------------
 
@@ -235,7 +235,7 @@ class SphEngine:
         self._buffers.clear()
         self._kernels.clear()
         self._anisotropy = None
-        self._lone = None
+        self._below = None
 
     # -- grid ------------------------------------------------------------------------------
 
@@ -467,24 +467,25 @@ class SphEngine:
         )
         return self._download(density_out, np.empty(n, np.float32))
 
-    def lone(self, positions: npt.ArrayLike, params: SphParameters, below: float) -> Bools:
-        """Which particles' eq 2 density is below `below` (absolute): `density(...) < below`,
-        at a fraction of its cost (`lone.py`). Frames wider than `lone.LONE_MAX_CELLS` support
-        radii, and those where a full bucket of lone.cl's table left a particle undecided
-        (crowded cells: a support far above 4 r), take `density` itself."""
+    def density_below(self, positions: npt.ArrayLike, params: SphParameters, below: float) -> Bools:
+        """Which particles' eq 2 density is below `below` (absolute): `density(...) < below`
+        at a fraction of its cost, each particle's sum stopping once it passes the limit
+        (`density_below.py`). Frames wider than `BELOW_MAX_CELLS` support radii, and those
+        where a full bucket of its table left a particle undecided (crowded cells: a support
+        far above 4 r), take `density` itself."""
         self._cl.check_owner()
         points = checked_positions(positions)
         if points.shape[0] == 0:
             return np.zeros(0, bool)
         low, high = column_bounds(points)
         h = params.support_radius
-        if lone_fits(low, high, h):
-            if self._lone is None:
-                self._lone = LoneKernels(self._cl)
+        if below_fits(low, high, h):
+            if self._below is None:
+                self._below = DensityBelowKernels(self._cl)
             limit = spline_limit(below, params.mass, h)
-            lone = self._lone.run(points, low, h, limit, self._buffer)
-            if lone is not None:
-                return lone
+            answer = self._below.run(points, low, h, limit, self._buffer)
+            if answer is not None:
+                return answer
         return self.density(points, params) < below
 
     def anisotropy_kernels(self) -> AnisotropyKernels:

@@ -157,14 +157,13 @@ def droplet_mask(
     """Which of the INPUT frame's particles are droplets: kernel density below
     `quality.droplet_density` x `sph.rest_density`. The densities are the frame's when it has
     them and the scene trusts them (`quality.droplet_densities = "frame"`); else the positions'
-    own (`own_densities`). Always over the whole input frame: a surface-only subset would
+    own (`own_below`). Always over the whole input frame: a surface-only subset would
     undercount every neighbourhood (its caller subsets the mask). The frame's densities alone:
     see `lone_particles`, which the caller adds."""
-    densities = frame.densities if scene.quality.droplet_densities == "frame" else None
-    if densities is None:
-        densities = own_densities(frame, scene, engine, computed)
-    threshold = scene.quality.droplet_density * scene.sph.rest_density
-    return np.asarray(densities) < threshold
+    below = scene.quality.droplet_density * scene.sph.rest_density
+    if frame.densities is not None and scene.quality.droplet_densities == "frame":
+        return np.asarray(frame.densities) < below
+    return own_below(frame, scene, engine, computed, below)
 
 
 def lone_particles(
@@ -176,32 +175,30 @@ def lone_particles(
     """The particles alone in the frame (`quality.droplet_lone_density`), which `droplet_mask`
     misses when the frame's densities count what the frame does not hold (a simulator's walls);
     None when the rule does not apply (off, or the split already uses the positions' own
-    densities). The positions' own densities below the limit: those the SPH stage computed,
-    else `SphEngine.lone`, which answers the same without a density pass (lone.py)."""
+    densities); `own_below` answers it."""
     quality = scene.quality
     if quality.droplet_lone_density <= 0.0 or frame.densities is None:
         return None
     if quality.droplet_densities != "frame":
         return None
     below = quality.droplet_lone_density * scene.sph.rest_density
-    if computed is None or not computed.density_computed:
-        params = SphParameters.from_scene(scene, frame_particle_radius(frame, scene))
-        return engine().lone(frame.positions, params, below)
-    return np.asarray(computed.density) < below
+    return own_below(frame, scene, engine, computed, below)
 
 
-def own_densities(
+def own_below(
     frame: ParticleFrame,
     scene: Scene,
     engine: Callable[[], SphEngine],
-    computed: SphResult | None = None,
-) -> npt.NDArray[np.float32]:
-    """The positions' own eq 2 densities: those the SPH stage computed (`computed`, when its
-    densities are its own: no second pass), else a pass on `engine()`."""
+    computed: SphResult | None,
+    below: float,
+) -> npt.NDArray[np.bool_]:
+    """Which particles' own eq 2 density (from the positions) is below `below`: the densities
+    the SPH stage computed (`computed`, when they are its own: no second pass), else
+    `SphEngine.density_below`, which stops each particle's sum once it passes the limit."""
     if computed is not None and computed.density_computed:
-        return np.asarray(computed.density, np.float32)
+        return np.asarray(computed.density) < below
     params = SphParameters.from_scene(scene, frame_particle_radius(frame, scene))
-    return engine().density(frame.positions, params)
+    return engine().density_below(frame.positions, params, below)
 
 
 @dataclass(frozen=True)
