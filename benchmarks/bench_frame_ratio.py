@@ -4,8 +4,10 @@
 Not a test. Run:  .venv/bin/python benchmarks/bench_frame_ratio.py [--cycles 20] [--densities]
 
 `--densities` gives the ball its kernel densities (computed once, as a simulator would write
-them), so the droplet split runs as on such frames; "balanced + lone droplets" then pays its
-SPH density pass (`quality.droplet_lone_density`; 2026-12-02: 1.44x -> 2.0x).
+them), so the droplet split runs as on such frames, and balanced asks which particles are alone
+(`quality.droplet_lone_density`, sph/density_below.py; "balanced, no lone droplets" without:
+2026-12-03, +0.04-0.09x of the pre-issue frame; as an SPH density pass it had cost 1.44x ->
+2.0x).
 
 Renders the bench's jittered-lattice ball (~100k particles, no densities) at 1280x720 with each
 setting in turn, one frame each per cycle, all in one process on one renderer, so the settings
@@ -52,7 +54,7 @@ SETTINGS = {
     "balanced, no stencil": scene_for("balanced", {"quality": {"normal_stencil": 0.0}}),
     "balanced + destreak": scene_for("balanced", {"quality": {"destreak": 0.25}}),
     "balanced, equal passes": scene_for("balanced", {"quality": {"last_pass_sigma": 1.0}}),
-    "balanced + lone droplets": scene_for("balanced", {"quality": {"droplet_lone_density": 0.36}}),
+    "balanced, no lone droplets": scene_for("balanced", {"quality": {"droplet_lone_density": 0.0}}),
     "fast": scene_for("fast", {}),
 }
 
@@ -88,7 +90,7 @@ def main() -> None:
     for name, values in times.items():
         per_cycle = statistics.median(a / b for a, b in zip(values, base, strict=True))
         print(
-            f"{name:24} median {statistics.median(values):7.1f} ms  ratio of medians "
+            f"{name:26} median {statistics.median(values):7.1f} ms  ratio of medians "
             f"{statistics.median(values) / statistics.median(base):.3f}  median per-cycle "
             f"ratio {per_cycle:.3f}"
         )

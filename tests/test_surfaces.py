@@ -94,8 +94,8 @@ def test_exact_droplets_are_the_unfiltered_spheres_over_the_smoothed_pool(
 def test_exact_droplets_from_client_densities_need_no_sph_pass(
     renderer: SurfaceRenderer,
 ) -> None:
-    """Client densities decide the droplets without a density pass (the default; with
-    droplet_lone_density, as in best, a pass looks for lone particles too:
+    """Client densities decide the droplets without a density pass (droplet_lone_density 0,
+    as fast's; with it, balanced's and best's 0.36, a pass looks for lone particles too:
     test_lone_particles_...): the same image as computed ones when the client's densities are
     the kernel's (a lone particle has m W(0) = 1000 / pi); without densities and without the
     pass there is no split."""
@@ -103,7 +103,7 @@ def test_exact_droplets_from_client_densities_need_no_sph_pass(
     positions = np.concatenate([pool, droplets])
     densities = np.full(len(positions), 1000.0, np.float32)
     densities[len(pool) :] = 1000.0 / np.pi
-    scene = make_scene(quality={"exact_droplets": True})
+    scene = make_scene(quality={"exact_droplets": True, "droplet_lone_density": 0.0})
     computed = render(renderer, positions, make_scene(quality={"droplet_density_pass": True}))
     given, stats = renderer.render(make_frame(positions, densities=densities), scene, depth=True)
     assert given.depth is not None and computed.depth is not None
@@ -143,10 +143,10 @@ def test_computed_droplet_densities_ignore_the_frames(renderer: SurfaceRenderer)
 
 def test_lone_particles_are_droplets_whatever_the_frames_densities_say() -> None:
     """Densities that count walls the frame does not hold (every particle near rest): with
-    droplet_lone_density 0.36 (best's) the particles alone in the frame are droplets all the
-    same (their own density 0.318 rest), and those with one neighbour 3 r away (0.328); a
-    touching pair 2 r apart (0.398) is not, nor the pool. Off (the default), the frame's
-    densities alone split nothing off."""
+    droplet_lone_density 0.36 (the default, balanced's and best's) the particles alone in the
+    frame are droplets all the same (their own density 0.318 rest), and those with one
+    neighbour 3 r away (0.328); a touching pair 2 r apart (0.398) is not, nor the pool. Off
+    (fast's 0), the frame's densities alone split nothing off."""
     pool, lone = pool_and_droplets()
     far_pair = np.array([[0.2, 0.3, 0.2], [0.2 + 3 * R, 0.3, 0.2]])
     touching = np.array([[-0.2, 0.3, -0.2], [-0.2 + 2 * R, 0.3, -0.2]])
@@ -157,8 +157,8 @@ def test_lone_particles_are_droplets_whatever_the_frames_densities_say() -> None
     expected[len(pool) : len(pool) + len(lone) + 2] = True
     stage = SphStage()
     try:
-        outcome = stage.run(frame, make_scene(quality={"droplet_lone_density": 0.36}))
-        off = stage.run(frame, make_scene())
+        outcome = stage.run(frame, make_scene())
+        off = stage.run(frame, make_scene(quality={"droplet_lone_density": 0.0}))
         densities = stage.engine().density(positions, SphParameters.from_scene(make_scene(), R))
     finally:
         stage.release()

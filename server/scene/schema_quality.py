@@ -244,25 +244,24 @@ class QualityConfig:
         unit="fraction of sph.rest_density",
     )
     droplet_lone_density: float = spec(
-        0.0,
+        0.36,
         "exact_droplets on frames whose own densities are used (droplet_densities = frame): "
         "also a droplet, whatever its density there, is a particle whose density computed "
-        "from the frame's positions (an SPH pass, OpenCL) is below this fraction of "
-        "sph.rest_density: alone in the frame (cubic spline, support 4 r: a lone particle "
-        "0.318, one neighbour 3 r away 0.328, a touching pair 2 r apart 0.398; 0.36 lies "
-        "midway). A simulator's densities can count what the frame does not hold: "
-        "SPlisHSPlasH's count its walls, so a lone particle near one reads 0.45-1.0 rest and "
-        "was smoothed into a lens. Dam break at 960x540, frames 5-15: lone droplets 0.97 / "
-        "6.86 / 5.07 / 3.65 / 4.37 / 2.99 -> 0.97 / 5.42 / 2.64 / 2.56 / 2.43 / 2.55 deg, "
-        "tolerant band 8.13 / 7.74 / 7.93 / 8.01 / 8.90 / 9.18 -> 8.07 / 7.67 / 7.88 / 7.93 / "
-        "8.76 / 9.13 deg, flicker 0.980 / 1.298 / 1.101 / 0.879 / 0.830 / 0.873 -> 0.967 / "
-        "1.258 / 1.095 / 0.887 / 0.845 / 0.856 deg (0.33: frame 13's band 8.85, 0.38: its "
-        "flicker 0.840, frame 9's 1.156). One density pass per frame with densities "
-        "(OpenCL; the dam break's 32k particles at 960x540: 13.8 ms on PoCL, 154 -> 165 ms a "
-        "frame on llvmpipe; a 100k frame with densities at 1280x720: 47 ms, balanced 1.44x -> "
-        "2.0x the pre-issue default on this CPU, so only best turns it on: 0.36; on a GPU the "
-        "pass is the device's). 0: off "
-        "(the frame's densities alone); without OpenCL the frame's alone, with a note",
+        "from the frame's positions (OpenCL) is below this fraction of sph.rest_density: "
+        "alone in the frame (cubic spline, support 4 r: a lone particle 0.318, one neighbour "
+        "3 r away 0.328, a touching pair 2 r apart 0.398; 0.36 lies midway). A simulator's "
+        "densities can count what the frame does not hold: SPlisHSPlasH's count its walls, so "
+        "a lone particle near one reads 0.45-1.0 rest and was smoothed into a lens. Dam break "
+        "at 960x540, frames 5-15: lone droplets 0.97 / 6.86 / 5.07 / 3.65 / 4.37 / 2.99 -> "
+        "0.97 / 5.42 / 2.64 / 2.56 / 2.43 / 2.55 deg, tolerant band 8.13 / 7.74 / 7.93 / 8.01 "
+        "/ 8.90 / 9.18 -> 8.07 / 7.67 / 7.88 / 7.93 / 8.76 / 9.13 deg, flicker 0.980 / 1.298 / "
+        "1.101 / 0.879 / 0.830 / 0.873 -> 0.967 / 1.258 / 1.095 / 0.887 / 0.845 / 0.856 deg "
+        "(0.33: frame 13's band 8.85, 0.38: its flicker 0.840, frame 9's 1.156). Cost, on "
+        "frames with densities only: no density pass, each particle's sum stops once it passes "
+        "the limit (sph/density_below.py): the dam break's 32k at 960x540 nothing measurable "
+        "on llvmpipe + PoCL, a 100k ball at 1280x720 +0.04-0.09x of the pre-issue frame. "
+        "balanced and best: 0.36, fast: 0. 0: off (the frame's densities alone); without "
+        "OpenCL the frame's alone, with a note",
         low=0.0,
         high=1.0,
         unit="fraction of sph.rest_density",
