@@ -5,11 +5,12 @@ The droplet split asks it of every frame whose densities it computes (a particle
 below `quality.droplet_density`), and `quality.droplet_lone_density` of every frame that
 carries densities (SPlisHSPlasH's count walls the frame does not hold, so a lone particle by a
 wall reads 0.45-1.0 rest density and would be smoothed into a lens). `SphEngine.density`
-answers both too, but pays the sort and a whole neighbourhood per particle: 55-85 ms for the
-100k-particle bench ball on this 2-core VM's PoCL, against 7-10 ms here, each particle's walk
-stopping once its sum passes the limit (benchmarks/bench_sph.py). `SphEngine.density_below` is
-the entry point; it keeps frames this module cannot place in float32 (`fits`) and frames a
-full bucket left undecided on the exact path.
+answers both too, but pays the sort and a whole neighbourhood per particle: 37 ms for the
+100k-particle bench ball on this 2-core VM's PoCL against 4-6 ms here, 13-22 ms for a dam-break
+frame's 32k against 2-4 ms, each particle's walk stopping once its sum passes the limit
+(benchmarks/bench_sph.py --below; inside a rendered frame, beside llvmpipe, the ball's took
+7-10 ms). `SphEngine.density_below` is the entry point; it keeps frames this module cannot
+place in float32 (`fits`), and frames whose overflow list passed its cap, on the exact path.
 
 Owns nothing: the buffers come from the engine's pool (`BufferPool`), released with it.
 """
@@ -37,9 +38,9 @@ SLOTS = 32
 #: their rounding stays below 2^-8 h (2^16 h x 2^-24). Wider frames take the exact path.
 BELOW_MAX_CELLS = 2**16
 #: Buckets: the power of two >= N / 2, at least MIN_BUCKETS. A fluid fills ~N / 8 cells of side
-#: h = 4 r, spray up to N: a bucket holds ~0.25-2 cells' particles, far from BELOW_SLOTS, in a
-#: table of 4 x 32 bytes a particle (a table of N buckets took the insert 0.5 -> 1.5 ms for the
-#: 100k ball: the scattered writes, not the atomics, are its cost).
+#: h = 4 r, spray up to N: a bucket holds ~0.25-2 cells' particles, far from SLOTS, in a table
+#: of 64 bytes a particle. The table's size is the insert's cost (scattered writes, not the
+#: atomics): for the 100k ball 16 MB (N buckets) took it 1.5 ms, 8 MB 0.5-0.7 ms.
 MIN_BUCKETS = 1024
 #: Entries of the overflow list (particles past their bucket's SLOTS). A particle next to a
 #: full bucket scans the whole list, so it stays short: at the default h = 4 r the 500k-ball
@@ -51,8 +52,6 @@ OVERFLOW_CAP = 1024
 #: density_below.cl's answers.
 NOT_BELOW, BELOW, UNDECIDED = 0, 1, 2
 WORK_GROUP = 64
-#: W(0) of sph.cl's unnormalised spline: a particle's own share of its sum.
-SELF_WEIGHT = 1.0
 #: sph.cl's SIGMA_3D: the spline's 3-D normalisation, 8 / pi.
 SIGMA_3D = 8.0 / np.pi
 
@@ -103,9 +102,10 @@ class DensityBelowKernels:
         cl, queue = self._pyopencl, self._cl.queue
         positions = buffer("below_positions", relative.nbytes)
         cl.enqueue_copy(queue, positions, relative)
-        counts = buffer("below_counts", 4 * buckets + 4)  # the last one: the overflow count
-        cl.enqueue_fill_buffer(queue, counts, np.uint32(0), 0, 4 * buckets + 4)
-        overflow_count = counts.get_sub_region(4 * buckets, 4)
+        counts = buffer("below_counts", 4 * buckets)
+        cl.enqueue_fill_buffer(queue, counts, np.uint32(0), 0, 4 * buckets)
+        overflow_count = buffer("below_overflow_count", 4)
+        cl.enqueue_fill_buffer(queue, overflow_count, np.uint32(0), 0, 4)
         slots = buffer("below_slots", 4 * SLOTS * buckets)
         overflow = buffer("below_overflow", 4 * max(1, overflow_cap))
         answers = buffer("below_flags", n)
