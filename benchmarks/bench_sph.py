@@ -44,8 +44,6 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
 
-from sph_reference import reference_sph  # noqa: E402
-
 from sphrender.client.frame import make_frame  # noqa: E402
 from sphrender.client.readers import read_particles  # noqa: E402
 from sphrender.server.content.lattice import jittered_lattice_ball  # noqa: E402
@@ -76,6 +74,8 @@ def timed(function: Callable[[], Any], repeats: int) -> tuple[float, Any]:
 
 
 def bench_pass(engine: SphEngine, count: int) -> None:
+    from sph_reference import reference_sph  # scipy: not needed by --below (gpu_check.sh)
+
     positions = ball(count)
     params = SphParameters(H, MASS, 1000.0, 0.5 / H, 750.0, 0.9 * H)
     engine.compute(positions, params)  # warm-up: buffers

@@ -17,7 +17,10 @@
 #    of each preset, and of balanced without its field normals (~14 ms on llvmpipe), against
 #    the pre-issue-12 default (benchmarks/bench_frame_ratio.py); and the field normals'
 #    gradient per invocation (the blend's way) against tiles in shared memory
-#    (benchmarks/bench_field_gradient.py: 2.9-3.8x slower on llvmpipe, the usual remedy on GPUs).
+#    (benchmarks/bench_field_gradient.py: 2.9-3.8x slower on llvmpipe, the usual remedy on GPUs);
+#    the same frame ratio on frames that carry densities (balanced's lone droplets ask the GPU's
+#    OpenCL which particles are alone); and SphEngine.density_below against the density pass
+#    on the GPU's OpenCL, with the particles whose answers differ (must be 0).
 #
 # Nothing else depends on this script; CI never runs it.
 set -euo pipefail
@@ -70,6 +73,12 @@ timeout 420 .venv/bin/python benchmarks/bench_host.py --frames 5 --sizes 100k,1m
 
 section "frame time per setting against the pre-issue-12 default (field normals: their GPU cost)"
 timeout 180 .venv/bin/python benchmarks/bench_frame_ratio.py --cycles 8
+
+section "the same on frames that carry densities (balanced's lone droplets: density_below)"
+timeout 120 .venv/bin/python benchmarks/bench_frame_ratio.py --cycles 8 --densities
+
+section "densities below a limit (density_below) against the density pass, answers compared"
+timeout 120 .venv/bin/python benchmarks/bench_sph.py --below --sizes 100000 1000000
 
 section "field gradient: per invocation against tiles in shared memory"
 timeout 120 .venv/bin/python benchmarks/bench_field_gradient.py
