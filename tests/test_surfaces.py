@@ -170,6 +170,24 @@ def test_lone_particles_are_droplets_whatever_the_frames_densities_say() -> None
     assert 0.32 < ratio[-4] < 0.34 and 0.39 < ratio[-1] < 0.41
 
 
+def test_warm_builds_the_lone_particles_program_before_the_first_frame() -> None:
+    """`SphStage.warm` (outside the SPH stage's time) builds the density_below program for a
+    frame with densities under the default lone rule, so the first frame's stage is not the
+    compiler's; with the rule off it builds none."""
+    pool, lone = pool_and_droplets()
+    positions = np.concatenate([pool, lone])
+    walls = np.random.default_rng(3).uniform(980.0, 1020.0, len(positions)).astype(np.float32)
+    frame = make_frame(positions, densities=walls)
+    for rule, built in ((0.0, False), (0.36, True)):
+        stage = SphStage()
+        try:
+            stage.warm(frame, make_scene(quality={"droplet_lone_density": rule}))
+            engine = stage._engine
+            assert (engine is not None and engine._below is not None) == built
+        finally:
+            stage.release()
+
+
 def test_without_opencl_lone_particles_fall_back_to_the_frames_densities() -> None:
     """No OpenCL device: the frame's own densities still split the droplets they mark (the
     kernel's 1000 / pi for the lone ones here), and a note says the lone particles were not

@@ -480,13 +480,19 @@ class SphEngine:
         low, high = column_bounds(points)
         h = params.support_radius
         if below_fits(low, high, h):
-            if self._below is None:
-                self._below = DensityBelowKernels(self._cl)
             limit = spline_limit(below, params.mass, h)
-            answer = self._below.run(points, low, h, limit, self._buffer)
+            answer = self.density_below_kernels().run(points, low, h, limit, self._buffer)
             if answer is not None:
                 return answer
         return self.density(points, params) < below
+
+    def density_below_kernels(self) -> DensityBelowKernels:
+        """The density_below program (built on first use: `SphStage.warm` asks for it before
+        the first frame that needs it, so that frame's SPH stage is not LLVM's)."""
+        self._cl.check_owner()
+        if self._below is None:
+            self._below = DensityBelowKernels(self._cl)
+        return self._below
 
     def anisotropy_kernels(self) -> AnisotropyKernels:
         """The anisotropy program (built on first use; `eigen_sym3` is the tests' way in)."""

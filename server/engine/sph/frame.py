@@ -242,9 +242,12 @@ class SphStage:
         """Build the CL context and program now if this frame will need them (so the first
         frame's stage time is the pass's, not LLVM's)."""
         frame, scene = without_unfit_densities(frame, scene)
-        if needs_sph(scene) or computes_droplet_densities(scene, frame):
+        own = computes_droplet_densities(scene, frame)
+        if needs_sph(scene) or own:
             try:
-                self.engine()
+                engine = self.engine()
+                if own:
+                    engine.density_below_kernels()
             except CLUnavailableError:
                 if needs_sph(scene):
                     raise
