@@ -1,8 +1,9 @@
 /* Which particles' kernel density (thesis eq 2, sph.cl's kernel and support h, self included)
  * is below a limit: the same answer as `density(...) < limit`, without the counting sort and
- * without summing whole neighbourhoods. What asks it: the droplet split (a particle is a
- * droplet below quality.droplet_density, 0.45 rest) and the lone rule
- * (quality.droplet_lone_density, 0.36) on frames whose own densities the split cannot use.
+ * without summing whole neighbourhoods. What asks it: the droplet split on frames without
+ * usable densities (a droplet is below quality.droplet_density, 0.45 rest) and the lone rule
+ * on frames with them (quality.droplet_lone_density, 0.36: a simulator's densities may count
+ * walls the frame does not hold).
  * Inside a fluid the first neighbour or two lift a particle's sum past such a limit (a lone
  * particle's sum is W(0) alone: 0.32 rest density at the default h = 4 r, a touching pair's
  * 0.40, the fluid's ~1), so its walk stops there: two passes over the particles and a cleared
@@ -18,9 +19,9 @@
  * A bucket can hold particles of several cells (hash collisions): a reader visits each bucket
  * of its 27 cells once and tests every particle listed there by distance. Particles past a
  * bucket's BELOW_SLOTS go to one overflow list of indices, up to `overflow_cap`; a particle
- * still below the limit after its buckets' lists, one of which overflowed, scans that list. Only when the list itself was full
- * is such a particle written BELOW_UNDECIDED (the host then answers the frame with the exact
- * density pass). At the default h a fluid's cell holds ~8 particles and a bucket ~1.1 cells;
+ * still below the limit after its buckets' lists, one of which overflowed, scans that list.
+ * Only when the list itself was full is such a particle written BELOW_UNDECIDED (the host
+ * then answers the frame with the exact density pass). At the default h a fluid's cell holds ~8 particles and a bucket ~1.1 cells;
  * three full cells in one bucket are rare but certain in a large frame.
  */
 
