@@ -120,10 +120,11 @@ def test_small_frames(sph_engine: SphEngine) -> None:
 
 def test_a_full_bucket_is_answered_exactly(sph_engine: SphEngine) -> None:
     """70 coincident particles 0.9 h from a particle: each adds W(0.9 h) = 0.002 W(0), 0.14 in
-    all, which takes it past 0.36 rest (1.131 W(0)); the 32 a bucket lists add 0.064 and would
-    leave it below. The other 38 are on the overflow list: not below. With 40 of them (0.08)
-    it is below, and answered so. An overflow list too short for the 38 leaves the particle
-    undecided (None: the engine then runs the density pass)."""
+    all, which takes it past 0.36 rest (1.131 W(0)). All 71 share one cell (0 and 0.9 h lie
+    in the same cell of side h), so its bucket lists 32 and the other 39 go to the overflow
+    list: the listed ones alone (<= 0.064) would leave it below; with the list, not below.
+    With 40 of them (0.08) it is below, and answered so. A list two entries too short leaves
+    the particle undecided (None: the engine then runs the density pass)."""
     one = np.array([[0.0, 0.0, 0.0]])
     for crowd, lone in ((70, False), (40, True)):
         positions = np.concatenate([one, np.repeat([[0.9 * H, 0.0, 0.0]], crowd, axis=0)])
