@@ -12,6 +12,10 @@ The cases cover every pass and option family the engine has: the demo (temperatu
 culling, workshop IBL, environment background), a jittered ball as float EXR with Z and N,
 sampled IBL with lights, the 2-D bilateral filter, gaussian with the eq 25 kernel and 16-bit PNG,
 eq 29 adaptive radii with surface-only splatting (SPH on OpenCL), and the SPH quantities file.
+Every case renders under each quality preset (`--quality fast|balanced|best`) as well as on the
+scene's own settings. With `../shared/data` beside the checkout, a dam-break frame (SPlisHSPlasH
+VTK) joins the cases; a spatter frame (a pool with scattered droplets, densities and temperatures)
+is generated here.
 The SPH pass may differ between runs in the last float32 bit (atomic arrival order, see
 ARCHITECTURE.md), so the SPH cases are rendered twice and reported as "nondeterministic" instead
 of "changed" when the two runs already disagree.
@@ -108,6 +112,63 @@ CASES: dict[str, dict[str, Any]] = {
 SPH_CASES = {"ball_sph_adaptive_surface_only"}
 
 
+PRESETS = ("fast", "balanced", "best")
+DAMBREAK_VTK = ROOT.parent / "shared" / "data" / "dambreak-splishsplash" / "vtk"
+
+
+def _spatter(seed: int) -> dict[str, np.ndarray]:
+    """A shallow pool of particles with droplets flung above it, with densities and temperatures."""
+    rng = np.random.default_rng(seed)
+    r = 0.05
+    axis = np.arange(-1.0, 1.0 + 1e-9, 2 * r)
+    layers = np.arange(0.0, 4 * 2 * r, 2 * r)
+    x, y, z = np.meshgrid(axis, layers, axis, indexing="ij")
+    pool = np.stack([x, y - 0.5, z], -1).reshape(-1, 3)
+    pool = pool + rng.normal(0.0, 0.1 * r, pool.shape)
+    drops = rng.uniform([-0.8, -0.1, -0.8], [0.8, 0.9, 0.8], (300, 3))
+    positions = np.concatenate([pool, drops])
+    densities = np.concatenate(
+        [rng.normal(1000.0, 15.0, len(pool)), rng.uniform(100.0, 300.0, len(drops))]
+    )
+    temperatures = 1500.0 + 1200.0 * (positions[:, 1] + 0.5)
+    return {
+        "positions": positions,
+        "densities": densities.astype(np.float32),
+        "temperatures": temperatures.astype(np.float32),
+    }
+
+
+def _frames(work: Path) -> dict[str, Path]:
+    """The particle frames the cases render: name -> file."""
+    positions = _ball(20_000, seed=3)
+    temperatures = (1200.0 + 1500.0 * (positions[:, 1] + 1.0) / 2.0).astype(np.float32)
+    frames = {"ball": work / "ball.npz", "plain": work / "plain.npz"}
+    np.savez(frames["ball"], positions=positions, temperatures=temperatures)
+    np.savez(frames["plain"], positions=positions)
+    frames["spatter"] = work / "spatter.npz"
+    np.savez(frames["spatter"], **_spatter(seed=5))
+    dam = DAMBREAK_VTK / "ParticleData_Fluid_9.vtk"
+    if dam.exists():
+        frames["dambreak"] = dam
+    return frames
+
+
+#: Extra cases on other frames: name -> (frame name, scene).
+FRAME_CASES: dict[str, tuple[str, dict[str, Any]]] = {
+    "spatter": (
+        "spatter",
+        _scene(camera={"eye": [0.2, 1.4, 2.8], "target": [0.0, -0.2, 0.0], "fov_y": 45.0}),
+    ),
+    "dambreak_frame9": (
+        "dambreak",
+        _scene(
+            camera={"eye": [0.5, 2.5, 4.0], "target": [-0.5, 0.4, 0.0], "fov_y": 40.0},
+            particles={"radius": 0.015},
+        ),
+    ),
+}
+
+
 def _sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
@@ -123,23 +184,60 @@ def fingerprints(work: Path) -> dict[str, list[str]]:
     demo = work / "demo.png"
     _run(["demo", "-o", str(demo)])
     out["demo_png"] = [_sha(demo)]
-    positions = _ball(20_000, seed=3)
-    temperatures = (1200.0 + 1500.0 * (positions[:, 1] + 1.0) / 2.0).astype(np.float32)
-    frame = work / "ball.npz"
-    np.savez(frame, positions=positions, temperatures=temperatures)
-    plain = work / "plain.npz"
-    np.savez(plain, positions=positions)
-    for name, scene in CASES.items():
+    demo_frame = work / "demo.npz"
+    code = (
+        "import sys, numpy as np; from sphrender.server.content.demo import demo_frame; "
+        "f = demo_frame(); np.savez(sys.argv[1], positions=f.positions, "
+        "temperatures=f.temperatures)"
+    )
+    subprocess.run([sys.executable, "-c", code, str(demo_frame)], check=True)
+    demo_scene = ROOT / "configs" / "demo.toml"
+    for preset in PRESETS:
+        image = work / f"demo-{preset}.png"
+        _run(
+            [
+                "render",
+                str(demo_frame),
+                "--scene",
+                str(demo_scene),
+                "-o",
+                str(image),
+                "--quality",
+                preset,
+            ]
+        )
+        out[f"demo_png@{preset}"] = [_sha(image)]
+    frames = _frames(work)
+    cases = {
+        name: ("plain" if name in SPH_CASES else "ball", scene) for name, scene in CASES.items()
+    }
+    cases.update(FRAME_CASES)
+    for name, (frame_name, scene) in cases.items():
+        if frame_name not in frames:
+            continue
         scene_path = work / f"{name}.toml"
         scene_path.write_text(_toml(scene))
         suffix = ".exr" if scene.get("output", {}).get("format") == "exr" else ".png"
-        source = plain if name in SPH_CASES else frame
-        runs = 2 if name in SPH_CASES else 1
-        out[name] = []
-        for run in range(runs):
-            image = work / f"{name}-{run}{suffix}"
-            _run(["render", str(source), "--scene", str(scene_path), "-o", str(image)])
-            out[name].append(_sha(image))
+        runs = 2 if name in SPH_CASES or frame_name in ("spatter", "dambreak") else 1
+        for preset in (None, *PRESETS):
+            key = name if preset is None else f"{name}@{preset}"
+            quality = [] if preset is None else ["--quality", preset]
+            out[key] = []
+            for run in range(runs):
+                image = work / f"{key}-{run}{suffix}"
+                _run(
+                    [
+                        "render",
+                        str(frames[frame_name]),
+                        "--scene",
+                        str(scene_path),
+                        "-o",
+                        str(image),
+                        *quality,
+                    ]
+                )
+                out[key].append(_sha(image))
+    plain = frames["plain"]
     sph_out = work / "sph.npz"
     _run(
         [
