@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.content.demo import demo_frame, demo_scene
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.frame_output import RenderedFrame

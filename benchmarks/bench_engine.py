@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.bench.analytic import ball_errors
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.geometry.camera import Camera

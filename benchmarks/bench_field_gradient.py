@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from bench_frame_ratio import SETTINGS
 from reference_field_normals import MAX_REACH_PX, rim_distances
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.gpu.draw import FullscreenTriangle

@@ -25,7 +25,7 @@ import statistics
 import time
 from typing import Any
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.bench.surface_bench import PRE_ISSUE
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.gpu.gl_context import GLContext

@@ -33,7 +33,7 @@ import time
 
 import numpy as np
 
-from sphrender.client.frame import ParticleFrame, make_frame
+from sphrender.core.frame import ParticleFrame, make_frame
 from sphrender.server.bench.host_time import profiled
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.gpu.gl_context import GLContext

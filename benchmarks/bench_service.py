@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from sphrender.client.protocol import (
+from sphrender.core.protocol import (
     PREFIX_SIZE,
     MessageType,
     encode_frame,

@@ -25,7 +25,7 @@ sys.path.insert(0, str(REPO / "tests"))  # the numpy references live with the te
 
 import test_shading_ibl as ibl_tests  # noqa: E402
 
-from sphrender.client.frame import make_frame  # noqa: E402
+from sphrender.core.frame import make_frame  # noqa: E402
 from sphrender.server.content.lattice import jittered_lattice_ball  # noqa: E402
 from sphrender.server.engine.gpu.gl_context import GLContext  # noqa: E402
 from sphrender.server.engine.lighting.environment import preset_image  # noqa: E402

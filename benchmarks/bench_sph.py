@@ -44,8 +44,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
 
-from sphrender.client.frame import make_frame  # noqa: E402
-from sphrender.client.readers import read_particles  # noqa: E402
+from sphrender.core.frame import make_frame  # noqa: E402
+from sphrender.core.readers import read_particles  # noqa: E402
 from sphrender.server.content.lattice import jittered_lattice_ball  # noqa: E402
 from sphrender.server.engine.gpu.cl_context import CLContext  # noqa: E402
 from sphrender.server.engine.sph.anisotropy import AnisotropyParameters  # noqa: E402

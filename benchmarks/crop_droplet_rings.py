@@ -21,8 +21,8 @@ import numpy.typing as npt
 from crop_pinholes import over_white, side_by_side
 from scipy import ndimage
 
-from sphrender.client.frame import ParticleFrame, make_frame
-from sphrender.client.readers import read_particles
+from sphrender.core.frame import ParticleFrame, make_frame
+from sphrender.core.readers import read_particles
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.passes.normals import NormalsPass
 from sphrender.server.engine.renderer import SurfaceRenderer

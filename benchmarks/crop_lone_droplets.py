@@ -17,7 +17,7 @@ from typing import Any
 
 from crop_pinholes import over_white, side_by_side
 
-from sphrender.client.readers import read_particles
+from sphrender.core.readers import read_particles
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.engine.sph.frame import SphStage

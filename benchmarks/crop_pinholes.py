@@ -16,7 +16,7 @@ import numpy.typing as npt
 from PIL import Image
 from scipy import ndimage
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.content.lattice import lattice_slab
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.passes.gaps import GapPass

@@ -44,7 +44,7 @@ from fuzz_inputs import (
 )
 from service_harness import ServerProcess
 
-from sphrender.client.protocol import encode_frame, encode_npz_frame
+from sphrender.core.protocol import encode_frame, encode_npz_frame
 
 
 def proc_counts(pid: int) -> tuple[int, int]:

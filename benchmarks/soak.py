@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import numpy as np
 from service_harness import ServerProcess
 
-from sphrender.client.protocol import (
+from sphrender.core.protocol import (
     MessageType,
     encode_frame,
     encode_message,

@@ -27,9 +27,9 @@ from typing import Any, Literal
 
 import numpy as np
 
-from sphrender.client.errors import InputError
-from sphrender.client.frame import ParticleFrame
-from sphrender.client.protocol import (
+from sphrender.core.errors import InputError
+from sphrender.core.frame import ParticleFrame
+from sphrender.core.protocol import (
     IMAGE_FORMATS,
     ErrorCode,
     ImageFormat,

@@ -14,8 +14,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from sphrender.client.errors import InputError
-from sphrender.client.readers import SUPPORTED_SUFFIXES, natural_sort_key
+from sphrender.core.errors import InputError
+from sphrender.core.readers import SUPPORTED_SUFFIXES, natural_sort_key
 
 _GLOB_CHARS = set("*?[")
 

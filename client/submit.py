@@ -26,12 +26,12 @@ from pathlib import Path
 from typing import Protocol, TextIO
 
 from sphrender.client.api import Client, ServerError, ServerUnavailable
-from sphrender.client.errors import InputError
-from sphrender.client.frame import ParticleFrame
-from sphrender.client.image_check import is_complete_image
-from sphrender.client.protocol import ImageFormat
-from sphrender.client.readers import read_particles
 from sphrender.client.sequences import FrameJob
+from sphrender.core.errors import InputError
+from sphrender.core.frame import ParticleFrame
+from sphrender.core.image_check import is_complete_image
+from sphrender.core.protocol import ImageFormat
+from sphrender.core.readers import read_particles
 
 PARTIAL_SUFFIX = ".partial"
 

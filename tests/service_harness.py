@@ -23,7 +23,7 @@ import numpy.typing as npt
 import OpenImageIO as oiio
 from cli_harness import SPHRENDER
 
-from sphrender.client.protocol import (
+from sphrender.core.protocol import (
     PREFIX_SIZE,
     MessageType,
     encode_frame,
@@ -97,7 +97,7 @@ def reference_png(
     renderer: SurfaceRenderer, positions: np.ndarray, scene_dict: Mapping[str, Any]
 ) -> bytes:
     """What the service should answer, rendered in the test process with the same engine."""
-    from sphrender.client.frame import make_frame
+    from sphrender.core.frame import make_frame
 
     scene = scene_from_dict(scene_dict) if scene_dict else Scene()
     frame, _stats = renderer.render(make_frame(positions), scene)

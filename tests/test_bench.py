@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sphrender.client.errors import InputError
+from sphrender.core.errors import InputError
 from sphrender.server.bench.run import CSV_COLUMNS, DEVICE_PREPARE
 from sphrender.server.bench.surface_bench import QUICK_SURFACE_SETTINGS, SurfaceRow
 from sphrender.server.bench.sweep import QUICK_SWEEP

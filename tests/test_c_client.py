@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from service_harness import ServerProcess
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.output.local import encode_for_scene
 from sphrender.server.scene import scene_from_dict

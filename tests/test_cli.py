@@ -11,7 +11,7 @@ import OpenImageIO as oiio
 import pytest
 from cli_harness import run_sphrender
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.engine.gpu.gl_libraries import load_error
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.output.encoders import read_exr

@@ -15,8 +15,8 @@ from cli_harness import DAMBREAK_SCENE_TOML, SPHRENDER
 from service_harness import MAIN_CONFIG, SMALL_SCENE, ServerProcess, ball, reference_png
 
 from sphrender.client.api import Client, ServerError, ServerUnavailable, decode_exr
-from sphrender.client.frame import make_frame
-from sphrender.client.image_check import is_complete_exr
+from sphrender.core.frame import make_frame
+from sphrender.core.image_check import is_complete_exr
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.output.encoders import read_exr
 

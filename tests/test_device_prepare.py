@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.content.lattice import jittered_lattice_ball, lattice_slab
 from sphrender.server.engine.frame_output import RenderedFrame, RenderStats
 from sphrender.server.engine.geometry.camera import Camera

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.frame_output import DisplayRequest, RenderedFrame
 from sphrender.server.engine.gpu.draw import FullscreenTriangle, image_bytes

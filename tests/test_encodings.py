@@ -26,8 +26,8 @@ import OpenImageIO as oiio
 import pytest
 
 from sphrender.client.api import decode_raw
-from sphrender.client.errors import InputError
-from sphrender.client.frame import make_frame
+from sphrender.core.errors import InputError
+from sphrender.core.frame import make_frame
 from sphrender.server.engine.frame_output import RenderedFrame
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.output import display, encoders, frame_formats

@@ -38,7 +38,7 @@ import numpy as np
 import pytest
 from reference_surfaces import SphereErrors, sphere_errors, sphere_truth
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.bench.analytic import (
     SurfaceErrors,
     angle_deg,

@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from sphrender.client.errors import InputError
-from sphrender.client.frame import make_frame
+from sphrender.core.errors import InputError
+from sphrender.core.frame import make_frame
 from sphrender.server.bench.analytic import sphere_hits
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.frame_output import RenderedFrame
@@ -301,7 +301,7 @@ def test_a_context_whose_release_fails_still_leaves_its_thread_free() -> None:
     raises as a broken driver's would."""
     script = """
 import numpy as np
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import scene_from_dict

@@ -16,7 +16,7 @@ import reference_field_normals
 from reference_field_normals import field_gradient, field_normals_reference
 from scipy import ndimage
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.gpu.draw import FullscreenTriangle, Target

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.engine.sph.frame_densities import (
     FIT_RANGE,
     densities_fit,

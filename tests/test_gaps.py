@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from reference_gaps import close_gaps_reference
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.content.lattice import lattice_slab
 from sphrender.server.engine.gpu.draw import FullscreenTriangle, Target
 from sphrender.server.engine.gpu.gl_context import GLContext

@@ -14,7 +14,7 @@ import moderngl
 import numpy as np
 import pytest
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.frame_output import DisplayRequest
 from sphrender.server.engine.geometry.camera import Camera

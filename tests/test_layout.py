@@ -16,12 +16,16 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 #: Source folders of the product and the import package each becomes (pyproject's package-dir).
-PACKAGES = {"server": "sphrender.server", "client": "sphrender.client"}
+PACKAGES = {
+    "core": "sphrender.core",
+    "server": "sphrender.server",
+    "client": "sphrender.client",
+}
 MAX_MODULE_LINES = 600
 
 
 def product_modules() -> dict[str, Path]:
-    """Import name -> file, for every module under server/ and client/."""
+    """Import name -> file, for every module under core/, server/ and client/."""
     modules: dict[str, Path] = {}
     for folder, package in PACKAGES.items():
         for path in sorted((REPO / folder).rglob("*.py")):
@@ -96,6 +100,7 @@ def test_no_import_circles_among_product_modules() -> None:
 
 #: The import direction, lowest first: a module imports only from its own layer or below.
 LAYERS = (
+    ("sphrender.core",),
     ("sphrender.client",),
     ("sphrender.server.scene", "sphrender.server.content"),
     (
@@ -123,9 +128,14 @@ def layer_of(name: str) -> int:
 
 def test_imports_point_down_the_layers() -> None:
     """ARCHITECTURE.md's import direction: cli -> service | bench -> output -> renderer ->
-    passes -> lighting | sph -> gpu -> geometry -> scene -> client."""
+    passes -> lighting | sph -> gpu -> geometry -> scene -> client -> core."""
     for name, imported in import_graph().items():
-        if name in ("sphrender.server", "sphrender.server.engine", "sphrender.client"):
+        if name in (
+            "sphrender.server",
+            "sphrender.server.engine",
+            "sphrender.client",
+            "sphrender.core",
+        ):
             continue  # the empty package modules
         for target in imported:
             if target in ("sphrender.server", "sphrender.server.engine"):
@@ -140,7 +150,7 @@ def test_imports_point_down_the_layers() -> None:
 def test_client_never_imports_the_server_or_gpu_libraries() -> None:
     """The client side needs only numpy (DESIGN.md): no moderngl, pyopencl or server module."""
     for name, path in product_modules().items():
-        if not name.startswith("sphrender.client"):
+        if not name.startswith(("sphrender.client", "sphrender.core")):
             continue
         tree = ast.parse(path.read_text())
         for node in ast.walk(tree):

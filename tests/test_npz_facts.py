@@ -12,8 +12,8 @@ import zipfile
 import numpy as np
 import pytest
 
-from sphrender.client.errors import InputError
-from sphrender.client.protocol import decode_npz_frame
+from sphrender.core.errors import InputError
+from sphrender.core.protocol import decode_npz_frame
 
 POSITIONS = np.arange(12, dtype=np.float64).reshape(4, 3) / 10
 SCENE = {"image": {"width": 32, "height": 24}}

@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from sphrender.client.frame import make_frame
-from sphrender.client.readers import read_particles
+from sphrender.core.frame import make_frame
+from sphrender.core.readers import read_particles
 from sphrender.server.content.lattice import jittered_lattice_ball, lattice_slab
 from sphrender.server.engine.frame_output import RenderStats
 from sphrender.server.engine.geometry import occlusion

@@ -1,4 +1,4 @@
-"""The wire codec (client/protocol.py) on its own: framing, FRAME arrays and .npz bodies.
+"""The wire codec (core/protocol.py) on its own: framing, FRAME arrays and .npz bodies.
 
 The byte layouts asserted here are the ones PROTOCOL.md documents; a C# or C++ frontend that
 follows the document produces exactly these bytes.
@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sphrender.client.errors import InputError
-from sphrender.client.protocol import (
+from sphrender.core.errors import InputError
+from sphrender.core.protocol import (
     PREFIX_SIZE,
     LimitError,
     MessageType,

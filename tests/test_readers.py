@@ -1,4 +1,4 @@
-"""Tests for sphrender.client.readers: round trips, the real SPlisHSPlasH data, and bad input."""
+"""Tests for sphrender.core.readers: round trips, the real SPlisHSPlasH data, and bad input."""
 
 from __future__ import annotations
 
@@ -18,9 +18,9 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from sphrender.client.errors import InputError
-from sphrender.client.frame import ParticleFrame
-from sphrender.client.readers import (
+from sphrender.core.errors import InputError
+from sphrender.core.frame import ParticleFrame
+from sphrender.core.readers import (
     SUPPORTED_SUFFIXES,
     natural_sort_key,
     read_npz_scene_json,
@@ -641,7 +641,7 @@ def test_natural_sort_key() -> None:
 
 def test_readers_import_no_gpu_or_server_modules() -> None:
     code = (
-        "import sys, sphrender.client.readers\n"
+        "import sys, sphrender.core.readers\n"
         "bad = [m for m in sys.modules if m.split('.')[0] in ('moderngl', 'pyopencl', 'meshio')"
         " or m.startswith('sphrender.server')]\n"
         "assert not bad, bad\n"

@@ -29,7 +29,7 @@ import pytest
 from service_harness import HOST, SMALL_SCENE, ServerProcess, StreamClient, ball, reference_png
 
 from sphrender.client.api import Client
-from sphrender.client.protocol import MessageType, encode_npz_frame
+from sphrender.core.protocol import MessageType, encode_npz_frame
 from sphrender.server.engine.renderer import SurfaceRenderer
 
 REPO = Path(__file__).resolve().parents[1]

@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from sphrender.client.errors import InputError
+from sphrender.core.errors import InputError
 from sphrender.server.scene import Scene, load_scene, scene_from_dict, scene_to_dict
 
 REPO = Path(__file__).resolve().parents[1]

@@ -26,7 +26,7 @@ from cli_harness import run_sphrender
 from jsonschema import Draft202012Validator
 from jsonschema.exceptions import best_match
 
-from sphrender.client.errors import InputError
+from sphrender.core.errors import InputError
 from sphrender.server.scene import MAX_LIGHTS, Scene, Vec3, scene_from_dict, scene_to_dict
 from sphrender.server.scene.json_schema import (
     CROSS_FIELD_RULES,

@@ -12,7 +12,7 @@ import numpy as np
 from service_harness import SMALL_SCENE, ServerProcess, ball, png_pixels
 from test_service_http import metric_values
 
-from sphrender.client.protocol import MessageType, encode_frame
+from sphrender.core.protocol import MessageType, encode_frame
 
 
 def test_renderer_segfault_fails_its_frames_and_the_service_goes_on(tmp_path: Path) -> None:

@@ -20,8 +20,8 @@ from service_harness import SMALL_SCENE, ServerProcess, ball
 from test_encodings import decode
 
 from sphrender.client.api import Client, decode_raw
-from sphrender.client.frame import make_frame
-from sphrender.client.protocol import (
+from sphrender.core.frame import make_frame
+from sphrender.core.protocol import (
     MessageType,
     encode_frame,
     encode_message,

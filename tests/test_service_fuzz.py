@@ -21,7 +21,7 @@ from fuzz_inputs import (
 from service_harness import ServerProcess, ball
 from test_service_http import metric_values
 
-from sphrender.client.protocol import encode_frame
+from sphrender.core.protocol import encode_frame
 
 SEEDS = (11, 12, 13)
 

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from service_harness import HOST, SMALL_SCENE, ServerProcess, StreamClient, ball
 
-from sphrender.client.protocol import (
+from sphrender.core.protocol import (
     MessageType,
     encode_frame,
     encode_message,

@@ -31,7 +31,7 @@ from service_harness import (
     toml_text,
 )
 
-from sphrender.client.protocol import encode_npz_frame
+from sphrender.core.protocol import encode_npz_frame
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.output.encoders import read_exr
 from sphrender.server.service.config import HttpConfig
@@ -106,7 +106,7 @@ def test_curl_data_binary_npz_file(service: ServerProcess, tmp_path: Path) -> No
 def test_real_sph_frame_comes_back_as_png(
     service: ServerProcess, dambreak: Path, tmp_path: Path, renderer: SurfaceRenderer
 ) -> None:
-    from sphrender.client.readers import read_particles
+    from sphrender.core.readers import read_particles
 
     frame = read_particles(sorted((dambreak / "vtk").glob("*.vtk"))[-1])
     scene = {

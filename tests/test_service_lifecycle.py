@@ -24,7 +24,7 @@ from service_harness import (
 )
 from test_service_http import metric_values
 
-from sphrender.client.protocol import MessageType, encode_frame, encode_message, encode_npz_frame
+from sphrender.core.protocol import MessageType, encode_frame, encode_message, encode_npz_frame
 
 TOKEN = "s3cret-token-0123456789"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}

@@ -31,7 +31,7 @@ from service_harness import (
 )
 from test_service_http import metric_values
 
-from sphrender.client.protocol import (
+from sphrender.core.protocol import (
     MAX_FRAME_ID,
     PREFIX,
     MessageType,
@@ -79,7 +79,7 @@ def test_stream_frame_matches_sphrender_render(service: ServerProcess, tmp_path:
 def test_stream_exr_matches_in_process_render(
     service: ServerProcess, renderer: SurfaceRenderer
 ) -> None:
-    from sphrender.client.frame import make_frame
+    from sphrender.core.frame import make_frame
     from sphrender.server.scene import scene_from_dict
 
     scene = {**SMALL_SCENE, "output": {"format": "exr", "exr_pixel_type": "float"}}

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
-from sphrender.client.errors import InputError
-from sphrender.client.frame import make_frame
-from sphrender.client.protocol import LimitError
+from sphrender.core.errors import InputError
+from sphrender.core.frame import make_frame
+from sphrender.core.protocol import LimitError
 from sphrender.server.scene import Scene, merge_scene_dicts
 from sphrender.server.service.config import (
     ServerConfig,

@@ -299,7 +299,7 @@ def test_done_when_ball_centre_under_white_furnace(renderer: SurfaceRenderer) ->
     """Issue 'Done when': uniform white environment, no lights, F0 = 1, roughness 0.5: the centre
     of a particle ball (n.v ~ 1) renders within 4% of 0.916 (no multiple-scattering
     compensation), through the whole pipeline (splat, smoothing, normals, shading)."""
-    from sphrender.client.frame import make_frame
+    from sphrender.core.frame import make_frame
     from sphrender.server.content.lattice import jittered_lattice_ball
 
     scene = scene_from_dict(

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import reference_shading as ref
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.bench.analytic import pixel_rays
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.geometry.camera import Camera

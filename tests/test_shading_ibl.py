@@ -18,8 +18,8 @@ import pytest
 import reference_shading as ref
 from test_shading_brdf import product_rule_albedo
 
-from sphrender.client.errors import InputError
-from sphrender.client.frame import make_frame
+from sphrender.core.errors import InputError
+from sphrender.core.frame import make_frame
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.gpu.gl_context import GLContext

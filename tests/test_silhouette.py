@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from reference_silhouette import silhouette_reference
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.content.lattice import lattice_slab
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.gpu.draw import FullscreenTriangle, Target

@@ -30,9 +30,9 @@ import numpy.typing as npt
 import pytest
 from sph_reference import ReferenceSph, cubic_spline, reference_pairs, reference_sph
 
-from sphrender.client.errors import InputError
-from sphrender.client.frame import make_frame
-from sphrender.client.readers import read_particles
+from sphrender.core.errors import InputError
+from sphrender.core.frame import make_frame
+from sphrender.core.readers import read_particles
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.gpu.cl_context import (
     CLContext,

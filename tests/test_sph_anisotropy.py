@@ -34,8 +34,8 @@ from anisotropy_reference import ReferenceAnisotropy, reference_anisotropy, shap
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from sphrender.client.errors import InputError
-from sphrender.client.frame import make_frame
+from sphrender.core.errors import InputError
+from sphrender.core.frame import make_frame
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.gpu.cl_context import kernel_source
 from sphrender.server.engine.sph.anisotropy import AnisotropyParameters, AnisotropyResult

@@ -16,7 +16,7 @@ import pytest
 from cli_harness import run_sphrender
 from sph_reference import reference_sph
 
-from sphrender.client.readers import read_particles
+from sphrender.core.readers import read_particles
 
 R = 0.015
 H = 4 * R

@@ -22,7 +22,7 @@ import pytest
 from sph_reference import reference_sph
 from test_sph import MASS, H, R, params
 
-from sphrender.client.readers import read_particles
+from sphrender.core.readers import read_particles
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.sph import density_below as below_module
 from sphrender.server.engine.sph.engine import SphEngine, column_bounds

@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sphrender.client.frame import make_frame
-from sphrender.client.readers import read_particles
+from sphrender.core.frame import make_frame
+from sphrender.core.readers import read_particles
 from sphrender.server.bench.analytic import sphere_hits
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.geometry.camera import Camera

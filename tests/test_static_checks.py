@@ -14,7 +14,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
-PACKAGE_FOLDERS = ("server", "client", "shaders", "configs")
+PACKAGE_FOLDERS = ("core", "server", "client", "shaders", "configs")
 
 
 def run(args: list[str], **kwargs: object) -> subprocess.CompletedProcess[str]:
@@ -48,6 +48,8 @@ def test_mypy(tmp_path: Path) -> None:
             "sphrender.server",
             "-p",
             "sphrender.client",
+            "-p",
+            "sphrender.core",
         ],
         env=env,
     )

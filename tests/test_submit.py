@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 from cli_harness import DAMBREAK_SCENE_TOML, SPHRENDER
 
-from sphrender.client.errors import InputError
-from sphrender.client.image_check import is_complete_exr, is_complete_png
 from sphrender.client.sequences import expand_inputs, frame_stem, plan_jobs
+from sphrender.core.errors import InputError
+from sphrender.core.image_check import is_complete_exr, is_complete_png
 from sphrender.server.output.encoders import read_exr
 
 SCENE = DAMBREAK_SCENE_TOML

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.bench.analytic import angle_deg, pixel_rays
 from sphrender.server.bench.scenes import Truth, ball_scene, spheres_truth
 from sphrender.server.bench.surface_quality import edge_alpha_error, supersampled_coverage

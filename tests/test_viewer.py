@@ -32,7 +32,7 @@ import pytest
 from browser_harness import Browser
 from service_harness import SMALL_SCENE, ServerProcess, ball, png_pixels
 
-from sphrender.client.protocol import MessageType
+from sphrender.core.protocol import MessageType
 from sphrender.server.scene import Scene, scene_to_dict
 from sphrender.server.scene.json_schema import scene_json_schema_text
 
@@ -337,7 +337,7 @@ def test_recent_frames_percentiles_and_rate() -> None:
 
 
 def test_latest_image_of_a_session(server: ServerProcess) -> None:
-    from sphrender.client.protocol import encode_npz_frame
+    from sphrender.core.protocol import encode_npz_frame
 
     status, created = server.json("POST", "/v1/sessions", SMALL_SCENE, headers=AUTH)
     assert status == 201

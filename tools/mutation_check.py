@@ -382,7 +382,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     ),
     Mutation(
         name="protocol-trailing-payload-accepted",
-        path="client/protocol.py",
+        path="core/protocol.py",
         old="    if offset != payload_length:",
         new="    if offset > payload_length:",
         tests=("tests/test_protocol.py",),
@@ -402,7 +402,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     ),
     Mutation(
         name="png-check-ignores-crc",
-        path="client/image_check.py",
+        path="core/image_check.py",
         old="if zlib.crc32(kind + body) & 0xFFFFFFFF != crc:",
         new="if first and zlib.crc32(kind + body) & 0xFFFFFFFF != crc:",
         tests=(
@@ -413,7 +413,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     ),
     Mutation(
         name="exr-check-accepts-offsets-into-the-header",
-        path="client/image_check.py",
+        path="core/image_check.py",
         old="if any(not (pos + 8 * chunks <= o < len(data)) for o in offsets):",
         new="if any(not (o < len(data)) for o in offsets):",
         tests=(
@@ -423,7 +423,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     ),
     Mutation(
         name="bgeo-floats-read-little-endian",
-        path="client/readers.py",
+        path="core/readers.py",
         old='_BGEO_TYPES: dict[int, str] = {0: ">f4", 1: ">i4", 4: ">i4", 5: ">f4"}',
         new='_BGEO_TYPES: dict[int, str] = {0: "<f4", 1: ">i4", 4: ">i4", 5: ">f4"}',
         tests=("tests/test_readers.py",),

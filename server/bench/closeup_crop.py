@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.bench.scenes import DAMBREAK_RADIUS, dambreak_frame
 from sphrender.server.bench.surface_bench import SurfaceResults
 from sphrender.server.bench.sweep import Setting, scene_for
@@ -42,7 +42,7 @@ def write_closeup_crop(
 ) -> None:
     """`before` (left) and `after` (right) on the close-up, side by side, as `out / name`;
     its caption joins `results.crops`. Nothing without the data set."""
-    from sphrender.client.readers import read_particles
+    from sphrender.core.readers import read_particles
     from sphrender.server.output.encoders import write_png
 
     path = dambreak_frame()

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.bench import peers
 from sphrender.server.bench.closeup_crop import BALANCED_DESTREAK, EQUAL_PASSES, write_closeup_crop
 from sphrender.server.bench.dam_frames import dam_frame_paths, run_dam_frames

@@ -193,7 +193,7 @@ DAMBREAK_RADIUS = 0.015  # the data set's particleRadius (scene.json)
 def dambreak_scene(
     path: Path, mesh_truth: Callable[[F64, float, Camera], Truth], radius: float
 ) -> BenchScene:
-    from sphrender.client.readers import read_particles
+    from sphrender.core.readers import read_particles
 
     positions = read_particles(path).positions
     return BenchScene(

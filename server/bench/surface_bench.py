@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.bench.mesh_reference import ReferenceMesh, rasterise, reconstruct
 from sphrender.server.bench.metrics import surface_metrics
 from sphrender.server.bench.scenes import (
@@ -245,7 +245,7 @@ def dam_case(
     """The dam break's case (frame `path`, the bench's frame 5 by default), the floor of its
     flicker (the reference's own) and a note naming the frame, or why it was skipped;
     `fixed_length`: see `surface_quality.jittered`."""
-    from sphrender.client.readers import read_particles
+    from sphrender.core.readers import read_particles
     from sphrender.server.bench.scenes import dambreak_scene
 
     path = path or dambreak_frame()

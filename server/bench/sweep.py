@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from sphrender.client.frame import make_frame
+from sphrender.core.frame import make_frame
 from sphrender.server.bench.metrics import (
     SurfaceMetrics,
     display_rgb,

@@ -16,7 +16,7 @@ import logging
 import sys
 from collections.abc import Callable, Sequence
 
-from sphrender.client.errors import InputError
+from sphrender.core.errors import InputError
 from sphrender.server.cli import bench, demo, info, render, schema, serve, sph, submit
 from sphrender.server.cli.options import EXIT_BAD_INPUT, EXIT_NO_GPU_STACK
 

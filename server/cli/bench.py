@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from sphrender.client.errors import InputError
+from sphrender.core.errors import InputError
 from sphrender.server.cli.options import Subcommands
 
 

@@ -12,7 +12,7 @@ from sphrender.server.scene.presets import PRESETS
 if TYPE_CHECKING:
     from sphrender.server.scene import Scene
 
-from sphrender.client.protocol import IMAGE_FORMATS, ImageFormat
+from sphrender.core.protocol import IMAGE_FORMATS, ImageFormat
 
 #: The `commands` argument of each subcommand's `add_parser`.
 Subcommands: TypeAlias = "argparse._SubParsersAction[argparse.ArgumentParser]"

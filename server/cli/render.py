@@ -13,7 +13,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sphrender.client.errors import InputError
+from sphrender.core.errors import InputError
 from sphrender.server.cli.options import (
     EXIT_BAD_INPUT,
     ImageFormat,
@@ -29,7 +29,7 @@ from sphrender.server.cli.options import (
 )
 
 if TYPE_CHECKING:
-    from sphrender.client.frame import ParticleFrame
+    from sphrender.core.frame import ParticleFrame
     from sphrender.server.engine.frame_output import RenderedFrame, RenderStats
     from sphrender.server.engine.renderer import SurfaceRenderer
     from sphrender.server.scene import Scene
@@ -68,7 +68,7 @@ def add_parser(commands: Subcommands, common: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sphrender.client.readers import read_particles
+    from sphrender.core.readers import read_particles
     from sphrender.server.engine.gpu.gl_context import GLContext
     from sphrender.server.engine.renderer import SurfaceRenderer
     from sphrender.server.output import encoders

@@ -8,7 +8,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from sphrender.client.errors import InputError
+from sphrender.core.errors import InputError
 from sphrender.server.cli.options import Subcommands
 
 

@@ -7,7 +7,7 @@ import logging
 import time
 from pathlib import Path
 
-from sphrender.client.errors import InputError
+from sphrender.core.errors import InputError
 from sphrender.server.cli.options import Subcommands, add_cl_device
 
 log = logging.getLogger("sphrender")
@@ -45,8 +45,8 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from sphrender.client.readers import read_particles
     from sphrender.client.submit import write_atomically
+    from sphrender.core.readers import read_particles
     from sphrender.server.engine.gpu.cl_context import CLContext
     from sphrender.server.engine.sph.engine import SphEngine, SphParameters
     from sphrender.server.engine.sph.frame import eq29_radii, frame_particle_radius

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
 
-from sphrender.client.errors import InputError
+from sphrender.core.errors import InputError
 from sphrender.server.cli.options import (
     EXIT_FRAMES_FAILED,
     IMAGE_FORMATS,

@@ -50,9 +50,9 @@ import ray
 import ray.exceptions
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
-from sphrender.client.errors import InputError
-from sphrender.client.frame import ParticleFrame, make_frame
 from sphrender.client.submit import FrameFailed, TransientError
+from sphrender.core.errors import InputError
+from sphrender.core.frame import ParticleFrame, make_frame
 from sphrender.server.engine.gpu.gl_context import GLUnavailableError
 from sphrender.server.output.local import ImageFormat, LocalFrameRenderer
 from sphrender.server.scene import Scene

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.client.frame import ParticleFrame, make_frame
+from sphrender.core.frame import ParticleFrame, make_frame
 from sphrender.server.content.lattice import lattice_slab
 from sphrender.server.scene import Scene, scene_from_dict
 

@@ -19,8 +19,8 @@ from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
-from sphrender.client.errors import InputError
-from sphrender.client.frame import ParticleFrame
+from sphrender.core.errors import InputError
+from sphrender.core.frame import ParticleFrame
 from sphrender.server.engine.frame_output import (
     DisplayCodes,
     DisplayRequest,

@@ -10,8 +10,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from sphrender.client.frame import ParticleFrame
-from sphrender.client.protocol import ImageFormat
+from sphrender.core.frame import ParticleFrame
+from sphrender.core.protocol import ImageFormat
 from sphrender.server.engine.frame_output import DisplayRequest, RenderedFrame, RenderStats
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer

@@ -9,7 +9,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from sphrender.client.errors import InputError
+from sphrender.core.errors import InputError
 from sphrender.server.scene.schema import Scene
 from sphrender.server.scene.validate import scene_from_dict
 

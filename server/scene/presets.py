@@ -14,7 +14,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from sphrender.client.errors import InputError, show
+from sphrender.core.errors import InputError, show
 from sphrender.server.scene import Scene, merge_scene_dicts, read_scene_toml, scene_from_dict
 
 PRESETS = ("fast", "balanced", "best")

@@ -17,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
-from sphrender.client.protocol import ImageFormat
+from sphrender.core.protocol import ImageFormat
 from sphrender.server.scene.fields import (
     MAX_IMAGE_PIXELS,
     MAX_IMAGE_SIDE,

@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from dataclasses import fields
 from typing import Any, Literal, TypeVar, get_args, get_origin
 
-from sphrender.client.errors import InputError, kind_of, show
+from sphrender.core.errors import InputError, kind_of, show
 from sphrender.server.scene.schema import (
     MAX_IMAGE_PIXELS,
     MAX_STRING_LENGTH,

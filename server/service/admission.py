@@ -31,7 +31,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 
-from sphrender.client.errors import InputError, LimitError
+from sphrender.core.errors import InputError, LimitError
 
 log = logging.getLogger("sphrender.service.admission")
 

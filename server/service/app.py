@@ -25,9 +25,9 @@ from collections.abc import Callable
 from importlib import metadata
 from typing import Any, Literal
 
-from sphrender.client.frame import ParticleFrame, make_frame
-from sphrender.client.protocol import VERSION as PROTOCOL_VERSION
-from sphrender.client.protocol import ErrorCode, LimitError
+from sphrender.core.frame import ParticleFrame, make_frame
+from sphrender.core.protocol import VERSION as PROTOCOL_VERSION
+from sphrender.core.protocol import ErrorCode, LimitError
 from sphrender.server.content.demo import demo_frame
 from sphrender.server.service.admission import MemoryBudget, decoding
 from sphrender.server.service.config import (

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
-from sphrender.client.errors import InputError, kind_of
+from sphrender.core.errors import InputError, kind_of
 from sphrender.server.scene import MAX_IMAGE_PIXELS, section_from_dict, spec
 
 #: Environment variable that supplies the bearer token (keeps it out of files and `ps`).

@@ -13,7 +13,7 @@ import threading
 from collections.abc import Callable
 from typing import Any, Literal, Protocol
 
-from sphrender.client.frame import ParticleFrame
+from sphrender.core.frame import ParticleFrame
 from sphrender.server.service.admission import MemoryBudget
 from sphrender.server.service.config import ServerConfig
 from sphrender.server.service.jobs import FrameJob

@@ -38,9 +38,9 @@ from concurrent.futures import TimeoutError as FutureTimeout
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
-from sphrender.client.errors import InputError
-from sphrender.client.frame import ParticleFrame
-from sphrender.client.protocol import (
+from sphrender.core.errors import InputError
+from sphrender.core.frame import ParticleFrame
+from sphrender.core.protocol import (
     IMAGE_FORMATS,
     ErrorCode,
     ImageFormat,

@@ -20,7 +20,7 @@ from http.server import BaseHTTPRequestHandler
 from typing import Any, ClassVar
 from urllib.parse import parse_qs, unquote, urlsplit
 
-from sphrender.client.protocol import ErrorCode
+from sphrender.core.protocol import ErrorCode
 from sphrender.server.service.facade import ServiceFacade
 from sphrender.server.service.http_errors import HttpError
 from sphrender.server.service.http_server import (

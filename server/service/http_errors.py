@@ -3,8 +3,8 @@ request and written as the documented JSON body by the handler (PROTOCOL.md, HTT
 
 from __future__ import annotations
 
-from sphrender.client.errors import InputError
-from sphrender.client.protocol import ErrorCode, LimitError
+from sphrender.core.errors import InputError
+from sphrender.core.protocol import ErrorCode, LimitError
 
 
 class HttpError(Exception):

@@ -24,7 +24,7 @@ import functools
 import importlib.resources
 from urllib.parse import quote, urlencode
 
-from sphrender.client.protocol import ErrorCode
+from sphrender.core.protocol import ErrorCode
 from sphrender.server.scene.json_schema import scene_json_schema_text
 from sphrender.server.service.http_base import VIEWER_COOKIE, HandlerBase
 from sphrender.server.service.http_errors import HttpError

@@ -17,8 +17,8 @@ from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any, Literal, TypeAlias
 
-from sphrender.client.frame import ParticleFrame
-from sphrender.client.protocol import ImageFormat
+from sphrender.core.frame import ParticleFrame
+from sphrender.core.protocol import ImageFormat
 from sphrender.server.scene import Scene
 
 #: MIME types of the image answers (raw: PROTOCOL.md §4.3, described by X-Sphrender-Arrays).

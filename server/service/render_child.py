@@ -102,7 +102,7 @@ class _Child:
             self._renderer = None  # retried by the next job
 
     def warm(self, scene: Any) -> None:
-        from sphrender.client.frame import make_frame
+        from sphrender.core.frame import make_frame
 
         positions = np.array([scene.camera.target], dtype=np.float64)
         radii = np.array([scene.particles.radius], dtype=np.float32)
@@ -158,7 +158,7 @@ class _Child:
         return {"rebuilt": rebuilt}
 
     def _warm_job(self, job_id: int, scene: Any) -> None:
-        from sphrender.client.errors import InputError
+        from sphrender.core.errors import InputError
 
         error: dict[str, Any] | None = None
         if self._renderer is None:
@@ -175,8 +175,8 @@ class _Child:
     def _frame_job(
         self, job_id: int, scene: Any, fmt: str, fault: str | None, arrays: dict[str, Any]
     ) -> None:
-        from sphrender.client.errors import InputError
-        from sphrender.client.frame import ParticleFrame
+        from sphrender.core.errors import InputError
+        from sphrender.core.frame import ParticleFrame
         from sphrender.server.output.local import render_for_output
 
         if self._renderer is None:

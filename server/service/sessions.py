@@ -29,8 +29,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from sphrender.client.frame import ParticleFrame
-from sphrender.client.protocol import LimitError, parse_json_object
+from sphrender.core.frame import ParticleFrame
+from sphrender.core.protocol import LimitError, parse_json_object
 from sphrender.server.engine.lighting.environment import EnvironmentLibrary
 from sphrender.server.scene import Scene, scene_from_dict, scene_to_dict
 

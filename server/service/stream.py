@@ -40,9 +40,9 @@ import time
 from collections import deque
 from typing import Any, ClassVar, Literal
 
-from sphrender.client.errors import InputError, show
-from sphrender.client.frame import ParticleFrame
-from sphrender.client.protocol import (
+from sphrender.core.errors import InputError, show
+from sphrender.core.frame import ParticleFrame
+from sphrender.core.protocol import (
     MAX_FRAME_ID,
     PREFIX_SIZE,
     ErrorCode,

@@ -13,8 +13,8 @@ import hmac
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from sphrender.client.errors import show
-from sphrender.client.protocol import ErrorCode, MessageType, ProtocolError
+from sphrender.core.errors import show
+from sphrender.core.protocol import ErrorCode, MessageType, ProtocolError
 from sphrender.server.scene import Scene, scene_to_dict
 from sphrender.server.service.config import ServerConfig, public_limits
 

@@ -16,7 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from sphrender.client.protocol import ErrorCode, MessageType, encode_message
+from sphrender.core.protocol import ErrorCode, MessageType, encode_message
 from sphrender.server.service.jobs import DroppedOutcome, ErrorOutcome, ImageOutcome, Outcome
 
 #: Socket poll interval: how quickly a blocked thread notices a drain or a dead peer.

@@ -40,8 +40,8 @@ from typing import Any
 
 import numpy as np
 
-from sphrender.client.errors import InputError
-from sphrender.client.protocol import ErrorCode
+from sphrender.core.errors import InputError
+from sphrender.core.protocol import ErrorCode
 from sphrender.server.scene import Scene
 from sphrender.server.service.jobs import ErrorOutcome, FrameJob, ImageOutcome, WarmJob
 from sphrender.server.service.metrics import ServiceMetrics

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.client.errors import InputError
+from sphrender.core.errors import InputError
 from sphrender.server.scene import EnvironmentConfig
 
 F32 = npt.NDArray[np.float32]

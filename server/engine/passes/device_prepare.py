@@ -18,7 +18,7 @@ import moderngl
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.client.frame import ParticleFrame
+from sphrender.core.frame import ParticleFrame
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.prepare import frame_reference_radius
 from sphrender.server.engine.geometry.screen_box import ScreenBox, clip_box

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.client.errors import InputError
+from sphrender.core.errors import InputError
 from sphrender.server.engine.gpu.cl_context import CLContext
 
 if TYPE_CHECKING:

@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.client.errors import InputError
+from sphrender.core.errors import InputError
 from sphrender.server.engine.gpu.cl_context import CLContext
 from sphrender.server.engine.sph.anisotropy import (
     AnisotropyKernels,

@@ -11,7 +11,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.client.frame import ParticleFrame
+from sphrender.core.frame import ParticleFrame
 from sphrender.server.engine.frame_output import InputNote
 from sphrender.server.engine.gpu.cl_context import CLContext, CLUnavailableError
 from sphrender.server.engine.sph.anisotropy import AnisotropyParameters, AnisotropyResult

@@ -30,7 +30,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from sphrender.client.frame import ParticleFrame
+from sphrender.core.frame import ParticleFrame
 from sphrender.server.engine.frame_output import InputNote
 from sphrender.server.scene import Scene
 

@@ -40,8 +40,8 @@ from typing import Any, Literal, TypeAlias
 
 import numpy as np
 
-from sphrender.client.errors import InputError, LimitError, kind_of, show
-from sphrender.client.npz_body import NpzFrame, decode_npz_frame, encode_npz_frame
+from sphrender.core.errors import InputError, LimitError, kind_of, show
+from sphrender.core.npz_body import NpzFrame, decode_npz_frame, encode_npz_frame
 
 __all__ = [
     "ARRAY_NAMES",

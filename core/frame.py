@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.client.errors import InputError, show
+from sphrender.core.errors import InputError, show
 
 FloatArray = npt.NDArray[np.floating]
 

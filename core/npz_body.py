@@ -31,7 +31,7 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.client.errors import InputError, LimitError, show
+from sphrender.core.errors import InputError, LimitError, show
 
 __all__ = ["NpzFrame", "decode_npz_frame", "encode_npz_frame"]
 

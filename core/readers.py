@@ -36,8 +36,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from sphrender.client.errors import InputError
-from sphrender.client.frame import MAX_PARTICLES, ParticleFrame, make_frame
+from sphrender.core.errors import InputError
+from sphrender.core.frame import MAX_PARTICLES, ParticleFrame, make_frame
 
 __all__ = [
     "SUPPORTED_SUFFIXES",
