@@ -179,8 +179,8 @@ def _read_header(archive: zipfile.ZipFile, member: str, name: str) -> _Entry:
                     f"not a valid .npy entry: NPY version {version[0]}.{version[1]} is not "
                     "supported (1.0, 2.0 and 3.0 are)",
                 )
-        except InputError:
-            raise
+        except (InputError, zipfile.BadZipFile, zlib.error, EOFError):
+            raise  # the archive's own damage is named by the caller
         except Exception:  # numpy raises ValueError, SyntaxError, tokenize.TokenError, ...
             raise InputError(
                 name,
@@ -261,9 +261,31 @@ def decode_npz_frame(
     except InputError:
         raise
     except _ZIP_ERRORS as exc:
-        detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise InputError("body", f"cannot read the .npz archive: {detail}") from None
+        raise InputError("body", f"cannot read the .npz archive: {_archive_fault(exc)}") from None
     return NpzFrame(arrays, scene_json)
+
+
+def _archive_fault(exc: BaseException) -> str:
+    """What went wrong in the archive, in this project's words: a library's message may quote
+    bytes or internals, so only its kind is used, never its text."""
+    if isinstance(exc, zipfile.BadZipFile):
+        text = str(exc).lower()
+        if "crc" in text:
+            return "an entry fails its CRC-32 check (its data is corrupted)"
+        if "differ" in text:
+            return "an entry's local header names another file than the archive's directory"
+        if "overlap" in text:
+            return "two entries overlap in the archive"
+        return "an entry's local header is missing or damaged"
+    if isinstance(exc, zipfile.LargeZipFile):
+        return "the archive needs zip64 records it does not have"
+    if isinstance(exc, (zlib.error, EOFError)):
+        return "an entry's compressed data is corrupted or truncated"
+    if isinstance(exc, NotImplementedError):
+        return "an entry uses a compression method the server cannot read (use stored or deflate)"
+    if isinstance(exc, RuntimeError):
+        return "an entry is encrypted, which is not supported"
+    return "its records are damaged"
 
 
 def _check_entry(entry: _Entry, max_particles: int, max_scene_bytes: int) -> None:

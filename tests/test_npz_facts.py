@@ -90,3 +90,38 @@ def test_object_arrays_refused() -> None:
     data += (header.ljust(117) + "\n").encode() + bytes(96)
     with pytest.raises(InputError, match="not allowed"):
         decode(archive({"positions.npy": data}))
+
+
+def _damaged(kind: str) -> bytes:
+    """A one-entry archive damaged in one way a fuzzer finds (offsets from the zip format)."""
+    compression = zipfile.ZIP_DEFLATED if kind in ("deflate", "method") else zipfile.ZIP_STORED
+    body = bytearray(archive({"positions.npy": npy(POSITIONS)}, compression))
+    name_at = 30  # the local header's fixed part, then the file name
+    if kind == "name":
+        body[name_at + 4] = ord("p")  # posipions.npy in the local header only
+    elif kind == "crc":
+        body[name_at + len("positions.npy") + 140] ^= 0xFF  # past the 128-byte npy header
+    elif kind == "deflate":
+        start = name_at + len("positions.npy")
+        body[start + 40 : start + 48] = b"\xff" * 8
+    elif kind == "method":
+        body[8] = 99  # the local header's compression method
+        central = body.rindex(b"PK\x01\x02")
+        body[central + 10] = 99
+    elif kind == "encrypted":
+        body[6] |= 1  # the local header's flag bit 0
+        central = body.rindex(b"PK\x01\x02")
+        body[central + 8] |= 1
+    return bytes(body)
+
+
+@pytest.mark.parametrize("kind", ["name", "crc", "deflate", "method", "encrypted"])
+def test_damaged_archives_are_answered_in_plain_words(kind: str) -> None:
+    """Whatever zipfile or zlib raise, the answer is the project's sentence: no quoted bytes, no
+    library text (PROTOCOL.md §1: plain words and JSON values)."""
+    with pytest.raises(InputError) as caught:
+        decode(_damaged(kind))
+    message = caught.value.message
+    assert caught.value.field == "body" and message.startswith("cannot read the .npz archive: ")
+    for internal in ("b'", '"', "Error", "zipfile", "zlib", "File name in directory", "CRC-32 for"):
+        assert internal not in message, (internal, message)
