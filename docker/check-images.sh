@@ -1,20 +1,26 @@
 #!/usr/bin/env bash
+# The check_* functions run through "check_$check" and the cleanup through a trap; dpkg-query's
+# ${Field} formats are literal.
+# shellcheck disable=SC2317,SC2016
 # Check the container images and the README's install line without a Docker engine: build a
 # minimal Debian root (mmdebstrap --variant=minbase, what debian:bookworm-slim is built from), run
 # a Dockerfile's steps or the README's commands in it through chroot (/proc, /sys and /dev
 # mounted), render in it, and compare the demo with this machine's. Not part of CI: it takes
 # minutes, needs root and the network (a Debian mirror, PyPI).
 #
-#   docker/check-images.sh                   # every check: readme cpu nvidia minimal
+#   docker/check-images.sh                   # every check: readme readme-tests cpu nvidia minimal
 #   docker/check-images.sh cpu nvidia        # some of them
 #
-# readme   the README's apt-get line, then its first command (set up + demo) in a copy of this
-#          working tree, as root
+# readme        the README's first command (its apt-get line, then set up + demo) in a copy of
+#               this working tree, as root
+# readme-tests  the same, then the README's second command (its apt-get line, then set up +
+#               pytest) with pytest given only the tests that need system tools: the viewer in
+#               Chromium, replicas behind HAProxy, the C client (the full suite takes too long)
 # cpu      docker/cpu.Dockerfile's steps; as its user: sphrender info, demo, sph and an SPH render
 # nvidia   docker/nvidia.Dockerfile's steps; as its user: sphrender info must report that there
 #          is no GPU (this machine need not have one; with one, nothing is mounted anyway)
-# minimal  the README's GL packages each left out in turn (and libgl1 for libopengl0): which
-#          ones the demo needs
+# minimal  deploy/apt/render.txt's GL packages each left out in turn (and libgl1 for libopengl0):
+#          which ones the demo needs
 #
 # Needs: root, mmdebstrap (apt-get install mmdebstrap), about 3 GB under ${TMPDIR:-/var/tmp},
 # and the README's test set-up (.venv) here for the reference demo and the pixel comparison.
@@ -25,10 +31,10 @@ set -euo pipefail
 
 REPO=$(cd "$(dirname "$0")/.." && pwd)
 CHECKS=("$@")
-[ ${#CHECKS[@]} -gt 0 ] || CHECKS=(readme cpu nvidia minimal)
+[ ${#CHECKS[@]} -gt 0 ] || CHECKS=(readme readme-tests cpu nvidia minimal)
 for check in "${CHECKS[@]}"; do
-    case $check in readme | cpu | nvidia | minimal) ;; *)
-        echo "usage: $0 [readme] [cpu] [nvidia] [minimal]" >&2
+    case $check in readme | readme-tests | cpu | nvidia | minimal) ;; *)
+        echo "usage: $0 [readme] [readme-tests] [cpu] [nvidia] [minimal]" >&2
         exit 2
         ;;
     esac
@@ -84,7 +90,7 @@ cleanup() {
         [ -d "$root" ] && { drop_root "$root" || status=1; }
     done
     if [ -z "$(mounts_under "$WORK")" ]; then rm -rf --one-file-system "$WORK"; else status=1; fi
-    exit $status
+    exit "$status"
 }
 trap cleanup EXIT
 trap 'exit 130' INT TERM HUP
@@ -175,31 +181,67 @@ EOF
     fail "$name: demo.png differs from this machine's: $diff ($versions)"
 }
 
-# The README's install line (apt-get ... libegl1 ...) and first command (set up + demo).
-readme_install_line() { grep -m1 -E '^apt-get .*install .*libegl1' "$REPO/README.md"; }
-readme_first_command() { awk '/^```sh$/ {inside=1; next} inside {print; exit}' "$REPO/README.md"; }
+# Line $2 of the README's ```sh block $1: block 1 sets up and renders the demo, block 2 sets up
+# and runs the tests; line 1 of each is its apt-get line.
+readme_line() {
+    awk -v block="$1" -v line="$2" '/^```sh$/ {n++; inside=1; i=0; next} /^```$/ {inside=0}
+        inside && n == block && ++i == line {print; exit}' "$REPO/README.md"
+}
 
-check_readme() {
-    local root=$WORK/readme line command
-    line=$(readme_install_line)
-    command=$(readme_first_command)
-    new_root readme
-    log "readme: $line"
-    local before
-    before=$(installed "$root" | wc -l)
-    as_root "$root" "export DEBIAN_FRONTEND=noninteractive; $line" >"$WORK/readme-apt.log" 2>&1 \
-        || { tail -5 "$WORK/readme-apt.log"; fail "readme: the install line failed"; return; }
-    log "readme: $(($(installed "$root" | wc -l) - before)) packages installed over minbase"
-    copy_worktree "$root/root/sphrender"
-    log "readme: $command"
-    if as_root "$root" "cd /root/sphrender && $command" >"$WORK/readme-demo.log" 2>&1; then
-        compare_demo readme "$root" "$root/root/sphrender/demo.png"
+# What a fresh machine has that minbase lacks: sudo, for the README's "sudo apt-get". The package
+# lists are dropped again, so the README's own "apt-get update" is what fetches them.
+prepare_readme_root() {
+    as_root "$1" "apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+        --no-install-recommends sudo && rm -rf /var/lib/apt/lists/*"
+}
+
+# A README line as root in /root/sphrender, its output in $WORK/NAME.log: ROOT NAME LINE.
+run_readme_line() {
+    local root=$1 name=$2 line=$3 t=$SECONDS
+    log "$name: $line"
+    if as_root "$root" "export DEBIAN_FRONTEND=noninteractive; cd /root/sphrender && $line" \
+        >"$WORK/$name.log" 2>&1; then
+        log "$name: done in $((SECONDS - t)) s"
     else
-        tail -5 "$WORK/readme-demo.log"
-        fail "readme: the first command failed on a fresh root"
+        tail -20 "$WORK/$name.log"
+        fail "$name: failed after $((SECONDS - t)) s: $line"
+        return 1
+    fi
+}
+
+# The README's first command on a fresh root; with "tests", then its second one, pytest given
+# only the tests that need Chromium, HAProxy and gcc.
+check_readme() {
+    local name=readme${1:+-$1} root before
+    root=$WORK/$name
+    new_root "$name"
+    prepare_readme_root "$root" >"$WORK/$name-sudo.log" 2>&1 \
+        || { tail -5 "$WORK/$name-sudo.log"; fail "$name: installing sudo failed"; return; }
+    copy_worktree "$root/root/sphrender"
+    before=$(installed "$root" | wc -l)
+    run_readme_line "$root" "$name-apt" "$(readme_line 1 1)" || return 0
+    log "$name: $(($(installed "$root" | wc -l) - before)) packages installed over minbase + sudo"
+    run_readme_line "$root" "$name-demo" "$(readme_line 1 2)" || return 0
+    compare_demo "$name" "$root" "$root/root/sphrender/demo.png"
+    if [ "${1:-}" = tests ]; then
+        before=$(installed "$root" | wc -l)
+        run_readme_line "$root" "$name-apt2" "$(readme_line 2 1)" || return 0
+        log "$name: $(($(installed "$root" | wc -l) - before)) more packages for the tests"
+        local tests="tests/test_viewer.py tests/test_replicas_haproxy.py tests/test_c_client.py"
+        if run_readme_line "$root" "$name-pytest" "$(readme_line 2 2) -p no:cacheprovider $tests"
+        then
+            local summary
+            summary=$(grep -E '^=+ .* in [0-9.]+s' "$WORK/$name-pytest.log" | tail -1 | tr -d '=')
+            case $summary in
+            *skipped* | *failed* | *error*) fail "$name: pytest:$summary ($tests)" ;;
+            *) result "$name: pytest:$summary ($tests)" ;;
+            esac
+        fi
     fi
     drop_root "$root"
 }
+
+check_readme-tests() { check_readme tests; }
 
 # The Dockerfile's steps, then the package list they brought.
 build_image() {
@@ -303,7 +345,7 @@ check_nvidia() {
         fail "nvidia: Mesa's llvmpipe is installed (the image must not fall back to the CPU)"
     fi
     out=$(in_image "$dockerfile" "$root" sphrender info 2>/dev/null) || status=$?
-    if [ $status -eq 3 ] && echo "$out" | grep -q 'libEGL_nvidia.so.0.*no NVIDIA GPU' \
+    if [ "$status" -eq 3 ] && echo "$out" | grep -q 'libEGL_nvidia.so.0.*no NVIDIA GPU' \
         && echo "$out" | grep -q 'nvidia.icd: libnvidia-opencl.so.1 does not load'; then
         result "nvidia: sphrender info exits 3 without a GPU: $(echo "$out" | tr -d '\n' | tr -s ' ')"
     else
@@ -313,12 +355,11 @@ check_nvidia() {
 }
 
 check_minimal() {
-    local line packages gl_packages=() package
-    line=$(readme_install_line)
-    read -ra packages <<<"${line##*--no-install-recommends }"
-    for package in "${packages[@]}"; do
-        case $package in python3 | python3-venv) ;; *) gl_packages+=("$package") ;; esac
-    done
+    local gl_packages=() package
+    while read -r package; do
+        case $package in python3 | python3-venv | pocl-opencl-icd) ;; *) gl_packages+=("$package") ;;
+        esac
+    done <"$REPO/deploy/apt/render.txt"
     local root=$WORK/prepared
     new_root prepared
     log "minimal: preparing a root with python3, python3-venv and sphrender, no GL"

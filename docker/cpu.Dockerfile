@@ -2,21 +2,20 @@
 # Build from the repository root:
 #   docker build -f docker/cpu.Dockerfile -t sphrender-cpu .
 #   docker run --rm -p 127.0.0.1:8080:8080 -e SPHRENDER_TOKEN=... sphrender-cpu
-# The packages are the README's (the smallest set that renders, found on a clean Debian 12 root)
-# plus Debian's PoCL. Not built by CI (its machines have no Docker engine); docker/check-images.sh
-# runs these steps in a chroot instead and renders in it (docker/README.md).
+# The packages are the README's for rendering, deploy/apt/render.txt. Not built by CI (its
+# machines have no Docker engine); docker/check-images.sh runs these steps in a chroot instead
+# and renders in it (docker/README.md).
 FROM debian:bookworm-slim
 
-# libopengl0 is the GL library glcontext resolves GL calls from (libgl1 would do too, with GLX);
+# The README's package list for rendering (deploy/apt/README.md says what each package is for);
 # pyopencl's wheel brings its own OpenCL ICD loader, which reads /etc/OpenCL/vendors/pocl.icd.
+WORKDIR /opt/sphrender
+COPY deploy/apt deploy/apt
 RUN apt-get update \
     && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
-        python3 python3-venv \
-        libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0 \
-        pocl-opencl-icd \
+        $(cat deploy/apt/render.txt) \
     && rm -rf /var/lib/apt/lists/*
 
-WORKDIR /opt/sphrender
 COPY pyproject.toml README.md ./
 COPY server server
 COPY client client

@@ -12,21 +12,21 @@ FROM debian:bookworm-slim
 ENV NVIDIA_VISIBLE_DEVICES=all \
     NVIDIA_DRIVER_CAPABILITIES=graphics,compute
 
-# GLVND's EGL and GL dispatch from Debian (libegl1 brings Mesa's EGL vendor as a dependency; it
-# finds no driver here, and 10_nvidia.json sorts first), plus the two files the loaders look for:
-# the GLVND vendor entry for NVIDIA's EGL and the OpenCL ICD entry for NVIDIA's OpenCL (older
-# toolkits mount neither; newer ones mount the same content over them).
+# GLVND's EGL and GL dispatch from Debian, deploy/apt/nvidia.txt (libegl1 brings Mesa's EGL
+# vendor as a dependency; it finds no driver here, and 10_nvidia.json sorts first), plus the two
+# files the loaders look for: the GLVND vendor entry for NVIDIA's EGL and the OpenCL ICD entry
+# for NVIDIA's OpenCL (older toolkits mount neither; newer ones mount the same content over them).
+WORKDIR /opt/sphrender
+COPY deploy/apt deploy/apt
 RUN apt-get update \
     && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
-        python3 python3-venv \
-        libegl1 libopengl0 \
+        $(cat deploy/apt/nvidia.txt) \
     && rm -rf /var/lib/apt/lists/* \
     && mkdir -p /usr/share/glvnd/egl_vendor.d /etc/OpenCL/vendors \
     && printf '{"file_format_version": "1.0.0", "ICD": {"library_path": "libEGL_nvidia.so.0"}}\n' \
         > /usr/share/glvnd/egl_vendor.d/10_nvidia.json \
     && echo libnvidia-opencl.so.1 > /etc/OpenCL/vendors/nvidia.icd
 
-WORKDIR /opt/sphrender
 COPY pyproject.toml README.md ./
 COPY server server
 COPY client client

@@ -4,8 +4,8 @@ Chromium is started with ``--remote-debugging-port=0`` and writes the port it ch
 ``DevToolsActivePort`` in its profile folder; the test talks to the page target over a WebSocket
 (RFC 6455, client frames masked, written here in ~60 lines) with JSON commands
 (``Runtime.evaluate``, ``Page.navigate``, ``Page.captureScreenshot``). Every wait is bounded.
-Debian's package is ``chromium`` (`.ci/run` installs it when missing); a missing browser is a
-failure, never a skip.
+Debian's package is ``chromium``, in ``deploy/apt/tests.txt``; a missing browser is a failure,
+never a skip.
 """
 
 from __future__ import annotations
@@ -32,8 +32,8 @@ def find_browser() -> str:
         if path := shutil.which(name):
             return path
     raise AssertionError(
-        "no Chromium found (tried " + ", ".join(BROWSERS) + "): apt-get install chromium "
-        "(.ci/run installs it)"
+        "no Chromium found (tried " + ", ".join(BROWSERS) + "): "
+        "install the packages in deploy/apt/tests.txt (see the README)"
     )
 
 

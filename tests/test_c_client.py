@@ -33,7 +33,9 @@ def test_c_client_against_a_real_server(
     service: ServerProcess, renderer: SurfaceRenderer, tmp_path: Path
 ) -> None:
     gcc = shutil.which("gcc")
-    assert gcc is not None, "gcc is needed (.ci/run installs gcc and libc6-dev)"
+    assert gcc is not None, (
+        "gcc not found: install the packages in deploy/apt/tests.txt (see the README)"
+    )
     binary = tmp_path / "sphr_client"
     subprocess.run([gcc, *FLAGS, "-o", str(binary), str(SOURCE)], check=True, timeout=120)
     prefix = tmp_path / "out"

@@ -1,7 +1,8 @@
-"""The system packages, written down in four places, say the same thing: the README's install
-line, the CPU image, the NVIDIA image and the engine's own list (which its errors and .ci/run's
-probe use). What the set is was found on clean Debian roots by docker/check-images.sh; these
-tests only keep the copies from drifting apart (no network, no root)."""
+"""The system packages are listed once, in deploy/apt/ (render.txt, tests.txt, nvidia.txt), and
+everything that installs them reads those files: the README's two commands, .ci/run and both
+Dockerfiles. These tests keep it that way and keep render.txt equal to the engine's own list of
+Mesa packages (which its errors and .ci/run's probe use). What the set is was found on clean
+Debian roots by docker/check-images.sh; these tests need no network and no root."""
 
 from __future__ import annotations
 
@@ -17,37 +18,94 @@ sys.path.insert(0, str(REPO / "docker"))
 import chroot_image  # noqa: E402  (docker/ is not a package)
 
 PYTHON = {"python3", "python3-venv"}
+TEST_COMMAND = (
+    "python3 -m venv .venv && .venv/bin/pip install -e '.[test]' && .venv/bin/python -m pytest"
+)
+DEMO_COMMAND = (
+    "python3 -m venv .venv && .venv/bin/pip install . && .venv/bin/sphrender demo -o demo.png"
+)
+TOOL_TESTS = (
+    "tests/browser_harness.py",
+    "tests/test_replicas_haproxy.py",
+    "tests/test_c_client.py",
+)
 
 
-def apt_packages(text: str) -> set[str]:
-    """The package names of every `apt-get install` in `text` (continuation lines joined)."""
+def package_list(name: str) -> list[str]:
+    return (REPO / "deploy/apt" / name).read_text().split()
+
+
+def install_arguments(text: str) -> list[str]:
+    """The words after every `apt-get install` in `text` (continuation lines joined), options
+    left out."""
     joined = text.replace("\\\n", " ")
-    names: set[str] = set()
+    words: list[str] = []
     for match in re.finditer(r"apt-get install ([^&\n]*)", joined):
-        names |= {word for word in match.group(1).split() if not word.startswith("-")}
-    return names
+        words += [word for word in match.group(1).split() if not word.startswith("-")]
+    return words
 
 
-def readme_install_line() -> str:
-    lines = (REPO / "README.md").read_text().splitlines()
-    return next(line for line in lines if line.startswith("apt-get") and "libegl1" in line)
+def readme_commands() -> list[list[str]]:
+    """The lines of the README's first two ```sh blocks: set up + demo, set up + tests."""
+    blocks = re.findall(r"^```sh\n(.*?)^```$", (REPO / "README.md").read_text(), re.M | re.S)
+    return [block.splitlines() for block in blocks[:2]]
 
 
-def test_the_readme_line_is_python_plus_the_engines_mesa_packages() -> None:
-    assert apt_packages(readme_install_line()) == PYTHON | set(MESA_PACKAGES)
+def test_each_list_is_package_names_one_a_line() -> None:
+    for name in ("render.txt", "tests.txt", "nvidia.txt"):
+        lines = (REPO / "deploy/apt" / name).read_text().splitlines()
+        assert lines and all(re.fullmatch(r"[a-z0-9][a-z0-9.+-]*", line) for line in lines), name
+        assert len(set(lines)) == len(lines), name
 
 
-def test_the_cpu_image_installs_the_readme_set_plus_debians_pocl() -> None:
-    packages = apt_packages((REPO / "docker/cpu.Dockerfile").read_text())
-    assert packages == PYTHON | set(MESA_PACKAGES) | {"pocl-opencl-icd"}
+def test_the_lists_are_python_mesa_pocl_and_what_the_tests_drive() -> None:
+    assert set(package_list("render.txt")) == PYTHON | set(MESA_PACKAGES) | {"pocl-opencl-icd"}
+    assert set(package_list("tests.txt")) == {"chromium", "haproxy", "gcc", "libc6-dev"}
+    assert set(package_list("nvidia.txt")) == PYTHON | {"libegl1", "libopengl0"}
+
+
+def test_the_readme_opens_with_the_two_commands_reading_the_lists() -> None:
+    readme = (REPO / "README.md").read_text()
+    assert readme.index("```sh") < readme.index("\n## ")  # before the first section
+    demo, tests = readme_commands()
+    apt = "sudo apt-get update && sudo apt-get install -y --no-install-recommends "
+    assert demo == [apt + "$(cat deploy/apt/render.txt)", DEMO_COMMAND]
+    assert tests == [apt + "$(cat deploy/apt/render.txt deploy/apt/tests.txt)", TEST_COMMAND]
+    assert all(word.startswith("$(cat") or word.startswith("deploy/apt/")
+               for word in install_arguments(readme))  # fmt: skip
+
+
+def test_ci_installs_both_lists_and_ends_with_the_readme_test_command() -> None:
+    ci = (REPO / ".ci/run").read_text()
+    assert "cat deploy/apt/render.txt deploy/apt/tests.txt" in ci
+    assert install_arguments(ci) == ['"${missing[@]}"']
+    assert "python3 server/engine/gpu/gl_libraries.py" in ci
+    assert ci.rstrip().splitlines()[-1] == TEST_COMMAND
+
+
+def test_the_images_install_their_list_and_no_package_of_their_own() -> None:
+    for dockerfile, name in (("cpu.Dockerfile", "render.txt"), ("nvidia.Dockerfile", "nvidia.txt")):
+        text = (REPO / "docker" / dockerfile).read_text()
+        assert " ".join(install_arguments(text)) == f"$(cat deploy/apt/{name})", dockerfile
+        steps = chroot_image.parse(text)
+        copy = next(i for i, s in enumerate(steps) if s.argument == "deploy/apt deploy/apt")
+        install = next(i for i, s in enumerate(steps) if "apt-get install" in s.argument)
+        assert steps[copy].keyword == "COPY" and copy < install, dockerfile
 
 
 def test_the_nvidia_image_has_glvnd_but_no_cpu_renderer() -> None:
     text = (REPO / "docker/nvidia.Dockerfile").read_text()
-    assert apt_packages(text) == PYTHON | {"libegl1", "libopengl0"}
+    assert not {"libgl1-mesa-dri", "pocl-opencl-icd"} & set(package_list("nvidia.txt"))
     assert "NVIDIA_DRIVER_CAPABILITIES=graphics,compute" in text
     assert '"library_path": "libEGL_nvidia.so.0"' in text and "10_nvidia.json" in text
     assert "libnvidia-opencl.so.1 > /etc/OpenCL/vendors/nvidia.icd" in text
+
+
+def test_a_missing_system_tool_fails_naming_the_list() -> None:
+    for path in TOOL_TESTS:
+        text = (REPO / path).read_text()
+        assert "install the packages in deploy/apt/tests.txt" in text, path
+        assert "skipif" not in text and "pytest.skip" not in text, path
 
 
 def test_every_mesa_package_is_one_the_errors_can_name() -> None:
@@ -55,17 +113,6 @@ def test_every_mesa_package_is_one_the_errors_can_name() -> None:
     assert package_for("/some/where/libGL.so.1") == "libgl1"
     assert package_for("libOpenGL.so.0") == "libopengl0"
     assert package_for("libEGL_mesa.so.0") == "libegl-mesa0"
-
-
-def test_ci_probes_the_libraries_and_ends_with_the_readme_test_command() -> None:
-    ci = (REPO / ".ci/run").read_text()
-    assert "python3 server/engine/gpu/gl_libraries.py" in ci
-    readme = (REPO / "README.md").read_text()
-    test_command = (
-        "python3 -m venv .venv && .venv/bin/pip install -e '.[test]' && .venv/bin/python -m pytest"
-    )
-    assert test_command in readme
-    assert ci.rstrip().splitlines()[-1] == test_command
 
 
 def test_the_probe_runs_as_a_plain_script() -> None:

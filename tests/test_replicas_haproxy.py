@@ -34,7 +34,8 @@ from sphrender.server.engine.renderer import SurfaceRenderer
 
 REPO = Path(__file__).resolve().parents[1]
 HAPROXY = shutil.which("haproxy")
-pytestmark = pytest.mark.skipif(HAPROXY is None, reason="haproxy is not installed (.ci/run)")
+#: A missing HAProxy fails the tests (never skips them): it is one of the README's test packages.
+NO_HAPROXY = "haproxy not found: install the packages in deploy/apt/tests.txt (see the README)"
 
 #: Health checks every 200 ms, one failure takes a replica out: the grace must be longer.
 CHECK_INTERVAL_MS = 200
@@ -86,7 +87,7 @@ class HaproxyProcess:
         self.config_path.write_text(config)
         self.log_path = tmp_dir / "haproxy.log"
         self._log = open(self.log_path, "wb")  # noqa: SIM115 - closed in stop()
-        assert HAPROXY is not None
+        assert HAPROXY is not None, NO_HAPROXY
         self.proc = subprocess.Popen(
             [HAPROXY, "-db", "-f", str(self.config_path)],
             stdout=self._log,
@@ -133,6 +134,7 @@ def wait_for(condition: Callable[[], bool], timeout: float, what: str) -> None:
 
 @pytest.fixture
 def cluster(tmp_path: Path) -> Iterator[tuple[list[ServerProcess], HaproxyProcess]]:
+    assert HAPROXY is not None, NO_HAPROXY
     replicas: list[ServerProcess] = []
     proxy: HaproxyProcess | None = None
     try:
