@@ -6,10 +6,13 @@ from __future__ import annotations
 from dataclasses import fields
 from typing import Any
 
+import numpy as np
 import pytest
 
 from sphrender.core.errors import InputError
+from sphrender.core.frame import make_frame
 from sphrender.server.bench.sweep import bench_scene_from_dict
+from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import QualityConfig, Scene, scene_from_dict, scene_to_dict
 from sphrender.server.scene.fields import is_bench_only
 from sphrender.server.scene.json_schema import scene_json_schema
@@ -126,3 +129,18 @@ def test_notes_are_no_section() -> None:
         scene_from_dict({"notes": []})
     assert exc.value.field == "notes"
     assert "notes" not in scene_to_dict(scene_from_dict({"quality": {"eq25_decline": 1.0}}))
+
+
+def test_the_renames_notes_come_with_each_rendered_frame(renderer: SurfaceRenderer) -> None:
+    """The notes reach the frame's `RenderStats.notes`: what the service answers as IMAGE
+    notes (X-Sphrender-Notes) and the CLI logs."""
+    scene = scene_from_dict(
+        {"image": {"width": 32, "height": 24}, "shading": {"combine": "eq55", "eq55_k": 0.25}}
+    )
+    frame = make_frame(np.zeros((1, 3)), radii=np.full(1, 0.1, dtype=np.float32))
+    for _ in range(2):
+        _image, stats = renderer.render(frame, scene)
+        fields_noted = [note.field for note in stats.notes]
+        assert "shading.eq55_k" in fields_noted and "shading.combine" in fields_noted
+    _image, stats = renderer.render(frame, scene_from_dict({"image": {"width": 32, "height": 24}}))
+    assert not any(note.field.startswith("shading.") for note in stats.notes)

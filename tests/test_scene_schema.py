@@ -28,12 +28,12 @@ from jsonschema.exceptions import best_match
 
 from sphrender.core.errors import InputError
 from sphrender.server.scene import MAX_LIGHTS, Scene, Vec3, scene_from_dict, scene_to_dict
+from sphrender.server.scene.fields import is_bench_only
 from sphrender.server.scene.json_schema import (
     CROSS_FIELD_RULES,
     scene_json_schema,
     scene_json_schema_text,
 )
-from sphrender.server.scene.fields import is_bench_only
 from sphrender.server.scene.presets import PRESETS, preset_sections
 from sphrender.server.scene.schema import scene_sections
 

@@ -1,7 +1,7 @@
 """Smooth pass: the splatted eye depth, filtered into a smooth surface.
 
 Filters (`[quality] filter`): gaussian | bilateral | narrow_range (Truong & Yuksel 2018), iterated.
-Kernel sigma = kernel_scale x the projected particle radius (or the thesis's eq 25), reach
+Kernel sigma = kernel_scale x the projected particle radius (or depth_falloff, eq 25), reach
 3 sigma: every pixel out to kernel_max_px, then (separable filters, close-ups) every stride-th
 out to kernel_max_px x kernel_max_stride; past that, capped. Separable filters (x y, then y x
 on the next iteration, so the nonlinear filters' streaks do not pile up on one axis; the last
