@@ -27,11 +27,12 @@ from typing import Any
 
 from sphrender.core.frame import make_frame
 from sphrender.server.bench.surface_bench import PRE_ISSUE
+from sphrender.server.bench.sweep import bench_scene_from_dict
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.engine.sph.engine import SphParameters
-from sphrender.server.scene import Scene, merge_scene_dicts, scene_from_dict
+from sphrender.server.scene import Scene, merge_scene_dicts
 from sphrender.server.scene.presets import preset_sections
 
 VIEW = {
@@ -42,7 +43,7 @@ VIEW = {
 
 
 def scene_for(preset: str, overrides: dict[str, Any]) -> Scene:
-    return scene_from_dict(merge_scene_dicts(preset_sections(preset), {**overrides, **VIEW}))
+    return bench_scene_from_dict(merge_scene_dicts(preset_sections(preset), {**overrides, **VIEW}))
 
 
 SETTINGS = {

@@ -81,7 +81,7 @@ def main() -> None:
                     f"  prefiltered chain, {samples} samples/texel: "
                     f"{(time.perf_counter() - start) * 1e3:.0f} ms"
                 )
-            for g_term in ("smith_height_correlated", "eq37"):
+            for g_term in ("smith_height_correlated", "cook_torrance"):
                 start = time.perf_counter()
                 ibl.brdf_lut(g_term)
                 gl.ctx.finish()

@@ -96,16 +96,6 @@ for _lam in (2.0, 3.0, 4.0, 6.0):
         preset="balanced",
         overrides={"quality": {"narrow_range_threshold": _lam}},
     )
-for _mode in ("truncate", "blend", "both"):
-    SETTINGS[f"balanced_{_mode}"] = Setting(
-        f"balanced_{_mode}", preset="balanced", overrides={"quality": {"keep_features": _mode}}
-    )
-    for _lam in (2.0, 3.0, 4.0):
-        SETTINGS[f"balanced_{_mode}_nr{_lam:g}"] = Setting(
-            f"balanced_{_mode}_nr{_lam:g}",
-            preset="balanced",
-            overrides={"quality": {"keep_features": _mode, "narrow_range_threshold": _lam}},
-        )
 
 
 def custom_setting(preset: str, assignments: list[str]) -> Setting:

@@ -24,9 +24,10 @@ def _wanted_sigma(
 ) -> float:
     """The kernel's sigma in pixels before any cap, in the shader's float32 maths (times
     `scale`: the separable filter's u_sigma_scale, quality.destreak on its last light pass)."""
-    if q.kernel_size == "eq25":
-        beyond = max(np.float32(zc) - np.float32(q.eq25_threshold), np.float32(0.0))
-        sigma32 = np.float32(q.eq25_sigma_px) - beyond * np.float32(q.eq25_decline) / np.float32(3)
+    if q.kernel_size == "depth_falloff":
+        beyond = max(np.float32(zc) - np.float32(q.falloff_depth), np.float32(0.0))
+        decline = beyond * np.float32(q.falloff_rate) / np.float32(3)
+        sigma32 = np.float32(q.falloff_sigma_px) - decline
     else:
         r_px = np.float32(radius) * np.float32(px_per_unit) / np.float32(zc)
         sigma32 = np.float32(q.kernel_scale) * r_px
@@ -104,8 +105,8 @@ def ambiguous_reach(zc: float, radius: float, px_per_unit: float, q: QualityConf
     """True where 3 sigma of the first pass, which reads this depth, is so close to an integer
     that float rounding may change the reach (later passes read smoothed depths this cannot
     foresee; a rounding there would show as a mismatch, and has not)."""
-    if q.kernel_size == "eq25":
-        three_sigma = 3.0 * q.eq25_sigma_px - max(zc - q.eq25_threshold, 0.0) * q.eq25_decline
+    if q.kernel_size == "depth_falloff":
+        three_sigma = 3.0 * q.falloff_sigma_px - max(zc - q.falloff_depth, 0.0) * q.falloff_rate
     else:
         three_sigma = 3.0 * q.kernel_scale * radius * px_per_unit / zc
     if q.separable:

@@ -29,7 +29,8 @@ def d_ggx(nh: F64, alpha: F64 | float) -> F64:
 
 
 def visibility(g_term: str, nl: F64, nv: F64, nh: F64, vh: F64, alpha: F64 | float) -> F64:
-    """V = G / (4 nl nv) for 'smith_height_correlated', 'separable' (Smith G1 G1) or 'eq37'."""
+    """V = G / (4 nl nv) for 'smith_height_correlated', 'separable' (Smith G1 G1) or
+    'cook_torrance'."""
     a2 = np.asarray(alpha, dtype=np.float64) ** 2
     if g_term == "smith_height_correlated":
         result: F64 = 0.5 / (
@@ -44,7 +45,7 @@ def visibility(g_term: str, nl: F64, nv: F64, nh: F64, vh: F64, alpha: F64 | flo
 
         result = g1(nl) * g1(nv) / (4.0 * nl * nv)
         return result
-    if g_term == "eq37":
+    if g_term == "cook_torrance":
         g = np.minimum(1.0, np.minimum(2 * nh * nv / vh, 2 * nh * nl / vh))
         result = g / (4.0 * nl * nv)
         return result

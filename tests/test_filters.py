@@ -52,14 +52,14 @@ QUALITIES = {
     # then x at 0.45 sigma; values whose reaches on these images are unambiguous)
     "narrow-range-destreak": QualityConfig(filter="narrow_range", iterations=2, destreak=0.3),
     "gaussian-destreak": QualityConfig(filter="gaussian", iterations=1, destreak=0.45),
-    # eq 25's linear decline: depths 1.65..2.2 straddle the 2.0 threshold; 3 sigma = 7.5 px up
-    # to it, losing 9 px per unit beyond it (down to 5.7 px)
-    "gaussian-eq25": QualityConfig(
+    # depth_falloff's linear decline (eq 25): depths 1.65..2.2 straddle falloff_depth 2.0;
+    # 3 sigma = 7.5 px up to it, losing 9 px per unit beyond it (down to 5.7 px)
+    "gaussian-depth-falloff": QualityConfig(
         filter="gaussian",
-        kernel_size="eq25",
-        eq25_sigma_px=2.5,
-        eq25_threshold=2.0,
-        eq25_decline=9.0,
+        kernel_size="depth_falloff",
+        falloff_sigma_px=2.5,
+        falloff_depth=2.0,
+        falloff_rate=9.0,
     ),
 }
 

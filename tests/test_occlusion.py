@@ -16,6 +16,7 @@ import pytest
 
 from sphrender.core.frame import make_frame
 from sphrender.core.readers import read_particles
+from sphrender.server.bench.sweep import bench_scene_from_dict
 from sphrender.server.content.lattice import jittered_lattice_ball, lattice_slab
 from sphrender.server.engine.frame_output import RenderStats
 from sphrender.server.engine.geometry import occlusion
@@ -133,7 +134,7 @@ def render_both(
     for culling in (True, False):
         base = {key: dict(value) for key, value in sections.items()}
         base.setdefault("quality", {})["occlusion_culling"] = culling
-        scene = scene_from_dict(base)
+        scene = bench_scene_from_dict(base)
         frame, stats = renderer.render(
             make_frame(positions, **arrays), scene, depth=True, normals=True
         )

@@ -102,8 +102,8 @@ def test_partial_sections_keep_other_defaults() -> None:
         ({"environment": {"file": " "}}, "environment.file", "empty"),
         ({"shading": {"ibl_mode": "cubemap"}}, "shading.ibl_mode", '"prefiltered"'),
         ({"shading": {"ibl_samples": 0}}, "shading.ibl_samples", "[1, 4096]"),
-        ({"shading": {"eq55_k": 2}}, "shading.eq55_k", "[0, 1]"),
-        ({"shading": {"g_term": "beckmann"}}, "shading.g_term", '"eq37"'),
+        ({"shading": {"direct_weight": 2}}, "shading.direct_weight", "[0, 1]"),
+        ({"shading": {"g_term": "beckmann"}}, "shading.g_term", '"cook_torrance"'),
         ({"shading": {"emission_scale": 0}}, "shading.emission_scale", "(0, 1000000]"),
     ],
 )

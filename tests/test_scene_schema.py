@@ -28,12 +28,14 @@ from jsonschema.exceptions import best_match
 
 from sphrender.core.errors import InputError
 from sphrender.server.scene import MAX_LIGHTS, Scene, Vec3, scene_from_dict, scene_to_dict
+from sphrender.server.scene.fields import is_bench_only
 from sphrender.server.scene.json_schema import (
     CROSS_FIELD_RULES,
     scene_json_schema,
     scene_json_schema_text,
 )
 from sphrender.server.scene.presets import PRESETS, preset_sections
+from sphrender.server.scene.schema import scene_sections
 
 REPO = Path(__file__).resolve().parents[1]
 COMMITTED = REPO / "schema" / "scene.schema.json"
@@ -87,12 +89,14 @@ def test_every_field_has_its_type_documentation_default_and_range() -> None:
     assert (image["type"], image["minimum"], image["maximum"]) == ("integer", 1, 16384)
     quality = schema["$defs"]["QualityConfig"]["properties"]["filter"]
     assert quality["enum"] == ["narrow_range", "bilateral", "gaussian", "none"]
-    hints_by_section = {f.name: typing.get_type_hints(Scene)[f.name] for f in fields(Scene)}
+    hints_by_section = {f.name: typing.get_type_hints(Scene)[f.name] for f in scene_sections()}
+    assert set(schema["properties"]) == set(hints_by_section)
     for name, hint in hints_by_section.items():
         cls = get_args(hint)[0] if get_origin(hint) is tuple else hint
         props = schema["$defs"][cls.__name__]["properties"]
-        assert set(props) == {f.name for f in fields(cls)}, name
-        for f in fields(cls):
+        users = [f for f in fields(cls) if not is_bench_only(f)]
+        assert set(props) == {f.name for f in users}, name
+        for f in users:
             assert props[f.name]["description"], f"{name}.{f.name}"
             if f.default is not MISSING:
                 assert props[f.name]["default"] == _json(f.default), f"{name}.{f.name}"
@@ -206,7 +210,7 @@ DIRECTIONAL = {"type": "directional", "direction": [0.0, -1.0, 0.0]}
 
 def field_cases() -> Iterator[Case]:
     hints = typing.get_type_hints(Scene)
-    for section in fields(Scene):
+    for section in scene_sections():
         hint = hints[section.name]
         listed = get_origin(hint) is tuple
         cls = get_args(hint)[0] if listed else hint

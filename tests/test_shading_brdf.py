@@ -38,7 +38,7 @@ from sphrender.server.engine.lighting.ibl import BRDF_LUT_NODES, BRDF_LUT_SIZE
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import Scene, scene_from_dict
 
-G_DEFINES = {"smith_height_correlated": 0, "eq37": 1}
+G_DEFINES = {"smith_height_correlated": 0, "cook_torrance": 1}
 TABLE_ALPHAS = (0.1, 0.25, 0.5, 1.0)
 TABLE_MUS = (1.0, 0.5, 0.2)
 #: validation-data.md, white furnace: separable G at mu = 1 / 0.5 / 0.2, height-correlated at
@@ -120,7 +120,7 @@ def reference_brdf(params0: np.ndarray, params1: np.ndarray, g_term: str) -> np.
     return diffuse + (d * vis)[..., None] * f
 
 
-@pytest.mark.parametrize("g_term", ["smith_height_correlated", "eq37"])
+@pytest.mark.parametrize("g_term", ["smith_height_correlated", "cook_torrance"])
 def test_shader_brdf_matches_numpy_on_a_grid(
     gl_context: GLContext, programs: ProgramCache, g_term: str
 ) -> None:
@@ -158,7 +158,7 @@ def product_rule_albedo(g_term: str, nv: float, alpha: float) -> tuple[float, fl
     return float(np.sum(weights * (1 - fc) * g_vis)), float(np.sum(weights * fc * g_vis))
 
 
-@pytest.mark.parametrize("g_term", ["smith_height_correlated", "eq37"])
+@pytest.mark.parametrize("g_term", ["smith_height_correlated", "cook_torrance"])
 def test_brdf_table_texels_match_numpy(renderer: SurfaceRenderer, g_term: str) -> None:
     """Every 7th texel of the half-float table against the same product rule in float64."""
     texels = lut_texels(renderer, g_term)
@@ -260,14 +260,14 @@ def test_white_furnace_prefiltered_height_correlated_matches_table(
             assert error <= budget
 
 
-def test_white_furnace_eq37_matches_quadrature(renderer: SurfaceRenderer) -> None:
+def test_white_furnace_cook_torrance_matches_quadrature(renderer: SurfaceRenderer) -> None:
     """eq 37 has no published table: the reference is the quadrature itself."""
     for alpha in TABLE_ALPHAS:
-        scene = furnace_scene("eq37", math.sqrt(alpha), "prefiltered")
+        scene = furnace_scene("cook_torrance", math.sqrt(alpha), "prefiltered")
         for mu in TABLE_MUS:
-            want = ref.albedo_quadrature("eq37", mu, alpha, n=384)
+            want = ref.albedo_quadrature("cook_torrance", mu, alpha, n=384)
             got = furnace_albedo(renderer, scene, mu)
-            budget = 2e-4 + HALF_RELATIVE * want + bilinear_budget("eq37", mu, alpha)
+            budget = 2e-4 + HALF_RELATIVE * want + bilinear_budget("cook_torrance", mu, alpha)
             assert float(np.abs(got - want).max()) <= budget, (alpha, mu, got.mean(), want)
 
 

@@ -146,10 +146,10 @@ def test_temperatures_in_celsius_render_as_sent_with_a_note(renderer: SurfaceRen
     assert np.expm1(c2 / 1500.0) / np.expm1(c2 / 1773.15) == pytest.approx(11.7, abs=0.1)
 
 
-def test_direct_lights_and_eq55_combination(renderer: SurfaceRenderer) -> None:
+def test_direct_lights_and_weighted_combination(renderer: SurfaceRenderer) -> None:
     """A directional and a point light on a flat patch facing +z, against the numpy BRDF times
     irradiance (E cos for the sun, I cos / d^2 for the point light, positions relative to an
-    eye at 1e5: the float64 subtraction keeps them exact). Then eq 55 with k = 0.3 must give
+    eye at 1e5: the float64 subtraction keeps them exact). Then weighted (eq 55) at 0.3 must give
     0.3 direct + 0.7 indirect, and 'add' their sum. fp32: 1e-4 relative."""
     eye = np.array([1e5, 0.0, 3.0])
     light_position = np.array([1e5 + 0.5, 0.4, 1.0])
@@ -207,7 +207,9 @@ def test_direct_lights_and_eq55_combination(renderer: SurfaceRenderer) -> None:
 
     indirect = shade(debug_view="diffuse_ibl") + shade(debug_view="specular_ibl")
     assert np.allclose(shade(), direct + indirect, rtol=1e-5)
-    assert np.allclose(shade(combine="eq55", eq55_k=0.3), 0.3 * direct + 0.7 * indirect, rtol=1e-5)
+    assert np.allclose(
+        shade(combine="weighted", direct_weight=0.3), 0.3 * direct + 0.7 * indirect, rtol=1e-5
+    )
 
 
 def front_particles(

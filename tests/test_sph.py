@@ -333,7 +333,7 @@ def test_surface_flags_on_lattice_ball_are_the_outer_layer(sph_engine: SphEngine
     assert n_h[outer].min() > 0.6 and n_h[~outer].max() < 0.3
 
 
-def test_eq29_adaptive_radius() -> None:
+def test_adaptive_radius() -> None:
     d_surface = 800.0
     r_body = 0.015
     k = 0.25

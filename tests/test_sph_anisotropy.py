@@ -40,7 +40,12 @@ from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.gpu.cl_context import kernel_source
 from sphrender.server.engine.sph.anisotropy import AnisotropyParameters, AnisotropyResult
 from sphrender.server.engine.sph.engine import SphEngine
-from sphrender.server.engine.sph.frame import apply_sph, apply_to_frame, eq29_radii, needs_sph
+from sphrender.server.engine.sph.frame import (
+    apply_sph,
+    apply_to_frame,
+    frame_adaptive_radii,
+    needs_sph,
+)
 from sphrender.server.scene import Scene, scene_from_dict
 
 U = 2.0**-24
@@ -402,7 +407,7 @@ def test_apply_sph_anisotropy_only(sph_engine: SphEngine) -> None:
     assert result is None and drawn.positions is frame.positions
 
 
-def test_apply_sph_scales_axes_by_eq29_radii_and_follows_the_splat_subset(
+def test_apply_sph_scales_axes_by_frame_adaptive_radii_and_follows_the_splat_subset(
     sph_engine: SphEngine,
 ) -> None:
     ball = jittered_lattice_ball(0.1, R, seed=4)
@@ -415,7 +420,7 @@ def test_apply_sph_scales_axes_by_eq29_radii_and_follows_the_splat_subset(
     keep = out.sph.splat_keep
     assert 0 < keep.sum() < len(positions) and keep[-3:].all()
     assert out.anisotropy.count == out.frame.count == keep.sum()
-    radii = eq29_radii(out.sph, frame, scene)
+    radii = frame_adaptive_radii(out.sph, frame, scene)
     full = sph_engine.anisotropy(positions, params(1.5 * H), radii)
     assert (out.anisotropy.axes == full.axes[keep]).all()
     assert out.frame.radii is not None

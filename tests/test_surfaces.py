@@ -376,28 +376,6 @@ def test_exact_droplets_hard_cases(renderer: SurfaceRenderer) -> None:
     render(renderer, [eye + 0.06 * view, *droplets], scene)  # cut by the near plane
 
 
-@pytest.mark.parametrize("mode", ["blend", "both"])
-def test_keep_features_modes_keep_a_lone_particle_unfiltered(
-    renderer: SurfaceRenderer, mode: str
-) -> None:
-    """The experimental filter modes: a lone particle (smaller than the kernel, no droplet split)
-    keeps its unfiltered depth to float32 rounding where blending falls back to the centre, the
-    accepted share being below KEEP_SHARE_LOW (a disc of radius R px under sigma = 2 R has
-    share ~0.38 < 0.4). The default filter flattens it. (truncate alone still averages the
-    disc over itself: it only stops the kernel at the first rejected pair.) Every pass at
-    sigma = 2 R: a last pass at less (last_pass_sigma's default 0.7) accepts a larger share
-    of its narrower kernel and blends some of the filtered depth back in."""
-    base = {"exact_droplets": False, "antialias": False, "last_pass_sigma": 1.0}
-    one = np.zeros((1, 3))
-    raw = render(renderer, one, make_scene(quality={**base, "filter": "none"}))
-    kept = render(renderer, one, make_scene(quality={**base, "keep_features": mode}))
-    flat = render(renderer, one, make_scene(quality=base))
-    assert raw.depth is not None and kept.depth is not None and flat.depth is not None
-    hit = np.isfinite(raw.depth)
-    np.testing.assert_allclose(kept.depth[hit], raw.depth[hit], rtol=1e-6)
-    assert np.abs(flat.depth[hit] - raw.depth[hit]).max() > 0.05 * R
-
-
 # -- streaks along silhouettes ---------------------------------------------------------------
 
 

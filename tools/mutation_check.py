@@ -356,11 +356,11 @@ MUTATIONS: tuple[Mutation, ...] = (
         description="positions rounded to float32 before subtracting the eye (1e5 loses 1e-2)",
     ),
     Mutation(
-        name="eq29-deficit-not-squared",
+        name="adaptive-radius-deficit-not-squared",
         path="server/engine/sph/radii.py",
         old="radius = body * (1.0 - deficit**2 / decline)",
         new="radius = body * (1.0 - deficit / decline)",
-        tests=("tests/test_sph.py::test_eq29_adaptive_radius",),
+        tests=("tests/test_sph.py::test_adaptive_radius",),
         description="eq 29 with a linear density deficit instead of its square",
     ),
     # -- encoders, wire protocol, service, client ----------------------------------------------

@@ -10,8 +10,8 @@ with `--check FILE`.
 
 The cases cover every pass and option family the engine has: the demo (temperatures, occlusion
 culling, workshop IBL, environment background), a jittered ball as float EXR with Z and N,
-sampled IBL with lights, the 2-D bilateral filter, gaussian with the eq 25 kernel and 16-bit PNG,
-eq 29 adaptive radii with surface-only splatting (SPH on OpenCL), and the SPH quantities file.
+sampled IBL with lights, the 2-D bilateral filter, gaussian with the depth-falloff kernel and
+16-bit PNG, adaptive radii with surface-only splatting (SPH on OpenCL), and the SPH quantities file.
 Every case renders under each quality preset (`--quality fast|balanced|best`) as well as on the
 scene's own settings. With `../shared/data` beside the checkout, a dam-break frame (SPlisHSPlasH
 VTK) joins the cases; a spatter frame (a pool with scattered droplets, densities and temperatures)
@@ -101,7 +101,7 @@ CASES: dict[str, dict[str, Any]] = {
         environment={"preset": "studio"},
     ),
     "ball_gaussian_eq25_png16": _scene(
-        quality={"filter": "gaussian", "kernel_size": "eq25", "occlusion_culling": False},
+        quality={"filter": "gaussian", "kernel_size": "depth_falloff"},
         output={"png_bits": 16, "tone_mapper": "clamp"},
         shading={"multiple_scattering": True},
     ),

@@ -103,10 +103,17 @@ def bench_scene_dict(scene: BenchScene, width: int, height: int) -> dict[str, di
     }
 
 
+def bench_scene_from_dict(data: Mapping[str, Any]) -> Scene:
+    """`scene_from_dict` that also reads the benchmark's own settings, which scene files do not
+    have: ``quality.occlusion_culling`` (off measures what it saves) and ``quality.normal_rules``
+    (``"hard"``: the baseline's normals)."""
+    return scene_from_dict(data, bench=True)
+
+
 def scene_for(setting: Setting, base: Mapping[str, Any]) -> Scene:
     sections: dict[str, Any] = dict(preset_sections(setting.preset)) if setting.preset else {}
     sections = merge_scene_dicts(sections, base)
-    return scene_from_dict(merge_scene_dicts(sections, setting.overrides))
+    return bench_scene_from_dict(merge_scene_dicts(sections, setting.overrides))
 
 
 def run_sweep(

@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     from sphrender.core.readers import read_particles
     from sphrender.server.engine.gpu.cl_context import CLContext
     from sphrender.server.engine.sph.engine import SphEngine, SphParameters
-    from sphrender.server.engine.sph.frame import eq29_radii, frame_particle_radius
+    from sphrender.server.engine.sph.frame import frame_adaptive_radii, frame_particle_radius
     from sphrender.server.engine.sph.frame_densities import unfit_reason
     from sphrender.server.engine.sph.radii import surface_density
     from sphrender.server.scene import Scene, load_scene
@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
             engine.release()
     d_surface = surface_density(result.density, result.surface)
     if scene.sph.adaptive_radius:
-        radii = eq29_radii(result, frame, scene)
+        radii = frame_adaptive_radii(result, frame, scene)
     elif frame.radii is not None:
         radii = frame.radii
     else:

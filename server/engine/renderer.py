@@ -24,6 +24,7 @@ from sphrender.core.frame import ParticleFrame
 from sphrender.server.engine.frame_output import (
     DisplayCodes,
     DisplayRequest,
+    InputNote,
     RenderedFrame,
     RenderStats,
 )
@@ -145,6 +146,7 @@ class SurfaceRenderer:
         self.check_image_size(scene)
         camera = Camera.from_config(scene.camera, scene.image.width, scene.image.height)
         stats = RenderStats(particles_in=frame.count)
+        stats.notes += [InputNote(note.field, note.message) for note in scene.notes]
         sph = self._run_sph(frame, scene, stats)
         with self._stage(stats, "prepare"):
             prepared = self._prepare.run(sph, camera, scene)

@@ -7,7 +7,8 @@
 * `export.py`: `Scene` -> plain JSON-safe mapping, defaults filled (`scene_to_dict`);
 * `json_schema.py`: the scene's JSON Schema (2020-12), generated from `schema.py`
   (committed as ``schema/scene.schema.json``, served at ``GET /v1/schema``);
-* `presets.py`: the quality presets of `configs/quality-*.toml` laid under a scene file.
+* `presets.py`: the quality presets of `configs/quality-*.toml` laid under a scene file;
+* `renames.py`: old key names read under their new ones (with a note), removed keys refused.
 
 Import from the package: ``from sphrender.server.scene import Scene, scene_from_dict``.
 """
@@ -33,6 +34,7 @@ from sphrender.server.scene.schema import (
     ParticlesConfig,
     QualityConfig,
     Scene,
+    SceneNote,
     ShadingConfig,
     SphConfig,
     Vec3,
@@ -59,6 +61,7 @@ __all__ = [
     "ParticlesConfig",
     "QualityConfig",
     "Scene",
+    "SceneNote",
     "ShadingConfig",
     "SphConfig",
     "Vec3",

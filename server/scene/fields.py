@@ -1,10 +1,11 @@
-"""The building blocks of the scene schema: limits, the vector type and `spec`, the field
-constructor whose metadata (documentation, range, unit) the validator and the JSON Schema read.
+"""The building blocks of the scene schema: limits, the vector type, `spec` (the field
+constructor whose metadata, documentation, range and unit, the validator and the JSON Schema
+read), `bench_spec` for the benchmark's own settings, and `SceneNote`.
 """
 
 from __future__ import annotations
 
-from dataclasses import MISSING, field
+from dataclasses import MISSING, dataclass, field
 from typing import Any
 
 #: Largest image side accepted by the configuration; the GL context may lower it further.
@@ -26,6 +27,7 @@ def spec(
     low_open: bool = False,
     high_open: bool = False,
     unit: str | None = None,
+    bench_only: bool = False,
 ) -> Any:
     """A dataclass field with its documentation, numeric range (closed unless *_open; for a
     vector, the range of each component) and unit. The validator (`validate.py`) and the JSON
@@ -37,9 +39,30 @@ def spec(
         "low_open": low_open,
         "high_open": high_open,
         "unit": unit,
+        "bench_only": bench_only,
     }
     if isinstance(default, list | tuple) or default is MISSING:
         if default is MISSING:
             return field(metadata=meta)
         return field(default=tuple(default), metadata=meta)
     return field(default=default, metadata=meta)
+
+
+def bench_spec(default: Any, doc: str) -> Any:
+    """A field only the benchmark sets (`bench_scene_from_dict`): scene files, JSON scenes and
+    the JSON Schema do not have it, and a scene that gives it is refused naming the key."""
+    return spec(default, doc, bench_only=True)
+
+
+def is_bench_only(f: Any) -> bool:
+    """Whether the dataclass field `f` is a benchmark setting (`bench_spec`)."""
+    return bool(f.metadata.get("bench_only", False))
+
+
+@dataclass(frozen=True)
+class SceneNote:
+    """Something reading a scene changed (an old key name), said to the user with each frame's
+    notes: the key as given, and what was done, in words."""
+
+    field: str
+    message: str

@@ -26,6 +26,7 @@ import typing
 from dataclasses import MISSING, fields
 from typing import Any, Literal, get_args, get_origin
 
+from sphrender.server.scene.fields import is_bench_only
 from sphrender.server.scene.schema import (
     MAX_IMAGE_PIXELS,
     MAX_STRING_LENGTH,
@@ -34,6 +35,7 @@ from sphrender.server.scene.schema import (
     LightConfig,
     Scene,
     Vec3,
+    scene_sections,
 )
 
 SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
@@ -103,6 +105,8 @@ def _section_schema(cls: type) -> dict[str, Any]:
     hints = typing.get_type_hints(cls)
     properties: dict[str, Any] = {}
     for f in fields(cls):
+        if is_bench_only(f):
+            continue
         meta = f.metadata
         prop: dict[str, Any] = {}
         unit = meta.get("unit")
@@ -159,7 +163,7 @@ def scene_json_schema() -> dict[str, Any]:
     hints = typing.get_type_hints(Scene)
     defs: dict[str, Any] = {}
     properties: dict[str, Any] = {}
-    for f in fields(Scene):
+    for f in scene_sections():
         hint = hints[f.name]
         if get_origin(hint) is tuple:  # lights: an array of tables
             (item_cls, _ellipsis) = get_args(hint)
@@ -187,7 +191,7 @@ def scene_json_schema() -> dict[str, Any]:
             f"{_description(Scene)} Every section and key is optional; absent keys take their "
             "default. Generated from sphrender's scene dataclasses (server/scene/schema.py). "
             "The server also checks the rules in x-cross-field-rules, which JSON Schema cannot "
-            "express."
+            "express, and reads the previous release's key names (with a note)."
         ),
         "x-cross-field-rules": [{"key": key, "rule": rule} for key, rule in CROSS_FIELD_RULES],
         "type": "object",

@@ -14,7 +14,7 @@ could list. Adding a field means adding one line here. Validation lives in `vali
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import Field, dataclass, field, fields, replace
 from typing import Any, Literal
 
 from sphrender.core.protocol import ImageFormat
@@ -22,6 +22,7 @@ from sphrender.server.scene.fields import (
     MAX_IMAGE_PIXELS,
     MAX_IMAGE_SIDE,
     MAX_STRING_LENGTH,
+    SceneNote,
     Vec3,
     spec,
 )
@@ -33,6 +34,7 @@ __all__ = [
     "MAX_STRING_LENGTH",
     "FilterName",
     "QualityConfig",
+    "SceneNote",
     "SphConfig",
     "Vec3",
     "spec",
@@ -215,47 +217,63 @@ class EnvironmentConfig:
 class ShadingConfig:
     """How the surface is lit: BRDF terms, image-based light, emission, background."""
 
-    g_term: Literal["smith_height_correlated", "eq37"] = spec(
+    g_term: Literal["smith_height_correlated", "cook_torrance"] = spec(
         "smith_height_correlated",
-        "microfacet shadowing: Smith height-correlated GGX (validates against the furnace table "
-        "and Mitsuba) or the thesis's eq 37 (Cook-Torrance / Blinn, roughness independent)",
+        "microfacet shadowing: smith_height_correlated GGX (validated against Mitsuba) or "
+        "cook_torrance (Cook-Torrance / Blinn, roughness independent; thesis eq 37). No preset "
+        "sets it; cook_torrance reproduces the thesis's images",
     )
     ibl_mode: Literal["prefiltered", "sampled", "none"] = spec(
         "prefiltered",
-        "specular image-based light: prefiltered mip chain + split-sum BRDF table, per-pixel "
-        "GGX importance sampling with ibl_samples Hammersley points (thesis §4.2.2), or none "
-        "(no environment light at all, diffuse included)",
+        "specular image-based light: prefiltered (mip chain + split-sum table), sampled "
+        "(per-pixel GGX importance sampling, ibl_samples; thesis 4.2.2) or none (no environment "
+        "light at all). Presets: fast and balanced prefiltered, best sampled",
     )
     ibl_samples: int = spec(
-        64, "samples per pixel for ibl_mode = sampled", low=1, high=4096, unit="samples per pixel"
+        64,
+        "samples per pixel for ibl_mode = sampled. Presets: fast and balanced 64 (unused), "
+        "best 256",
+        low=1,
+        high=4096,
+        unit="samples per pixel",
     )
     prefilter_samples: int = spec(
         512,
-        "GGX samples per texel when prefiltering an environment (once per environment)",
+        "GGX samples per texel when prefiltering an environment (once per environment). No "
+        "preset sets it; raise it if a sharp environment leaves noise on rough metal",
         low=16,
         high=16384,
         unit="samples per texel",
     )
     multiple_scattering: bool = spec(
         False,
-        "compensate the energy single-scattering GGX loses at high roughness: specular x "
-        "(1 + F0 (1 / E_ss - 1)), E_ss from the split-sum table (Fdez-Aguera 2019, as Filament); "
-        "off matches single-scatter references (Mitsuba roughconductor, validation-data.md)",
+        "compensate the energy single-scattering GGX loses at high roughness (Fdez-Aguera 2019, "
+        "as Filament); off matches single-scatter references. No preset sets it; turn it on "
+        "when rough metal looks too dark",
     )
-    combine: Literal["add", "eq55"] = spec(
+    combine: Literal["add", "weighted"] = spec(
         "add",
-        "add: direct + indirect (physically correct); eq55: the thesis's blend "
-        "k * direct + (1 - k) * indirect",
+        "how direct and image-based light combine: add (physically correct) or weighted: "
+        "direct_weight x direct + (1 - direct_weight) x indirect (thesis eq 55). No preset sets "
+        "it; weighted reproduces the thesis's images",
     )
-    eq55_k: float = spec(0.5, "k of eq 55 (combine = eq55)", low=0.0, high=1.0)
+    direct_weight: float = spec(
+        0.5,
+        "combine = weighted: the direct light's weight (thesis eq 55's k). No preset sets it; "
+        "set it with combine = weighted",
+        low=0.0,
+        high=1.0,
+    )
     background: Literal["transparent", "environment"] = spec(
         "transparent",
-        "where no surface: transparent (alpha 0, alpha = coverage) or the environment (alpha 1)",
+        "where no surface: transparent (alpha = coverage) or the environment (alpha 1). No "
+        "preset sets it; environment for a finished picture, transparent for compositing",
     )
     emission_scale: float = spec(
         1e-3,
         "scene-linear value of 1 cd/m^2 of blackbody luminance (hot-metal glow); the built-in "
-        "environments use the same scale",
+        "environments use the same scale. No preset sets it; change it to light scenes of "
+        "another brightness",
         low=0.0,
         low_open=True,
         high=1e6,
@@ -266,7 +284,7 @@ class ShadingConfig:
     ] = spec(
         "none",
         "show one term instead of the beauty: direct light, diffuse IBL, specular IBL, "
-        "emission, or the SH irradiance E(n) itself",
+        "emission, or the SH irradiance E(n). No preset sets it; for checking the lighting",
     )
 
 
@@ -296,8 +314,7 @@ class OutputConfig:
     png_bits: Literal[8, 16] = spec(8, "PNG bit depth", unit="bits per channel")
     jpeg_quality: int = spec(
         90,
-        "JPEG quality (libjpeg scale, 4:2:0 chroma); 90 measured 31.6-37 dB PSNR against the PNG "
-        "over the same background (tests/test_encodings.py)",
+        "JPEG quality (libjpeg scale, 4:2:0 chroma)",
         low=1,
         high=100,
         unit="libjpeg quality",
@@ -343,6 +360,14 @@ class Scene:
     lights: tuple[LightConfig, ...] = field(default=(), metadata={"max_items": MAX_LIGHTS})
     environment: EnvironmentConfig = field(default_factory=EnvironmentConfig)
     shading: ShadingConfig = field(default_factory=ShadingConfig)
+    #: What reading the scene changed (old key names, `renames.py`): reported with each frame's
+    #: notes. Not a section: no file or JSON scene sets it, and it takes no part in equality.
+    notes: tuple[SceneNote, ...] = field(default=(), compare=False, metadata={"section": False})
 
     def with_overrides(self, **sections: Any) -> Scene:
         return replace(self, **sections)
+
+
+def scene_sections() -> tuple[Field[Any], ...]:
+    """The fields of `Scene` that are sections of a scene file (all but `notes`)."""
+    return tuple(f for f in fields(Scene) if f.metadata.get("section", True))

@@ -1,8 +1,9 @@
 """Validation of scene mappings (TOML / JSON) into the dataclasses of `schema.py`.
 
 `section_from_dict` reads each field's type and `spec` metadata, so a field is declared once
-(in `schema.py`) and validated here without a second list; `scene_from_dict` adds the rules that
-span fields (camera basis, lights, environment source, image area).
+(in `schema.py`) and validated here without a second list; `scene_from_dict` reads old key names
+first (`renames.py`) and adds the rules that span fields (camera basis, lights, environment
+source, image area).
 """
 
 from __future__ import annotations
@@ -15,12 +16,15 @@ from dataclasses import fields
 from typing import Any, Literal, TypeVar, get_args, get_origin
 
 from sphrender.core.errors import InputError, kind_of, show
+from sphrender.server.scene.fields import is_bench_only
+from sphrender.server.scene.renames import upgrade_scene_dict
 from sphrender.server.scene.schema import (
     MAX_IMAGE_PIXELS,
     MAX_STRING_LENGTH,
     LightConfig,
     Scene,
     Vec3,
+    scene_sections,
 )
 
 T = TypeVar("T")
@@ -102,15 +106,22 @@ def _convert(key: str, value: Any, annotation: Any, meta: Mapping[str, Any]) -> 
     raise TypeError(f"unsupported annotation {annotation!r} for {key}")  # programming error
 
 
-def section_from_dict(cls: type[T], data: Any, prefix: str) -> T:
+def section_from_dict(cls: type[T], data: Any, prefix: str, *, bench: bool = False) -> T:
     """Validate one table into the frozen dataclass `cls` whose fields are declared with `spec`
     (also used for the server settings): unknown keys, wrong types and values outside a field's
-    range raise `InputError` named `prefix.key`."""
+    range raise `InputError` named `prefix.key`. The benchmark's settings (`bench_spec`) are
+    read only with `bench`."""
     if not isinstance(data, Mapping):
         raise InputError(prefix, f"must be a table, got {kind_of(data)}")
     hints = typing.get_type_hints(cls)
-    known = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]
+    every = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]
+    known = {name: f for name, f in every.items() if bench or not is_bench_only(f)}
     for key in data:
+        if key in every and key not in known:
+            raise InputError(
+                f"{prefix}.{key}",
+                "was removed from the scene: a benchmark setting (sphrender bench sets it)",
+            )
         if key not in known:
             raise InputError(f"{prefix}.{key}", f"unknown key; allowed: {', '.join(sorted(known))}")
     kwargs = {
@@ -132,12 +143,15 @@ def _sections_from_list(cls: type[T], data: Any, prefix: str, section: Any) -> t
     return tuple(section_from_dict(cls, item, f"{prefix}[{i}]") for i, item in enumerate(data))
 
 
-def scene_from_dict(data: Mapping[str, Any]) -> Scene:
-    """Build and validate a `Scene` from a TOML/JSON-like mapping (missing keys keep defaults)."""
+def scene_from_dict(data: Mapping[str, Any], *, bench: bool = False) -> Scene:
+    """Build and validate a `Scene` from a TOML/JSON-like mapping (missing keys keep defaults).
+    Old key names are read under their new ones, with a note on the scene (`Scene.notes`);
+    `bench` also reads the benchmark's own settings (`bench_scene_from_dict` passes it)."""
     if not isinstance(data, Mapping):
         raise InputError("scene", f"must be a table, got {kind_of(data)}")
+    data, notes = upgrade_scene_dict(data)
     sections: dict[str, Any] = {}
-    known = {f.name: f for f in fields(Scene)}
+    known = {f.name: f for f in scene_sections()}
     hints = typing.get_type_hints(Scene)
     for key, value in data.items():
         if key not in known:
@@ -146,8 +160,8 @@ def scene_from_dict(data: Mapping[str, Any]) -> Scene:
         if get_origin(hint) is tuple:
             sections[key] = _sections_from_list(get_args(hint)[0], value, key, known[key])
         else:
-            sections[key] = section_from_dict(hint, value, key)
-    scene = Scene(**sections)
+            sections[key] = section_from_dict(hint, value, key, bench=bench)
+    scene = Scene(**sections, notes=notes)
     _check_cross_field(scene)
     return scene
 

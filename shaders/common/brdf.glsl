@@ -6,7 +6,7 @@
 // V = G / (4 (n.l)(n.v)) so that neither term divides by a vanishing cosine on its own.
 
 #define G_TERM_SMITH_HEIGHT_CORRELATED 0
-#define G_TERM_EQ37 1
+#define G_TERM_COOK_TORRANCE 1
 #define G_TERM 0
 
 const float PI = 3.14159265358979;

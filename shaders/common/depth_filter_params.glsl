@@ -10,6 +10,6 @@ uniform int u_kernel_max_stride;   // separable taps up to this many pixels apar
 uniform float u_range_sigma;       // bilateral: sigma of the depth difference, scene units
 uniform float u_nr_threshold;      // narrow range: lambda * r, scene units
 uniform float u_nr_clamp;          // narrow range: mu * r, scene units
-uniform float u_eq25_sigma_px;     // eq 25: sigma (pixels) up to the threshold distance
-uniform float u_eq25_threshold;    // eq 25: threshold eye depth, scene units
-uniform float u_eq25_decline;      // eq 25: k, kernel pixels lost per scene unit beyond it
+uniform float u_falloff_sigma_px;  // depth_falloff (eq 25): sigma (pixels) up to falloff_depth
+uniform float u_falloff_depth;     // depth_falloff: eye depth where the decline starts, scene units
+uniform float u_falloff_rate;      // depth_falloff: kernel pixels lost per scene unit beyond it

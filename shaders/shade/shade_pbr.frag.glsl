@@ -7,7 +7,7 @@
 //   multiple scattering (option): every specular term x (1 + F0 (1 / E_ss - 1)), E_ss = A + B
 //            the single-scatter albedo at F = 1 (Fdez-Aguera 2019; Filament's energy
 //            compensation), so rough metal keeps the energy GGX's single bounce loses
-//   combine  direct + indirect (default) or eq 55's k direct + (1 - k) indirect
+//   combine  direct + indirect (default) or weighted (eq 55): w direct + (1 - w) indirect
 //   emission (1 - F(n.v)) B(T) for hot metal, from the splatted temperature (added after)
 // Output: straight scene-linear RGB, alpha = coverage (1 over the environment background).
 // ANTIALIAS: coverage is the splat's sub-pixel coverage (splat/splat_coverage.frag.glsl); a
@@ -20,7 +20,7 @@
 #define IBL_SAMPLED 2
 #define IBL_MODE 1
 #define COMBINE_ADD 0
-#define COMBINE_EQ55 1
+#define COMBINE_WEIGHTED 1
 #define COMBINE 0
 #define HAS_TEMPERATURE 0
 #define MULTIPLE_SCATTERING 0
@@ -66,7 +66,7 @@ uniform sampler2D u_env_prefiltered;  // level i = roughness i / (levels - 1)
 uniform float u_prefiltered_max_lod;
 uniform sampler2D u_brdf_lut;       // (n.v, roughness) -> (A, B)
 uniform int u_ibl_samples;
-uniform float u_eq55_k;
+uniform float u_direct_weight;
 
 // The half-width of the 3 x 3 neighbour windows below, 1: a uniform, not a constant, so that
 // their loops stay loops. llvmpipe runs both sides of a branch for every pixel of its block
@@ -269,8 +269,8 @@ void main() {
     emission = emissivity * blackbody_radiance(kelvin) * u_emission_scale;
 #endif
 
-#if COMBINE == COMBINE_EQ55
-    vec3 color = u_eq55_k * direct + (1.0 - u_eq55_k) * indirect + emission;
+#if COMBINE == COMBINE_WEIGHTED
+    vec3 color = u_direct_weight * direct + (1.0 - u_direct_weight) * indirect + emission;
 #else
     vec3 color = direct + indirect + emission;
 #endif

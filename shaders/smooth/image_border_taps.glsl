@@ -54,17 +54,6 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     bvec4 kept = either(pair_kept(za, zb), either(out_a, out_b));
     use_a = both(use_a, kept);
     use_b = both(use_b, kept);
-#if (KEEP_FEATURES & 1) != 0
-    // A pair wholly past the image's ends rejects nothing.
-    bvec4 rejected = both(both(in_reach, not(both(out_a, out_b))), not(either(use_a, use_b)));
-    use_a = both(use_a, g_open);
-    use_b = both(use_b, g_open);
-    g_open = both(g_open, not(rejected));
-#endif
-#if (KEEP_FEATURES & 2) != 0
-    g_all_weight_sum += mix(vec4(0.0), w, both(in_reach, not(out_a))) +
-                        mix(vec4(0.0), w, both(in_reach, not(out_b)));
-#endif
     za = narrow_range_sample(za, use_a);
     zb = narrow_range_sample(zb, use_b);
     vec4 wa = mix(vec4(0.0), w, use_a);

@@ -14,7 +14,7 @@
 #define FILTER_NARROW_RANGE 2
 #define FILTER 2
 #define KERNEL_SIZE_PROJECTED_RADIUS 0
-#define KERNEL_SIZE_EQ25 1
+#define KERNEL_SIZE_DEPTH_FALLOFF 1
 #define KERNEL_SIZE 0
 
 #include "common/depth_image.glsl"
@@ -90,7 +90,7 @@ void main() {
 #else
     // Thesis eq 25, read as a continuous decline: ks = 3 sigma up to the threshold distance, then
     // 3 sigma - (d - threshold) k (as printed, "- d k" would jump by threshold * k).
-    float sigma = u_eq25_sigma_px - max(zc - u_eq25_threshold, 0.0) * u_eq25_decline / 3.0;
+    float sigma = u_falloff_sigma_px - max(zc - u_falloff_depth, 0.0) * u_falloff_rate / 3.0;
 #endif
     float reach = clamp(ceil(3.0 * sigma), float(u_kernel_min_px), float(u_kernel_max_px));
     sigma = max(min(sigma, reach / 3.0), 1e-3);

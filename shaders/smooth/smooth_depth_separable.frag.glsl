@@ -15,16 +15,8 @@
 // 0: filter along rows (x), 1: along columns (y).
 #define AXIS 0
 #define KERNEL_SIZE_PROJECTED_RADIUS 0
-#define KERNEL_SIZE_EQ25 1
+#define KERNEL_SIZE_DEPTH_FALLOFF 1
 #define KERNEL_SIZE 0
-// Small features (quality.keep_features): 0 none; bit 1: the kernel ends at the first tap pair
-// it rejects, so it never reaches past the nearest discontinuity (a droplet is smoothed only
-// by itself, a silhouette is not dragged); bit 2: the result is blended back towards the
-// centre by the weight share of accepted taps (FleX's blend, through a smoothstep from
-// KEEP_SHARE_LOW to KEEP_SHARE_HIGH), so features narrower than the kernel keep their shape.
-#define KEEP_FEATURES 0
-#define KEEP_SHARE_LOW 0.4
-#define KEEP_SHARE_HIGH 0.8
 // 1: the variant passes/smooth.py draws where a kernel may reach past the image's ends (within
 // kernel_max_px of them): there the kernel goes on one-sided and fits a line
 // (image_border_taps.glsl); the same result as 0 wherever no kernel reaches that far.
@@ -52,8 +44,6 @@ vec4 g_center;
 vec4 g_reach;          // kernel radius in pixels; 0 for background pixels
 vec4 g_sum;
 vec4 g_weight_sum;
-vec4 g_all_weight_sum;  // every tap in reach, accepted or not (KEEP_FEATURES bit 2)
-bvec4 g_open;           // no pair rejected yet (KEEP_FEATURES bit 1)
 #if FILTER == FILTER_NARROW_RANGE
 vec4 g_upper;
 vec4 g_lower;
@@ -134,13 +124,6 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     bvec4 valid_a = both(greaterThan(za, vec4(0.0)), lessThanEqual(za, g_upper));
     bvec4 valid_b = both(greaterThan(zb, vec4(0.0)), lessThanEqual(zb, g_upper));
     bvec4 accept = both(both(in_reach, both(valid_a, valid_b)), pair_kept(za, zb));
-#if (KEEP_FEATURES & 1) != 0
-    accept = both(accept, g_open);
-    g_open = both(g_open, not(both(in_reach, not(accept))));
-#endif
-#if (KEEP_FEATURES & 2) != 0
-    g_all_weight_sum += mix(vec4(0.0), 2.0 * w, in_reach);
-#endif
     za = narrow_range_sample(za, accept);
     zb = narrow_range_sample(zb, accept);
     g_sum += mix(vec4(0.0), w * (inverse_depth(za) + inverse_depth(zb)), accept);
@@ -200,7 +183,7 @@ void main() {
     vec4 sigma = u_kernel_scale * (u_particle_radius * u_px_per_unit / z);
 #else
     // Thesis eq 25, read as a continuous decline (see smooth_depth.frag.glsl).
-    vec4 sigma = u_eq25_sigma_px - max(z - u_eq25_threshold, 0.0) * u_eq25_decline / 3.0;
+    vec4 sigma = u_falloff_sigma_px - max(z - u_falloff_depth, 0.0) * u_falloff_rate / 3.0;
 #endif
     sigma *= u_sigma_scale;
     int stride;
@@ -215,8 +198,6 @@ void main() {
     g_sum = zc;
 #endif
     g_weight_sum = vec4(1.0);
-    g_all_weight_sum = vec4(1.0);
-    g_open = bvec4(true);
 #if FILTER == FILTER_NARROW_RANGE
     g_upper = zc + u_nr_threshold;
     g_lower = zc - u_nr_threshold;
@@ -242,10 +223,6 @@ void main() {
 #endif
 #if FILTER == FILTER_NARROW_RANGE
     smoothed = 1.0 / smoothed;
-#endif
-#if (KEEP_FEATURES & 2) != 0
-    vec4 share = g_weight_sum / g_all_weight_sum;
-    smoothed = mix(zc, smoothed, smoothstep(KEEP_SHARE_LOW, KEEP_SHARE_HIGH, share));
 #endif
     out_packed_depth = mix(vec4(0.0), smoothed, surface);
 }

@@ -50,7 +50,7 @@ PREFILTER_MAX_WIDTH = 512
 #: rule (brdf_lut.frag.glsl; the error budget is in tests/test_shading_ibl.py).
 BRDF_LUT_SIZE = 64
 BRDF_LUT_NODES = 64
-_G_TERM_DEFINES = {"smith_height_correlated": 0, "eq37": 1}
+_G_TERM_DEFINES = {"smith_height_correlated": 0, "cook_torrance": 1}
 
 
 def sh9_basis(directions: F64) -> F64:

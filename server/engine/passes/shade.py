@@ -33,7 +33,7 @@ from sphrender.server.scene import MAX_LIGHTS, Scene
 
 SHADER = "shade/shade_pbr.frag.glsl"
 _IBL_DEFINES = {"none": 0, "prefiltered": 1, "sampled": 2}
-_COMBINE_DEFINES = {"add": 0, "eq55": 1}
+_COMBINE_DEFINES = {"add": 0, "weighted": 1}
 _VIEW_DEFINES = {
     "none": 0,
     "direct": 1,
@@ -42,7 +42,7 @@ _VIEW_DEFINES = {
     "emission": 4,
     "irradiance": 5,
 }
-_G_TERM_DEFINES = {"smith_height_correlated": 0, "eq37": 1}
+_G_TERM_DEFINES = {"smith_height_correlated": 0, "cook_torrance": 1}
 
 
 class ShadePass:
@@ -170,7 +170,7 @@ class ShadePass:
             "u_diffuse_albedo": material.diffuse_albedo,
             "u_roughness": material.roughness,
             "u_neighbour_reach": 1,  # shade_pbr.frag.glsl: a uniform, so its loops stay loops
-            "u_eq55_k": shading.eq55_k,
+            "u_direct_weight": shading.direct_weight,
             "u_blackbody_range": (TABLE_MIN_K, TABLE_MAX_K),
             "u_emissivity": material.normal_emissivity,
             "u_emission_scale": shading.emission_scale,

@@ -1,7 +1,7 @@
 """Smooth pass: the splatted eye depth, filtered into a smooth surface.
 
 Filters (`[quality] filter`): gaussian | bilateral | narrow_range (Truong & Yuksel 2018), iterated.
-Kernel sigma = kernel_scale x the projected particle radius (or the thesis's eq 25), reach
+Kernel sigma = kernel_scale x the projected particle radius (or depth_falloff, eq 25), reach
 3 sigma: every pixel out to kernel_max_px, then (separable filters, close-ups) every stride-th
 out to kernel_max_px x kernel_max_stride; past that, capped. Separable filters (x y, then y x
 on the next iteration, so the nonlinear filters' streaks do not pile up on one axis; the last
@@ -44,8 +44,7 @@ TWO_D_SHADER = "smooth/smooth_depth.frag.glsl"
 PACK_SHADER = "common/image_pack.frag.glsl"
 UNPACK_SHADER = "common/image_unpack.frag.glsl"
 _FILTER_DEFINES = {"gaussian": 0, "bilateral": 1, "narrow_range": 2}
-_KERNEL_SIZE_DEFINES = {"projected_radius": 0, "eq25": 1}
-_KEEP_FEATURES_DEFINES = {"none": 0, "truncate": 1, "blend": 2, "both": 3}
+_KERNEL_SIZE_DEFINES = {"projected_radius": 0, "depth_falloff": 1}
 
 
 class _SmoothTargets:
@@ -100,8 +99,6 @@ class SmoothPass:
         }
         uniforms = _FilterUniforms(px_per_unit, particle_radius, quality)
         if quality.separable:
-            if quality.keep_features != "none":
-                defines["KEEP_FEATURES"] = _KEEP_FEATURES_DEFINES[quality.keep_features]
             margin_px = max(quality.kernel_max_px, quality.kernel_min_px)
             smoothed = self._separable(targets, depth, defines, uniforms, quality, box, margin_px)
         else:
@@ -286,9 +283,9 @@ class _FilterUniforms:
             "u_particle_radius": r,
             "u_px_per_unit": px_per_unit,
             "u_kernel_scale": quality.kernel_scale,
-            "u_eq25_sigma_px": quality.eq25_sigma_px,
-            "u_eq25_threshold": quality.eq25_threshold,
-            "u_eq25_decline": quality.eq25_decline,
+            "u_falloff_sigma_px": quality.falloff_sigma_px,
+            "u_falloff_depth": quality.falloff_depth,
+            "u_falloff_rate": quality.falloff_rate,
             "u_range_sigma": quality.bilateral_depth_sigma * r,
             "u_nr_threshold": quality.narrow_range_threshold * r,
             "u_nr_clamp": quality.narrow_range_clamp * r,

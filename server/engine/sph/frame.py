@@ -39,9 +39,9 @@ def needs_sph(scene: Scene) -> bool:
     return sph.adaptive_radius or sph.surface_only or sph.anisotropy
 
 
-def eq29_radii(result: SphResult, frame: ParticleFrame, scene: Scene) -> F32:
-    """Eq 29's adaptive radii for this frame: the body radius (the frame's radii, else the
-    scene's) shrunk for particles less dense than the surface average."""
+def frame_adaptive_radii(result: SphResult, frame: ParticleFrame, scene: Scene) -> F32:
+    """The adaptive radii (thesis eq 29) for this frame: the body radius (the frame's radii,
+    else the scene's) shrunk for particles less dense than the surface average."""
     body: float | F32 = frame.radii if frame.radii is not None else scene.particles.radius
     return adaptive_radii(
         result.density,
@@ -87,7 +87,7 @@ def apply_sph(
             splat_mask=sph.surface_only,
         )
         if sph.adaptive_radius:
-            radii = eq29_radii(result, frame, scene)
+            radii = frame_adaptive_radii(result, frame, scene)
     ellipsoids = None
     if anisotropy and sph.anisotropy:
         ellipsoids = engine.anisotropy(
