@@ -21,6 +21,7 @@ Tolerances:
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterator
 from dataclasses import replace
@@ -148,6 +149,13 @@ def lut_texels(renderer: SurfaceRenderer, g_term: str) -> np.ndarray:
     return data.reshape(BRDF_LUT_SIZE, BRDF_LUT_SIZE, 2)  # [roughness row, n.v column]
 
 
+@functools.cache
+def albedo(g_term: str, nv: float, alpha: float) -> float:
+    """The reference albedo at n = 384 per axis, memoised: budgets share table texels."""
+    return ref.albedo_quadrature(g_term, nv, alpha, n=384)
+
+
+@functools.cache
 def product_rule_albedo(g_term: str, nv: float, alpha: float) -> tuple[float, float]:
     """(A, B) by the table's own rule: Gauss-Legendre in s x midpoint in phi."""
     x, w = np.polynomial.legendre.leggauss(BRDF_LUT_NODES)
@@ -219,7 +227,7 @@ def bilinear_budget(g_term: str, mu: float, alpha: float) -> float:
         for dy in (0, 1):
             nv = (x0 + dx + 0.5) / size
             a = float(ref.alpha_of((y0 + dy + 0.5) / size))
-            exact = ref.albedo_quadrature(g_term, nv, a, n=384)
+            exact = albedo(g_term, nv, a)
             corners[dx, dy] = exact
             rule_error = max(rule_error, abs(sum(product_rule_albedo(g_term, nv, a)) - exact))
     interpolated = (
@@ -228,7 +236,7 @@ def bilinear_budget(g_term: str, mu: float, alpha: float) -> float:
         + corners[0, 1] * (1 - fx) * fy
         + corners[1, 1] * fx * fy
     )
-    point = ref.albedo_quadrature(g_term, mu, alpha, n=384)
+    point = albedo(g_term, mu, alpha)
     return abs(interpolated - point) + rule_error
 
 
@@ -236,10 +244,10 @@ def test_reference_quadrature_reproduces_the_validation_table() -> None:
     """The numpy quadrature (used as the reference below) against validation-data.md."""
     for alpha, row in TABLE_SEPARABLE.items():
         for mu, value in zip(TABLE_MUS, row, strict=True):
-            assert abs(ref.albedo_quadrature("separable", mu, alpha, n=384) - value) <= 6e-4
+            assert abs(albedo("separable", mu, alpha) - value) <= 6e-4
     for alpha, row in TABLE_HEIGHT_CORRELATED.items():
         for mu, value in zip(TABLE_MUS, row, strict=True):
-            got = ref.albedo_quadrature("smith_height_correlated", mu, alpha, n=384)
+            got = albedo("smith_height_correlated", mu, alpha)
             assert abs(got - value) <= 6e-4
 
 
@@ -265,7 +273,7 @@ def test_white_furnace_cook_torrance_matches_quadrature(renderer: SurfaceRendere
     for alpha in TABLE_ALPHAS:
         scene = furnace_scene("cook_torrance", math.sqrt(alpha), "prefiltered")
         for mu in TABLE_MUS:
-            want = ref.albedo_quadrature("cook_torrance", mu, alpha, n=384)
+            want = albedo("cook_torrance", mu, alpha)
             got = furnace_albedo(renderer, scene, mu)
             budget = 2e-4 + HALF_RELATIVE * want + bilinear_budget("cook_torrance", mu, alpha)
             assert float(np.abs(got - want).max()) <= budget, (alpha, mu, got.mean(), want)
@@ -375,7 +383,7 @@ def test_multiple_scattering_in_sampled_mode_divides_by_the_table(
             estimate = ref.albedo_hammersley_at(
                 "smith_height_correlated", normals, view, alpha, samples
             )
-            e_ss = ref.albedo_quadrature("smith_height_correlated", mu, alpha, n=384)
+            e_ss = albedo("smith_height_correlated", mu, alpha)
             budget = (
                 bilinear_budget("smith_height_correlated", mu, alpha) + TABLE_ROUNDING
             ) / e_ss + HALF_RELATIVE
@@ -409,7 +417,7 @@ def test_multiple_scattering_scales_the_direct_specular_lobe(renderer: SurfaceRe
     for row in range(6):
         for column in range(8):
             mu = float(nv[row, column])
-            e_ss = ref.albedo_quadrature("smith_height_correlated", mu, alpha, n=384)
+            e_ss = albedo("smith_height_correlated", mu, alpha)
             want = 1.0 + f0 * (1.0 / e_ss - 1.0)
             got = images[True][row, column] / images[False][row, column]
             budget = bilinear_budget("smith_height_correlated", mu, alpha) / e_ss
