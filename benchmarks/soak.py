@@ -1,12 +1,15 @@
-"""Soak: many small frames of varied sizes through a real server, sessions created and deleted.
+"""Soak: many small frames of varied sessions through a real server, as a frontend fleet sends them.
 
     nice -n 10 .venv/bin/python benchmarks/soak.py --frames 10000 --out soak.json
 
-Cycles through stream sessions (HELLO, a burst of pipelined frames, BYE) and HTTP sessions
-(POST /v1/sessions, frames, DELETE), with image sizes and particle counts varying per session,
-and checks every answer is an image. Reports the resident memory of the service process and of
-the renderer process (and their sum) at frame 1,000 and at the end, and the service's threads
-and open files at the start and after the last session closed. Bounded by --frames.
+Cycles through stream sessions (HELLO, pipelined frames, BYE, or a client that just hangs up)
+and HTTP sessions (POST /v1/sessions, frames, DELETE, or left for the reaper), with one-shot
+POST /v1/render frames, /v1/info and /metrics between them. Sessions vary image size, particle
+count, radius and output encoding (png, jpeg, exr, raw); frames carry scene overrides and some
+are bad input (NaN positions, unknown keys) answered as errors in between. Checks every answer
+is the one expected, and reports the resident memory of the service process and of the
+renderer process at frame 1,000 (after warm-up) and at the end, and the service's threads and
+open files at the start and after the last session closed. Bounded by --frames.
 """
 
 from __future__ import annotations
@@ -66,18 +69,90 @@ def memory(pid: int) -> dict[str, int]:
     return {"service_rss": parent, "renderer_rss": child, "total_rss": parent + child}
 
 
+FORMATS = ("png", "jpeg", "exr", "raw")
+
+
 def scene(rng: random.Random) -> dict[str, Any]:
     width, height = rng.choice(SIZES)
     return {
         "image": {"width": width, "height": height},
         "camera": {"eye": [0.6, 0.5, 0.9], "target": [0.0, 0.0, 0.0], "fov_y": 40.0},
         "particles": {"radius": rng.choice((0.015, 0.02, 0.03))},
+        "output": {"format": rng.choice(FORMATS)},
     }
+
+
+def override(rng: random.Random) -> dict[str, Any] | None:
+    """A per-frame scene change (camera or radius), a bad key, or nothing."""
+    draw = rng.random()
+    if draw < 0.2:
+        return {"camera": {"eye": [rng.uniform(0.4, 0.9), 0.5, 0.9]}}
+    if draw < 0.3:
+        return {"particles": {"radius": rng.choice((0.01, 0.025))}}
+    if draw < 0.35:
+        return {"camera": {"no_such_key": 1}}
+    return None
 
 
 def positions(rng: random.Random) -> np.ndarray:
     n = rng.choice((50, 200, 800, 2000))
-    return np.random.default_rng(rng.randrange(1 << 30)).normal(size=(n, 3)) * 0.15
+    points = np.random.default_rng(rng.randrange(1 << 30)).normal(size=(n, 3)) * 0.15
+    if rng.random() < 0.05:
+        points[rng.randrange(n)] = np.nan
+    return points
+
+
+def _good(points: np.ndarray, changes: dict[str, Any] | None) -> bool:
+    return bool(np.isfinite(points).all()) and "no_such_key" not in json.dumps(changes or {})
+
+
+def stream_session(server: ServerProcess, rng: random.Random, burst: int) -> int:
+    """One stream session; returns how many answers were not the expected kind."""
+    wrong = 0
+    with server.stream() as client:
+        client.hello(scene(rng))
+        for start in range(0, burst, 8):
+            batch = range(start, min(burst, start + 8))
+            frames = [(positions(rng), override(rng)) for _ in batch]
+            client.send(
+                b"".join(
+                    encode_frame(i, points, scene=changes)
+                    for i, (points, changes) in zip(batch, frames, strict=True)
+                )
+            )
+            for points, changes in frames:
+                kind, _header, _payload = client.receive()
+                expected = MessageType.IMAGE if _good(points, changes) else MessageType.ERROR
+                wrong += kind != expected
+        if rng.random() < 0.8:
+            client.send(encode_message(MessageType.BYE, {}))
+            client.receive()
+    return wrong
+
+
+def http_session(server: ServerProcess, rng: random.Random, burst: int) -> int:
+    """One HTTP session (or one-shot renders); returns how many answers were unexpected."""
+    wrong = 0
+    one_shot = rng.random() < 0.3
+    chosen = scene(rng)
+    if not one_shot:
+        status, body = server.json("POST", "/v1/sessions", chosen)
+        assert status == 201, body
+    for _ in range(burst):
+        points, changes = positions(rng), override(rng)
+        expected = 200 if _good(points, changes) else 400
+        if one_shot:
+            frame_scene = {**chosen, **(changes or {})}
+            payload = encode_npz_frame(points, scene=frame_scene)
+            status = server.request("POST", "/v1/render", payload)[0]
+        else:
+            payload = encode_npz_frame(points, scene=changes)
+            status = server.request("POST", f"/v1/sessions/{body['id']}/frames", payload)[0]
+        wrong += status != expected
+    if not one_shot and rng.random() < 0.8:
+        server.request("DELETE", f"/v1/sessions/{body['id']}")
+    server.request("GET", rng.choice(("/v1/info", "/metrics", "/healthz")))
+    return wrong
 
 
 def soak(frames: int, seed: int) -> dict[str, Any]:
@@ -94,28 +169,10 @@ def soak(frames: int, seed: int) -> dict[str, Any]:
         while done < frames:
             burst = min(frames - done, rng.randrange(5, 60))
             sessions += 1
-            if rng.random() < 0.7:
-                with server.stream() as client:
-                    client.hello(scene(rng))
-                    for start in range(0, burst, 8):
-                        batch = range(start, min(burst, start + 8))
-                        client.send(b"".join(encode_frame(i, positions(rng)) for i in batch))
-                        for _ in batch:
-                            kind, _header, _payload = client.receive()
-                            errors += kind != MessageType.IMAGE
-                    client.send(encode_message(MessageType.BYE, {}))
-                    client.receive()
+            if rng.random() < 0.6:
+                errors += stream_session(server, rng, burst)
             else:
-                status, body = server.json("POST", "/v1/sessions", scene(rng))
-                assert status == 201, body
-                for _ in range(burst):
-                    answer = server.request(
-                        "POST",
-                        f"/v1/sessions/{body['id']}/frames",
-                        encode_npz_frame(positions(rng)),
-                    )
-                    errors += answer[0] != 200
-                server.request("DELETE", f"/v1/sessions/{body['id']}")
+                errors += http_session(server, rng, burst)
             before = done
             done += burst
             if before < 1000 <= done:
