@@ -270,7 +270,7 @@ def surface_section(
     ball; `notes`: words appended to the "droplets", "edge_alpha" and "band" target lines (a
     study's figures over more frames)."""
     lines = _surface_table(surfaces)
-    lines += _surface_done_when(surfaces, lattice, notes or {})
+    lines += _surface_targets(surfaces, lattice, notes or {})
     if surfaces.crops:
         lines += ["", "Before / after (the middle half of each image):", ""]
         for caption, file in surfaces.crops:
@@ -315,7 +315,7 @@ def _surface_table(surfaces: SurfaceResults) -> list[str]:
     return lines
 
 
-def _surface_done_when(
+def _surface_targets(
     surfaces: SurfaceResults, lattice: SweepRow | None, notes: Mapping[str, str]
 ) -> list[str]:
     """The surface targets checked on the default preset's row (empty when the default, the
