@@ -1,6 +1,6 @@
-"""The dam break's surface figures on every frame of the data set, for any settings (the full
-bench, `sphrender bench`, writes them for the pre-issue default and balanced into REPORT.md;
-server/bench/dam_frames.py measures). Does what was chosen on frame 5 hold on the others?
+"""The dam break's surface figures on every frame of the data set, for any settings
+(benchmarks/bench_report.py writes them for plain smoothing and balanced into REPORT.md;
+benchmarks/studies/dam_frames.py measures). Does what was chosen on frame 5 hold on the others?
 
 Not a test (it needs ../shared/data and pysplashsurf). Run:
     .venv/bin/python benchmarks/bench_dambreak_frames.py [--width 960 --height 540]
@@ -12,13 +12,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from sphrender.server.bench.dam_frames import (
+import repo_path  # noqa: F401
+
+from benchmarks.studies.dam_frames import (
     band_ratios,
     dam_frame_paths,
     dam_frames_section,
     run_dam_frames,
 )
-from sphrender.server.bench.surface_bench import PRE_ISSUE, UNFILTERED
+from sphrender.server.bench.surface_bench import PLAIN_SMOOTHING, UNFILTERED
 from sphrender.server.bench.sweep import preset_setting
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
@@ -26,7 +28,7 @@ from sphrender.server.engine.renderer import SurfaceRenderer
 CACHE = Path(__file__).parent / ".reference-cache"
 SETTINGS = {
     "unfiltered": UNFILTERED,
-    "pre-issue": PRE_ISSUE,
+    "pre-issue": PLAIN_SMOOTHING,
     "fast": preset_setting("fast"),
     "balanced": preset_setting("balanced"),
     "best": preset_setting("best"),
@@ -41,8 +43,8 @@ def main() -> None:
     parser.add_argument("--setting", nargs="*", choices=list(SETTINGS), default=list(SETTINGS))
     args = parser.parse_args()
     settings = [SETTINGS[name] for name in args.setting]
-    if PRE_ISSUE not in settings:
-        settings.insert(0, PRE_ISSUE)  # the band ratios' baseline
+    if PLAIN_SMOOTHING not in settings:
+        settings.insert(0, PLAIN_SMOOTHING)  # the band ratios' baseline
     paths = dam_frame_paths(args.frames)
     if not paths:
         raise SystemExit("no dam-break frames under ../shared/data")
@@ -60,7 +62,7 @@ def main() -> None:
         cells = " ".join(f"{r:5.0%}" for r in ratios.values())
         print(f"  {setting.name[:20]:>20}: {cells}   worst {max(ratios.values()):.0%}")
     for setting in settings:
-        if setting is not PRE_ISSUE:  # REPORT.md's section, for each setting against the baseline
+        if setting is not PLAIN_SMOOTHING:  # REPORT.md's section, each against the baseline
             print("\n" + "\n".join(dam_frames_section(rows, setting.name)))
 
 

@@ -13,7 +13,7 @@ Prints the median dispatch time of each kernel (a finish after each), their rati
 largest angle between their gradients. On llvmpipe (this project's CI machines) the tiles were
 3x slower (54-72 ms against 18-25 ms: barriers and shared memory cost more than the gathers
 save), so the engine gathers; benchmarks/gpu_check.sh runs this on a GPU.
-Kernels: shaders/bench/field_gradient_gather.comp.glsl, field_gradient_tiled.comp.glsl.
+Kernels: benchmarks/studies/shaders/field_gradient_gather.comp.glsl, field_gradient_tiled.comp.glsl.
 """
 
 from __future__ import annotations
@@ -28,15 +28,18 @@ import moderngl
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+import repo_path  # noqa: F401
 from bench_frame_ratio import SETTINGS
 from reference_field_normals import MAX_REACH_PX, rim_distances
 
+from benchmarks.studies.study_shaders import shader_root
 from sphrender.core.frame import make_frame
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.gpu.draw import FullscreenTriangle
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.programs import ProgramCache
+from sphrender.server.engine.gpu.shader_loader import ShaderLoader
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.field_grid import FieldGrid, FieldParticles
 from sphrender.server.engine.passes.gaps import EDGE_JUMP_RADII
@@ -44,8 +47,8 @@ from sphrender.server.engine.passes.normals import EDGE_JUMP_FOOTPRINTS
 from sphrender.server.engine.renderer import SurfaceRenderer
 
 KERNELS = {
-    "per invocation (field_gradient)": ("bench/field_gradient_gather.comp.glsl", 8),
-    "tiles in shared memory": ("bench/field_gradient_tiled.comp.glsl", 8),
+    "per invocation (field_gradient)": ("studies/field_gradient_gather.comp.glsl", 8),
+    "tiles in shared memory": ("studies/field_gradient_tiled.comp.glsl", 8),
 }
 RADIUS = 0.01
 
@@ -90,11 +93,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=7)
     args = parser.parse_args()
-    with GLContext() as gl:
+    with GLContext() as gl, shader_root() as root:
         points, centres = needed_points(gl)
         height, width = points.shape[:2]
         ctx = gl.ctx
-        context = PassContext(gl, ProgramCache(gl), FullscreenTriangle(gl))
+        context = PassContext(gl, ProgramCache(gl, ShaderLoader(root)), FullscreenTriangle(gl))
         grid = FieldGrid(context)
         spheres = np.zeros((len(centres), 4), np.float32)
         spheres[:, :3], spheres[:, 3] = centres, RADIUS

@@ -26,7 +26,7 @@ import time
 from typing import Any
 
 from sphrender.core.frame import make_frame
-from sphrender.server.bench.surface_bench import PRE_ISSUE
+from sphrender.server.bench.surface_bench import PLAIN_SMOOTHING
 from sphrender.server.bench.sweep import bench_scene_from_dict
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.gpu.gl_context import GLContext
@@ -47,7 +47,9 @@ def scene_for(preset: str, overrides: dict[str, Any]) -> Scene:
 
 
 SETTINGS = {
-    "pre-issue default": scene_for(PRE_ISSUE.preset or "balanced", dict(PRE_ISSUE.overrides)),
+    "plain smoothing": scene_for(
+        PLAIN_SMOOTHING.preset or "balanced", dict(PLAIN_SMOOTHING.overrides)
+    ),
     "balanced (default)": scene_for("balanced", {}),
     "balanced, no gaps": scene_for("balanced", {"quality": {"close_gaps": 0.0}}),
     "balanced, no field": scene_for("balanced", {"quality": {"field_normals": 0.0}}),

@@ -5,7 +5,7 @@ Not a test. Run:  .venv/bin/python benchmarks/bench_host.py [--frames 5] [--size
 Renders a jittered-lattice ball (the bench headline shape) with the default preset on the main
 thread, as `sphrender render` does, and prints per size: the median wall time of
 `SurfaceRenderer.render`, the time inside moderngl/pyopencl calls and the difference (host work,
-measured with cProfile: `server/bench/host_time.py`), the engine's own `host_ms` estimate in
+measured with cProfile: `benchmarks/studies/host_time.py`), the engine's own `host_ms` estimate in
 the same profiled frames, then the engine's estimate in unprofiled frames (cProfile's own cost,
 ~1 us a call on this VM, is part of the first two; the engine's estimate counts the unwrapped
 GL calls as host work, so it errs high), the same with the Z and N AOVs read back, and the
@@ -32,9 +32,10 @@ import sys
 import time
 
 import numpy as np
+import repo_path  # noqa: F401
 
+from benchmarks.studies.host_time import profiled
 from sphrender.core.frame import ParticleFrame, make_frame
-from sphrender.server.bench.host_time import profiled
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer

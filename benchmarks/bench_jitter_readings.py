@@ -1,7 +1,7 @@
 """The flicker under both readings of issue 12's jitter (a Gaussian of 2 % r per axis, the
 bench's; every particle moved by exactly 2 % r), for any settings, on the spatter and the
-dam-break frame (the full bench, `sphrender bench`, writes them for the pre-issue default and
-balanced into REPORT.md; server/bench/jitter_readings.py measures).
+dam-break frame (benchmarks/bench_report.py writes them for plain smoothing and balanced into
+REPORT.md; benchmarks/studies/jitter_readings.py measures).
 
 The dam break needs ../shared/data and pysplashsurf (or benchmarks/.reference-cache). Run:
     .venv/bin/python benchmarks/bench_jitter_readings.py [--width 960 --height 540]
@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import argparse
 
+import repo_path  # noqa: F401
 from bench_dambreak_frames import CACHE, SETTINGS
 
-from sphrender.server.bench.jitter_readings import jitter_readings_section, run_jitter_readings
+from benchmarks.studies.jitter_readings import jitter_readings_section, run_jitter_readings
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
 

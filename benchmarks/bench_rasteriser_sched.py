@@ -10,7 +10,7 @@ the default preset, no stage timings, with the host prepare (llvmpipe's default)
 prepare (a GPU server's path), and prints per mode and policy the median frame time, the median
 of the per-cycle frame ratios (batch / default) and the median host work (`RenderStats.host_ms`,
 the render thread's time outside GL calls), plus one cProfile host figure per policy (the
-issue's method: `server/bench/host_time.py`).
+issue's method: `benchmarks/studies/host_time.py`).
 """
 
 from __future__ import annotations
@@ -19,8 +19,10 @@ import argparse
 import os
 import statistics
 
+import repo_path  # noqa: F401
+
+from benchmarks.studies.host_time import profiled
 from sphrender.core.frame import make_frame
-from sphrender.server.bench.host_time import profiled
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.rasteriser_threads import rasteriser_threads

@@ -7,6 +7,7 @@ as the render thread will in the service.
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -24,6 +25,9 @@ if TYPE_CHECKING:
 REPO = Path(__file__).resolve().parents[1]
 #: Real SPH frames vendored with the tests (a slab of the SPlisHSPlasH dam break, tests/data/).
 DAMBREAK = REPO / "tests" / "data" / "dambreak-splishsplash"
+# This repository's studies (benchmarks/studies/, not in the wheel) import as `benchmarks.studies`.
+if str(REPO) not in sys.path:
+    sys.path.append(str(REPO))
 
 
 @pytest.fixture(scope="session")

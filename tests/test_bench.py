@@ -19,7 +19,7 @@ import pytest
 
 from sphrender.core.errors import InputError
 from sphrender.server.bench.run import CSV_COLUMNS, DEVICE_PREPARE
-from sphrender.server.bench.surface_bench import QUICK_SURFACE_SETTINGS, SurfaceRow
+from sphrender.server.bench.surface_bench import PLAIN_SMOOTHING, QUICK_SURFACE_SETTINGS, SurfaceRow
 from sphrender.server.bench.sweep import QUICK_SWEEP
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.output.encoders import read_exr
@@ -83,13 +83,14 @@ def test_bench_quick_writes_the_table(tmp_path: Path) -> None:
     # normals its field normals then replace by the field's, exact for a lone sphere: no worse
     # than the unfiltered splat's (measured 2.7 vs 4.3 deg); the pre-issue filter flattens them
     # (measured 32 deg).
-    balanced, before = by_name["preset balanced"], by_name["pre-issue default"]
+    balanced, before = by_name["preset balanced"], by_name[PLAIN_SMOOTHING.name]
     assert float(balanced["droplet_deg"]) <= float(by_name["unfiltered"]["droplet_deg"])
     assert float(before["droplet_deg"]) > 2 * float(balanced["droplet_deg"])
     report = (out / "REPORT.md").read_text()
     assert "## Real SPH surfaces" in report
     for name in ("spatter", "demo"):
-        assert f"(crop-{name}.png)" in report and (out / f"crop-{name}.png").stat().st_size > 0
+        crop = f"crops/crop-{name}.png"
+        assert f"({crop})" in report and (out / crop).stat().st_size > 0
 
 
 def test_balanced_preset_is_the_builtin_default() -> None:

@@ -16,12 +16,14 @@ import reference_field_normals
 from reference_field_normals import field_gradient, field_normals_reference
 from scipy import ndimage
 
+from benchmarks.studies.study_shaders import shader_root
 from sphrender.core.frame import make_frame
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.gpu.draw import FullscreenTriangle, Target
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.programs import ProgramCache
+from sphrender.server.engine.gpu.shader_loader import ShaderLoader
 from sphrender.server.engine.passes import field_grid, field_normals
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.field_grid import FieldParticles, table_size
@@ -700,7 +702,7 @@ def test_no_particles(renderer: SurfaceRenderer) -> None:
 
 
 @pytest.mark.parametrize(
-    "kernel", ["bench/field_gradient_gather.comp.glsl", "bench/field_gradient_tiled.comp.glsl"]
+    "kernel", ["studies/field_gradient_gather.comp.glsl", "studies/field_gradient_tiled.comp.glsl"]
 )
 def test_bench_gradient_kernels_match_the_reference(gl_context: GLContext, kernel: str) -> None:
     """benchmarks/bench_field_gradient.py's two kernels (the normals pass's gather, and tiles
@@ -717,30 +719,32 @@ def test_bench_gradient_kernels_match_the_reference(gl_context: GLContext, kerne
     points = np.zeros((H, W, 4), np.float32)
     points[ys, xs, :3] = view
     points[ys, xs, 3] = needed
-    context = PassContext(gl_context, ProgramCache(gl_context), FullscreenTriangle(gl_context))
-    grid = field_grid.FieldGrid(context)
-    ctx = gl_context.ctx
-    point_image = ctx.texture((W, H), 4, points.tobytes(), dtype="f4")
-    gradient_image = ctx.texture((W, H), 4, dtype="f4")
-    try:
-        spheres = np.zeros((len(centres), 4), np.float32)
-        spheres[:, :3], spheres[:, 3] = centres, R
-        built = grid.build(FieldParticles(arrays=(spheres,)), SUPPORT)
-        grid.bind_for_reading()
-        point_image.bind_to_image(0, read=True, write=False)
-        gradient_image.bind_to_image(1, read=False, write=True)
-        shader = context.programs.compute(kernel)
-        shader["u_support"] = built.support
-        shader["u_bucket_mask"] = built.bucket_mask
-        shader.run(-(-W // 8), -(-H // 8))
-        ctx.memory_barrier()
-        out = np.frombuffer(gradient_image.read(), np.float32).reshape(H, W, 4)
-    finally:
-        point_image.release()
-        gradient_image.release()
-        grid.release()
-        context.fullscreen.release()
-        context.programs.release()
+    with shader_root() as root:  # the study kernels sit beside the product shaders
+        programs = ProgramCache(gl_context, ShaderLoader(root))
+        context = PassContext(gl_context, programs, FullscreenTriangle(gl_context))
+        grid = field_grid.FieldGrid(context)
+        ctx = gl_context.ctx
+        point_image = ctx.texture((W, H), 4, points.tobytes(), dtype="f4")
+        gradient_image = ctx.texture((W, H), 4, dtype="f4")
+        try:
+            spheres = np.zeros((len(centres), 4), np.float32)
+            spheres[:, :3], spheres[:, 3] = centres, R
+            built = grid.build(FieldParticles(arrays=(spheres,)), SUPPORT)
+            grid.bind_for_reading()
+            point_image.bind_to_image(0, read=True, write=False)
+            gradient_image.bind_to_image(1, read=False, write=True)
+            shader = context.programs.compute(kernel)
+            shader["u_support"] = built.support
+            shader["u_bucket_mask"] = built.bucket_mask
+            shader.run(-(-W // 8), -(-H // 8))
+            ctx.memory_barrier()
+            out = np.frombuffer(gradient_image.read(), np.float32).reshape(H, W, 4)
+        finally:
+            point_image.release()
+            gradient_image.release()
+            grid.release()
+            context.fullscreen.release()
+            context.programs.release()
     np.testing.assert_array_equal(out[ys[~needed], xs[~needed]], 0.0)
     expected, scale = field_gradient(
         view[needed].astype(np.float32).astype(np.float64),

@@ -14,6 +14,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from reference_filters import ambiguous_reach, filter_depth, temperature_blur
+from single_passes import SinglePasses
 
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import QualityConfig
@@ -75,7 +76,7 @@ def assert_matches_reference(
     """GPU = numpy within TOLERANCE; `box_check`: and the image tells a Gaussian from a box
     (off for images too smooth for it: the test then shows its own sensitivity)."""
     quality = replace(quality, close_gaps=0.0)  # the reference is the filter alone
-    gpu = renderer.single_passes.filter_depth_image(
+    gpu = SinglePasses(renderer).filter_depth_image(
         depth, particle_radius=RADIUS, px_per_unit=px_per_unit, quality=quality
     )
     reference = filter_depth(depth, RADIUS, px_per_unit, quality)
@@ -169,7 +170,7 @@ def test_narrow_range_keeps_a_plane_in_perspective_up_to_the_image_edges(
     quality = replace(PLANE_QUALITIES[name], close_gaps=0.0)
     height, width = (180, 320) if quality.separable else (60, 90)
     depth = perspective_plane(height, width, px_per_unit)
-    out = renderer.single_passes.filter_depth_image(
+    out = SinglePasses(renderer).filter_depth_image(
         depth, particle_radius=RADIUS, px_per_unit=px_per_unit, quality=quality
     )
     error = np.abs(out.astype(np.float64) - depth) / RADIUS
@@ -221,7 +222,7 @@ def test_border_variant_gives_the_packed_walks_result_bit_for_bit_inside(
     )
 
     def run() -> np.ndarray:
-        return renderer.single_passes.filter_depth_image(
+        return SinglePasses(renderer).filter_depth_image(
             depth, particle_radius=RADIUS, px_per_unit=920.0, quality=quality
         )
 
@@ -238,7 +239,7 @@ def test_filter_smooths_noise_and_keeps_steps(renderer: SurfaceRenderer) -> None
     to the nearer block stays a step (not blurred into a ramp)."""
     depth = synthetic_depth()
     quality = QualityConfig()
-    out = renderer.single_passes.filter_depth_image(
+    out = SinglePasses(renderer).filter_depth_image(
         depth, particle_radius=RADIUS, px_per_unit=PX_PER_UNIT, quality=quality
     )
     flat = np.s_[14:20, 20:28]
@@ -282,7 +283,7 @@ def test_pair_test_keeps_a_filament_in_front_of_a_surface_and_leaves_the_slope(
     for name, quality in (("on", on), ("off", off)):
         # too smooth for the box check; the on/off difference below is this test's own
         assert_matches_reference(renderer, depth, PX_PER_UNIT, quality, box_check=False)
-        results[name] = renderer.single_passes.filter_depth_image(
+        results[name] = SinglePasses(renderer).filter_depth_image(
             depth,
             particle_radius=RADIUS,
             px_per_unit=PX_PER_UNIT,
@@ -302,10 +303,10 @@ def test_pair_test_keeps_a_filament_in_front_of_a_surface_and_leaves_the_slope(
 
 def test_kernel_scale_changes_result(renderer: SurfaceRenderer) -> None:
     depth = synthetic_depth()
-    narrow = renderer.single_passes.filter_depth_image(
+    narrow = SinglePasses(renderer).filter_depth_image(
         depth, particle_radius=RADIUS, px_per_unit=PX_PER_UNIT, quality=QualityConfig()
     )
-    wide = renderer.single_passes.filter_depth_image(
+    wide = SinglePasses(renderer).filter_depth_image(
         depth,
         particle_radius=RADIUS,
         px_per_unit=PX_PER_UNIT,
@@ -331,7 +332,7 @@ def test_temperature_blur_matches_numpy_reference(renderer: SurfaceRenderer) -> 
     kelvin = (300.0 + 25.0 * columns + rng.uniform(-150, 150, depth.shape)).astype(np.float32)
     kelvin[depth <= 0] = 0.0
     for px_per_unit in (260.0, 900.0):  # reach 2-3 px, and 8-10 px
-        gpu = renderer.single_passes.blur_temperature_image(
+        gpu = SinglePasses(renderer).blur_temperature_image(
             kelvin, depth, particle_radius=RADIUS, px_per_unit=px_per_unit
         )
         reference = temperature_blur(
@@ -369,7 +370,7 @@ def test_temperature_border_variant_gives_the_same_bits_inside(
     kelvin = np.where(depth > 0, 300.0 + 20.0 * columns + 0 * depth, 0.0).astype(np.float32)
 
     def run() -> np.ndarray:
-        return renderer.single_passes.blur_temperature_image(
+        return SinglePasses(renderer).blur_temperature_image(
             kelvin, depth, particle_radius=RADIUS, px_per_unit=900.0
         )
 

@@ -111,7 +111,6 @@ LAYERS = (
     ("sphrender.server.engine.gpu",),
     ("sphrender.server.engine.lighting", "sphrender.server.engine.sph"),
     ("sphrender.server.engine.passes",),
-    ("sphrender.server.engine.single_passes",),
     ("sphrender.server.engine.renderer",),
     ("sphrender.server.output",),
     ("sphrender.server.service", "sphrender.server.bench", "sphrender.server.cluster"),

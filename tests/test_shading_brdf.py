@@ -31,6 +31,7 @@ import moderngl
 import numpy as np
 import pytest
 import reference_shading as ref
+from single_passes import SinglePasses
 
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.gpu.gl_context import GLContext
@@ -207,7 +208,7 @@ def furnace_normals(scene: Scene, mu: float) -> tuple[np.ndarray, np.ndarray, Ca
 def furnace_albedo(renderer: SurfaceRenderer, scene: Scene, mu: float) -> np.ndarray:
     """Shade normals with n.v = mu at every pixel; returns the (H, W) red channel."""
     normals, _, camera = furnace_normals(scene, mu)
-    rgba = renderer.single_passes.shade_normal_depth(ref.normal_depth_image(camera, normals), scene)
+    rgba = SinglePasses(renderer).shade_normal_depth(ref.normal_depth_image(camera, normals), scene)
     assert np.all(np.isfinite(rgba))
     return rgba[..., 0].astype(np.float64)
 
@@ -408,8 +409,8 @@ def test_multiple_scattering_scales_the_direct_specular_lobe(renderer: SurfaceRe
         normals = np.zeros((6, 8, 3))
         normals[..., 2] = 1.0
         image = ref.normal_depth_image(camera, normals)
-        images[flag] = renderer.single_passes.shade_normal_depth(image, scene)[..., 0].astype(
-            np.float64
+        images[flag] = (
+            SinglePasses(renderer).shade_normal_depth(image, scene)[..., 0].astype(np.float64)
         )
     view = ref.view_vectors(camera)
     nv = view[..., 2]

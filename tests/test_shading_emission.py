@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import reference_shading as ref
+from single_passes import SinglePasses
 
 from sphrender.core.frame import make_frame
 from sphrender.server.bench.analytic import pixel_rays
@@ -80,7 +81,7 @@ def test_shader_emission_is_one_minus_fresnel_times_planck(renderer: SurfaceRend
     mu = np.linspace(0.05, 1.0, 12)[None, :].repeat(8, axis=0)
     normals = ref.directions_with_nv(views, mu, np.zeros_like(mu))
     kelvin = np.linspace(500.0, 3000.0, 8, dtype=np.float32)[:, None].repeat(12, axis=1)
-    rgba = renderer.single_passes.shade_normal_depth(
+    rgba = SinglePasses(renderer).shade_normal_depth(
         ref.normal_depth_image(camera, normals), scene, kelvin
     )
     emissivity = 1.0 - np.array(METAL_F0["iron"])
@@ -171,7 +172,7 @@ def test_direct_lights_and_weighted_combination(renderer: SurfaceRenderer) -> No
 
     def shade(**shading: object) -> np.ndarray:
         scene = scene_from_dict({**sections, "shading": shading})
-        return renderer.single_passes.shade_normal_depth(image, scene)[..., :3].astype(np.float64)
+        return SinglePasses(renderer).shade_normal_depth(image, scene)[..., :3].astype(np.float64)
 
     direct = shade(debug_view="direct")
     from sphrender.server.bench.analytic import pixel_rays

@@ -16,6 +16,7 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 import reference_shading as ref
+from single_passes import SinglePasses
 from test_shading_brdf import product_rule_albedo
 
 from sphrender.core.errors import InputError
@@ -61,7 +62,7 @@ def grid_scene(**sections: dict[str, object]) -> Scene:
 def shade_normals(renderer: SurfaceRenderer, scene: Scene, normals: np.ndarray) -> np.ndarray:
     camera = Camera.from_config(scene.camera, scene.image.width, scene.image.height)
     image = ref.normal_depth_image(camera, normals.reshape(camera.height, camera.width, 3))
-    rgba = renderer.single_passes.shade_normal_depth(image, scene)
+    rgba = SinglePasses(renderer).shade_normal_depth(image, scene)
     assert np.all(np.isfinite(rgba))
     return rgba[..., :3].reshape(-1, 3).astype(np.float64)
 
@@ -418,7 +419,7 @@ def test_hard_cases_stay_finite(
     normal_depth[0, :4, 3] = 0.0  # some background pixels
     normal_depth[1, 0, 3] = 2.0 - 1e-7  # the point light sits (almost) on this one
     temperatures = np.linspace(0.0, 1e6, 256, dtype=np.float32).reshape(16, 16)
-    rgba = file_renderer.single_passes.shade_normal_depth(normal_depth, scene, temperatures)
+    rgba = SinglePasses(file_renderer).shade_normal_depth(normal_depth, scene, temperatures)
     assert np.all(np.isfinite(rgba))
     assert np.all(rgba >= 0.0)
 

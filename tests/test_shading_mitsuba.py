@@ -38,6 +38,7 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 import reference_shading as ref
+from single_passes import SinglePasses
 
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.lighting import environment as env
@@ -147,7 +148,7 @@ def our_render(
     )
     camera = Camera.from_config(scene.camera, WIDTH, HEIGHT)
     normal_depth, hit = ref.sphere_normal_depth(camera, np.zeros(3), 1.0)
-    rgba = renderer.single_passes.shade_normal_depth(normal_depth, scene)
+    rgba = SinglePasses(renderer).shade_normal_depth(normal_depth, scene)
     facing = np.einsum("hwk,hwk->hw", normal_depth[..., :3], ref.view_vectors(camera))
     inside = hit.copy()
     for axis in (0, 1):
@@ -383,7 +384,7 @@ def our_workshop_render(
     )
     camera = Camera.from_config(scene.camera, size, size)
     normal_depth, hit = ref.sphere_normal_depth(camera, np.zeros(3), 1.0)
-    rgba = renderer.single_passes.shade_normal_depth(normal_depth, scene)
+    rgba = SinglePasses(renderer).shade_normal_depth(normal_depth, scene)
     facing = np.einsum("hwk,hwk->hw", normal_depth[..., :3], ref.view_vectors(camera))
     inside = hit.copy()
     for axis in (0, 1):

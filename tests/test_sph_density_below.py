@@ -77,7 +77,7 @@ def kernel_answer(
     kernels = below_module.DensityBelowKernels(engine._cl)
     low, _ = column_bounds(positions)
     limit = below_module.spline_limit(fraction * 1000.0, MASS, H)
-    return kernels.run(positions, low, H, limit, engine._buffer, overflow_cap)
+    return kernels.run(positions, low, H, limit, engine._pool, overflow_cap)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -150,7 +150,7 @@ def test_crowded_buckets_are_read_from_the_overflow_list(sph_engine: SphEngine) 
         kernels = below_module.DensityBelowKernels(sph_engine._cl)
         low, _ = column_bounds(positions)
         limit = below_module.spline_limit(below, MASS, h)
-        got = kernels.run(positions, low, h, limit, sph_engine._buffer)
+        got = kernels.run(positions, low, h, limit, sph_engine._pool)
         assert got is not None
         decided = np.abs(density - below) > TIE * below
         assert np.array_equal(got[decided], (density < below)[decided])

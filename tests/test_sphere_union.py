@@ -1,6 +1,6 @@
-"""The dam-frame figures against the union of the particle spheres (server/bench/sphere_union.py)
-on cases whose answers are known: a sphere's projected area, lone particles, edge pixels by
-class, and the droplets' normal error."""
+"""The dam-frame figures against the union of the particle spheres
+(benchmarks/studies/sphere_union.py) on cases whose answers are known: a sphere's projected
+area, lone particles, edge pixels by class, and the droplets' normal error."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from sphrender.server.bench.sphere_union import (
+from benchmarks.studies.sphere_union import (
     droplet_error_deg,
     edge_alpha,
     edge_classes,

@@ -8,14 +8,15 @@ from dataclasses import replace
 
 import numpy as np
 
-from sphrender.server.bench.dam_frames import (
+from benchmarks.studies.dam_frames import (
     DamCounts,
     DamFrameRow,
     all_finite,
     band_ratios,
     dam_frames_section,
+    surface_notes,
 )
-from sphrender.server.bench.jitter_readings import (
+from benchmarks.studies.jitter_readings import (
     READINGS,
     JitterReadingRow,
     case_flicker_deg,
@@ -25,7 +26,7 @@ from sphrender.server.bench.jitter_readings import (
 from sphrender.server.bench.report import surface_section
 from sphrender.server.bench.scenes import Truth, sphere_truth
 from sphrender.server.bench.surface_bench import (
-    PRE_ISSUE,
+    PLAIN_SMOOTHING,
     UNFILTERED,
     SurfaceResults,
     SurfaceRow,
@@ -143,7 +144,7 @@ def _with_analytic(row: DamFrameRow, alpha: float, silhouettes: float, drops: fl
 
 
 def test_dam_frames_section_counts_the_frames_that_meet_each_item() -> None:
-    before, after = PRE_ISSUE.name, "preset balanced"
+    before, after = PLAIN_SMOOTHING.name, "preset balanced"
     rows = [
         _dam_row("F_1", before, 10.0, 1.0, 0.2),
         _with_analytic(_dam_row("F_1", after, 3.0, 0.1, 0.2), 0.05, 0.04, math.nan),
@@ -253,9 +254,9 @@ def test_dam_frames_section_worst_edge_alpha_skips_frames_without_edges() -> Non
     """A frame without edge pixels (nan) is not the worst of them, whatever its place."""
     after = "preset balanced"
     rows = [
-        _dam_row("F_1", PRE_ISSUE.name, 10.0, 1.0, 0.2),
+        _dam_row("F_1", PLAIN_SMOOTHING.name, 10.0, 1.0, 0.2),
         _dam_row("F_1", after, 3.0, 0.1, 0.2),  # its sphere-union figures: nan
-        _dam_row("F_9", PRE_ISSUE.name, 20.0, 2.0, 1.2),
+        _dam_row("F_9", PLAIN_SMOOTHING.name, 20.0, 2.0, 1.2),
         _with_analytic(_dam_row("F_9", after, 9.0, 1.1, 1.2), 0.15, 0.05, 2.0),
     ]
     text = "\n".join(dam_frames_section(rows, after))
@@ -270,7 +271,7 @@ def test_the_reports_done_when_names_the_dam_frames_beside_the_spatter() -> None
     without the per-frame rows the lines say nothing of them."""
     rows = [
         SurfaceRow("preset balanced", 200, 0.55, 0.093, 0.64, 1.3, 18.7, 8.13, 0.98, 1.5, 3.7),
-        SurfaceRow(PRE_ISSUE.name, 100, 23.4, 0.25, 1.9, 35.8, 35.9, 21.53, 2.1, 2.2, 6.5),
+        SurfaceRow(PLAIN_SMOOTHING.name, 100, 23.4, 0.25, 1.9, 35.8, 35.9, 21.53, 2.1, 2.2, 6.5),
         SurfaceRow(UNFILTERED.name, 55, 0.88, 0.038, 4.5, 17.4, 42.7, 31.19, 4.6, 40.0, 77.5),
     ]
     surfaces = SurfaceResults(960, 540, rows, 0.5, dam_flicker_floor=0.8)
@@ -288,7 +289,7 @@ def test_the_reports_done_when_names_the_dam_frames_beside_the_spatter() -> None
         droplets_ok=6,
         finite=True,
     )
-    text = "\n".join(surface_section(surfaces, None, dam))
+    text = "\n".join(surface_section(surfaces, None, surface_notes(dam)))
     assert "(<= 1.2x) on the spatter: met; on the dam-break frames (below) on 6 of the 6" in text
     assert "edge alpha error 0.093 (<= 0.1) on the spatter: met; on the dam-break frames" in text
     assert (

@@ -432,7 +432,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     # -- real splashy surfaces: droplets, anti-aliasing, ellipsoids ----------------------------
     Mutation(
         name="droplet-threshold-inverted",
-        path="server/engine/sph/frame.py",
+        path="server/engine/sph/droplets.py",
         old="return np.asarray(frame.densities) < below",
         new="return np.asarray(frame.densities) >= below",
         tests=("tests/test_surfaces.py::test_exact_droplets_from_client_densities_need_no_sph_pass",),
@@ -508,7 +508,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     ),
     Mutation(
         name="droplet-densities-computed-ignored",
-        path="server/engine/sph/frame.py",
+        path="server/engine/sph/droplets.py",
         old='if frame.densities is not None and scene.quality.droplet_densities == "frame":',
         new="if frame.densities is not None:",
         tests=("tests/test_surfaces.py::test_computed_droplet_densities_ignore_the_frames",),
@@ -531,7 +531,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     ),
     Mutation(
         name="droplet-densities-second-pass",
-        path="server/engine/sph/frame.py",
+        path="server/engine/sph/droplets.py",
         old="if computed is not None and computed.density_computed:",
         new="if computed is not None and not computed.density_computed:",
         tests=("tests/test_surfaces.py::test_computed_droplet_densities_reuse_the_sph_stages_pass",),
@@ -580,7 +580,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     ),
     Mutation(
         name="lone-threshold-at-the-pair",
-        path="server/engine/sph/frame.py",
+        path="server/engine/sph/droplets.py",
         old="below = quality.droplet_lone_density * scene.sph.rest_density",
         new="below = 0.4 * scene.sph.rest_density",
         tests=(

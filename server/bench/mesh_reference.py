@@ -70,7 +70,7 @@ def rasterise(gl: GLContext, programs: ProgramCache, mesh: ReferenceMesh, camera
     ctx = gl.ctx
     view = camera.to_view(mesh.vertices)
     far = float(np.max(-view[:, 2])) * 1.01 + camera.near if len(view) else 1.0
-    program = programs.get("bench/mesh_reference.vert.glsl", "bench/mesh_reference.frag.glsl")
+    program = programs.get("truth/mesh_reference.vert.glsl", "truth/mesh_reference.frag.glsl")
     vertices = ctx.buffer(np.ascontiguousarray(view, dtype=np.float32).tobytes())
     normals = ctx.buffer(np.ascontiguousarray(mesh.normals, dtype=np.float32).tobytes())
     indices = ctx.buffer(np.ascontiguousarray(mesh.triangles, dtype=np.uint32).tobytes())

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Mapping
 from pathlib import Path
 
-from sphrender.server.bench.dam_frames import DamCounts, dam_frame_counts, dam_frames_section
-from sphrender.server.bench.jitter_readings import jitter_readings_section
 from sphrender.server.bench.results import BenchResults, growth_exponent, ratio
 from sphrender.server.bench.surface_bench import (
     NO_FIELD_NORMALS,
-    PRE_ISSUE,
+    PLAIN_SMOOTHING,
     UNFILTERED,
     SurfaceResults,
     SurfaceRow,
@@ -111,9 +110,8 @@ def write_report(results: BenchResults, path: Path, *, plot_name: str) -> None:
     lines = [
         "# Benchmark report: speed against error, peers side by side",
         "",
-        "Regenerate with `.venv/bin/sphrender bench --out benchmarks/` (after "
-        "`pip install -e '.[bench]'`; about 5-10 minutes on 2 CPU cores). Every number below "
-        "was measured in that one run, on this machine:",
+        f"Regenerate with {results.command}. Every number below was measured in that one run, "
+        "on this machine:",
         "",
         *(f"* {line}" for line in results.machine),
         f"* {time.strftime('%Y-%m-%d %H:%M')}",
@@ -128,12 +126,8 @@ def write_report(results: BenchResults, path: Path, *, plot_name: str) -> None:
         lattice = next(
             (r for r in results.rows if r.scene == "ball" and r.setting == "preset balanced"), None
         )
-        dam = dam_frame_counts(results.dam_frames, "preset balanced")
-        lines += surface_section(results.surfaces, lattice, dam)
-    if results.dam_frames:
-        lines += [*dam_frames_section(results.dam_frames), ""]
-    if results.jitter_readings:
-        lines += [*jitter_readings_section(results.jitter_readings), ""]
+        lines += surface_section(results.surfaces, lattice, results.surface_notes)
+    lines += results.extra_sections
     lines += _scaling_section(results)
     path.write_text("\n".join(lines))
 
@@ -158,7 +152,7 @@ def _headline_section(results: BenchResults) -> list[str]:
         verdict = "met" if ours * 10 <= fastest else "NOT met"
         lines += [
             "",
-            f'Target (issue "Speed against error"): sphrender <= 1/10 of VTK\'s fluid mapper. '
+            "Target: sphrender <= 1/10 of VTK's fluid mapper. "
             f"Against the faster VTK filter: {fastest / ours:.1f}x, {verdict} in this run.",
         ]
     lines += [
@@ -204,7 +198,7 @@ def _sweep_section(results: BenchResults, plot_name: str) -> list[str]:
         "normal AOVs back (the metrics need them); the driver writes them in the frame's "
         "formats (passes/readback.py), so they add no per-pixel host work. "
         "benchmarks/bench_host.py measures host work with and without them, with cProfile "
-        "(the issue's way) and without.",
+        "and without.",
         "",
         *markdown_table(results.rows),
         "",
@@ -266,15 +260,17 @@ def _f(value: float, digits: int = 2) -> str:
 
 
 def surface_section(
-    surfaces: SurfaceResults, lattice: SweepRow | None = None, dam: DamCounts | None = None
+    surfaces: SurfaceResults,
+    lattice: SweepRow | None = None,
+    notes: Mapping[str, str] | None = None,
 ) -> list[str]:
-    """The real-SPH-surface table (issue 12's figures), its front, the done-when check against
-    the pre-issue default and the unfiltered splat, and the before/after crops. `lattice`: the
-    sweep's default-preset row of its lattice ball (the ball the issue's 1.4 degrees were
-    measured on), checked beside this section's smaller, coarser ball; `dam`: the default's
-    counts over every dam-break frame (`dam_frames.py`), named beside the one frame's."""
+    """The real-SPH-surface table, its front, the default preset's targets against plain
+    smoothing and the unfiltered splat, and the before/after crops. `lattice`: the sweep's
+    default-preset row of its lattice ball, checked beside this section's smaller, coarser
+    ball; `notes`: words appended to the "droplets", "edge_alpha" and "band" target lines (a
+    study's figures over more frames)."""
     lines = _surface_table(surfaces)
-    lines += _surface_done_when(surfaces, lattice, dam)
+    lines += _surface_targets(surfaces, lattice, notes or {})
     if surfaces.crops:
         lines += ["", "Before / after (the middle half of each image):", ""]
         for caption, file in surfaces.crops:
@@ -319,15 +315,15 @@ def _surface_table(surfaces: SurfaceResults) -> list[str]:
     return lines
 
 
-def _surface_done_when(
-    surfaces: SurfaceResults, lattice: SweepRow | None, dam: DamCounts | None
+def _surface_targets(
+    surfaces: SurfaceResults, lattice: SweepRow | None, notes: Mapping[str, str]
 ) -> list[str]:
-    """The issue's done-when items checked on the default preset's row (empty when the
-    default, the pre-issue or the unfiltered row is missing)."""
+    """The surface targets checked on the default preset's row (empty when the default, the
+    plain-smoothing or the unfiltered row is missing)."""
     by_name = {r.setting: r for r in surfaces.rows}
     default, before, raw = (
         by_name.get("preset balanced"),
-        by_name.get(PRE_ISSUE.name),
+        by_name.get(PLAIN_SMOOTHING.name),
         by_name.get(UNFILTERED.name),
     )
     if default is None or before is None or raw is None:
@@ -339,17 +335,17 @@ def _surface_done_when(
     band_ratio = default.dam_band_fair_deg / before.dam_band_fair_deg
     lines = [
         "",
-        "Done-when of the issue, default preset (balanced) in this run:",
+        "Targets, default preset (balanced) in this run:",
         "",
         f"* droplet error {_f(default.droplet_deg)}° vs unfiltered {_f(raw.droplet_deg)}° "
         f"(<= 1.2x) on the spatter: {verdict(default.droplet_deg <= 1.2 * raw.droplet_deg)}"
-        f"{_dam_droplets(dam)}",
+        f"{notes.get('droplets', '')}",
         f"* edge alpha error {_f(default.edge_alpha_err, 3)} (<= 0.1) on the spatter: "
-        f"{verdict(default.edge_alpha_err <= 0.1)}{_dam_edge_alpha(dam)}",
+        f"{verdict(default.edge_alpha_err <= 0.1)}{notes.get('edge_alpha', '')}",
         f"* dam-break band (tolerant, this frame) {_f(default.dam_band_fair_deg)}° = "
-        f"{_f(100 * band_ratio, 0)} % of the pre-issue {_f(before.dam_band_fair_deg)}° "
+        f"{_f(100 * band_ratio, 0)} % of {before.setting}'s {_f(before.dam_band_fair_deg)}° "
         f"(<= 40 %): {verdict(band_ratio <= 0.4)}; plain band {_f(default.dam_band_deg)}° "
-        f"vs {_f(before.dam_band_deg)}°{_dam_band(dam)}",
+        f"vs {_f(before.dam_band_deg)}°{notes.get('band', '')}",
         *_no_field_band_line(by_name.get(NO_FIELD_NORMALS.name), before),
         f"* flicker {_f(default.flicker_deg)}° spatter / {_f(default.dam_flicker_deg)}° "
         f"dam break (<= 0.3°): "
@@ -367,40 +363,11 @@ def _surface_done_when(
         m = lattice.metrics
         lines.append(
             f"* the sweep's lattice ball ({lattice.particles} particles, {lattice.width}x"
-            f"{lattice.height}, the ball of the issue's 1.4°): {_f(m.normal_mean_deg)}° / "
+            f"{lattice.height}): {_f(m.normal_mean_deg)}° / "
             f"{_f(m.normal_p95_deg)}° (<= 2 / 5): "
             f"{verdict(m.normal_mean_deg <= 2 and m.normal_p95_deg <= 5)}"
         )
     return lines
-
-
-def _dam_droplets(dam: DamCounts | None) -> str:
-    if dam is None or not dam.droplet_frames:
-        return ""
-    return (
-        f"; on the dam-break frames (below) on {dam.droplets_ok} of the {dam.droplet_frames} "
-        f"with lone particles in view"
-    )
-
-
-def _dam_edge_alpha(dam: DamCounts | None) -> str:
-    if dam is None:
-        return ""
-    return (
-        f"; on the dam-break frames (below), against the union of their particle spheres, on "
-        f"{dam.alpha_ok} of {dam.frames} over all its edge pixels (worst {_f(dam.worst_alpha, 3)}"
-        f"), on {dam.silhouettes_ok} of {dam.frames} over its silhouettes against background "
-        f"(worst {_f(dam.worst_silhouettes, 3)})"
-    )
-
-
-def _dam_band(dam: DamCounts | None) -> str:
-    if dam is None:
-        return ""
-    return (
-        f"; every frame (below): on {dam.band_ok} of {dam.frames} (worst "
-        f"{100 * dam.worst_band_ratio:.1f} %)"
-    )
 
 
 def _flicker_split_line(row: SurfaceRow, surfaces: SurfaceResults) -> list[str]:
@@ -424,5 +391,5 @@ def _no_field_band_line(row: SurfaceRow | None, before: SurfaceRow) -> list[str]
     ratio = row.dam_band_fair_deg / before.dam_band_fair_deg
     return [
         f"  * without field normals ({row.setting}): {_f(row.dam_band_fair_deg)}° = "
-        f"{_f(100 * ratio, 1)} % of the pre-issue band; plain band {_f(row.dam_band_deg)}°"
+        f"{_f(100 * ratio, 1)} % of {before.setting}'s band; plain band {_f(row.dam_band_deg)}°"
     ]

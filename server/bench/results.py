@@ -9,8 +9,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sphrender.server.bench import peers
-from sphrender.server.bench.dam_frames import DamFrameRow
-from sphrender.server.bench.jitter_readings import JitterReadingRow
 from sphrender.server.bench.surface_bench import SurfaceResults
 from sphrender.server.bench.sweep import SweepRow
 
@@ -25,10 +23,13 @@ class BenchResults:
     scaling_particles: list[tuple[int, float]] = field(default_factory=list)
     scaling_resolution: list[tuple[int, int, float]] = field(default_factory=list)
     surfaces: SurfaceResults | None = None
-    #: The dam break's figures on every frame of the data set (empty without it).
-    dam_frames: list[DamFrameRow] = field(default_factory=list)
-    #: The flicker under both readings of the issue's jitter (empty in quick runs).
-    jitter_readings: list[JitterReadingRow] = field(default_factory=list)
+    #: Words a study (`run_bench`'s `studies`) appends to the surface section's target lines,
+    #: by line: "droplets", "edge_alpha", "band".
+    surface_notes: dict[str, str] = field(default_factory=dict)
+    #: Markdown lines a study adds after the surface section.
+    extra_sections: list[str] = field(default_factory=list)
+    #: How the report is regenerated (its first paragraph names it).
+    command: str = "`sphrender bench --out DIR` (after `pip install '.[bench]'`)"
 
 
 def growth_exponent(xs: list[float], ys: list[float]) -> float:

@@ -1,12 +1,14 @@
 """`sphrender bench`: the whole benchmark in one command, writing the table, report and plot.
 
-    sphrender bench --out benchmarks/            # full run (tens of minutes on 2 CPU cores)
+    sphrender bench --out bench-out/             # full run (tens of minutes on 2 CPU cores)
     sphrender bench --quick --out /tmp/bench     # smoke run (seconds): small scenes, no peers
 
 Full run: the sweep on every reference scene at 1280x720, the headline comparison (a ~90k
 ball, `sphrender render` to PNG against VTK's fluid mapper and PyVista on the same particles,
-camera and resolution), pysplashsurf and scipy against the OpenCL SPH pass, and scaling with
-particle count and resolution.
+camera and resolution), pysplashsurf and scipy against the OpenCL SPH pass, the real SPH
+surfaces with their before / after crops, and scaling with particle count and resolution.
+`run_bench(studies=...)` adds a caller's own measurements to a full run (this repository's
+REPORT.md: benchmarks/bench_report.py).
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import os
 import platform
 import time
 from collections.abc import Callable
-from dataclasses import fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -24,9 +26,6 @@ import numpy as np
 
 from sphrender.core.frame import make_frame
 from sphrender.server.bench import peers
-from sphrender.server.bench.closeup_crop import BALANCED_DESTREAK, EQUAL_PASSES, write_closeup_crop
-from sphrender.server.bench.dam_frames import dam_frame_paths, run_dam_frames
-from sphrender.server.bench.jitter_readings import run_jitter_readings
 from sphrender.server.bench.report import write_plot, write_report
 from sphrender.server.bench.results import BenchResults
 from sphrender.server.bench.scenes import (
@@ -39,11 +38,8 @@ from sphrender.server.bench.scenes import (
     slab_scene,
 )
 from sphrender.server.bench.surface_bench import (
-    NO_FIELD_NORMALS,
-    PRE_ISSUE,
     QUICK_SURFACE_SETTINGS,
     SURFACE_SETTINGS,
-    UNFILTERED,
     SurfaceResults,
     SurfaceRow,
     run_surface_bench,
@@ -56,7 +52,6 @@ from sphrender.server.bench.sweep import (
     Setting,
     SweepRow,
     bench_scene_dict,
-    preset_setting,
     run_sweep,
     scene_for,
 )
@@ -136,8 +131,8 @@ def _median_frame_ms(renderer: SurfaceRenderer, scene: BenchScene, w: int, h: in
     return float(np.median([renderer.render(frame, render_scene)[1].total_ms for _ in range(3)]))
 
 
-#: The sweep's default row again with the device prepare (issue 13): the same image, and the
-#: host column of the path a GPU server takes (`auto` picks the host prepare on llvmpipe).
+#: The sweep's default row again with the device prepare: the same image, and the host column
+#: of the path a GPU server takes (`auto` picks the host prepare on llvmpipe).
 DEVICE_PREPARE = Setting("preset balanced, device prepare", preset="balanced")
 
 
@@ -158,6 +153,22 @@ def _device_prepare_rows(
         renderer.release()
 
 
+@dataclass(frozen=True)
+class StudyContext:
+    """What a full run hands `run_bench`'s `studies` after the real SPH surfaces: the GL
+    context and renderer, the results so far (a study adds `surface_notes`, `extra_sections`
+    and crops), the output folder, the surfaces' resolution and their reference cache."""
+
+    gl: GLContext
+    renderer: SurfaceRenderer
+    results: BenchResults
+    out: Path
+    width: int
+    height: int
+    cache: Path
+    log: Callable[[str], None]
+
+
 def run_bench(
     out: Path,
     *,
@@ -167,7 +178,9 @@ def run_bench(
     frames: int,
     with_peers: bool,
     log: Callable[[str], None] = print,
+    studies: Callable[[StudyContext], None] | None = None,
 ) -> BenchResults:
+    """The benchmark into `out`; `studies` runs after the surfaces of a full run."""
     out.mkdir(parents=True, exist_ok=True)
     results = BenchResults()
     results.machine = [
@@ -196,7 +209,10 @@ def run_bench(
                 except ImportError as exc:
                     log(f"  {scene.name} skipped: {exc}")
             results.rows += _device_prepare_rows(gl, scenes[0], width, height, frames, log)
-            _run_surfaces(gl, renderer, results, out, quick, log)
+            surface_w, surface_h, cache = _run_surfaces(gl, renderer, results, out, quick, log)
+            if studies is not None and not quick:
+                context = StudyContext(gl, renderer, results, out, surface_w, surface_h, cache, log)
+                studies(context)
             if not quick:
                 _run_scaling(renderer, results, log)
         finally:
@@ -243,10 +259,10 @@ def _run_surfaces(
     out: Path,
     quick: bool,
     log: Callable[[str], None],
-) -> None:
-    """Issue 12's surface measurements and the report's before / after crops."""
-    # The surface figures of issue 12 were measured at 960x540; quick runs use a quarter.
-    surface_w, surface_h = (480, 270) if quick else (960, 540)
+) -> tuple[int, int, Path]:
+    """The real SPH surfaces and the report's before / after crops; returns their resolution
+    and the folder that caches their pysplashsurf references."""
+    surface_w, surface_h = (480, 270) if quick else (960, 540)  # quick: a quarter of the pixels
     cache = out / ".reference-cache"
     log(f"real SPH surfaces (spatter, dam break, ball), {surface_w}x{surface_h}")
     surfaces = run_surface_bench(
@@ -261,56 +277,7 @@ def _run_surfaces(
     results.surfaces = surfaces
     log(f"  {surfaces.dam_note}")
     write_crops(renderer, out, surfaces, cache=cache, gl=gl)
-    if quick:
-        return
-    balanced = preset_setting("balanced")
-    dam_settings = (PRE_ISSUE, UNFILTERED, balanced)  # unfiltered: the droplet item's baseline
-    _run_dam_frames(gl, renderer, results, dam_settings, surface_w, surface_h, cache, log)
-    log("flicker under both readings of the jitter")
-    results.jitter_readings = run_jitter_readings(
-        gl, renderer, (PRE_ISSUE, balanced), width=surface_w, height=surface_h, cache=cache, log=log
-    )
-    # what field normals change
-    write_crops(
-        renderer,
-        out,
-        surfaces,
-        before=NO_FIELD_NORMALS,
-        after=balanced,
-        cache=cache,
-        gl=gl,
-        prefix="crop-field",
-    )
-    # what last_pass_sigma and destreak change on a close-up of a real frame
-    for before, after, name in (
-        (EQUAL_PASSES, balanced, "crop-closeup-dambreak.png"),
-        (balanced, BALANCED_DESTREAK, "crop-closeup-destreak-dambreak.png"),
-    ):
-        write_closeup_crop(renderer, out, surfaces, before=before, after=after, name=name)
-
-
-def _run_dam_frames(
-    gl: GLContext,
-    renderer: SurfaceRenderer,
-    results: BenchResults,
-    settings: tuple[Setting, ...],
-    width: int,
-    height: int,
-    cache: Path,
-    log: Callable[[str], None],
-) -> None:
-    """The dam break on every frame of the data set (skipped without it or pysplashsurf)."""
-    paths = dam_frame_paths()
-    if not paths:
-        log("dam break, every frame: skipped (../shared/data not found)")
-        return
-    log(f"dam break, every frame ({len(paths)}), {width}x{height}")
-    try:
-        results.dam_frames = run_dam_frames(
-            gl, renderer, settings, paths, width=width, height=height, cache=cache, log=log
-        )
-    except ImportError as exc:
-        log(f"  skipped: {exc}")
+    return surface_w, surface_h, cache
 
 
 def _run_scaling(

@@ -60,6 +60,8 @@ from sphrender.server.scene import scene_from_dict
 
 F64 = npt.NDArray[np.float64]
 JITTER = 0.02  # of r
+#: The folder under the output directory that holds the report's crops.
+CROPS = "crops"
 
 
 def _hard_cap(px: int) -> dict[str, Any]:
@@ -67,19 +69,20 @@ def _hard_cap(px: int) -> dict[str, Any]:
     return {"quality": {"kernel_max_px": px, "kernel_max_stride": 1}}
 
 
-#: The quality of the images before issue 12 (the old balanced preset).
-PRE_ISSUE = Setting(
-    "pre-issue default",
+#: Balanced's smoothing without its surface features (exact droplets, antialiasing, the normal
+#: stencil and rules, gap closing, field normals): the baseline of the report's before / after.
+PLAIN_SMOOTHING = Setting(
+    "plain smoothing",
     {
         "quality": {
             "exact_droplets": False,
             "antialias": False,
             "kernel_max_px": 32,
-            "kernel_max_stride": 1,  # a hard cap, as then
-            "normal_stencil": 0.0,  # the 1-pixel difference, as then
-            "last_pass_sigma": 1.0,  # equal passes, as then
-            "normal_rules": "hard",  # the normals' switches, as then
-            "narrow_range_pairs": 0.0,  # no pair test, as then
+            "kernel_max_stride": 1,  # a hard cap
+            "normal_stencil": 0.0,  # the 1-pixel difference
+            "last_pass_sigma": 1.0,  # equal passes
+            "normal_rules": "hard",  # the normals' hard switches
+            "narrow_range_pairs": 0.0,  # no pair test
             "close_gaps": 0.0,
             "field_normals": 0.0,
         }
@@ -93,7 +96,7 @@ UNFILTERED = Setting(
 )
 SURFACE_SETTINGS: tuple[Setting, ...] = (
     UNFILTERED,
-    PRE_ISSUE,
+    PLAIN_SMOOTHING,
     preset_setting("fast"),
     preset_setting("balanced"),
     preset_setting("best"),
@@ -108,7 +111,11 @@ SURFACE_SETTINGS: tuple[Setting, ...] = (
 )
 #: Balanced without its field normals: what they buy (report.py's band line, the crops).
 NO_FIELD_NORMALS = SURFACE_SETTINGS[-1]
-QUICK_SURFACE_SETTINGS: tuple[Setting, ...] = (UNFILTERED, PRE_ISSUE, preset_setting("balanced"))
+QUICK_SURFACE_SETTINGS: tuple[Setting, ...] = (
+    UNFILTERED,
+    PLAIN_SMOOTHING,
+    preset_setting("balanced"),
+)
 
 
 @dataclass(frozen=True)
@@ -360,7 +367,7 @@ def write_crops(
     out: Path,
     results: SurfaceResults,
     *,
-    before: Setting = PRE_ISSUE,
+    before: Setting = PLAIN_SMOOTHING,
     after: Setting | None = None,
     width: int = 640,
     height: int = 360,
@@ -368,8 +375,8 @@ def write_crops(
     gl: GLContext | None = None,
     prefix: str = "crop",
 ) -> None:
-    """Before/after crops (the middle half of each image, side by side) as PNGs in `out`,
-    named `<prefix>-<scene>.png`."""
+    """Before/after crops (the middle half of each image, side by side) as PNGs in
+    `out / CROPS`, named `<prefix>-<scene>.png`."""
     from sphrender.server.content.demo import demo_frame
     from sphrender.server.output.encoders import write_png
 
@@ -400,6 +407,7 @@ def write_crops(
         ]
         gap = np.ones((height // 2, 4, 4), np.float32)
         image = np.concatenate([halves[0], gap, halves[1]], axis=1)
-        file = f"{prefix}-{name}.png"
+        file = f"{CROPS}/{prefix}-{name}.png"
+        (out / CROPS).mkdir(parents=True, exist_ok=True)
         write_png(RenderedFrame(image), out / file)
         results.crops.append((f"{name}: {before.name} (left) / {after.name} (right)", file))

@@ -129,8 +129,8 @@ def jittered(
 ) -> F64:
     """Every particle moved by a Gaussian offset of `fraction` r per axis (on average by
     1.60 `fraction` r: the mean of a 3-D Gaussian's length), or with `fixed_length` by
-    exactly `fraction` r in a uniformly random direction (the issue's "moving every particle
-    by 2 % of r" read literally; `jitter_readings.py` measures both)."""
+    exactly `fraction` r in a uniformly random direction ("every particle moved by 2 % of r"
+    read literally; benchmarks/studies/jitter_readings.py measures both)."""
     rng = np.random.default_rng(seed)
     offsets = rng.normal(0.0, fraction * radius, positions.shape)
     if fixed_length:

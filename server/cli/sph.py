@@ -49,9 +49,9 @@ def run(args: argparse.Namespace) -> int:
     from sphrender.core.readers import read_particles
     from sphrender.server.engine.gpu.cl_context import CLContext
     from sphrender.server.engine.sph.engine import SphEngine, SphParameters
-    from sphrender.server.engine.sph.frame import frame_adaptive_radii, frame_particle_radius
+    from sphrender.server.engine.sph.frame import frame_adaptive_radii
     from sphrender.server.engine.sph.frame_densities import unfit_reason
-    from sphrender.server.engine.sph.radii import surface_density
+    from sphrender.server.engine.sph.radii import frame_particle_radius, surface_density
     from sphrender.server.scene import Scene, load_scene
 
     scene = load_scene(args.scene) if args.scene else Scene()

@@ -44,7 +44,6 @@ from sphrender.server.engine.passes.shade import ShadePass
 from sphrender.server.engine.passes.smooth import SmoothPass
 from sphrender.server.engine.passes.splat import SplatOutput, SplatPass
 from sphrender.server.engine.passes.temperature import TemperaturePass
-from sphrender.server.engine.single_passes import SinglePasses
 from sphrender.server.engine.sph.engine import SphEngine
 from sphrender.server.engine.sph.frame import SphOutcome, SphStage
 from sphrender.server.scene import Scene
@@ -79,9 +78,6 @@ class SurfaceRenderer:
         self._shade = ShadePass(self._context, environment_dirs)
         self._display = DisplayPass(self._context)
         self._readback = ReadbackPass(self._context)
-        self._single = SinglePasses(
-            gl, self._splat, self._smooth, self._normals, self._temperature, self._shade
-        )
 
     @property
     def gl(self) -> GLContext:
@@ -98,9 +94,9 @@ class SurfaceRenderer:
         return self._splat
 
     @property
-    def single_passes(self) -> SinglePasses:
-        """Single passes on given images through this renderer's passes (tests)."""
-        return self._single
+    def image_passes(self) -> tuple[SplatPass, SmoothPass, NormalsPass, TemperaturePass, ShadePass]:
+        """The passes that work on images, in frame order (tests run one on given images)."""
+        return self._splat, self._smooth, self._normals, self._temperature, self._shade
 
     @property
     def shade_pass(self) -> ShadePass:

@@ -14,7 +14,7 @@
 //   quadratically, so smooth surfaces keep the central difference) leaves no switch for a
 //   particle's small move to flip: the dam break's flicker 0.973 -> 0.959 deg at 960x540
 //   (u_smooth_rules false, quality.normal_rules = "hard": the weight is 1 up to the limit, 0
-//   beyond it, the pre-issue-12 rule);
+//   beyond it: a plain switch);
 // * otherwise the one-sided differences of the two neighbours, each weighted by the square of
 //   the other's depth step, so the smaller step dominates (silhouettes do not smear) and a
 //   ridge or a valley between equal steps averages them instead of flipping between them

@@ -63,8 +63,7 @@ class Camera:
 
         Written as three broadcast products, not `@`: numpy hands a (N, 3) @ (3, 3) product to
         OpenBLAS, whose worker threads then spin on every core after it returns (on the main
-        thread) and take them from llvmpipe's rasteriser: 254 -> 105 ms per frame measured with
-        OPENBLAS_NUM_THREADS=1 (issue 13)."""
+        thread) and take them from llvmpipe's rasteriser, more than doubling the frame time."""
         offset = positions - self.eye
         r = self.rotation
         view = offset[:, :1] * r[:, 0]

@@ -5,7 +5,7 @@ thread does in Python and numpy; on llvmpipe the same calls rasterise. `RenderSt
 the render's wall time minus the time this clock saw inside the calls that do the device's work
 (draws, compute dispatches, uploads, read-backs, clears, `finish`), each wrapped where it is
 made: ``with clock: vao.render(...)``. Calls left unwrapped (uniform writes, binds) count as
-host work, so the estimate errs high; `server/bench/host_time.py` checks it with a profiler.
+host work, so the estimate errs high; `benchmarks/studies/host_time.py` checks it with a profiler.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Uniform uploads that cost the render thread nothing when nothing changed.
 
 A stream of frames of one scene sets the same values every frame; on a GPU, what the render
-thread does per frame in Python is the frame time (issue 13), so every uniform goes through the
+thread does per frame in Python is the frame time, so every uniform goes through the
 cache kept in the program's `extra` dict (moderngl's slot for the user's data):
 
 * `set_if_used(program, name, value)`: one uniform, written only when its value changed since

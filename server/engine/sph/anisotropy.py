@@ -1,10 +1,10 @@
-"""Anisotropic particles on OpenCL (Yu & Turk 2013; issue 12): per particle an ellipsoid of the
+"""Anisotropic particles on OpenCL (Yu & Turk 2013): per particle an ellipsoid of the
 particle's volume stretched along its neighbourhood's principal axes, and a smoothed centre.
 
 The kernels (``shaders/sph/anisotropy.cl``, which includes ``sph.cl`` for the grid walk) run on
 the grid `SphEngine` builds, with cell side R = the anisotropy radius; `SphEngine.anisotropy` is
-the entry point, this module holds the parameters, the result and the kernel launches (it
-imports nothing of `engine.py`, so there is no import circle).
+the entry point, this module holds the parameters, the result and the kernel launches (its
+buffers come from the engine's pool, `buffers.py`; it imports nothing of `engine.py`).
 
 Output contract (the ellipsoid splat consumes it):
 
@@ -22,13 +22,14 @@ Output contract (the ellipsoid splat consumes it):
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 
 from sphrender.core.errors import InputError
 from sphrender.server.engine.gpu.cl_context import CLContext
+from sphrender.server.engine.sph.buffers import WORK_GROUP, BufferPool, round_up
 
 if TYPE_CHECKING:
     from sphrender.server.scene import Scene
@@ -43,8 +44,6 @@ ANISOTROPY_KERNELS = "sph/anisotropy.cl"
 #: Anisotropy ramps in over this many neighbours, as a fraction of N_eps: t = min(1, (n - N_eps
 #: + 1) / ramp) for n >= N_eps, so crossing N_eps between frames changes a shape continuously.
 RAMP_FRACTION = 0.5
-#: Work-group size of the launches (as `engine.WORK_GROUP`).
-WORK_GROUP = 64
 
 
 @dataclass(frozen=True)
@@ -137,16 +136,6 @@ def check_radii(radii: float | npt.ArrayLike, count: int) -> F32:
     return np.ascontiguousarray(array)
 
 
-class BufferPool(Protocol):
-    """`SphEngine._buffer`: a reusable device buffer of at least `nbytes` under `name`."""
-
-    def __call__(self, name: str, nbytes: int) -> Any: ...
-
-
-def _round_up(n: int, multiple: int) -> int:
-    return max(multiple, -(-n // multiple) * multiple)
-
-
 class AnisotropyKernels:
     """The anisotropy program's kernels on one `CLContext` (built on first use, cached by it)."""
 
@@ -178,7 +167,7 @@ class AnisotropyKernels:
         f32 = np.float32
         self._anisotropy(
             self._cl.queue,
-            (_round_up(n, WORK_GROUP),),
+            (round_up(n),),
             (WORK_GROUP,),
             *grid_args,
             f32(params.max_ratio),
@@ -217,7 +206,7 @@ class AnisotropyKernels:
             if m:
                 self._eigen(
                     self._cl.queue,
-                    (_round_up(m, WORK_GROUP),),
+                    (round_up(m),),
                     (WORK_GROUP,),
                     source,
                     np.uint32(m),

@@ -23,7 +23,7 @@ import numpy as np
 import numpy.typing as npt
 
 from sphrender.server.engine.gpu.cl_context import CLContext
-from sphrender.server.engine.sph.anisotropy import BufferPool
+from sphrender.server.engine.sph.buffers import WORK_GROUP, BufferPool, round_up
 
 F64 = npt.NDArray[np.float64]
 Bools = npt.NDArray[np.bool_]
@@ -51,13 +51,8 @@ MIN_BUCKETS = 1024
 OVERFLOW_CAP = 1024
 #: density_below.cl's answers.
 NOT_BELOW, BELOW, UNDECIDED = 0, 1, 2
-WORK_GROUP = 64
 #: sph.cl's SIGMA_3D: the spline's 3-D normalisation, 8 / pi.
 SIGMA_3D = 8.0 / np.pi
-
-
-def _round_up(n: int, multiple: int) -> int:
-    return max(multiple, -(-n // multiple) * multiple)
 
 
 def fits(low: F64, high: F64, support_radius: float) -> bool:
@@ -111,7 +106,7 @@ class DensityBelowKernels:
         answers = buffer("below_flags", n)
         h, mask, cap = np.float32(support_radius), np.uint32(buckets - 1), np.uint32(overflow_cap)
         inv_h = np.float32(1.0 / support_radius)
-        size, group = (_round_up(n, WORK_GROUP),), (WORK_GROUP,)
+        size, group = (round_up(n),), (WORK_GROUP,)
         count = np.uint32(n)
         self._insert(
             queue, size, group, positions, count, inv_h, mask, counts, slots, cap,

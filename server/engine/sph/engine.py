@@ -24,10 +24,10 @@ steps, which are O(N) numpy:
    (`radii.py`); `frame.py` applies the result to a frame for the renderer.
 
 The kernel file is ``shaders/sph/sph.cl``; its header documents the kernel function and grid modes.
-`SphEngine.anisotropy` (issue 12, Yu & Turk ellipsoids) builds its own grid with cell side R and
+`SphEngine.anisotropy` (Yu & Turk ellipsoids) builds its own grid with cell side R and
 runs ``shaders/sph/anisotropy.cl`` (launched by `anisotropy.py`, which documents the output).
-`SphEngine` owns its device buffers (grown geometrically, reused across frames) and releases
-them in `release`; the program itself is cached by the `CLContext`.
+`SphEngine` owns its device buffers (`buffers.py`'s pool, shared with the anisotropy and
+density-below launches) and releases them in `release`; the program is cached by the `CLContext`.
 """
 
 from __future__ import annotations
@@ -47,6 +47,7 @@ from sphrender.server.engine.sph.anisotropy import (
     AnisotropyResult,
     check_radii,
 )
+from sphrender.server.engine.sph.buffers import WORK_GROUP, BufferPool, round_up
 from sphrender.server.engine.sph.density_below import DensityBelowKernels, spline_limit
 from sphrender.server.engine.sph.density_below import fits as below_fits
 
@@ -59,8 +60,6 @@ Bools = npt.NDArray[np.bool_]
 
 #: Kernel file (package data in `sphrender.shaders`).
 SPH_KERNELS = "sph/sph.cl"
-#: Work-group size for every 1-D launch (global sizes are padded to a multiple of it).
-WORK_GROUP = 64
 #: Largest cell coordinate accepted (cells are int32 on the device, with room for +-1).
 MAX_CELL_SPAN = 2**30
 #: Dense buckets while the domain has at most this many cells per particle (+ a small floor).
@@ -161,10 +160,6 @@ def column_bounds(points: npt.NDArray[np.floating[Any]]) -> tuple[F64, F64]:
     return low, high
 
 
-def _round_up(n: int, multiple: int) -> int:
-    return max(multiple, -(-n // multiple) * multiple)
-
-
 class SphEngine:
     """Runs the SPH kernels on one `CLContext`; owns its device buffers (see module docstring)."""
 
@@ -192,47 +187,18 @@ class SphEngine:
                 "dilate_flags",
             )
         }
-        self._buffers: dict[str, Any] = {}
+        self._pool = BufferPool(cl)
         self._anisotropy: AnisotropyKernels | None = None  # built on first use
         self._below: DensityBelowKernels | None = None  # built on first use
 
-    # -- buffers ---------------------------------------------------------------------------
-
-    def _buffer(self, name: str, nbytes: int) -> Any:
-        """A device buffer of at least `nbytes`, reused across frames, grown geometrically."""
-        nbytes = max(nbytes, 16)
-        buffer = self._buffers.get(name)
-        if buffer is None or buffer.size < nbytes:
-            if buffer is not None:
-                nbytes = max(nbytes, buffer.size * 2)  # size first: a released buffer has none
-                buffer.release()
-            buffer = self._pyopencl.Buffer(
-                self._cl.context, self._pyopencl.mem_flags.READ_WRITE, nbytes
-            )
-            self._buffers[name] = buffer
-        return buffer
-
-    def _upload(self, name: str, array: np.ndarray) -> Any:
-        buffer = self._buffer(name, array.nbytes)
-        if array.nbytes:
-            self._pyopencl.enqueue_copy(self._cl.queue, buffer, np.ascontiguousarray(array))
-        return buffer
-
-    def _download(self, buffer: Any, array: np.ndarray) -> np.ndarray:
-        if array.nbytes:
-            self._pyopencl.enqueue_copy(self._cl.queue, array, buffer)
-        return array
-
     def _run(self, name: str, global_size: int, *args: Any) -> None:
         kernel = self._kernels[name]
-        kernel(self._cl.queue, (_round_up(global_size, WORK_GROUP),), (WORK_GROUP,), *args)
+        kernel(self._cl.queue, (round_up(global_size),), (WORK_GROUP,), *args)
 
     def release(self) -> None:
         """Release every device buffer (owner thread); the engine is unusable afterwards."""
         self._cl.check_owner()
-        for buffer in self._buffers.values():
-            buffer.release()
-        self._buffers.clear()
+        self._pool.release()
         self._kernels.clear()
         self._anisotropy = None
         self._below = None
@@ -243,7 +209,7 @@ class SphEngine:
         """starts[0..m] = exclusive prefix sum of counts[0..m-1] (starts[m] = total)."""
         chunk = max(32, -(-m // SCAN_CHUNKS))
         chunks = -(-m // chunk)
-        sums = self._buffer("scan_sums", 4 * (chunks + 1))
+        sums = self._pool("scan_sums", 4 * (chunks + 1))
         u32 = np.uint32
         self._run("chunk_sums", chunks, counts, u32(m), u32(chunk), sums)
         self._kernels["scan_chunk_sums"](self._cl.queue, (1,), (1,), sums, u32(chunks))
@@ -275,20 +241,20 @@ class SphEngine:
             nx, ny, nz, mask = 0, 0, 0, buckets - 1
 
         queue = self._cl.queue
-        cell_buf = self._upload("cell", cell)
-        local_buf = self._upload("local", local)
-        counts = self._buffer("bucket_counts", 4 * buckets)
+        cell_buf = self._pool.upload("cell", cell)
+        local_buf = self._pool.upload("local", local)
+        counts = self._pool("bucket_counts", 4 * buckets)
         self._pyopencl.enqueue_fill_buffer(queue, counts, np.uint32(0), 0, 4 * buckets)
-        bucket = self._buffer("bucket", 4 * n)
-        rank = self._buffer("rank", 4 * n)
+        bucket = self._pool("bucket", 4 * n)
+        rank = self._pool("rank", 4 * n)
         i32, u32 = np.int32, np.uint32
         self._run(
             "count_buckets", n, cell_buf, u32(n), i32(nx), i32(ny), u32(mask), bucket, rank, counts
         )
-        starts = self._buffer("bucket_starts", 4 * (buckets + 1))
+        starts = self._pool("bucket_starts", 4 * (buckets + 1))
         self._prefix_sum(counts, buckets, starts)
         # The same order every run: ranks by index within each bucket, not atomic order.
-        slots = self._buffer("bucket_slots", 4 * n)
+        slots = self._pool("bucket_slots", 4 * n)
         self._run("scatter_index", n, bucket, rank, starts, u32(n), slots)
         self._run("stable_rank", n, bucket, starts, slots, u32(n), rank)
         self._run(
@@ -300,24 +266,24 @@ class SphEngine:
             rank,
             starts,
             u32(n),
-            self._buffer("sorted_cell", 16 * n),
-            self._buffer("sorted_local", 16 * n),
-            self._buffer("sorted_to_original", 4 * n),
+            self._pool("sorted_cell", 16 * n),
+            self._pool("sorted_local", 16 * n),
+            self._pool("sorted_to_original", 4 * n),
         )
         return _Grid(n, nx, ny, nz, mask, h)
 
     def _grid_args(self, grid: _Grid) -> tuple[Any, ...]:
         """The GRID_ARGS of sph.cl followed by sorted_to_original and n."""
         return (
-            self._buffers["sorted_cell"],
-            self._buffers["sorted_local"],
-            self._buffers["bucket_starts"],
+            self._pool["sorted_cell"],
+            self._pool["sorted_local"],
+            self._pool["bucket_starts"],
             np.int32(grid.nx),
             np.int32(grid.ny),
             np.int32(grid.nz),
             np.uint32(grid.mask),
             np.float32(grid.h),
-            self._buffers["sorted_to_original"],
+            self._pool["sorted_to_original"],
             np.uint32(grid.count),
         )
 
@@ -335,15 +301,15 @@ class SphEngine:
             return np.zeros(1, np.int64), np.zeros(0, np.int64)
         grid = self._build_grid(points, support_radius)
         args = self._grid_args(grid)
-        counts = self._buffer("neighbour_counts", 4 * n)
+        counts = self._pool("neighbour_counts", 4 * n)
         self._run("count_neighbours", n, *args, counts)
-        offsets_buf = self._buffer("neighbour_offsets", 4 * (n + 1))
+        offsets_buf = self._pool("neighbour_offsets", 4 * (n + 1))
         self._prefix_sum(counts, n, offsets_buf)
-        offsets = self._download(offsets_buf, np.empty(n + 1, np.uint32))
+        offsets = self._pool.download(offsets_buf, np.empty(n + 1, np.uint32))
         total = int(offsets[-1])
-        neighbours = self._buffer("neighbour_list", 4 * total)
+        neighbours = self._pool("neighbour_list", 4 * total)
         self._run("list_neighbours", n, *args, offsets_buf, neighbours)
-        indices = self._download(neighbours, np.empty(total, np.uint32))
+        indices = self._pool.download(neighbours, np.empty(total, np.uint32))
         return offsets.astype(np.int64), indices.astype(np.int64)
 
     def compute(
@@ -375,12 +341,12 @@ class SphEngine:
         sorted_volume, density_out = self._volumes(args, n, params, client_densities)
         sorted_flag = self._colour_field(args, n, params, sorted_volume)
         if splat_mask:
-            keep_out = self._buffer("splat_keep", n)
+            keep_out = self._pool("splat_keep", n)
             reach = np.float32(params.safety_reach)
             self._run("dilate_flags", n, *args, sorted_flag, reach, keep_out)
         density = client_densities
         if density is None:
-            density = self._download(density_out, np.empty(n, np.float32))
+            density = self._pool.download(density_out, np.empty(n, np.float32))
         return self._read_result(n, density, client_densities is None, gradient, splat_mask)
 
     def _volumes(
@@ -393,17 +359,17 @@ class SphEngine:
         """Each particle's volume m / rho in grid order and the density buffer (eq 2's, or the
         client's uploaded)."""
         f32 = np.float32
-        sorted_volume = self._buffer("sorted_volume", 4 * n)
-        density_out = self._buffer("density", 4 * n)
+        sorted_volume = self._pool("sorted_volume", 4 * n)
+        density_out = self._pool("density", 4 * n)
         if client_densities is None:
             self._run("density", n, *args, f32(params.mass), sorted_volume, density_out)
         else:
-            self._upload("density", client_densities)
+            self._pool.upload("density", client_densities)
             self._run(
                 "gather_volumes",
                 n,
                 density_out,
-                self._buffers["sorted_to_original"],
+                self._pool["sorted_to_original"],
                 np.uint32(n),
                 f32(params.mass),
                 sorted_volume,
@@ -416,7 +382,7 @@ class SphEngine:
         """The colour field, its gradient and the surface flags (in input order), and the flags
         in grid order, which the splat mask's dilation reads."""
         f32 = np.float32
-        sorted_flag = self._buffer("sorted_flag", n)
+        sorted_flag = self._pool("sorted_flag", n)
         self._run(
             "color_field",
             n,
@@ -425,9 +391,9 @@ class SphEngine:
             sorted_volume,
             f32(params.surface_threshold),
             f32(params.sparse_density),
-            self._buffer("color", 4 * n),
-            self._buffer("gradient", 16 * n),
-            self._buffer("surface", n),
+            self._pool("color", 4 * n),
+            self._pool("gradient", 16 * n),
+            self._pool("surface", n),
             sorted_flag,
         )
         return sorted_flag
@@ -436,15 +402,15 @@ class SphEngine:
         self, n: int, density: F32, computed: bool, gradient: bool, splat_mask: bool
     ) -> SphResult:
         """The colour field, the surface flags and what else was asked for, read back."""
-        color = self._download(self._buffers["color"], np.empty(n, np.float32))
-        surface = self._download(self._buffers["surface"], np.empty(n, np.uint8)).astype(bool)
+        color = self._pool.download(self._pool["color"], np.empty(n, np.float32))
+        surface = self._pool.download(self._pool["surface"], np.empty(n, np.uint8)).astype(bool)
         gradient_xyz = None
         if gradient:
-            gradient4 = self._download(self._buffers["gradient"], np.empty((n, 4), np.float32))
+            gradient4 = self._pool.download(self._pool["gradient"], np.empty((n, 4), np.float32))
             gradient_xyz = np.ascontiguousarray(gradient4[:, :3])
         keep = None
         if splat_mask:
-            keep = self._download(self._buffers["splat_keep"], np.empty(n, np.uint8)).astype(bool)
+            keep = self._pool.download(self._pool["splat_keep"], np.empty(n, np.uint8)).astype(bool)
         return SphResult(density, computed, color, gradient_xyz, surface, keep)
 
     def density(self, positions: npt.ArrayLike, params: SphParameters) -> F32:
@@ -455,8 +421,8 @@ class SphEngine:
         if n == 0:
             return np.zeros(0, np.float32)
         grid = self._build_grid(points, params.support_radius)
-        sorted_volume = self._buffer("sorted_volume", 4 * n)
-        density_out = self._buffer("density", 4 * n)
+        sorted_volume = self._pool("sorted_volume", 4 * n)
+        density_out = self._pool("density", 4 * n)
         self._run(
             "density",
             n,
@@ -465,7 +431,7 @@ class SphEngine:
             sorted_volume,
             density_out,
         )
-        return self._download(density_out, np.empty(n, np.float32))
+        return self._pool.download(density_out, np.empty(n, np.float32))
 
     def density_below(self, positions: npt.ArrayLike, params: SphParameters, below: float) -> Bools:
         """Which particles' eq 2 density is below `below` (absolute): `density(...) < below`
@@ -481,7 +447,7 @@ class SphEngine:
         h = params.support_radius
         if below_fits(low, high, h):
             limit = spline_limit(below, params.mass, h)
-            answer = self.density_below_kernels().run(points, low, h, limit, self._buffer)
+            answer = self.density_below_kernels().run(points, low, h, limit, self._pool)
             if answer is not None:
                 return answer
         return self.density(points, params) < below
@@ -518,7 +484,7 @@ class SphEngine:
         if n == 0:
             return AnisotropyResult.empty()
         grid = self._build_grid(points, params.radius)
-        shapes = kernels.run(self._grid_args(grid), n, params, self._buffer)
+        shapes = kernels.run(self._grid_args(grid), n, params, self._pool)
         return shapes.result(points, radius)
 
 

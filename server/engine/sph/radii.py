@@ -1,12 +1,23 @@
-"""Eq 29: the adaptive particle radius, from the SPH densities and the surface flags (numpy)."""
+"""Eq 29: the adaptive particle radius, from the SPH densities and the surface flags (numpy), and
+the radius a frame's SPH parameters follow."""
 
 from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
 
+from sphrender.core.frame import ParticleFrame
+from sphrender.server.scene import Scene
+
 F32 = npt.NDArray[np.float32]
 Bools = npt.NDArray[np.bool_]
+
+
+def frame_particle_radius(frame: ParticleFrame, scene: Scene) -> float:
+    """The radius that defines h and m: the median client radius, else the scene's."""
+    if frame.radii is not None and frame.count:
+        return float(np.median(frame.radii))
+    return scene.particles.radius
 
 
 def surface_density(density: npt.NDArray[np.floating], surface: Bools) -> float | None:

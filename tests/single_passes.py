@@ -2,8 +2,8 @@
 frame's, for tests that compare one pass with a numpy reference (exact normals into the shade
 pass, synthetic depth into the smoothing, a kelvin image into the temperature blur).
 
-`SurfaceRenderer.single_passes` is the renderer's; it owns nothing (the passes are the
-renderer's) and runs on the GL context's owner thread.
+`SinglePasses(renderer)` owns nothing (the passes are the renderer's, `image_passes`) and runs
+on the GL context's owner thread.
 """
 
 from __future__ import annotations
@@ -13,26 +13,14 @@ import numpy.typing as npt
 
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.gpu.draw import image_bytes, read_image
-from sphrender.server.engine.gpu.gl_context import GLContext
-from sphrender.server.engine.passes.normals import NormalsPass
-from sphrender.server.engine.passes.shade import ShadePass
-from sphrender.server.engine.passes.smooth import SmoothPass
-from sphrender.server.engine.passes.splat import SplatPass
-from sphrender.server.engine.passes.temperature import TemperaturePass
+from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import QualityConfig, Scene
 
 
 class SinglePasses:
-    def __init__(
-        self,
-        gl: GLContext,
-        splat: SplatPass,
-        smooth: SmoothPass,
-        normals: NormalsPass,
-        temperature: TemperaturePass,
-        shade: ShadePass,
-    ) -> None:
-        self._gl = gl
+    def __init__(self, renderer: SurfaceRenderer) -> None:
+        self._gl = renderer.gl
+        splat, smooth, normals, temperature, shade = renderer.image_passes
         self._splat = splat
         self._smooth = smooth
         self._normals = normals

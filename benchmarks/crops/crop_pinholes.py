@@ -1,9 +1,9 @@
 """Before/after crop of the pinholes a view along a lattice plate's channels shows
-(benchmarks/crop-pinholes-plate.png): a 3-layer plate at 480x270, balanced, without and with
+(benchmarks/crops/crop-pinholes-plate.png): a 3-layer plate at 480x270, balanced, without and with
 the gap rule's second run after the smoothing (`GapPass.close_again`), composited over a white
 page as a frontend would composite the PNG's straight alpha, 4x nearest-neighbour.
 
-Usage: .venv/bin/python benchmarks/crop_pinholes.py [-o benchmarks/crop-pinholes-plate.png]
+Usage: .venv/bin/python benchmarks/crops/crop_pinholes.py [-o OUT.png]
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ def side_by_side(crops: list[npt.NDArray[np.uint8]], scale: int) -> Image.Image:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("-o", "--output", default="benchmarks/crop-pinholes-plate.png")
+    parser.add_argument("-o", "--output", default="benchmarks/crops/crop-pinholes-plate.png")
     out = parser.parse_args().output
     with GLContext() as gl:
         renderer = SurfaceRenderer(gl)

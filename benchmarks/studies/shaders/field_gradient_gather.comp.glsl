@@ -6,7 +6,7 @@
 
 layout(local_size_x = 8, local_size_y = 8) in;
 
-#include "bench/field_gradient_io.glsl"
+#include "studies/field_gradient_io.glsl"
 
 void main() {
     ivec2 p = ivec2(gl_GlobalInvocationID.xy);

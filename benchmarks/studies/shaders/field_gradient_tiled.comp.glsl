@@ -14,7 +14,7 @@
 
 layout(local_size_x = TILE, local_size_y = TILE) in;
 
-#include "bench/field_gradient_io.glsl"
+#include "studies/field_gradient_io.glsl"
 
 shared int s_low[3];
 shared int s_high[3];

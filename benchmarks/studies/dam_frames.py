@@ -21,17 +21,17 @@ from pathlib import Path
 
 import numpy as np
 
-from sphrender.server.bench.mesh_reference import rasterise
-from sphrender.server.bench.scenes import DAMBREAK_RADIUS, DAMBREAK_VTK
-from sphrender.server.bench.sphere_union import (
+from benchmarks.studies.sphere_union import (
     SphereUnion,
     droplet_error_deg,
     edge_alpha,
     gap_coverage,
     sphere_union,
 )
+from sphrender.server.bench.mesh_reference import rasterise
+from sphrender.server.bench.scenes import DAMBREAK_RADIUS, DAMBREAK_VTK
 from sphrender.server.bench.surface_bench import (
-    PRE_ISSUE,
+    PLAIN_SMOOTHING,
     UNFILTERED,
     Case,
     cached_reconstruction,
@@ -185,7 +185,7 @@ def _analytic_truths(
 
 def band_ratios(rows: Sequence[DamFrameRow], setting: str) -> dict[str, float]:
     """Per frame: `setting`'s tolerant band error over the pre-issue default's."""
-    before = {r.frame: r.band_deg for r in rows if r.setting == PRE_ISSUE.name}
+    before = {r.frame: r.band_deg for r in rows if r.setting == PLAIN_SMOOTHING.name}
     return {
         r.frame: r.band_deg / before[r.frame]
         for r in rows
@@ -200,7 +200,7 @@ def dam_frames_section(rows: Sequence[DamFrameRow], setting: str = "preset balan
     ratios = band_ratios(rows, setting)
     if not ratios:
         return []
-    before = {r.frame: r for r in rows if r.setting == PRE_ISSUE.name}
+    before = {r.frame: r for r in rows if r.setting == PLAIN_SMOOTHING.name}
     after = {r.frame: r for r in rows if r.setting == setting}
     raw = {r.frame: r for r in rows if r.setting == UNFILTERED.name}
     head = ["frame", "pre-issue band°", f"{setting} band°", "ratio", "mean°", "flicker°"]
@@ -293,6 +293,32 @@ def dam_frame_counts(rows: Sequence[DamFrameRow], setting: str) -> DamCounts | N
         ),
         finite=all(r.finite for r in rows),
     )
+
+
+def surface_notes(counts: DamCounts | None) -> dict[str, str]:
+    """What the report's surface targets add for the dam-break frames, by target line
+    (`BenchResults.surface_notes`); empty without counts."""
+    if counts is None:
+        return {}
+    notes = {
+        "edge_alpha": (
+            f"; on the dam-break frames (below), against the union of their particle spheres, "
+            f"on {counts.alpha_ok} of {counts.frames} over all its edge pixels (worst "
+            f"{_cell(counts.worst_alpha, 3)}), on {counts.silhouettes_ok} of {counts.frames} "
+            f"over its silhouettes against background (worst "
+            f"{_cell(counts.worst_silhouettes, 3)})"
+        ),
+        "band": (
+            f"; every frame (below): on {counts.band_ok} of {counts.frames} (worst "
+            f"{100 * counts.worst_band_ratio:.1f} %)"
+        ),
+    }
+    if counts.droplet_frames:
+        notes["droplets"] = (
+            f"; on the dam-break frames (below) on {counts.droplets_ok} of the "
+            f"{counts.droplet_frames} with lone particles in view"
+        )
+    return notes
 
 
 def _verdicts(counts: DamCounts, mine: Sequence[DamFrameRow]) -> list[str]:

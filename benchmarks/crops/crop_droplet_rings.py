@@ -1,5 +1,5 @@
 """Before/after crop of the rings the field normals drew on a pool around each exact droplet
-(benchmarks/crop-droplet-rings.png): the dam break's frame 9 in a close-up at 1280x720,
+(benchmarks/crops/crop-droplet-rings.png): the dam break's frame 9 in a close-up at 1280x720,
 balanced, with the droplets taken as rims of the pool behind them (before: the normals pass
 not given the bulk's depth under the droplets) and as today (after), composited over a white
 page, 3x nearest-neighbour. Prints how far the normals within 5 px of the exact droplets lie
@@ -7,7 +7,7 @@ from those of the same frame rendered without the droplets (the surface behind g
 away from that surface's own rims.
 
 Needs ../shared/data (the SPlisHSPlasH frames). Usage:
-    .venv/bin/python benchmarks/crop_droplet_rings.py [-o benchmarks/crop-droplet-rings.png]
+    .venv/bin/python benchmarks/crops/crop_droplet_rings.py [-o OUT.png]
 """
 
 from __future__ import annotations
@@ -79,7 +79,7 @@ def angles_deg(a: npt.NDArray[np.float32], b: npt.NDArray[np.float32]) -> npt.ND
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    parser.add_argument("-o", "--output", default="benchmarks/crop-droplet-rings.png")
+    parser.add_argument("-o", "--output", default="benchmarks/crops/crop-droplet-rings.png")
     out = parser.parse_args().output
     frame = read_particles(FRAME / "ParticleData_Fluid_9.vtk")
     with GLContext() as gl:

@@ -1,12 +1,12 @@
 """Before/after crop of the lone droplets SPlisHSPlasH's densities hide
-(benchmarks/crop-lone-droplets.png): the dam break's frame 9 in a close-up at 1280x720,
+(benchmarks/crops/crop-lone-droplets.png): the dam break's frame 9 in a close-up at 1280x720,
 balanced without `quality.droplet_lone_density` (before: the frame's densities alone, which
 count the simulator's walls, so a lone particle by a wall reads bulk and is smoothed into a
 lens) and with it (after, the default since 2026-12-03), composited over a white page, 2x
 nearest-neighbour. Prints how many particles the rule adds to the droplets.
 
 Needs ../shared/data (the SPlisHSPlasH frames). Usage:
-    .venv/bin/python benchmarks/crop_lone_droplets.py [-o benchmarks/crop-lone-droplets.png]
+    .venv/bin/python benchmarks/crops/crop_lone_droplets.py [-o OUT.png]
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ BOX = (20, 230, 400, 240)
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    parser.add_argument("-o", "--output", default="benchmarks/crop-lone-droplets.png")
+    parser.add_argument("-o", "--output", default="benchmarks/crops/crop-lone-droplets.png")
     out = parser.parse_args().output
     frame = read_particles(FRAME / "ParticleData_Fluid_9.vtk")
     before_scene = scene_from_dict({**SCENE, "quality": {"droplet_lone_density": 0.0}})

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sphrender.server.bench.dam_frames import FLICKER_LIMIT_DEG
+from benchmarks.studies.dam_frames import FLICKER_LIMIT_DEG
 from sphrender.server.bench.surface_bench import (
     JITTER,
     Case,

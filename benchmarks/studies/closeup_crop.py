@@ -1,4 +1,4 @@
-"""Before/after crops of a close-up of the real dam-break frame (`sphrender bench`'s report):
+"""Before/after crops of a close-up of the real dam-break frame (the repository's REPORT.md):
 what the bench's distance does not show, such as the streaks the separable filter leaves along
 silhouettes when kernels are long (`quality.last_pass_sigma`, `quality.destreak`).
 
@@ -16,7 +16,7 @@ import numpy as np
 
 from sphrender.core.frame import make_frame
 from sphrender.server.bench.scenes import DAMBREAK_RADIUS, dambreak_frame
-from sphrender.server.bench.surface_bench import SurfaceResults
+from sphrender.server.bench.surface_bench import CROPS, SurfaceResults
 from sphrender.server.bench.sweep import Setting, scene_for
 from sphrender.server.engine.frame_output import RenderedFrame
 from sphrender.server.engine.renderer import SurfaceRenderer
@@ -40,8 +40,8 @@ def write_closeup_crop(
     after: Setting,
     name: str = "crop-closeup-dambreak.png",
 ) -> None:
-    """`before` (left) and `after` (right) on the close-up, side by side, as `out / name`;
-    its caption joins `results.crops`. Nothing without the data set."""
+    """`before` (left) and `after` (right) on the close-up, side by side, as
+    `out / CROPS / name`; its caption joins `results.crops`. Nothing without the data set."""
     from sphrender.core.readers import read_particles
     from sphrender.server.output.encoders import write_png
 
@@ -63,6 +63,7 @@ def write_closeup_crop(
     ]
     gap = np.ones((height, 4, 4), np.float32)
     image = np.concatenate([halves[0], gap, halves[1]], axis=1)
-    write_png(RenderedFrame(image), out / name)
+    (out / CROPS).mkdir(parents=True, exist_ok=True)
+    write_png(RenderedFrame(image), out / CROPS / name)
     caption = f"dam break frame 5, close-up: {before.name} (left) / {after.name} (right)"
-    results.crops.append((caption, name))
+    results.crops.append((caption, f"{CROPS}/{name}"))

@@ -1,0 +1,101 @@
+"""The studies this repository's REPORT.md adds to `sphrender bench` (`run_bench(studies=...)`,
+run by benchmarks/bench_report.py): the dam break on every frame of the data set, the flicker
+under both readings of the jitter, and the crops of what field normals, `last_pass_sigma` and
+`destreak` change. Each needs ../shared/data (and pysplashsurf, or the reference cache) and is
+skipped without it.
+"""
+
+from __future__ import annotations
+
+from benchmarks.studies.closeup_crop import BALANCED_DESTREAK, EQUAL_PASSES, write_closeup_crop
+from benchmarks.studies.dam_frames import (
+    dam_frame_counts,
+    dam_frame_paths,
+    dam_frames_section,
+    run_dam_frames,
+    surface_notes,
+)
+from benchmarks.studies.jitter_readings import jitter_readings_section, run_jitter_readings
+from sphrender.server.bench.run import StudyContext
+from sphrender.server.bench.surface_bench import (
+    NO_FIELD_NORMALS,
+    PLAIN_SMOOTHING,
+    UNFILTERED,
+    write_crops,
+)
+from sphrender.server.bench.sweep import preset_setting
+
+#: The report's first paragraph: how to regenerate it.
+COMMAND = (
+    "`.venv/bin/python benchmarks/bench_report.py` (after `pip install -e '.[bench]'`; about "
+    "5-10 minutes on 2 CPU cores)"
+)
+
+
+def run_studies(ctx: StudyContext) -> None:
+    """The studies into `ctx.results` (sections, target notes, crops) and `ctx.out`."""
+    results, log = ctx.results, ctx.log
+    results.command = COMMAND
+    balanced = preset_setting("balanced")
+    _dam_frames(ctx)
+    log("flicker under both readings of the jitter")
+    readings = run_jitter_readings(
+        ctx.gl,
+        ctx.renderer,
+        (PLAIN_SMOOTHING, balanced),
+        width=ctx.width,
+        height=ctx.height,
+        cache=ctx.cache,
+        log=log,
+    )
+    if readings:
+        results.extra_sections += [*jitter_readings_section(readings), ""]
+    surfaces = results.surfaces
+    if surfaces is None:
+        return
+    # what field normals change
+    write_crops(
+        ctx.renderer,
+        ctx.out,
+        surfaces,
+        before=NO_FIELD_NORMALS,
+        after=balanced,
+        cache=ctx.cache,
+        gl=ctx.gl,
+        prefix="crop-field",
+    )
+    # what last_pass_sigma and destreak change on a close-up of a real frame
+    for before, after, name in (
+        (EQUAL_PASSES, balanced, "crop-closeup-dambreak.png"),
+        (balanced, BALANCED_DESTREAK, "crop-closeup-destreak-dambreak.png"),
+    ):
+        write_closeup_crop(ctx.renderer, ctx.out, surfaces, before=before, after=after, name=name)
+
+
+def _dam_frames(ctx: StudyContext) -> None:
+    """The dam break on every frame of the data set: its section, and its counts beside the
+    surface targets (skipped without the data set or pysplashsurf)."""
+    paths = dam_frame_paths()
+    if not paths:
+        ctx.log("dam break, every frame: skipped (../shared/data not found)")
+        return
+    ctx.log(f"dam break, every frame ({len(paths)}), {ctx.width}x{ctx.height}")
+    settings = (PLAIN_SMOOTHING, UNFILTERED, preset_setting("balanced"))  # unfiltered: droplets
+    try:
+        rows = run_dam_frames(
+            ctx.gl,
+            ctx.renderer,
+            settings,
+            paths,
+            width=ctx.width,
+            height=ctx.height,
+            cache=ctx.cache,
+            log=ctx.log,
+        )
+    except ImportError as exc:
+        ctx.log(f"  skipped: {exc}")
+        return
+    ctx.results.surface_notes.update(surface_notes(dam_frame_counts(rows, "preset balanced")))
+    section = dam_frames_section(rows)
+    if section:
+        ctx.results.extra_sections += [*section, ""]
