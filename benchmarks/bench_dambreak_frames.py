@@ -56,7 +56,7 @@ def main() -> None:
             )
         finally:
             renderer.release()
-    print("\nband error / the pre-issue default's, per frame:")
+    print("\nband error / plain smoothing's, per frame:")
     for setting in settings:
         ratios = band_ratios(rows, setting.name)
         cells = " ".join(f"{r:5.0%}" for r in ratios.values())

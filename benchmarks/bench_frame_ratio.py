@@ -87,7 +87,7 @@ def main() -> None:
                     times[name].append((time.perf_counter() - start) * 1e3)
         finally:
             renderer.release()
-    base = times["pre-issue default"]
+    base = times["plain smoothing"]
     with_densities = ", with densities" if args.densities else ""
     print(f"{gl.renderer}; {frame.count} particles{with_densities}, 1280x720, {args.cycles} cycles")
     for name, values in times.items():

@@ -1,7 +1,7 @@
 """Numpy references for the shading tests, written from the formulas (thesis chapter 4 and
 validation-data.md), independently of the GLSL: float64 BRDF terms, directional albedo by
 deterministic quadrature, Hammersley estimators, brute-force environment integrals, and
-normal/depth images of exact spheres for `SurfaceRenderer.single_passes.shade_normal_depth`.
+normal/depth images of exact spheres for `SinglePasses.shade_normal_depth` (tests/single_passes.py).
 """
 
 from __future__ import annotations
