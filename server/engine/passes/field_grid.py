@@ -13,6 +13,9 @@ splat's buffers, so the splat's buffer no longer holds both), uploaded here; wit
 prepare, the splat's own spheres buffer, which holds every particle (culled ones with radius 0,
 left out). Only the centres are used: the field is phi(x) = sum_j W(|x - x_j|, h) with equal
 weights (on the dam break, per-particle volumes m / rho_j scored no better: 10.9 vs 10.3 deg).
+A bucket holds at most SLOTS sorted entries: a crowded one (coincident or clustered particles)
+is merged into weighted slots, one per sub-cell (field_grid.comp.glsl's phase 8), so a reader's
+work per pixel is bounded whatever the geometry; uncrowded centres weigh 1, the same sums.
 
 The sort (`shaders/field/field_grid.comp.glsl`, layout in `shaders/common/field_grid.glsl`):
 count each centre's rank in its bucket (atomics) and list the kept ones, prefix-sum the counts
@@ -33,8 +36,8 @@ nothing else uses them, so they are bound per build.
 Faster layouts tried on llvmpipe and not kept (ARCHITECTURE.md, "field normals' speed"): a
 texture instead of the buffer, tiles in shared memory (benchmarks/bench_field_gradient.py).
 
-Owns: the source (host prepare), kept-list, kept-count, order, bucket, chunk-sum and
-sorted-centre buffers; grown
+Owns: the source (host prepare), kept-list, kept-count, order, bucket, raw-count, chunk-sum
+and sorted-centre buffers; grown
 geometrically, never shrunk; released by `release`.
 """
 
