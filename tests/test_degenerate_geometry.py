@@ -181,6 +181,12 @@ def test_coincident_particles_sum_as_copies(sph_engine: SphEngine) -> None:
     assert result.color_gradient is not None
     np.testing.assert_array_equal(result.color_gradient, 0.0)
     np.testing.assert_allclose(sph_engine.density(positions, params()), expected, rtol=1e-5)
+    # The client's densities pass through; each volume m / rho is its own.
+    client = np.full(N, 800.0, np.float32)
+    given = sph_engine.compute(positions, params(), client)
+    np.testing.assert_array_equal(given.density, client)
+    volume_sum = N * MASS / 800.0 * cubic_spline(np.zeros(1), H)[0]
+    np.testing.assert_allclose(given.color_field, volume_sum, rtol=1e-5)
 
 
 @pytest.mark.parametrize("shape", ["near_coincident", "coplanar", "collinear", "one_cell"])

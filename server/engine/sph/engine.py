@@ -372,7 +372,9 @@ class SphEngine:
             merged = crowd.expand(
                 self._compute(points[rows], params, chosen, gradient, splat_mask, crowd.weights)
             )
-            return merged if chosen is None else replace(merged, density=client_densities)
+            if client_densities is None:
+                return merged
+            return replace(merged, density=client_densities)
         return self._compute(points, params, client_densities, gradient, splat_mask)
 
     def _compute(
