@@ -59,6 +59,20 @@ class Crowd:
         return replace(result, **{name: value[self.members] for name, value in arrays.items()})  # type: ignore[type-var]
 
 
+def _row_keys(rows: I64) -> I64:
+    """One int64 per row of `rows` ((M, K) integers), equal exactly where the rows are equal
+    (a mixed-radix number when the spans fit; else the rows' index in their sorted unique
+    set, which costs a multi-column sort)."""
+    low = rows.min(axis=0)
+    spans = [int(s) + 1 for s in rows.max(axis=0) - low]
+    if math.prod(spans) < 2**62:
+        key = np.zeros(rows.shape[0], np.int64)
+        for column, span in enumerate(spans):
+            key = key * span + (rows[:, column] - low[column])
+        return key
+    return np.unique(rows, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
+
+
 def _cells(points: F64, origin: F64, side: float) -> I64:
     scaled = np.floor((points - origin) / side)
     return np.clip(scaled, -_CLAMP, _CLAMP).astype(np.int64)
@@ -83,7 +97,7 @@ def find_crowds(points: F64, h: float) -> Crowd | None:
         return None
     candidates = np.flatnonzero(counts[key] > CROWD)
     _, inverse, per_cell = np.unique(
-        cells[candidates], axis=0, return_inverse=True, return_counts=True
+        _row_keys(cells[candidates]), return_inverse=True, return_counts=True
     )
     crowded = candidates[per_cell[inverse.reshape(-1)] > CROWD]
     if crowded.size == 0:
@@ -105,7 +119,7 @@ def _merge_cells(points: F64, cell: I64, origin: F64, h: float) -> I64:
     for level in range(FINEST, 1, -1):
         sub = _cells(points[pending], origin, h / 2.0**level)
         rows = np.column_stack([cell[pending], sub])
-        _, first, group = np.unique(rows, axis=0, return_index=True, return_inverse=True)
+        _, first, group = np.unique(_row_keys(rows), return_index=True, return_inverse=True)
         distinct = np.bincount(cell[pending][first])  # sub-cells used per cell
         fits = distinct[cell[pending]] <= CAP if level > 2 else np.ones(pending.size, np.bool_)
         owner[pending[fits]] = pending[first[group.reshape(-1)]][fits]
