@@ -28,6 +28,7 @@ import socket
 import struct
 import time
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -105,9 +106,55 @@ def _weird(rng: random.Random, big: bool = False) -> Any:
     return rng.choice(_WEIRD)
 
 
+def _coincident(rng: np.random.Generator, n: int) -> np.ndarray:
+    return np.tile(rng.normal(size=3) * 0.1, (n, 1))
+
+
+def _near_coincident(rng: np.random.Generator, n: int) -> np.ndarray:
+    return rng.normal(size=3) * 0.1 + rng.normal(size=(n, 3)) * 1e-7
+
+
+def _coplanar(rng: np.random.Generator, n: int) -> np.ndarray:
+    """A random plane through the origin, the particles scattered on it."""
+    normal = rng.normal(size=3)
+    normal /= np.linalg.norm(normal)
+    points = rng.normal(size=(n, 3)) * 0.1
+    return np.asarray(points - np.outer(points @ normal, normal))
+
+
+def _collinear(rng: np.random.Generator, n: int) -> np.ndarray:
+    direction = rng.normal(size=3)
+    return np.outer(rng.normal(size=n) * 0.1, direction / np.linalg.norm(direction))
+
+
+def _one_cell(rng: np.random.Generator, n: int) -> np.ndarray:
+    """Every particle within a cube of a tenth of the default support (4 r, r = 0.02)."""
+    return np.asarray(rng.random((n, 3)) * 0.008)
+
+
+#: Degenerate geometry, the shapes that once made a stage quadratic (coincident particles,
+#: ones within float rounding of each other, a plane, a line, one grid cell): name -> (rng, n)
+#: -> (n, 3) positions.
+DEGENERATE_SHAPES: dict[str, Callable[[np.random.Generator, int], np.ndarray]] = {
+    "coincident": _coincident,
+    "near_coincident": _near_coincident,
+    "coplanar": _coplanar,
+    "collinear": _collinear,
+    "one_cell": _one_cell,
+}
+
+
+def random_positions(rng: random.Random, n: int) -> np.ndarray:
+    """A fuzz frame's positions: a normal cloud, or one of `DEGENERATE_SHAPES` (one in five)."""
+    numbers = np.random.default_rng(rng.randrange(1 << 30))
+    if rng.random() < 0.2:
+        return DEGENERATE_SHAPES[rng.choice(sorted(DEGENERATE_SHAPES))](numbers, n)
+    return np.asarray(numbers.normal(size=(n, 3)) * 0.1)
+
+
 def _valid_arrays(rng: random.Random, n: int) -> tuple[list[dict[str, Any]], bytes]:
     specs: list[dict[str, Any]] = [{"name": "positions", "dtype": "<f8", "shape": [n, 3]}]
-    positions = np.random.default_rng(rng.randrange(1 << 30)).normal(size=(n, 3)) * 0.1
+    positions = random_positions(rng, n)
     payload = positions.astype("<f8").tobytes()
     for name in rng.sample(("radii", "densities", "temperatures"), rng.randrange(3)):
         specs.append({"name": name, "dtype": rng.choice(("<f4", "<f8")), "shape": [n]})
@@ -239,7 +286,7 @@ def _npy(header: str, data: bytes) -> bytes:
 def http_body(rng: random.Random) -> bytes:
     """A mutated .npz body."""
     n = rng.choice((0, 1, 3, 7))
-    positions = np.random.default_rng(rng.randrange(1 << 30)).normal(size=(n, 3)) * 0.1
+    positions = random_positions(rng, n)
     roll = rng.random()
     if roll < 0.25:
         scene = _dump(_mutate_json(rng, SCENE)).decode()

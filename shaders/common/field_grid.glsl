@@ -21,6 +21,10 @@
 #define FIELD_MIN_BUCKETS 1024u
 #define FIELD_HASH_Y 19349663u
 #define FIELD_HASH_Z 83492791u
+// A bucket holds at most FIELD_SLOTS sorted entries (field/field_grid.comp.glsl's phase 8 merges
+// a crowded one into weighted slots, one per sub-cell of FIELD_SLOT_SIDE^3 per cell).
+#define FIELD_SLOTS 64u
+#define FIELD_SLOT_SIDE 4u
 
 uniform float u_support;     // h, view-space units
 uniform uint u_bucket_mask;  // table size - 1 (a power of two, >= FIELD_MIN_BUCKETS - 1)

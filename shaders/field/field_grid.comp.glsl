@@ -22,8 +22,16 @@
 //      order the atomics ran, so without it a reader's sums, and the normals, would change in
 //      their last bits from run to run (the service's frames must not; one invocation per
 //      bucket sorting its run cost 2.6 ms on llvmpipe, this ~0.3).
-// Phases 1, 5 and 6 compute a particle's bucket with the same code of the same shader, so they
-// agree bit for bit.
+//   7  cap, one invocation per bucket: raw[b] = its count, buckets[b] = min(count, FIELD_SLOTS);
+//      phases 2-4 then scan both (the host swaps bindings 14 and 24), so a reader's runs hold
+//      at most FIELD_SLOTS entries per bucket whatever the geometry;
+//   8  crowd, one invocation per bucket of more than FIELD_SLOTS centres (coincident or
+//      clustered particles): its centres merged per sub-cell of side h / 8 (64 per cell) into
+//      the lowest-index one, weighted by how many of that cell it stands for (sorted .w; 1 for
+//      uncrowded centres, 0 for an unused slot). Centres of another cell that share a crowded
+//      bucket and a sub-cell index with a representative are left out.
+// Phases 1, 5, 6 and 8 compute a particle's bucket with the same code of the same shader, so
+// they agree bit for bit.
 
 layout(local_size_x = 256) in;
 
@@ -36,6 +44,7 @@ layout(std430, binding = 14) buffer Buckets { uint buckets[]; };
 layout(std430, binding = 15) buffer Sums { uint sums[]; };
 layout(std430, binding = 16) writeonly buffer Sorted { vec4 sorted_centres[]; };
 layout(std430, binding = 23) buffer Order { uint order[]; };  // source indices, per bucket
+layout(std430, binding = 24) buffer Raw { uint raw[]; };  // uncapped counts, then starts
 layout(std430, binding = 20) buffer KeptCount { uint kept_count; uint groups_x; uint groups_y; uint groups_z; };
 
 uniform int u_phase;
@@ -92,6 +101,49 @@ bool near_a_rim(vec3 c) {
     return false;
 }
 
+// The sub-cell (0 .. 63) of a centre inside its cell, FIELD_SLOT_SIDE sub-cells per axis.
+uint sub_cell(vec3 p, ivec3 cell) {
+    float side = grid_cell_side();
+    vec3 local = (p - vec3(cell) * side) / side * float(FIELD_SLOT_SIDE);
+    uvec3 s = uvec3(clamp(ivec3(floor(local)), ivec3(0), ivec3(FIELD_SLOT_SIDE - 1)));
+    return s.x + FIELD_SLOT_SIDE * (s.y + FIELD_SLOT_SIDE * s.z);
+}
+
+// Phase 8: bucket b's centres (order[raw[b] .. raw[b + 1]]) as FIELD_SLOTS weighted slots.
+void merge_crowd(uint b) {
+    uint first = raw[b];
+    uint end = raw[b + 1u];
+    if (end - first <= FIELD_SLOTS) {
+        return;
+    }
+    uint rep[FIELD_SLOTS];
+    uint weight[FIELD_SLOTS];
+    for (uint k = 0u; k < FIELD_SLOTS; ++k) {
+        rep[k] = 0xffffffffu;
+        weight[k] = 0u;
+    }
+    for (uint j = first; j < end; ++j) {
+        uint index = order[j];
+        vec3 p = source[index].xyz;
+        uint slot = sub_cell(p, grid_cell(p));
+        rep[slot] = min(rep[slot], index);
+    }
+    for (uint j = first; j < end; ++j) {
+        vec3 p = source[order[j]].xyz;
+        ivec3 cell = grid_cell(p);
+        uint slot = sub_cell(p, cell);
+        weight[slot] += all(equal(cell, grid_cell(source[rep[slot]].xyz))) ? 1u : 0u;
+    }
+    uint out_first = buckets[b];
+    for (uint k = 0u; k < FIELD_SLOTS; ++k) {
+        vec4 slot = vec4(3.0e38, 3.0e38, 3.0e38, 0.0);  // unused: beyond every support
+        if (weight[k] > 0u) {
+            slot = vec4(source[rep[k]].xyz, float(weight[k]));
+        }
+        sorted_centres[out_first + k] = slot;
+    }
+}
+
 void main() {
     uint i = u_first + gl_GlobalInvocationID.x;
     if (u_phase == 0) {
@@ -133,15 +185,16 @@ void main() {
             uvec2 entry = kept[k];
             vec4 s = source[entry.x];
             uint bucket = grid_bucket(grid_cell(s.xyz));
-            uint first = buckets[bucket];
+            uint first = raw[bucket];
+            uint end = raw[bucket + 1u];
             if (u_phase == 5) {
                 order[first + entry.y] = entry.x;
-            } else {
+            } else if (end - first <= FIELD_SLOTS) {  // crowded buckets: phase 8
                 uint below = 0u;
-                for (uint j = first; j < buckets[bucket + 1u]; ++j) {
+                for (uint j = first; j < end; ++j) {
                     below += order[j] < entry.x ? 1u : 0u;
                 }
-                sorted_centres[first + below] = s;
+                sorted_centres[buckets[bucket] + below] = vec4(s.xyz, 1.0);
             }
         }
         return;
@@ -175,5 +228,11 @@ void main() {
         if (last == u_buckets) {
             buckets[u_buckets] = running;
         }
+    } else if (u_phase == 7) {
+        uint count = buckets[i];
+        raw[i] = count;
+        buckets[i] = min(count, FIELD_SLOTS);
+    } else if (u_phase == 8) {
+        merge_crowd(i);
     }
 }

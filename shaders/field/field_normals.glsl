@@ -170,15 +170,16 @@ float gap_to_cell(int delta, float o, float cell) {
     return delta < 0 ? o + float(-delta - 1) * cell : cell - o + float(delta - 1) * cell;
 }
 
-// Adds the terms of the sorted centres first .. end - 1 within h of x.
+// Adds the terms of the sorted centres first .. end - 1 within h of x, each times its weight.
 void add_centres(uint first, uint end, vec3 x, float h, inout vec3 outward, inout float scale) {
     float h2 = h * h;
     for (uint j = first; j < end; ++j) {
-        vec3 d = x - sorted_centres[j].xyz;
+        vec4 c = sorted_centres[j];  // w: how many coincident centres it stands for
+        vec3 d = x - c.xyz;
         float r2 = dot(d, d);
         if (r2 < h2) {
             float r = sqrt(r2);
-            float w = spline_dw_over_q(r / h);
+            float w = spline_dw_over_q(r / h) * c.w;
             outward -= w * d;  // dW/dq < 0: away from x_j
             scale += abs(w) * r;
         }

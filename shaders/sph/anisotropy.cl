@@ -169,7 +169,8 @@ __kernel void anisotropy(GRID_ARGS, __global const uint *sorted_to_original, con
     FOR_EACH_NEIGHBOUR(ci, li, {
         const float3 e = d * inv_r; /* units of R: |e| < 1 */
         const float q2 = dot(e, e);
-        const float w = 1.0f - q2 * sqrt(q2);
+        const float weight = sorted_local[j].w; /* particles it stands for (crowd.py) */
+        const float w = (1.0f - q2 * sqrt(q2)) * weight;
         sw += w;
         sd += w * e;
         sxx += w * e.x * e.x;
@@ -178,8 +179,7 @@ __kernel void anisotropy(GRID_ARGS, __global const uint *sorted_to_original, con
         sxy += w * e.x * e.y;
         sxz += w * e.x * e.z;
         syz += w * e.y * e.z;
-        if (j != k)
-            ++count;
+        count += (uint)weight - (j == k ? 1u : 0u);
     })
     const uint i = sorted_to_original[k];
     count_out[i] = count;

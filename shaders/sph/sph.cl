@@ -3,7 +3,8 @@
  * (eq 28, corrected to |n| > t) and the dilated splat mask for surface-only splatting.
  *
  * Positions arrive split into an integer cell (int4, w unused) and a float32 offset inside that
- * cell (float4, in [0, h)); the host computes both in float64 from positions relative to the
+ * cell (float4, xyz in [0, h); w: how many particles it stands for, 1 unless the host merged a
+ * crowded cell, server/engine/sph/crowd.py; sums weigh each neighbour by it); the host computes both in float64 from positions relative to the
  * frame's minimum. The vector between two particles is (cell_j - cell_i) * h + (local_j -
  * local_i): the cell difference is a small exact integer, so float32 keeps full relative
  * precision however large the coordinates or the domain are.
@@ -266,7 +267,7 @@ __kernel void density(GRID_ARGS, __global const uint *sorted_to_original, const 
     const int4 ci = sorted_cell[k];
     const float4 li = sorted_local[k];
     float sum = 0.0f;
-    FOR_EACH_NEIGHBOUR(ci, li, sum += spline_w(sqrt(r2) / h);)
+    FOR_EACH_NEIGHBOUR(ci, li, sum += sorted_local[j].w * spline_w(sqrt(r2) / h);)
     const float rho = mass * SIGMA_3D / (h * h * h) * sum;
     sorted_volume[k] = mass / rho;
     density_out[sorted_to_original[k]] = rho;
@@ -304,9 +305,10 @@ __kernel void color_field(GRID_ARGS, __global const uint *sorted_to_original, co
     float3 gradient = (float3)(0.0f);
     FOR_EACH_NEIGHBOUR(ci, li, {
         const float q = sqrt(r2) / h;
-        const float volume = sorted_volume[j];
+        const float weight = sorted_local[j].w;
+        const float volume = sorted_volume[j] * weight;
         const float w = spline_w(q);
-        kernel_sum += w;
+        kernel_sum += weight * w;
         color += volume * w;
         /* x_i - x_j = -d */
         gradient -= (volume * spline_dw_over_q(q)) * d;

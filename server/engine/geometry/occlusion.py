@@ -36,6 +36,10 @@ MIN_PARTICLES = 2048
 # The front layer keeps particles whose nearest point is within this many radii of the tile's
 # front-most nearest point: the first two layers of a lattice (spacing 2 r) and a tilted surface.
 FRONT_BAND_RADII = 4.0
+# A screen tile holding more particles than this is searched for repeats (`repeats`), merged
+# when within radius / REPEAT_FRACTION of each other: the same image for coincident ones.
+CROWDED_TILE = 64
+REPEAT_FRACTION = 64.0
 # Tiles are this many projected radii (of the median particle) wide: about one particle apiece.
 TILE_RADII = 2.0
 
@@ -141,6 +145,18 @@ def front_layer(bounds: SphereBounds, radius: F64, image_size: tuple[int, int]) 
     if not valid.any():
         return front
     index = np.flatnonzero(valid)
+    key = _tile_keys(bounds, index, image_size)
+    near = bounds.near_depth[index]
+    tile_front = np.full(int(key.max()) + 1, np.inf)
+    np.minimum.at(tile_front, key, near)
+    in_band = near <= tile_front[key] + FRONT_BAND_RADII * radius[index]
+    front[index[in_band]] = True
+    return front
+
+
+def _tile_keys(bounds: SphereBounds, index: I64, image_size: tuple[int, int]) -> I64:
+    """The screen tile of each particle in `index` (valid bounds): keyed by its rectangle's
+    centre, `TILE_RADII` median projected radii wide."""
     x0, x1 = bounds.x0[index], bounds.x1[index]
     y0, y1 = bounds.y0[index], bounds.y1[index]
     radius_px = float(np.median(x1 - x0 - 1)) * 0.5  # the rectangles carry a pixel of margin
@@ -149,13 +165,37 @@ def front_layer(bounds: SphereBounds, radius: F64, image_size: tuple[int, int]) 
     width, height = image_size
     tx = np.floor(np.clip((x0 + x1) * 0.5, 0, width) / tile).astype(np.int64)
     ty = np.floor(np.clip((y0 + y1) * 0.5, 0, height) / tile).astype(np.int64)
-    key = ty * (int(width // tile) + 2) + tx
-    near = bounds.near_depth[index]
-    tile_front = np.full(int(key.max()) + 1, np.inf)
-    np.minimum.at(tile_front, key, near)
-    in_band = near <= tile_front[key] + FRONT_BAND_RADII * radius[index]
-    front[index[in_band]] = True
-    return front
+    return np.asarray(ty * (int(width // tile) + 2) + tx, np.int64)
+
+
+def repeats(
+    bounds: SphereBounds,
+    center_radius: npt.NDArray[np.float32],
+    drawn: Mask,
+    image_size: tuple[int, int],
+) -> Mask:
+    """Particles of `drawn` that repeat a lower-index one of the same radius within
+    radius / REPEAT_FRACTION, in screen tiles holding more than CROWDED_TILE of `drawn`: they
+    can be left out (coincident spheres add no fragment that passes the depth test, and the
+    coverage blends MAX). Empty unless a tile is crowded, so ordinary frames skip the search."""
+    out = np.zeros(drawn.shape, np.bool_)
+    index = np.flatnonzero(drawn & bounds.valid)
+    if index.size <= CROWDED_TILE:
+        return out
+    key = _tile_keys(bounds, index, image_size)
+    counts = np.bincount(key)
+    crowded = index[counts[key] > CROWDED_TILE]
+    if crowded.size == 0:
+        return out
+    rows = center_radius[crowded].astype(np.float64)
+    step = np.maximum(rows[:, 3], 1e-30) / REPEAT_FRACTION
+    cells = np.floor(np.clip(rows[:, :3] / step[:, None], -(2.0**62), 2.0**62)).astype(np.int64)
+    radius_bits = center_radius[crowded, 3].view(np.int32).astype(np.int64)
+    table = np.column_stack([cells, radius_bits])
+    _, first = np.unique(table, axis=0, return_index=True)  # the lowest index of each group
+    out[crowded] = True
+    out[crowded[first]] = False
+    return out
 
 
 class DepthMaxTable:

@@ -13,6 +13,9 @@ splat's buffers, so the splat's buffer no longer holds both), uploaded here; wit
 prepare, the splat's own spheres buffer, which holds every particle (culled ones with radius 0,
 left out). Only the centres are used: the field is phi(x) = sum_j W(|x - x_j|, h) with equal
 weights (on the dam break, per-particle volumes m / rho_j scored no better: 10.9 vs 10.3 deg).
+A bucket holds at most SLOTS sorted entries: a crowded one (coincident or clustered particles)
+is merged into weighted slots, one per sub-cell (field_grid.comp.glsl's phase 8), so a reader's
+work per pixel is bounded whatever the geometry; uncrowded centres weigh 1, the same sums.
 
 The sort (`shaders/field/field_grid.comp.glsl`, layout in `shaders/common/field_grid.glsl`):
 count each centre's rank in its bucket (atomics) and list the kept ones, prefix-sum the counts
@@ -33,8 +36,8 @@ nothing else uses them, so they are bound per build.
 Faster layouts tried on llvmpipe and not kept (ARCHITECTURE.md, "field normals' speed"): a
 texture instead of the buffer, tiles in shared memory (benchmarks/bench_field_gradient.py).
 
-Owns: the source (host prepare), kept-list, kept-count, order, bucket, chunk-sum and
-sorted-centre buffers; grown
+Owns: the source (host prepare), kept-list, kept-count, order, bucket, raw-count, chunk-sum
+and sorted-centre buffers; grown
 geometrically, never shrunk; released by `release`.
 """
 
@@ -57,6 +60,10 @@ SOURCE, KEPT, BUCKETS, SUMS, SORTED = range(12, 17)
 #: The kept particles' count + the scatter's indirect dispatch arguments; the scatter's source
 #: indices per bucket (shaders/field/field_grid.comp.glsl's phases 5 and 6).
 KEPT_COUNT, ORDER = 20, 23
+#: The buckets' uncapped counts, then their starts in `order` (phases 7, 5 and 6).
+RAW = 24
+#: At most this many sorted entries per bucket (FIELD_SLOTS of common/field_grid.glsl).
+SLOTS = 64
 #: Work groups per row of the scatter's indirect dispatch (GL 4.3 promises 65535 per axis).
 SCATTER_GROUPS_X = 4096
 #: The rim blocks' binding and side in pixels (common/rim_blocks.glsl).
@@ -65,7 +72,7 @@ RIM_BLOCKS, RIM_BLOCK = 19, 16
 SCAN_CHUNKS = 1024
 #: The smallest table (FIELD_MIN_BUCKETS of common/field_grid.glsl; a power of two).
 MIN_BUCKETS = 1024
-DILATE_BLOCKS, COUNT, CHUNK_SUMS, SCAN_SUMS, CHUNK_SCAN, SCATTER, PLACE = range(7)
+DILATE_BLOCKS, COUNT, CHUNK_SUMS, SCAN_SUMS, CHUNK_SCAN, SCATTER, PLACE, CAP, CROWD = range(9)
 
 
 @dataclass(frozen=True)
@@ -113,7 +120,7 @@ class FieldGrid:
     def __init__(self, context: PassContext) -> None:
         self._context = context
         ctx = context.gl.ctx
-        bindings = (*range(SOURCE, SORTED + 1), KEPT_COUNT, ORDER)
+        bindings = (*range(SOURCE, SORTED + 1), KEPT_COUNT, ORDER, RAW)
         self._buffers = {binding: ctx.buffer(reserve=64) for binding in bindings}
 
     def _reserve(self, binding: int, nbytes: int) -> moderngl.Buffer:
@@ -144,12 +151,13 @@ class FieldGrid:
                     offset += array.nbytes
         self._reserve(KEPT, 8 * n)
         table = self._reserve(BUCKETS, 4 * (buckets + 1))
+        raw = self._reserve(RAW, 4 * (buckets + 1))
         self._reserve(SUMS, 4 * (chunks + 1))
         self._reserve(SORTED, 16 * n)
         self._reserve(ORDER, 4 * n)
         with clock:
             source.bind_to_storage_buffer(SOURCE)
-            for binding in (*range(KEPT, SORTED + 1), KEPT_COUNT, ORDER):
+            for binding in (*range(KEPT, SORTED + 1), KEPT_COUNT, ORDER, RAW):
                 self._buffers[binding].bind_to_storage_buffer(binding)
         shader = self._context.programs.compute(SHADER)
         set_if_used(shader, "u_support", float(support))
@@ -171,19 +179,25 @@ class FieldGrid:
             table.clear(size=4 * (buckets + 1))
             self._buffers[KEPT_COUNT].clear()
         self._run(shader, COUNT, n)
-        self._run(shader, CHUNK_SUMS, chunks)
-        self._run(shader, SCAN_SUMS, 1, count=chunks)  # one invocation scans `chunks` sums
-        self._run(shader, CHUNK_SCAN, chunks)
+        self._run(shader, CAP, buckets)
+        for counts, other in ((raw, table), (table, raw)):  # the same scan over both
+            with clock:
+                counts.bind_to_storage_buffer(BUCKETS)
+                other.bind_to_storage_buffer(RAW)
+            self._run(shader, CHUNK_SUMS, chunks)
+            self._run(shader, SCAN_SUMS, 1, count=chunks)  # one invocation scans `chunks` sums
+            self._run(shader, CHUNK_SCAN, chunks)
         for phase in (SCATTER, PLACE):  # over the kept particles only
             set_if_used(shader, "u_phase", phase)
             with clock:
                 shader.run_indirect(self._buffers[KEPT_COUNT], 4)  # past the count
                 self._context.gl.ctx.memory_barrier(moderngl.ALL_BARRIER_BITS)
+        self._run(shader, CROWD, buckets)
         return BuiltGrid(float(support), buckets - 1)
 
     def sorted_count(self, built: BuiltGrid) -> int:
-        """How many centres the build that returned `built` sorted (reads 4 bytes back: for
-        tests and benches)."""
+        """How many entries the build that returned `built` sorted (crowded buckets merged into
+        at most SLOTS each; reads 4 bytes back: for tests and benches)."""
         end = 4 * (built.bucket_mask + 1)  # starts[table size] = the total
         return int(np.frombuffer(self._buffers[BUCKETS].read(size=4, offset=end), np.uint32)[0])
 

@@ -380,7 +380,10 @@ class SplatPass:
         entirely within COVERAGE_NEED_PX adds nothing to the coverage the shade pass keeps, nor
         does a hidden one (see COVERAGE_NEED_PX)."""
         radius = prepared.center_radius[:, 3].astype(np.float64)
-        in_front = occlusion.front_layer(bounds, radius, (camera.width, camera.height))
+        size = (camera.width, camera.height)
+        in_front = occlusion.front_layer(bounds, radius, size)
+        repeated = occlusion.repeats(bounds, prepared.center_radius, in_front, size)
+        in_front &= ~repeated
         front = np.flatnonzero(in_front).astype(np.uint32)
         count = int(radius.size)
         # front + others + the coverage rows after them: at most 2 count ids, and quads
@@ -388,7 +391,7 @@ class SplatPass:
         self.buffers.ensure_quads(2 * count)
         self.buffers.write(IDS, front)
         _render(vao, 0, front.size, use_ids=True, clock=self._context.gl.clock)
-        others = np.flatnonzero(~in_front)
+        others = np.flatnonzero(~(in_front | repeated))
         if not others.size and not antialias:
             return int(front.size), None
         read_box = box if box is not None else (0, 0, camera.width, camera.height)

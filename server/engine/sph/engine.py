@@ -33,7 +33,7 @@ density-below launches) and releases them in `release`; the program is cached by
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -48,6 +48,7 @@ from sphrender.server.engine.sph.anisotropy import (
     check_radii,
 )
 from sphrender.server.engine.sph.buffers import WORK_GROUP, BufferPool, round_up
+from sphrender.server.engine.sph.crowd import find_crowds
 from sphrender.server.engine.sph.density_below import DensityBelowKernels, spline_limit
 from sphrender.server.engine.sph.density_below import fits as below_fits
 
@@ -215,7 +216,9 @@ class SphEngine:
         self._kernels["scan_chunk_sums"](self._cl.queue, (1,), (1,), sums, u32(chunks))
         self._run("chunk_scan", chunks, counts, u32(m), u32(chunk), u32(chunks), sums, starts)
 
-    def _build_grid(self, positions: F64, h: float) -> _Grid:
+    def _build_grid(self, positions: F64, h: float, weights: F32 | None = None) -> _Grid:
+        """`weights`: how many particles each stands for (crowd.py; None: 1 each), in .w of
+        the sorted offsets, which the kernels multiply each neighbour's term by."""
         n = positions.shape[0]
         lo, hi = column_bounds(positions)
         relative = positions - lo
@@ -232,6 +235,7 @@ class SphEngine:
         cell[:, :3] = cell_f
         local = np.zeros((n, 4), dtype=np.float32)
         local[:, :3] = relative - cell_f * h
+        local[:, 3] = 1.0 if weights is None else weights
         dims = [int(s) + 1 for s in span]
         cells = dims[0] * dims[1] * dims[2]
         if cells <= DENSE_CELLS_PER_PARTICLE * n + 4096:
@@ -327,6 +331,28 @@ class SphEngine:
         points = checked_positions(positions)
         n = points.shape[0]
         client_densities = None if densities is None else check_densities(densities, n)
+        crowd = find_crowds(points, params.support_radius)
+        if crowd is not None:  # each representative takes its own client density
+            rows = crowd.representatives
+            chosen = None if client_densities is None else client_densities[rows]
+            merged = crowd.expand(
+                self._compute(points[rows], params, chosen, gradient, splat_mask, crowd.weights)
+            )
+            if client_densities is None:
+                return merged
+            return replace(merged, density=client_densities)
+        return self._compute(points, params, client_densities, gradient, splat_mask)
+
+    def _compute(
+        self,
+        points: F64,
+        params: SphParameters,
+        client_densities: F32 | None,
+        gradient: bool,
+        splat_mask: bool,
+        weights: F32 | None = None,
+    ) -> SphResult:
+        n = points.shape[0]
         if n == 0:
             empty = np.zeros(0, np.float32)
             return SphResult(
@@ -337,7 +363,7 @@ class SphEngine:
                 np.zeros(0, bool),
                 np.zeros(0, bool) if splat_mask else None,
             )
-        args = self._grid_args(self._build_grid(points, params.support_radius))
+        args = self._grid_args(self._build_grid(points, params.support_radius, weights))
         sorted_volume, density_out = self._volumes(args, n, params, client_densities)
         sorted_flag = self._colour_field(args, n, params, sorted_volume)
         if splat_mask:
@@ -420,7 +446,12 @@ class SphEngine:
         n = points.shape[0]
         if n == 0:
             return np.zeros(0, np.float32)
-        grid = self._build_grid(points, params.support_radius)
+        crowd = find_crowds(points, params.support_radius)
+        weights = None
+        if crowd is not None:
+            points, weights = points[crowd.representatives], crowd.weights
+        grid = self._build_grid(points, params.support_radius, weights)
+        n = grid.count
         sorted_volume = self._pool("sorted_volume", 4 * n)
         density_out = self._pool("density", 4 * n)
         self._run(
@@ -431,7 +462,8 @@ class SphEngine:
             sorted_volume,
             density_out,
         )
-        return self._pool.download(density_out, np.empty(n, np.float32))
+        density = self._pool.download(density_out, np.empty(n, np.float32))
+        return density if crowd is None else density[crowd.members]
 
     def density_below(self, positions: npt.ArrayLike, params: SphParameters, below: float) -> Bools:
         """Which particles' eq 2 density is below `below` (absolute): `density(...) < below`
@@ -483,8 +515,16 @@ class SphEngine:
         radius = check_radii(radii, n)
         if n == 0:
             return AnisotropyResult.empty()
-        grid = self._build_grid(points, params.radius)
-        shapes = kernels.run(self._grid_args(grid), n, params, self._pool)
+        crowd = find_crowds(points, params.radius)
+        if crowd is None:
+            grid = self._build_grid(points, params.radius)
+            shapes = kernels.run(self._grid_args(grid), n, params, self._pool)
+        else:
+            rows = crowd.representatives
+            grid = self._build_grid(points[rows], params.radius, crowd.weights)
+            shapes = crowd.expand(
+                kernels.run(self._grid_args(grid), rows.size, params, self._pool)
+            )
         return shapes.result(points, radius)
 
 
