@@ -35,8 +35,10 @@ from sphrender.server.service.config import (
     check_bind_policy,
     public_limits,
 )
-from sphrender.server.service.http_api import make_http_server
-from sphrender.server.service.jobs import (
+from sphrender.server.service.http.api import make_http_server
+from sphrender.server.service.logs import configure_logging
+from sphrender.server.service.metrics import ServiceMetrics
+from sphrender.server.service.render.jobs import (
     DroppedOutcome,
     ErrorOutcome,
     FrameJob,
@@ -44,16 +46,14 @@ from sphrender.server.service.jobs import (
     Outcome,
     WarmJob,
 )
-from sphrender.server.service.logs import configure_logging
-from sphrender.server.service.metrics import ServiceMetrics
-from sphrender.server.service.scheduler import FairScheduler, QueueFull, SchedulerClosed
+from sphrender.server.service.render.scheduler import FairScheduler, QueueFull, SchedulerClosed
+from sphrender.server.service.render.worker import RenderWorker
 from sphrender.server.service.sessions import (
     SceneValidator,
     Session,
     SessionRegistry,
 )
-from sphrender.server.service.stream import make_stream_server
-from sphrender.server.service.worker import RenderWorker
+from sphrender.server.service.stream.connection import make_stream_server
 
 log = logging.getLogger("sphrender.service")
 

@@ -10,7 +10,7 @@ Routes::
     DELETE /v1/sessions/{id}          204
     POST   /v1/demo/sessions          optional partial scene over the demo's -> 201 {"id", "scene"}
     GET    /healthz  /readyz  /v1/info  /metrics
-    GET    /  /viewer/*  /v1/status  /v1/schema  /v1/sessions/{id}/latest   (http_viewer.py)
+    GET    /  /viewer/*  /v1/status  /v1/schema  /v1/sessions/{id}/latest   (viewer.py)
 
 ``POST /v1/sessions`` and ``GET /v1/sessions/{id}`` return the resolved scene (every default
 filled in, `scene_to_dict`); frame overrides are merged onto the scene as the client sent it.
@@ -52,24 +52,24 @@ from sphrender.server.content.demo import demo_scene_dict
 from sphrender.server.scene import Scene, merge_scene_dicts, scene_to_dict
 from sphrender.server.service.admission import Busy, Reservation, decoding, frame_estimate
 from sphrender.server.service.facade import ServiceFacade
-from sphrender.server.service.http_base import (
+from sphrender.server.service.http.errors import HttpError
+from sphrender.server.service.http.handler import (
     HEALTH_ROUTES,
     SESSION_FRAMES_PATH,
     SESSION_LATEST_PATH,
     SESSION_PATH,
 )
-from sphrender.server.service.http_errors import HttpError
-from sphrender.server.service.http_server import SphrenderHttpServer
-from sphrender.server.service.http_viewer import ASSETS, ViewerRoutes
-from sphrender.server.service.jobs import (
+from sphrender.server.service.http.listener import SphrenderHttpServer
+from sphrender.server.service.http.viewer import ASSETS, ViewerRoutes
+from sphrender.server.service.metrics import CONTENT_TYPE as METRICS_CONTENT_TYPE
+from sphrender.server.service.render.jobs import (
     CONTENT_TYPES,
     DroppedOutcome,
     ErrorOutcome,
     FrameJob,
     ImageOutcome,
 )
-from sphrender.server.service.metrics import CONTENT_TYPE as METRICS_CONTENT_TYPE
-from sphrender.server.service.scheduler import QueueFull, SchedulerClosed
+from sphrender.server.service.render.scheduler import QueueFull, SchedulerClosed
 from sphrender.server.service.sessions import Session, SessionLimitReached
 
 log = logging.getLogger("sphrender.service.http")

@@ -58,16 +58,16 @@ from sphrender.core.protocol import (
 from sphrender.server.scene import Scene, merge_scene_dicts
 from sphrender.server.service.admission import Busy, Reservation, decoding, frame_estimate
 from sphrender.server.service.facade import ServiceFacade
-from sphrender.server.service.jobs import ErrorOutcome, FrameJob, Outcome
-from sphrender.server.service.scheduler import QueueFull, SchedulerClosed
+from sphrender.server.service.render.jobs import ErrorOutcome, FrameJob, Outcome
+from sphrender.server.service.render.scheduler import QueueFull, SchedulerClosed
 from sphrender.server.service.sessions import Session, SessionLimitReached
-from sphrender.server.service.stream_handshake import (
+from sphrender.server.service.stream.handshake import (
     EVICT_HANDSHAKE_AFTER_S,
     LINGER_S,
     check_hello,
     welcome_header,
 )
-from sphrender.server.service.stream_wire import (
+from sphrender.server.service.stream.wire import (
     TICK_S,
     Channel,
     Closed,

@@ -1,6 +1,6 @@
 """The render supervisor: feeds the renderer process and survives its death.
 
-Rendering and encoding happen in a child process (`render_child.py`, multiprocessing ``spawn``:
+Rendering and encoding happen in a child process (`process.py`, multiprocessing ``spawn``:
 a fresh interpreter that owns the GL context; the service process never creates one). This
 thread takes jobs from the `FairScheduler` and sends them down the pipe, at most
 ``2 x encoder_threads + 1`` at a time (the child renders one while its encoders finish the
@@ -43,10 +43,10 @@ import numpy as np
 from sphrender.core.errors import InputError
 from sphrender.core.protocol import ErrorCode
 from sphrender.server.scene import Scene
-from sphrender.server.service.jobs import ErrorOutcome, FrameJob, ImageOutcome, WarmJob
 from sphrender.server.service.metrics import ServiceMetrics
-from sphrender.server.service.render_child import child_main
-from sphrender.server.service.scheduler import FairScheduler
+from sphrender.server.service.render.jobs import ErrorOutcome, FrameJob, ImageOutcome, WarmJob
+from sphrender.server.service.render.process import child_main
+from sphrender.server.service.render.scheduler import FairScheduler
 
 log = logging.getLogger("sphrender.service.worker")
 

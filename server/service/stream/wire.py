@@ -1,4 +1,4 @@
-"""Socket I/O and answer encoding for stream connections (`stream.py`).
+"""Socket I/O and answer encoding for stream connections (`connection.py`).
 
 `Channel` reads and writes one connection's socket under deadlines: before a message's first
 byte the idle rules apply (nothing started: a drain or an idle timeout may end the connection
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from sphrender.core.protocol import ErrorCode, MessageType, encode_message
-from sphrender.server.service.jobs import DroppedOutcome, ErrorOutcome, ImageOutcome, Outcome
+from sphrender.server.service.render.jobs import DroppedOutcome, ErrorOutcome, ImageOutcome, Outcome
 
 #: Socket poll interval: how quickly a blocked thread notices a drain or a dead peer.
 TICK_S = 0.2
