@@ -17,7 +17,7 @@ import logging
 import re
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler
-from typing import Any, ClassVar
+from typing import Any, ClassVar, cast
 from urllib.parse import parse_qs, unquote, urlsplit
 
 from sphrender.core.protocol import ErrorCode
@@ -116,7 +116,7 @@ class HandlerBase(BaseHTTPRequestHandler):
         self.rfile = io.BufferedReader(self._reader, 65536)
 
     def handle(self) -> None:
-        server: SphrenderHttpServer = self.server  # type: ignore[assignment]
+        server = cast(SphrenderHttpServer, self.server)
         mode = server.enter_connection(id(self), self._reader)
         if mode is None:
             self._raw_busy()

@@ -38,7 +38,7 @@ import socketserver
 import threading
 import time
 from collections import deque
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal, cast
 
 from sphrender.core.errors import InputError, show
 from sphrender.core.frame import ParticleFrame
@@ -524,7 +524,7 @@ class StreamHandler(socketserver.BaseRequestHandler):
     service: ClassVar[ServiceFacade]
 
     def handle(self) -> None:
-        server: StreamServer = self.server  # type: ignore[assignment]
+        server = cast(StreamServer, self.server)
         StreamConnection(self.request, self.client_address, self.service, server).run()
 
 
