@@ -53,7 +53,7 @@ from sphrender.server.service.sessions import (
     Session,
     SessionRegistry,
 )
-from sphrender.server.service.stream.connection import make_stream_server
+from sphrender.server.service.stream.listener import make_stream_server
 
 log = logging.getLogger("sphrender.service")
 
