@@ -2,9 +2,9 @@
 
 The HTTP handler (`http/`) and the stream connections (`stream/`) are given the running
 `RenderService` (`app.py`) through this protocol, bound by a factory (`make_handler`,
-`make_stream_server`), so they depend on what they use and not on `app.py`: `app.py` imports the
-transports, never the other way round. mypy checks that `RenderService` satisfies it where
-`app.py` hands itself to the factories.
+`make_stream_server`), so they depend on what they use and not on `app.py`: `serve.py`
+imports the transports, never the other way round. mypy checks that `RenderService` satisfies
+it where `serve.py` hands it to the factories.
 """
 
 from __future__ import annotations

@@ -97,6 +97,8 @@ class HandlerBase(BaseHTTPRequestHandler):
     protocol_version = "HTTP/1.1"  # keep-alive; every answer carries Content-Length
     server_version = "sphrender"
     _mode: ConnectionMode = "normal"
+    #: The query string of the request being handled (set by `api.ApiHandler` per request).
+    _query: dict[str, list[str]]
     _status = 0
 
     def version_string(self) -> str:
@@ -183,7 +185,9 @@ class HandlerBase(BaseHTTPRequestHandler):
         its answer sees its own request."""
         self._status = status
         route = route_label(urlsplit(self.path).path) if getattr(self, "path", "") else "other"
-        self.service.metrics.http_requests.inc(self.command or "other", route, str(status))
+        self.service.metrics.transport.http_requests.inc(
+            self.command or "other", route, str(status)
+        )
 
     def _check_auth(self) -> None:
         """With a token configured, a request needs one of: ``Authorization: Bearer <token>``;
@@ -281,7 +285,7 @@ class HandlerBase(BaseHTTPRequestHandler):
         finally:
             view.release()
             self._reader.end_head()
-        self.service.metrics.bytes_in.inc("http", amount=length)
+        self.service.metrics.transport.bytes_in.inc("http", amount=length)
         return body
 
     # -- answers --------------------------------------------------------------------------------
@@ -307,7 +311,7 @@ class HandlerBase(BaseHTTPRequestHandler):
         self.end_headers()
         if self.command != "HEAD":
             self.wfile.write(body)
-        self.service.metrics.bytes_out.inc("http", amount=len(body))
+        self.service.metrics.transport.bytes_out.inc("http", amount=len(body))
 
     def _send_json(
         self, status: int, payload: Any, headers: dict[str, str] | None = None, **kw: Any

@@ -27,9 +27,9 @@ def image_outcome(
     stage_ms = answer.timings_ms
     timings = {"queue": (job.started_at - job.queued_at) * 1e3, **stage_ms, "ipc": ipc_ms}
     for stage, ms in stage_ms.items():
-        metrics.stage_seconds.observe(ms / 1e3, stage)
-    metrics.stage_seconds.observe(ipc_ms / 1e3, "ipc")
-    metrics.host_seconds.observe(answer.host_ms / 1e3)
+        metrics.render.stage_seconds.observe(ms / 1e3, stage)
+    metrics.render.stage_seconds.observe(ipc_ms / 1e3, "ipc")
+    metrics.render.host_seconds.observe(answer.host_ms / 1e3)
     arrays = None
     if answer.arrays is not None:
         arrays = [{"name": a.name, "dtype": a.dtype, "shape": list(a.shape)} for a in answer.arrays]

@@ -177,7 +177,7 @@ class RenderWorker(threading.Thread):
             )
         for entry in lost:
             fail(entry.job, message)
-        self._metrics.worker_restarts.inc(reason)
+        self._metrics.render.worker_restarts.inc(reason)
         log.error(
             "renderer process replaced",
             extra={
@@ -203,9 +203,9 @@ class RenderWorker(threading.Thread):
         if isinstance(answer, ImageAnswer | ErrorAnswer | WarmAnswer):
             entry = self._in_flight.pop(answer.id)
         if health.rebuilt:
-            self._metrics.context_rebuilds.inc()
+            self._metrics.render.context_rebuilds.inc()
             log.warning("GL context rebuilt", extra={"event": "gl_rebuilt"})
-        self._metrics.worker_rss.set(health.rss)
+        self._metrics.render.worker_rss.set(health.rss)
         if health.rss > self._settings.max_rss_bytes:
             self._recycle = True
         if entry is None:
@@ -297,7 +297,7 @@ class RenderWorker(threading.Thread):
                 process.send(WarmRequest(job_id, job.scene))
             else:
                 job.started_at = time.perf_counter()
-                self._metrics.stage_seconds.observe(job.started_at - job.queued_at, "queue")
+                self._metrics.render.stage_seconds.observe(job.started_at - job.queued_at, "queue")
                 self._frames_sent += 1
                 request, buffers = self._frame_request(job, job_id)
                 process.send(request, buffers)

@@ -130,7 +130,7 @@ class StreamConnection:
         finally:
             # Counted before the session goes, so "no stream session open" implies "every
             # ended connection is counted" for anyone reading /metrics.
-            self.service.metrics.connections.inc(end)
+            self.service.metrics.transport.connections.inc(end)
             if self.session is not None:
                 self.service.close_session(self.session.id)
             log.info(

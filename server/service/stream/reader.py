@@ -59,7 +59,7 @@ def read_head(
         max_payload_bytes=service.config.stream.max_payload_bytes,
     )
     header = parse_header(channel.recv(header_len, deadline)) if header_len else {}
-    service.metrics.bytes_in.inc("stream", amount=PREFIX_SIZE + header_len)
+    service.metrics.transport.bytes_in.inc("stream", amount=PREFIX_SIZE + header_len)
     return kind, header, payload_len, deadline
 
 
@@ -191,7 +191,7 @@ class FrameReader:
         self.service.record_invalid_frame("stream", outcome.code)
         self.answers.push(Slot(frame_id, outcome=outcome))
         self.channel.discard(payload_len, deadline)
-        self.service.metrics.bytes_in.inc("stream", amount=payload_len)
+        self.service.metrics.transport.bytes_in.inc("stream", amount=payload_len)
 
     def _accept_frame(
         self, header: dict[str, Any], payload_len: int, deadline: float
@@ -274,7 +274,7 @@ class FrameReader:
         max_particles = service.config.limits.max_particles
         try:
             payload = self.channel.recv(payload_len, deadline) if payload_len else bytearray()
-            service.metrics.bytes_in.inc("stream", amount=payload_len)
+            service.metrics.transport.bytes_in.inc("stream", amount=payload_len)
             with decoding("arrays", "stream"):
                 arrays = decode_frame_arrays(header["arrays"], payload, max_particles=max_particles)
                 return service.make_particles(arrays)

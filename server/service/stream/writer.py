@@ -22,7 +22,7 @@ log = logging.getLogger("sphrender.service.stream")
 def send_counted(channel: Channel, service: ServiceFacade, data: bytes) -> None:
     """Send `data` and count its bytes (``sphrender_bytes_out_total{transport="stream"}``)."""
     channel.send_all(data)
-    service.metrics.bytes_out.inc("stream", amount=len(data))
+    service.metrics.transport.bytes_out.inc("stream", amount=len(data))
 
 
 class AnswerWriter:
