@@ -230,7 +230,7 @@ def class_sizes(path: Path) -> dict[str, tuple[int, int]]:
                 attributes.update(t.id for t in item.targets if isinstance(t, ast.Name))
         for method in methods:
             for sub in ast.walk(method):
-                targets: list[ast.expr] = []
+                targets: list[ast.AST] = []
                 if isinstance(sub, ast.Assign):
                     targets = [e for t in sub.targets for e in ast.walk(t)]
                 elif isinstance(sub, ast.AnnAssign | ast.AugAssign):
