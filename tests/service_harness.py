@@ -121,7 +121,7 @@ class ServerProcess:
         self.stderr_path = tmp_dir / "server.log"
         self._stderr = open(self.stderr_path, "wb")  # noqa: SIM115 - closed in stop()
         # The token and fault injection come only from the test, never from the outer environment.
-        inherited = {"SPHRENDER_TOKEN", "SPHRENDER_FAULT_INJECTION"}
+        inherited = {"SPHRENDER_TOKEN", "SPHRENDER_FAULT_INJECTION", "SPHRENDER_TEST_FAULTS"}
         environment = {k: v for k, v in os.environ.items() if k not in inherited}
         environment.update(env or {})
         self.proc = subprocess.Popen(

@@ -202,3 +202,126 @@ def test_renderer_orchestrates_only() -> None:
     for forbidden in (".render(", ".framebuffer(", ".vertex_array(", ".glsl", "moderngl."):
         assert forbidden not in source, forbidden
     assert source.count("\n") < 300
+
+
+# -- the service by role -------------------------------------------------------------------------
+
+SERVICE = REPO / "server" / "service"
+#: A class in server/service does one job: at most this many methods and this many attributes.
+MAX_CLASS_METHODS = 15
+MAX_CLASS_ATTRIBUTES = 15
+
+
+def class_sizes(path: Path) -> dict[str, tuple[int, int]]:
+    """Class name -> (methods, attributes) for every class in `path`. Methods: the functions
+    defined in the class body (properties included). Attributes: names assigned in the class
+    body plus every ``self.name`` assigned in its methods."""
+    sizes: dict[str, tuple[int, int]] = {}
+    for node in ast.walk(ast.parse(path.read_text())):
+        if not isinstance(node, ast.ClassDef):
+            continue
+        methods = [n for n in node.body if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef)]
+        attributes: set[str] = set()
+        for item in node.body:
+            if isinstance(item, ast.AnnAssign) and isinstance(item.target, ast.Name):
+                attributes.add(item.target.id)
+            elif isinstance(item, ast.Assign):
+                attributes.update(t.id for t in item.targets if isinstance(t, ast.Name))
+        for method in methods:
+            for sub in ast.walk(method):
+                targets: list[ast.AST] = []
+                if isinstance(sub, ast.Assign):
+                    targets = [e for t in sub.targets for e in ast.walk(t)]
+                elif isinstance(sub, ast.AnnAssign | ast.AugAssign):
+                    targets = [sub.target]
+                for target in targets:
+                    if (
+                        isinstance(target, ast.Attribute)
+                        and isinstance(target.value, ast.Name)
+                        and target.value.id == "self"
+                    ):
+                        attributes.add(target.attr)
+        sizes[node.name] = (len(methods), len(attributes))
+    return sizes
+
+
+def test_service_classes_each_do_one_job() -> None:
+    """No class in server/service has more than MAX_CLASS_METHODS (15) methods or
+    MAX_CLASS_ATTRIBUTES (15) attributes (see `class_sizes` for what counts), and no two
+    classes there share a name."""
+    seen: dict[str, Path] = {}
+    for path in sorted(SERVICE.rglob("*.py")):
+        for name, (methods, attributes) in class_sizes(path).items():
+            where = f"{path.relative_to(REPO)}: {name}"
+            assert methods <= MAX_CLASS_METHODS, f"{where} has {methods} methods"
+            assert attributes <= MAX_CLASS_ATTRIBUTES, f"{where} has {attributes} attributes"
+            assert name not in seen, f"{where}: also a class in {seen[name].relative_to(REPO)}"
+            seen[name] = path
+
+
+def test_class_size_counter_counts_methods_and_attributes(tmp_path: Path) -> None:
+    source = tmp_path / "sample.py"
+    source.write_text(
+        "class A:\n    x: int = 0\n    def __init__(self):\n        self.a = self.b = 1\n"
+        "        self.c: int = 2\n    def f(self):\n        self.a += 1\n        self.d, y = 1, 2\n"
+    )
+    assert class_sizes(source) == {"A": (2, 5)}
+
+
+#: The service's subfolders and a word each of their docstrings must say (their role).
+SERVICE_ROLES = {"http": "HTTP", "stream": "stream", "render": "render"}
+
+
+def test_service_is_arranged_by_role() -> None:
+    """server/service/ holds the transports and the render side in subfolders named by their
+    role, each a package that says what it is; what they share stays at the top."""
+    for folder, word in SERVICE_ROLES.items():
+        init = SERVICE / folder / "__init__.py"
+        assert init.is_file(), folder
+        docstring = ast.get_docstring(ast.parse(init.read_text())) or ""
+        assert word.lower() in docstring.lower(), f"{folder}/__init__.py: {docstring!r}"
+    top = {p.stem for p in SERVICE.glob("*.py")} - {"__init__"}
+    assert not {name for name in top if name.startswith(("http", "stream", "render"))}, top
+    assert (SERVICE / "render" / "messages.py").is_file()
+    assert (SERVICE / "http" / "viewer_page" / "index.html").is_file()
+
+
+def test_render_messages_are_typed_and_checked_without_ignores(tmp_path: Path) -> None:
+    """The messages between the worker and the render process: frozen dataclasses, no
+    `type: ignore` anywhere on that path, and mypy (against the real package, as
+    test_static_checks builds it) finds nothing in them."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+
+    render = SERVICE / "render"
+    for name in ("messages", "process", "handle", "worker", "in_flight", "outcomes"):
+        assert "type: ignore" not in (render / f"{name}.py").read_text(), name
+    tree = ast.parse((render / "messages.py").read_text())
+    classes = [n for n in tree.body if isinstance(n, ast.ClassDef) and not n.name.startswith("_")]
+    for node in classes:
+        assert any("frozen=True" in ast.unparse(d) for d in node.decorator_list), node.name
+    mypy = shutil.which("mypy", path=str(Path(sys.executable).parent)) or shutil.which("mypy")
+    if mypy is None:
+        pytest.skip("mypy is not installed")
+    package = tmp_path / "sphrender"
+    package.mkdir()
+    for folder in PACKAGES:
+        (package / folder).symlink_to(REPO / folder, target_is_directory=True)
+    result = subprocess.run(
+        [
+            mypy,
+            "--cache-dir",
+            str(tmp_path / "cache"),
+            "--follow-imports=silent",
+            "-m",
+            "sphrender.server.service.render.messages",
+        ],
+        cwd=REPO,
+        env={**os.environ, "MYPYPATH": str(tmp_path)},
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr

@@ -1,6 +1,6 @@
 """Crash isolation: a native fault (a real SIGSEGV) in the renderer process answers the frames it
 held ``render_failed``, a new renderer starts, the next frames render the same pixels, and the
-listeners never stop. The fault is injected with ``SPHRENDER_FAULT_INJECTION=crash_at_frames``."""
+listeners never stop. The fault is injected through the test seam (render_faults.py)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from render_faults import fault_env
 from service_harness import SMALL_SCENE, ServerProcess, ball, png_pixels
 from test_service_http import metric_values
 
@@ -16,7 +17,7 @@ from sphrender.core.protocol import MessageType, encode_frame
 
 
 def test_renderer_segfault_fails_its_frames_and_the_service_goes_on(tmp_path: Path) -> None:
-    env = {"SPHRENDER_FAULT_INJECTION": "crash_at_frames=3", "PYTHONFAULTHANDLER": "1"}
+    env = {**fault_env("crash_at_frames=3"), "PYTHONFAULTHANDLER": "1"}
     positions = ball(1500, seed=4)
     health: list[int] = []
     stop = threading.Event()

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from render_faults import fault_env
 from service_harness import (
     SMALL_SCENE,
     SPHRENDER,
@@ -79,7 +80,7 @@ def test_signal_drains_in_flight_frames_and_exits_0(tmp_path: Path, sig: int) ->
 
 
 def test_gl_error_answers_that_frame_and_rebuilds_the_context(tmp_path: Path) -> None:
-    env = {"SPHRENDER_FAULT_INJECTION": "gl_error_at_frames=3"}
+    env = fault_env("gl_error_at_frames=3")
     positions = ball(1500, seed=4)
     with ServerProcess(tmp_path / "server", env=env) as server, server.stream() as client:
         client.hello()

@@ -24,9 +24,9 @@ from sphrender.server.service.config import (
     load_server_config,
     server_config_from_dict,
 )
-from sphrender.server.service.jobs import DroppedOutcome, FrameJob
 from sphrender.server.service.metrics import Registry
-from sphrender.server.service.scheduler import FairScheduler, QueueFull, SchedulerClosed
+from sphrender.server.service.render.jobs import DroppedOutcome, FrameJob
+from sphrender.server.service.render.scheduler import FairScheduler, QueueFull, SchedulerClosed
 from sphrender.server.service.sessions import SceneValidator
 
 REPO = Path(__file__).resolve().parents[1]

@@ -302,17 +302,17 @@ def test_the_page_in_chromium_shows_the_servers_status_and_frames(
 
 
 def test_the_pages_files_are_package_data() -> None:
-    """A non-editable install carries every file of server/service/viewer/ (pyproject's
+    """A non-editable install carries every file of server/service/http/viewer_page/ (pyproject's
     package-data globs), and the server serves each of them."""
     import fnmatch
     import tomllib
 
     globs = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"][
         "package-data"
-    ]["sphrender.server.service"]
-    files = sorted(p.relative_to(REPO / "server/service").as_posix()
-                   for p in (REPO / "server/service/viewer").iterdir())  # fmt: skip
-    assert files == ["viewer/index.html", "viewer/viewer.css", "viewer/viewer.js"]
+    ]["sphrender.server.service.http"]
+    files = sorted(p.relative_to(REPO / "server/service/http").as_posix()
+                   for p in (REPO / "server/service/http/viewer_page").iterdir())  # fmt: skip
+    assert files == ["viewer_page/index.html", "viewer_page/viewer.css", "viewer_page/viewer.js"]
     for name in files:
         assert any(fnmatch.fnmatch(name, glob) for glob in globs), name
 

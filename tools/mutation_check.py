@@ -390,7 +390,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     ),
     Mutation(
         name="scheduler-serves-the-first-session-again",
-        path="server/service/scheduler.py",
+        path="server/service/render/scheduler.py",
         old=(
             "                    del self._queues[key]\n"
             "                    if queue:\n"

@@ -40,8 +40,8 @@ def add_parser(commands: Subcommands, common: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sphrender.server.service.app import serve
     from sphrender.server.service.config import load_server_config
+    from sphrender.server.service.serve import serve
 
     config = load_server_config(args.config)
     overrides: dict[str, dict[str, object]] = {"http": {}, "stream": {}, "security": {}}

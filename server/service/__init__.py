@@ -1,2 +1,4 @@
-"""The render service: HTTP API, streaming socket, sessions, scheduler, metrics (no GL here
-except in `worker`, whose render thread owns the context). See ARCHITECTURE.md."""
+"""The render service, by role: `http/` and `stream/` are the two transports, `render/` the
+render worker and the render process it supervises (the only one with a GL context); the
+modules here are what they share (sessions, admission, config, metrics, logs). See
+ARCHITECTURE.md."""

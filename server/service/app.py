@@ -1,24 +1,20 @@
 """The render service: one process, one render thread, an HTTP API and a streaming socket.
 
-`RenderService` wires the parts together and is what the transports talk to::
+`RenderService` holds the parts and is what the transports talk to (`facade.ServiceFacade`)::
 
     HTTP handler threads ─┐  decode + validate (numpy, no GL)          ┌─ encoder threads
                           ├─▶ FrameJob ─▶ FairScheduler ─▶ render thread ─▶ (PNG/EXR) ─▶ future
     stream conn threads ──┘                                (owns GL)    └─ resolved once
 
-`serve` runs it until SIGTERM or SIGINT, then drains: listeners close, stream connections stop
-reading and answer what they accepted, HTTP requests in progress finish, the render thread
-empties the queue, releases GL, and the process exits 0 (or after ``drain_timeout_s``).
+`serve.py` starts it with its listeners and drains it on SIGTERM or SIGINT.
 """
 
 from __future__ import annotations
 
-import json
+import functools
 import logging
 import math
 import platform
-import signal
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -32,11 +28,10 @@ from sphrender.server.content.demo import demo_frame
 from sphrender.server.service.admission import MemoryBudget, decoding
 from sphrender.server.service.config import (
     ServerConfig,
-    check_bind_policy,
     public_limits,
 )
-from sphrender.server.service.http_api import make_http_server
-from sphrender.server.service.jobs import (
+from sphrender.server.service.metrics import ServiceMetrics
+from sphrender.server.service.render.jobs import (
     DroppedOutcome,
     ErrorOutcome,
     FrameJob,
@@ -44,27 +39,50 @@ from sphrender.server.service.jobs import (
     Outcome,
     WarmJob,
 )
-from sphrender.server.service.logs import configure_logging
-from sphrender.server.service.metrics import ServiceMetrics
-from sphrender.server.service.scheduler import FairScheduler, QueueFull, SchedulerClosed
+from sphrender.server.service.render.scheduler import FairScheduler, QueueFull, SchedulerClosed
+from sphrender.server.service.render.worker import RenderWorker
 from sphrender.server.service.sessions import (
     SceneValidator,
     Session,
     SessionRegistry,
 )
-from sphrender.server.service.stream import make_stream_server
-from sphrender.server.service.worker import RenderWorker
 
 log = logging.getLogger("sphrender.service")
 
-__all__ = ["RenderService", "serve"]
+__all__ = ["RenderService"]
 
 
-def _version(package: str) -> str:
+def package_version(package: str) -> str:
     try:
         return metadata.version(package)
     except metadata.PackageNotFoundError:
         return "unknown"
+
+
+@functools.cache
+def _demo_particles() -> ParticleFrame:
+    return demo_frame()  # deterministic and never modified: one copy serves every service
+
+
+class ActiveRequests:
+    """How many HTTP requests are in progress (the drain waits for them)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._count = 0
+
+    def enter(self) -> None:
+        with self._lock:
+            self._count += 1
+
+    def leave(self) -> None:
+        with self._lock:
+            self._count -= 1
+
+    @property
+    def count(self) -> int:
+        with self._lock:
+            return self._count
 
 
 class RenderService:
@@ -102,111 +120,22 @@ class RenderService:
         #: Set by the drain: reads of a half-received message or body end by this time.
         self.drain_read_deadline: float | None = None
         self.started_at = time.time()
-        self._active_lock = threading.Lock()
-        self._active_http_requests = 0
-        self.http_server: Any = None
-        self.stream_server: Any = None
-        self._threads: list[threading.Thread] = []
-        self._demo_lock = threading.Lock()
-        self._demo: ParticleFrame | None = None
-        self.metrics.queue_depth.set_callback(lambda: [((), float(self.scheduler.depth))])
-        self.metrics.sessions.set_callback(
+        self.http_requests = ActiveRequests()
+        #: The stream listener's port once it listens (`serve.Listeners`), for /v1/info.
+        self.stream_port: int | None = None
+        self.metrics.render.queue_depth.set_callback(lambda: [((), float(self.scheduler.depth))])
+        self.metrics.transport.sessions.set_callback(
             lambda: [((k,), float(v)) for k, v in self.sessions.counts().items()]
         )
-        self.metrics.memory_reserved.set_callback(lambda: [((), float(self.memory.used))])
-        self.metrics.open_connections.set_callback(
-            lambda: [
-                ((), 0.0 if self.stream_server is None else self.stream_server.open_connections())
-            ]
-        )
-
-    # -- start / stop ---------------------------------------------------------------------------
-
-    def start(self) -> None:
-        """Start the render thread (waits until GL is up and warm), then the listeners."""
-        self.worker.start()
-        self.worker.ready.wait()
-        if self.worker.startup_error is not None:
-            raise self.worker.startup_error
-        self.metrics.build_info.set(1, _version("sphrender"), self.worker.gl_renderer)
-        try:
-            self.http_server = make_http_server(self)
-            if self.config.stream.enabled:
-                self.stream_server = make_stream_server(self)
-        except BaseException:
-            self.worker.kill()
-            raise
-        self._spawn("sphrender-http", self.http_server.serve_forever)
-        if self.stream_server is not None:
-            self._spawn("sphrender-stream", self.stream_server.serve_forever)
-        self._spawn("sphrender-reaper", self._reap_sessions)
-
-    def _spawn(self, name: str, target: Callable[[], Any]) -> None:
-        thread = threading.Thread(target=target, name=name, daemon=True)
-        thread.start()
-        self._threads.append(thread)
-
-    @property
-    def http_port(self) -> int:
-        return int(self.http_server.server_address[1])
-
-    @property
-    def stream_port(self) -> int | None:
-        return None if self.stream_server is None else int(self.stream_server.server_address[1])
-
-    def stop(self) -> bool:
-        """Drain and stop; returns True when everything finished within the drain timeout.
-
-        With ``drain_grace_s`` > 0 the service first only turns not ready (/readyz 503
-        "draining") and keeps accepting frames for that long, so a load balancer stops sending
-        before the listeners close; then the drain proper (``drain_timeout_s``)."""
-        grace = self.config.lifecycle.drain_grace_s
-        if grace > 0:
-            self.leaving.set()
-            log.info("not ready, grace", extra={"event": "drain_grace", "seconds": grace})
-            time.sleep(grace)
-        deadline = time.monotonic() + self.config.lifecycle.drain_timeout_s
-        self.drain_read_deadline = time.monotonic() + self.config.lifecycle.drain_read_timeout_s
-        self.draining.set()
-        log.info("draining", extra={"event": "drain_start", "queued": self.scheduler.depth})
-        for server in (self.http_server, self.stream_server):
-            if server is not None:
-                server.shutdown()  # stop accepting
-                server.server_close()
-        if self.stream_server is not None:
-            self.stream_server.drain_connections()
-        while time.monotonic() < deadline:
-            streams = 0 if self.stream_server is None else self.stream_server.open_connections()
-            if self.active_http_requests == 0 and streams == 0:
-                break
-            time.sleep(0.05)
-        self.scheduler.close()
-        self.worker.join(max(0.1, deadline - time.monotonic()))
-        clean = not self.worker.is_alive()
-        log.info("stopped", extra={"event": "stopped", "clean": clean})
-        return clean
-
-    def _reap_sessions(self) -> None:
-        interval = min(5.0, max(0.05, self.config.limits.session_idle_timeout_s / 4))
-        while not self.draining.wait(interval):
-            for session in self.sessions.reap_idle():
-                self.scheduler.cancel_key(session.id)
-                log.info("session expired", extra={"event": "session_expired", "id": session.id})
+        self.metrics.transport.memory_reserved.set_callback(lambda: [((), float(self.memory.used))])
 
     # -- HTTP bookkeeping (for the drain) -------------------------------------------------------
 
     def enter_http_request(self) -> None:
-        with self._active_lock:
-            self._active_http_requests += 1
+        self.http_requests.enter()
 
     def leave_http_request(self) -> None:
-        with self._active_lock:
-            self._active_http_requests -= 1
-
-    @property
-    def active_http_requests(self) -> int:
-        with self._active_lock:
-            return self._active_http_requests
+        self.http_requests.leave()
 
     # -- frames and sessions --------------------------------------------------------------------
 
@@ -351,19 +280,17 @@ class RenderService:
 
     def demo_particles(self) -> ParticleFrame:
         """The built-in weld bead's particles (made once, on first use)."""
-        with self._demo_lock:
-            if self._demo is None:
-                self._demo = demo_frame()
-            return self._demo
+        return _demo_particles()
 
     def info(self) -> dict[str, Any]:
         return {
             "service": "sphrender",
-            "version": _version("sphrender"),
+            "version": package_version("sphrender"),
             "protocol_version": PROTOCOL_VERSION,
             "python": platform.python_version(),
             "libraries": {
-                name: _version(name) for name in ("numpy", "moderngl", "OpenImageIO", "OpenEXR")
+                name: package_version(name)
+                for name in ("numpy", "moderngl", "OpenImageIO", "OpenEXR")
             },
             "gl": {
                 "renderer": self.worker.gl_renderer,
@@ -377,52 +304,3 @@ class RenderService:
             "limits": public_limits(self.config),
             "uptime_s": round(time.time() - self.started_at, 3),
         }
-
-
-def _ready_line(service: RenderService) -> str:
-    host = service.config.http.host
-    return json.dumps(
-        {
-            "event": "listening",
-            "host": host,
-            "http_port": service.http_port,
-            "stream_port": service.stream_port,
-            "gl_renderer": service.worker.gl_renderer,
-        }
-    )
-
-
-def serve(config: ServerConfig) -> int:
-    """Run until SIGTERM/SIGINT; returns the exit status (0 after a clean drain)."""
-    configure_logging(json_lines=config.logging.json, level=config.logging.level)
-    check_bind_policy(config)
-    service = RenderService(config)
-    stop = threading.Event()
-
-    def on_signal(signum: int, _frame: object) -> None:
-        log.info(
-            "signal received", extra={"event": "signal", "signal": signal.Signals(signum).name}
-        )
-        stop.set()
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
-    service.start()
-    log.info(
-        "listening",
-        extra={
-            "event": "listening",
-            "host": config.http.host,
-            "http_port": service.http_port,
-            "stream_port": service.stream_port,
-            "gl_renderer": service.worker.gl_renderer,
-        },
-    )
-    # One machine-readable line on stdout: supervisors and tests learn the bound ports from it
-    # (with --port 0 the OS picks them).
-    print(_ready_line(service), flush=True)
-    while not stop.wait(0.5):
-        pass
-    clean = service.stop()
-    sys.stdout.flush()
-    return 0 if clean else 1

@@ -1,10 +1,10 @@
 """What the transports may use of the service: the `ServiceFacade` protocol.
 
-The HTTP handler (`http_api.py`) and the stream connections (`stream.py`) are given the running
+The HTTP handler (`http/`) and the stream connections (`stream/`) are given the running
 `RenderService` (`app.py`) through this protocol, bound by a factory (`make_handler`,
-`make_stream_server`), so they depend on what they use and not on `app.py`: `app.py` imports the
-transports, never the other way round. mypy checks that `RenderService` satisfies it where
-`app.py` hands itself to the factories.
+`make_stream_server`), so they depend on what they use and not on `app.py`: `serve.py`
+imports the transports, never the other way round. mypy checks that `RenderService` satisfies
+it where `serve.py` hands it to the factories.
 """
 
 from __future__ import annotations
@@ -16,11 +16,11 @@ from typing import Any, Literal, Protocol
 from sphrender.core.frame import ParticleFrame
 from sphrender.server.service.admission import MemoryBudget
 from sphrender.server.service.config import ServerConfig
-from sphrender.server.service.jobs import FrameJob
 from sphrender.server.service.metrics import ServiceMetrics
-from sphrender.server.service.scheduler import FairScheduler
+from sphrender.server.service.render.jobs import FrameJob
+from sphrender.server.service.render.scheduler import FairScheduler
+from sphrender.server.service.render.worker import RenderWorker
 from sphrender.server.service.sessions import SceneValidator, Session, SessionRegistry
-from sphrender.server.service.worker import RenderWorker
 
 
 class ServiceFacade(Protocol):

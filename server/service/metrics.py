@@ -297,6 +297,68 @@ class RecentFrames:
         }
 
 
+class RenderMetrics:
+    """The render side's families: stages, the render process's health, the queue."""
+
+    def __init__(self, registry: Registry) -> None:
+        self.stage_seconds = registry.histogram(
+            "sphrender_stage_seconds",
+            "Time per stage of a frame: queue wait, render passes, encode",
+            ("stage",),
+        )
+        self.host_seconds = registry.histogram(
+            "sphrender_frame_host_seconds",
+            "Render-thread work outside GL calls per frame (Python, numpy): a GPU frame's floor",
+        )
+        self.context_rebuilds = registry.counter(
+            "sphrender_gl_context_rebuilds_total",
+            "GL contexts rebuilt after a GL error while rendering",
+        )
+        self.worker_restarts = registry.counter(
+            "sphrender_worker_restarts_total",
+            "Renderer processes replaced, by reason: crash (a native fault or other death), hung "
+            "(over limits.render_timeout_s), rss (over worker.max_rss_bytes)",
+            ("reason",),
+        )
+        self.worker_rss = registry.gauge(
+            "sphrender_worker_rss_bytes", "Resident memory of the renderer process"
+        )
+        self.queue_depth = registry.gauge("sphrender_queue_depth", "Frames waiting for the GPU")
+        self.context_rebuilds.inc(amount=0)
+        for reason in ("crash", "hung", "rss"):
+            self.worker_restarts.inc(reason, amount=0)
+
+
+class TransportMetrics:
+    """The transports' families: bytes, HTTP requests, stream connections, sessions."""
+
+    def __init__(self, registry: Registry) -> None:
+        self.bytes_in = registry.counter(
+            "sphrender_received_bytes_total", "Request bytes received", ("transport",)
+        )
+        self.bytes_out = registry.counter(
+            "sphrender_sent_bytes_total", "Answer bytes sent", ("transport",)
+        )
+        self.http_requests = registry.counter(
+            "sphrender_http_requests_total",
+            "HTTP requests by method, route and status code",
+            ("method", "route", "code"),
+        )
+        self.open_connections = registry.gauge(
+            "sphrender_stream_connections_open", "Stream connections currently open"
+        )
+        self.connections = registry.counter(
+            "sphrender_stream_connections_total",
+            "Stream connections by how they ended (bye, eof, timeout, protocol, ...)",
+            ("end",),
+        )
+        self.sessions = registry.gauge("sphrender_sessions", "Open sessions", ("transport",))
+        self.memory_reserved = registry.gauge(
+            "sphrender_memory_reserved_bytes",
+            "Estimated memory held by frames in progress (limits.memory_budget_bytes)",
+        )
+
+
 class ServiceMetrics:
     """The service's metric families, named once here so every part records the same names."""
 
@@ -315,68 +377,20 @@ class ServiceMetrics:
         self.errors = registry.counter(
             "sphrender_errors_total", "Error answers by error code", ("transport", "code")
         )
-        self.stage_seconds = registry.histogram(
-            "sphrender_stage_seconds",
-            "Time per stage of a frame: queue wait, render passes, encode",
-            ("stage",),
-        )
-        self.host_seconds = registry.histogram(
-            "sphrender_frame_host_seconds",
-            "Render-thread work outside GL calls per frame (Python, numpy): a GPU frame's floor",
-        )
         self.frame_seconds = registry.histogram(
             "sphrender_frame_latency_seconds",
             "From the frame fully received to its answer ready, by transport",
             ("transport",),
         )
-        self.bytes_in = registry.counter(
-            "sphrender_received_bytes_total", "Request bytes received", ("transport",)
-        )
-        self.bytes_out = registry.counter(
-            "sphrender_sent_bytes_total", "Answer bytes sent", ("transport",)
-        )
-        self.http_requests = registry.counter(
-            "sphrender_http_requests_total",
-            "HTTP requests by method, route and status code",
-            ("method", "route", "code"),
-        )
         self.in_flight = registry.gauge(
             "sphrender_frames_in_flight",
             "Frames accepted and not yet answered (queued, rendering or encoding)",
         )
-        self.queue_depth = registry.gauge("sphrender_queue_depth", "Frames waiting for the GPU")
-        self.sessions = registry.gauge("sphrender_sessions", "Open sessions", ("transport",))
-        self.open_connections = registry.gauge(
-            "sphrender_stream_connections_open", "Stream connections currently open"
-        )
-        self.connections = registry.counter(
-            "sphrender_stream_connections_total",
-            "Stream connections by how they ended (bye, eof, timeout, protocol, ...)",
-            ("end",),
-        )
-        self.context_rebuilds = registry.counter(
-            "sphrender_gl_context_rebuilds_total",
-            "GL contexts rebuilt after a GL error while rendering",
-        )
-        self.worker_restarts = registry.counter(
-            "sphrender_worker_restarts_total",
-            "Renderer processes replaced, by reason: crash (a native fault or other death), hung "
-            "(over limits.render_timeout_s), rss (over worker.max_rss_bytes)",
-            ("reason",),
-        )
-        self.worker_rss = registry.gauge(
-            "sphrender_worker_rss_bytes", "Resident memory of the renderer process"
-        )
+        self.render = RenderMetrics(registry)
+        self.transport = TransportMetrics(registry)
         #: Not exposed in /metrics: the exact recent latencies behind /v1/status.
         self.recent = RecentFrames()
-        self.memory_reserved = registry.gauge(
-            "sphrender_memory_reserved_bytes",
-            "Estimated memory held by frames in progress (limits.memory_budget_bytes)",
-        )
         self.in_flight.set(0)
-        self.context_rebuilds.inc(amount=0)
-        for reason in ("crash", "hung", "rss"):
-            self.worker_restarts.inc(reason, amount=0)
 
     def exposition(self) -> str:
         return self.registry.exposition()

@@ -1,9 +1,9 @@
 """The HTTP handler's plumbing: connection admission, deadlines, bodies and answers.
 
-`HandlerBase` is what `http_api.ApiHandler` routes on top of. Every answer it writes is JSON
+`HandlerBase` is what `api.ApiHandler` routes on top of. Every answer it writes is JSON
 (``{"error", "field", "code"}`` for errors), including the ones the standard library would
 write as HTML (malformed request line 400, 414, 431, 501, 505: `send_error` is overridden).
-Bodies are read into one preallocated buffer under the body deadline (`http_server`), after
+Bodies are read into one preallocated buffer under the body deadline (`listener`), after
 ``Content-Length`` has been checked: ASCII digits only, one value, within the limit.
 """
 
@@ -17,13 +17,13 @@ import logging
 import re
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler
-from typing import Any, ClassVar
+from typing import Any, ClassVar, cast
 from urllib.parse import parse_qs, unquote, urlsplit
 
 from sphrender.core.protocol import ErrorCode
 from sphrender.server.service.facade import ServiceFacade
-from sphrender.server.service.http_errors import HttpError
-from sphrender.server.service.http_server import (
+from sphrender.server.service.http.errors import HttpError
+from sphrender.server.service.http.listener import (
     ConnectionMode,
     DeadlineReader,
     SphrenderHttpServer,
@@ -49,12 +49,12 @@ _ROUTES = (
     "/viewer/viewer.js",
     "/viewer/viewer.css",
 )
-#: Routes a health-reserve connection may use (see http_server).
+#: Routes a health-reserve connection may use (see listener).
 HEALTH_ROUTES = ("/healthz", "/readyz", "/metrics")
 #: The head of a health-reserve connection must arrive within this (seconds).
 _HEALTH_HEAD_TIMEOUT_S = 2.0
 _CONTENT_LENGTH = re.compile(r"[0-9]{1,19}")
-#: The viewer page's credential: the token, percent-encoded (`http_viewer` sets it).
+#: The viewer page's credential: the token, percent-encoded (`viewer` sets it).
 VIEWER_COOKIE = "sphrender_token"
 #: Sent by the viewer's scripts with every request that is not a GET (see `_check_auth`).
 VIEWER_HEADER = "X-Sphrender-Viewer"
@@ -91,12 +91,14 @@ def route_label(path: str) -> str:
 
 
 class HandlerBase(BaseHTTPRequestHandler):
-    """Request handler plumbing; `service` is bound by `http_api.make_handler`."""
+    """Request handler plumbing; `service` is bound by `api.make_handler`."""
 
     service: ClassVar[ServiceFacade]
     protocol_version = "HTTP/1.1"  # keep-alive; every answer carries Content-Length
     server_version = "sphrender"
     _mode: ConnectionMode = "normal"
+    #: The query string of the request being handled (set by `api.ApiHandler` per request).
+    _query: dict[str, list[str]]
     _status = 0
 
     def version_string(self) -> str:
@@ -116,7 +118,7 @@ class HandlerBase(BaseHTTPRequestHandler):
         self.rfile = io.BufferedReader(self._reader, 65536)
 
     def handle(self) -> None:
-        server: SphrenderHttpServer = self.server  # type: ignore[assignment]
+        server = cast(SphrenderHttpServer, self.server)
         mode = server.enter_connection(id(self), self._reader)
         if mode is None:
             self._raw_busy()
@@ -183,11 +185,13 @@ class HandlerBase(BaseHTTPRequestHandler):
         its answer sees its own request."""
         self._status = status
         route = route_label(urlsplit(self.path).path) if getattr(self, "path", "") else "other"
-        self.service.metrics.http_requests.inc(self.command or "other", route, str(status))
+        self.service.metrics.transport.http_requests.inc(
+            self.command or "other", route, str(status)
+        )
 
     def _check_auth(self) -> None:
         """With a token configured, a request needs one of: ``Authorization: Bearer <token>``;
-        the viewer's cookie (set by ``GET /?token=<token>``, see `http_viewer`) on a GET/HEAD,
+        the viewer's cookie (set by ``GET /?token=<token>``, see `viewer`) on a GET/HEAD,
         or on another method together with the ``X-Sphrender-Viewer`` header (which a page of
         another site cannot send without the CORS preflight this server never grants); or the
         ``token`` query parameter itself on ``GET /`` (the viewer's entry, which trades it for
@@ -281,7 +285,7 @@ class HandlerBase(BaseHTTPRequestHandler):
         finally:
             view.release()
             self._reader.end_head()
-        self.service.metrics.bytes_in.inc("http", amount=length)
+        self.service.metrics.transport.bytes_in.inc("http", amount=length)
         return body
 
     # -- answers --------------------------------------------------------------------------------
@@ -307,7 +311,7 @@ class HandlerBase(BaseHTTPRequestHandler):
         self.end_headers()
         if self.command != "HEAD":
             self.wfile.write(body)
-        self.service.metrics.bytes_out.inc("http", amount=len(body))
+        self.service.metrics.transport.bytes_out.inc("http", amount=len(body))
 
     def _send_json(
         self, status: int, payload: Any, headers: dict[str, str] | None = None, **kw: Any

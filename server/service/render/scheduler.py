@@ -21,7 +21,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 
-from sphrender.server.service.jobs import DroppedOutcome, FrameJob, WarmJob
+from sphrender.server.service.render.jobs import DroppedOutcome, FrameJob, WarmJob
 
 #: How often a blocked submitter re-checks its abort condition (seconds).
 _POLL_S = 0.25

@@ -1,4 +1,4 @@
-"""Socket I/O and answer encoding for stream connections (`stream.py`).
+"""Socket I/O for stream connections (`connection.py`).
 
 `Channel` reads and writes one connection's socket under deadlines: before a message's first
 byte the idle rules apply (nothing started: a drain or an idle timeout may end the connection
@@ -13,11 +13,6 @@ from __future__ import annotations
 import socket
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any
-
-from sphrender.core.protocol import ErrorCode, MessageType, encode_message
-from sphrender.server.service.jobs import DroppedOutcome, ErrorOutcome, ImageOutcome, Outcome
 
 #: Socket poll interval: how quickly a blocked thread notices a drain or a dead peer.
 TICK_S = 0.2
@@ -30,54 +25,6 @@ class Closed(Exception):
     def __init__(self, reason: str) -> None:
         super().__init__(reason)
         self.reason = reason
-
-
-@dataclass
-class Slot:
-    """One owed answer, in arrival order: a job still running or an outcome already known."""
-
-    frame_id: int | None
-    job: Any = None  # FrameJob
-    outcome: Outcome | None = None
-    fatal: bool = False
-    release: Callable[[], None] | None = None  # the frame's memory reservation
-
-
-def answer_bytes(slot: Slot, outcome: Outcome) -> bytes:
-    """The IMAGE, DROPPED or ERROR message for `slot`. A frame cancelled by the service (its
-    session closed under it) is answered ERROR ``shutting_down``/``busy``, never DROPPED
-    ``cancelled``: DROPPED means only ``superseded`` (PROTOCOL.md 4.5)."""
-    if isinstance(outcome, ImageOutcome):
-        header: dict[str, Any] = {
-            "id": slot.frame_id,
-            "format": outcome.format,
-            "width": outcome.width,
-            "height": outcome.height,
-            "particles": outcome.particles,
-            "drawn": outcome.drawn,
-            "timings_ms": outcome.timings_ms,
-        }
-        if outcome.arrays is not None:
-            header["arrays"] = outcome.arrays
-        if outcome.notes:
-            header["notes"] = list(outcome.notes)
-        return encode_message(MessageType.IMAGE, header, outcome.data)
-    if isinstance(outcome, DroppedOutcome):
-        if outcome.reason == "superseded":
-            return encode_message(
-                MessageType.DROPPED, {"id": slot.frame_id, "reason": outcome.reason}
-            )
-        outcome = ErrorOutcome(ErrorCode.BUSY, "the frame was cancelled before it was rendered")
-    return encode_message(
-        MessageType.ERROR,
-        {
-            "id": slot.frame_id,
-            "code": outcome.code,
-            "error": outcome.message,
-            "field": outcome.field,
-            "fatal": slot.fatal,
-        },
-    )
 
 
 class Channel:

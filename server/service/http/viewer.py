@@ -2,7 +2,7 @@
 
 Routes::
 
-    GET /                      the viewer page (server/service/viewer/index.html)
+    GET /                      the viewer page (viewer_page/index.html)
     GET /viewer/viewer.js      its script, /viewer/viewer.css its style sheet
     GET /v1/status             live numbers: sessions, frames/s, queue, latency percentiles
     GET /v1/schema             the scene's JSON Schema (generated, = schema/scene.schema.json)
@@ -26,12 +26,12 @@ from urllib.parse import quote, urlencode
 
 from sphrender.core.protocol import ErrorCode
 from sphrender.server.scene.json_schema import scene_json_schema_text
-from sphrender.server.service.http_base import VIEWER_COOKIE, HandlerBase
-from sphrender.server.service.http_errors import HttpError
-from sphrender.server.service.jobs import CONTENT_TYPES
+from sphrender.server.service.http.errors import HttpError
+from sphrender.server.service.http.handler import VIEWER_COOKIE, HandlerBase
+from sphrender.server.service.render.jobs import CONTENT_TYPES
 from sphrender.server.service.sessions import MAX_KEPT_IMAGE_BYTES, VIEWABLE_FORMATS
 
-#: Path -> (file under viewer/, content type).
+#: Path -> (file under viewer_page/, content type).
 ASSETS = {
     "/": ("index.html", "text/html; charset=utf-8"),
     "/viewer/viewer.js": ("viewer.js", "text/javascript; charset=utf-8"),
@@ -51,10 +51,9 @@ _PAGE_HEADERS = {
 
 @functools.cache
 def asset(name: str) -> bytes:
-    """A file of the viewer (package data of sphrender.server.service)."""
-    return (
-        importlib.resources.files("sphrender.server.service").joinpath("viewer", name).read_bytes()
-    )
+    """A file of the viewer (package data of sphrender.server.service.http)."""
+    page = importlib.resources.files("sphrender.server.service.http").joinpath("viewer_page")
+    return page.joinpath(name).read_bytes()
 
 
 @functools.cache
@@ -63,7 +62,7 @@ def _schema_body() -> bytes:
 
 
 class ViewerRoutes(HandlerBase):
-    """The viewer's routes; `http_api.ApiHandler` adds them to its table."""
+    """The viewer's routes; `api.ApiHandler` adds them to its table."""
 
     _query: dict[str, list[str]]
 
