@@ -522,9 +522,7 @@ class SphEngine:
         else:
             rows = crowd.representatives
             grid = self._build_grid(points[rows], params.radius, crowd.weights)
-            shapes = crowd.expand(
-                kernels.run(self._grid_args(grid), rows.size, params, self._pool)
-            )
+            shapes = crowd.expand(kernels.run(self._grid_args(grid), rows.size, params, self._pool))
         return shapes.result(points, radius)
 
 
