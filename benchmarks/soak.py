@@ -73,7 +73,7 @@ FORMATS = ("png", "jpeg", "exr", "raw")
 
 
 def scene(rng: random.Random) -> dict[str, Any]:
-    width, height = rng.choice(SIZES)
+    width, height = rng.choice(SIZES) if rng.random() < 0.95 else (1280, 720)
     return {
         "image": {"width": width, "height": height},
         "camera": {"eye": [0.6, 0.5, 0.9], "target": [0.0, 0.0, 0.0], "fov_y": 40.0},
@@ -95,7 +95,7 @@ def override(rng: random.Random) -> dict[str, Any] | None:
 
 
 def positions(rng: random.Random) -> np.ndarray:
-    n = rng.choice((50, 200, 800, 2000))
+    n = rng.choice((50, 200, 800, 2000)) if rng.random() < 0.98 else 100_000
     points = np.random.default_rng(rng.randrange(1 << 30)).normal(size=(n, 3)) * 0.15
     if rng.random() < 0.05:
         points[rng.randrange(n)] = np.nan
