@@ -124,3 +124,28 @@ def test_one_off_crash_costs_no_frame_and_a_frame_crashing_twice_fails_alone(
         assert failed[0]["code"] == "render_failed" and "SIGSEGV" in failed[0]["error"]
         assert 2 <= restarts(server, "crash") <= 3
         assert render(server, 500)[0] == 200
+
+
+def test_http_frame_still_queued_after_the_limit_is_busy(server: ServerProcess) -> None:
+    """§9: a frame that waited in the render queue, not begun, for ``limits.render_timeout_s``
+    is answered 503 busy with Retry-After (a separate answer from the render limit's 500)."""
+    with server.stream() as client:
+        client.hello(SMALL_SCENE)
+        # The late frame and 4 behind it fill the renderer (2 x encoder_threads + 1 in flight);
+        # after the kill the 4 are re-sent one at a time, so the HTTP frame waits in the queue.
+        frames = [encode_frame(1, ball(HANG))]
+        frames += [encode_frame(i, ball(500, seed=i)) for i in range(2, 6)]
+        client.send(b"".join(frames))
+        wait_for_in_flight(server)
+        time.sleep(0.3)
+        body = encode_npz_frame(ball(500), scene=SMALL_SCENE)
+        status, headers, data = server.request(
+            "POST", "/v1/render", body, {"Content-Type": "application/x-npz"}, timeout=60
+        )
+        answers = [client.receive() for _ in range(5)]
+    error = json.loads(data)
+    assert (status, error["code"]) == (503, "busy"), (status, error)
+    assert "render queue" in error["error"] and "limits.render_timeout_s" in error["error"]
+    assert int(headers["Retry-After"]) >= 1
+    assert [k for k, _h, _p in answers] == [MessageType.ERROR] + [MessageType.IMAGE] * 4
+    assert render(server, 500)[0] == 200
