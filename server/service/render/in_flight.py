@@ -31,6 +31,7 @@ class InFlight:
         self._changed = threading.Condition()
         self._jobs: dict[int, Sent] = {}
         self._next_id = 0
+        self._last_event = 0.0  # time.monotonic() of the last Started or answer
 
     def add(self, job: FrameJob | WarmJob, restarts: int = 0) -> int:
         """Record `job` as sent now; returns its id on the pipe."""
@@ -41,8 +42,9 @@ class InFlight:
 
     def started(self, job_id: int) -> None:
         with self._changed:
+            self._last_event = time.monotonic()
             if job_id in self._jobs:
-                self._jobs[job_id].started_at = time.monotonic()
+                self._jobs[job_id].started_at = self._last_event
 
     def sent_in(self, job_id: int, send_ms: float) -> None:
         with self._changed:
@@ -52,6 +54,7 @@ class InFlight:
     def pop(self, job_id: int) -> Sent | None:
         with self._changed:
             entry = self._jobs.pop(job_id, None)
+            self._last_event = time.monotonic()
             self._changed.notify_all()
             return entry
 
@@ -69,13 +72,17 @@ class InFlight:
 
     def overdue(self, limit_s: float) -> bool:
         """Whether a job has been started more than `limit_s` ago, or (the process stuck
-        before starting anything) nothing is started and a job was sent that long ago."""
+        before starting anything) nothing is started and the process has said nothing for that
+        long since the oldest job was sent."""
         now = time.monotonic()
         with self._changed:
+            if not self._jobs:
+                return False
             starts = [e.started_at for e in self._jobs.values() if e.started_at is not None]
             if starts:
                 return now - min(starts) > limit_s
-            return any(now - entry.sent_at > limit_s for entry in self._jobs.values())
+            oldest = min(entry.sent_at for entry in self._jobs.values())
+            return now - max(oldest, self._last_event) > limit_s
 
     def wait_for_room(self, limit: int, blocked: bool, timeout: float) -> bool:
         """Whether another job may be sent; if not (full, or `blocked`), waits up to `timeout`

@@ -178,7 +178,7 @@ class RenderWorker(threading.Thread):
             exit_words = exit_text(process.process.exitcode)
         held = self._in_flight.take_all()
         late_s = self._settings.render_timeout_s if reason == "hung" else None
-        resend, failed = _sort_held(held, late_s, exit_words)
+        resend, failed = sort_held(held, late_s, exit_words)
         self._retry.extendleft(reversed(resend))  # before anything queued, in the order sent
         self._metrics.render.worker_restarts.inc(reason)
         log.error(
@@ -333,7 +333,7 @@ class RenderWorker(threading.Thread):
         return request, [value for _name, value in present]
 
 
-def _sort_held(
+def sort_held(
     held: list[Sent], late_s: float | None, exit_words: str
 ) -> tuple[list[tuple[Job, int]], int]:
     """The jobs a dead process held: those to send again (with their restart count), in the
