@@ -1,11 +1,12 @@
 """Service parts that need no server process: scheduler fairness, metrics text, configuration,
-scene merging and the environment-directory rule."""
+scene merging, the environment-directory rule, and the render watchdog's bookkeeping."""
 
 from __future__ import annotations
 
 import math
 import os
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -25,8 +26,10 @@ from sphrender.server.service.config import (
     server_config_from_dict,
 )
 from sphrender.server.service.metrics import Registry
-from sphrender.server.service.render.jobs import DroppedOutcome, FrameJob
+from sphrender.server.service.render.in_flight import InFlight
+from sphrender.server.service.render.jobs import DroppedOutcome, ErrorOutcome, FrameJob
 from sphrender.server.service.render.scheduler import FairScheduler, QueueFull, SchedulerClosed
+from sphrender.server.service.render.worker import sort_held
 from sphrender.server.service.sessions import SceneValidator
 
 REPO = Path(__file__).resolve().parents[1]
@@ -217,3 +220,40 @@ def test_pixel_limit_is_a_limit_error() -> None:
     with pytest.raises(LimitError) as info:
         SceneValidator(100, []).from_dict({"image": {"width": 20, "height": 20}})
     assert info.value.field == "image"
+
+
+def test_watchdog_times_a_job_from_its_start_not_its_send() -> None:
+    """PROTOCOL.md §4.1 ``render_s``: time a frame waited in the renderer's pipe does not count."""
+    in_flight = InFlight()
+    first, second = in_flight.add(job("a", 1)), in_flight.add(job("b", 2))
+    in_flight.started(first)
+    time.sleep(0.05)
+    assert in_flight.overdue(0.02)  # the first has been rendering past the limit
+    in_flight.pop(first)
+    assert not in_flight.overdue(0.02)  # the second was sent long ago, but waited behind it
+    in_flight.started(second)
+    assert not in_flight.overdue(0.02)
+    time.sleep(0.05)
+    assert in_flight.overdue(0.02)
+    stalled = InFlight()  # a process that never begins what it was sent is stuck too
+    stalled.add(job("c", 3))
+    time.sleep(0.05)
+    assert stalled.overdue(0.02)
+
+
+def test_a_dead_renderers_jobs_the_late_one_fails_the_others_go_again() -> None:
+    """§4.4: the late frame is render_failed naming the limit; the others are re-sent, in the
+    order sent, unless this was their second death."""
+    in_flight = InFlight()
+    jobs = [job("a", 1), job("b", 2), job("c", 3)]
+    late = in_flight.add(jobs[0])
+    in_flight.add(jobs[1])
+    in_flight.add(jobs[2], restarts=1)
+    in_flight.started(late)
+    time.sleep(0.05)
+    resend, failed = sort_held(in_flight.take_all(), 0.02, "signal 9 (SIGKILL)")
+    assert resend == [(jobs[1], 1)] and failed == 2
+    timed_out, twice = jobs[0].future.result(0), jobs[2].future.result(0)
+    assert isinstance(timed_out, ErrorOutcome) and isinstance(twice, ErrorOutcome)
+    assert timed_out.code == "render_failed" and "limits.render_timeout_s" in timed_out.message
+    assert twice.code == "render_failed" and "each time" in twice.message

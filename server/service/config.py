@@ -117,9 +117,17 @@ class StreamConfig:
     max_connections: int = spec(
         32,
         "concurrent stream connections (separate from limits.max_sessions). When full, a "
-        "connection still waiting for its HELLO after 1 s is closed to make room",
+        "connection still waiting for its HELLO after 1 s, or else the session idle longest "
+        "(past stream.evict_idle_s), is closed to make room",
         low=1,
         high=4096,
+    )
+    evict_idle_s: float = spec(
+        5.0,
+        "when all stream.max_connections are taken, a session with nothing in flight and no "
+        "message for this long may be closed (GOODBYE evicted) to make room for a new one",
+        low=0.0,
+        low_open=True,
     )
 
 
@@ -162,7 +170,9 @@ class LimitsConfig:
     )
     render_timeout_s: float = spec(
         120.0,
-        "an HTTP request whose frame has not been rendered within this gets 503",
+        "a frame whose render (from when the renderer begins it) takes longer is answered "
+        "render_failed and the renderer restarted; an HTTP frame still queued after this gets "
+        "503",
         low=0.0,
         low_open=True,
     )

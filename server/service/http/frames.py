@@ -2,8 +2,11 @@
 
 A frame body's memory is reserved before it is read; an .npz body's scene is decoded first and
 its arrays are admitted against the memory budget before they are read (`admission.py`). The
-job is queued, waited for (at most ``limits.render_timeout_s``) and answered with the image,
-its ``Server-Timing`` and ``X-Sphrender-*`` headers, or the error as JSON.
+job is queued and waited for, then answered with the image, its ``Server-Timing`` and
+``X-Sphrender-*`` headers, or the error as JSON. A frame still queued after
+``limits.render_timeout_s`` is taken back and answered 503 ``busy``; once the renderer has it,
+the wait is the renderer's (its watchdog answers a frame past the render limit
+``render_failed``), so the answer is never given up on early.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from sphrender.server.service.render.jobs import (
     ErrorOutcome,
     FrameJob,
     ImageOutcome,
+    Outcome,
 )
 from sphrender.server.service.render.scheduler import QueueFull, SchedulerClosed
 from sphrender.server.service.sessions import Session
@@ -197,6 +201,25 @@ class FrameRoutes:
         finally:
             reservation.release()
 
+    def _wait(self, job: FrameJob) -> Outcome:
+        """The frame's outcome; 503 busy if it is still queued after the render limit."""
+        service = self.service
+        limit_s = service.config.limits.render_timeout_s
+        try:
+            return job.future.result(timeout=limit_s)
+        except FutureTimeout:
+            pass
+        # Not yet handed to the renderer: take it back (the worker skips a resolved job).
+        if not job.started_at and job.resolve(DroppedOutcome("cancelled")):
+            raise HttpError(
+                503,
+                ErrorCode.BUSY,
+                f"the frame waited in the render queue for longer than limits.render_timeout_s "
+                f"({limit_s:g} s); retry later",
+                retry_after_s=service.retry_after_s(),
+            )
+        return job.future.result()  # the renderer's watchdog bounds this wait
+
     def _render_and_answer(self, job: FrameJob) -> None:
         service = self.service
         try:
@@ -212,16 +235,7 @@ class FrameRoutes:
             raise HttpError(
                 503, ErrorCode.SHUTTING_DOWN, "the server is shutting down", retry_after_s=1
             ) from None
-        try:
-            outcome = job.future.result(timeout=service.config.limits.render_timeout_s)
-        except FutureTimeout:
-            job.cancel()
-            raise HttpError(
-                503,
-                ErrorCode.BUSY,
-                "the frame was not rendered within limits.render_timeout_s",
-                retry_after_s=service.retry_after_s(),
-            ) from None
+        outcome = self._wait(job)
         if isinstance(outcome, ImageOutcome):
             timing = ", ".join(f"{k};dur={v:.3f}" for k, v in outcome.timings_ms.items())
             headers = {

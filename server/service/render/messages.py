@@ -125,6 +125,13 @@ class ErrorAnswer:
 
 
 @dataclass(frozen=True)
+class Started:
+    """The process began job `id` (its render clock starts: ``limits.render_timeout_s``)."""
+
+    id: int
+
+
+@dataclass(frozen=True)
 class WarmError:
     input: bool  # an InputError (the scene), else a render failure
     field: str | None
@@ -137,11 +144,12 @@ class WarmAnswer:
     error: WarmError | None
 
 
-Answer: TypeAlias = Ready | StartupFailed | ImageAnswer | ErrorAnswer | WarmAnswer
+Answer: TypeAlias = Ready | StartupFailed | Started | ImageAnswer | ErrorAnswer | WarmAnswer
 
 _TAGS: dict[type[Answer], str] = {
     Ready: "ready",
     StartupFailed: "startup_failed",
+    Started: "started",
     ImageAnswer: "image",
     ErrorAnswer: "error",
     WarmAnswer: "warm",
@@ -240,6 +248,8 @@ def _decode(tag: str, fields: _Fields) -> Answer:
             )
         case "startup_failed":
             return StartupFailed(fields.text("error"))
+        case "started":
+            return Started(fields.integer("id"))
         case "image":
             notes = (_Fields(item, "answer.notes[]") for item in fields.items("notes"))
             return ImageAnswer(

@@ -40,6 +40,7 @@ from sphrender.server.service.render.messages import (
     ImageAnswer,
     Note,
     Ready,
+    Started,
     StartupFailed,
     StopRequest,
     WarmAnswer,
@@ -191,6 +192,7 @@ class RenderProcess:
         from sphrender.core.errors import InputError
 
         error: WarmError | None = None
+        self.send(Started(request.id))
         renderer = self._renderer or self.rebuild()
         try:
             if renderer is None:
@@ -229,6 +231,7 @@ class RenderProcess:
             self._error(request.id, "render_failed", "the GL context is unavailable")
             return
         self._encode_slots.acquire()  # bounded backlog of rendered frames waiting to encode
+        self.send(Started(request.id))
         handed_off = False
         try:
             frame, stats = self._render_step(request, renderer, particles)

@@ -13,11 +13,14 @@ Failures:
   ``bad_input``.
 * A GL error: the process answers ``render_failed``, rebuilds its context and says so
   (``sphrender_gl_context_rebuilds_total``).
-* The process dies (a native fault: SIGSEGV, SIGABRT, the OOM killer), hangs (a frame in it for
-  longer than ``limits.render_timeout_s``: it is killed) or grows past ``worker.max_rss_bytes``
-  (replaced between frames): every frame it held is answered ``render_failed``, warm-ups fail,
-  a new process is started, and ``sphrender_worker_restarts_total{reason}`` counts it. The
-  listeners never stop; frames queued meanwhile wait in the scheduler.
+* The process dies (a native fault: SIGSEGV, SIGABRT, the OOM killer), hangs (a job it began
+  more than ``limits.render_timeout_s`` ago: it is killed) or grows past
+  ``worker.max_rss_bytes`` (replaced between frames): a new process is started and
+  ``sphrender_worker_restarts_total{reason}`` counts it. The job past the limit is answered
+  ``render_failed``; every other job the process held is sent again to the new one, first and
+  one at a time, so a second death is that job's own: a job held at ``MAX_RESTARTS`` deaths is
+  answered ``render_failed``. The listeners never stop; frames queued meanwhile wait in the
+  scheduler.
 """
 
 from __future__ import annotations
@@ -26,8 +29,10 @@ import logging
 import multiprocessing
 import threading
 import time
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TypeAlias
 
 import numpy as np
 
@@ -35,7 +40,7 @@ from sphrender.core.errors import InputError
 from sphrender.server.scene import Scene
 from sphrender.server.service.metrics import ServiceMetrics
 from sphrender.server.service.render.handle import ProcessHandle, exit_text
-from sphrender.server.service.render.in_flight import InFlight
+from sphrender.server.service.render.in_flight import InFlight, Sent
 from sphrender.server.service.render.jobs import FrameJob, WarmJob
 from sphrender.server.service.render.messages import (
     Answer,
@@ -45,6 +50,7 @@ from sphrender.server.service.render.messages import (
     Health,
     ImageAnswer,
     Ready,
+    Started,
     WarmAnswer,
     WarmRequest,
 )
@@ -59,6 +65,10 @@ from sphrender.server.service.render.scheduler import FairScheduler
 log = logging.getLogger("sphrender.service.worker")
 
 _TICK_S = 0.1
+#: A job the render process held at this many of its deaths is answered render_failed.
+MAX_RESTARTS = 2
+
+Job: TypeAlias = FrameJob | WarmJob
 
 
 @dataclass(frozen=True)
@@ -96,6 +106,7 @@ class RenderWorker(threading.Thread):
         )
         self._context = multiprocessing.get_context("spawn")
         self._in_flight = InFlight()
+        self._retry: deque[tuple[Job, int]] = deque()  # (job, restarts) to send again first
         self._frames_sent = 0
         self._process: ProcessHandle | None = None
         self._gl: Ready | None = None  # what the last process that started said about its GL
@@ -165,18 +176,10 @@ class RenderWorker(threading.Thread):
         if process is not None:
             process.stop(kill=reason != "rss")
             exit_words = exit_text(process.process.exitcode)
-        lost = self._in_flight.take_all()
-        message = (
-            f"the renderer process died ({exit_words}) while this frame was in it; it has been "
-            "restarted and later frames are unaffected"
-        )
-        if reason == "hung":
-            message = (
-                "rendering took longer than limits.render_timeout_s "
-                f"({self._settings.render_timeout_s} s); the renderer process was restarted"
-            )
-        for entry in lost:
-            fail(entry.job, message)
+        held = self._in_flight.take_all()
+        late_s = self._settings.render_timeout_s if reason == "hung" else None
+        resend, failed = sort_held(held, late_s, exit_words)
+        self._retry.extendleft(reversed(resend))  # before anything queued, in the order sent
         self._metrics.render.worker_restarts.inc(reason)
         log.error(
             "renderer process replaced",
@@ -184,7 +187,8 @@ class RenderWorker(threading.Thread):
                 "event": "worker_restart",
                 "reason": reason,
                 "exit": exit_words,
-                "frames_lost": len(lost),
+                "frames_lost": failed,
+                "frames_resent": len(resend),
             },
         )
         self._recycle = False
@@ -200,7 +204,9 @@ class RenderWorker(threading.Thread):
     ) -> None:
         """Receiver thread: one answer -> its job's future."""
         entry = None
-        if isinstance(answer, ImageAnswer | ErrorAnswer | WarmAnswer):
+        if isinstance(answer, Started):
+            self._in_flight.started(answer.id)
+        elif isinstance(answer, ImageAnswer | ErrorAnswer | WarmAnswer):
             entry = self._in_flight.pop(answer.id)
         if health.rebuilt:
             self._metrics.render.context_rebuilds.inc()
@@ -240,15 +246,18 @@ class RenderWorker(threading.Thread):
         try:
             while True:
                 self._supervise()
-                if not self._in_flight.wait_for_room(limit, self._recycle, _TICK_S):
+                depth = 1 if self._retry else limit  # a re-sent job goes alone
+                if not self._in_flight.wait_for_room(depth, self._recycle, _TICK_S):
                     continue
-                job = self._scheduler.take(timeout=_TICK_S)
+                job, restarts = self._retry.popleft() if self._retry else (None, 0)
                 if job is None:
-                    if self._scheduler.finished and self._in_flight.idle():
+                    job = self._scheduler.take(timeout=_TICK_S)
+                if job is None:
+                    if self._scheduler.finished and self._in_flight.idle() and not self._retry:
                         break
                     continue
                 try:
-                    self._dispatch(job)
+                    self._dispatch(job, restarts)
                 except Exception:  # the supervisor must never die: that job fails, no other
                     log.exception("dispatching a job failed", extra={"event": "worker_bug"})
                     fail(job, "internal error")
@@ -268,20 +277,18 @@ class RenderWorker(threading.Thread):
             self._replace_process("rss")
 
     def _watchdog(self) -> None:
-        """Kill a process that has held a job past ``limits.render_timeout_s`` (a hung driver);
-        its own thread, because the supervisor may be blocked writing to the process's pipe."""
-        while not self._stopped.wait(0.5):
+        """Kill a process that began a job more than ``limits.render_timeout_s`` ago (a hung
+        driver, a degenerate frame); its own thread, because the supervisor may be blocked
+        writing to the process's pipe."""
+        while not self._stopped.wait(0.25):
             process = self._process
-            oldest = self._in_flight.oldest_sent_at()
-            late = (
-                oldest is not None and time.monotonic() - oldest > self._settings.render_timeout_s
-            )
+            late = self._in_flight.overdue(self._settings.render_timeout_s)
             if process is not None and late and not process.hung:
                 process.hung = True
                 log.error("renderer process hung; killing it", extra={"event": "worker_hung"})
                 process.process.kill()
 
-    def _dispatch(self, job: FrameJob | WarmJob) -> None:
+    def _dispatch(self, job: Job, restarts: int = 0) -> None:
         if isinstance(job, FrameJob) and job.done:  # cancelled or superseded while queued
             return
         if self._process is None:
@@ -291,13 +298,15 @@ class RenderWorker(threading.Thread):
             fail(job, "the renderer process is unavailable")
             return
         start = time.perf_counter()
-        job_id = self._in_flight.add(job)
+        job_id = self._in_flight.add(job, restarts)
         try:
             if isinstance(job, WarmJob):
                 process.send(WarmRequest(job_id, job.scene))
             else:
-                job.started_at = time.perf_counter()
-                self._metrics.render.stage_seconds.observe(job.started_at - job.queued_at, "queue")
+                if not restarts:
+                    job.started_at = time.perf_counter()
+                    queued = job.started_at - job.queued_at
+                    self._metrics.render.stage_seconds.observe(queued, "queue")
                 self._frames_sent += 1
                 request, buffers = self._frame_request(job, job_id)
                 process.send(request, buffers)
@@ -322,3 +331,31 @@ class RenderWorker(threading.Thread):
         specs = tuple(ArraySpec(name, value.dtype.str, value.shape) for name, value in present)
         request = FrameRequest(job_id, job.scene, job.format, self._frames_sent, specs)
         return request, [value for _name, value in present]
+
+
+def sort_held(
+    held: list[Sent], late_s: float | None, exit_words: str
+) -> tuple[list[tuple[Job, int]], int]:
+    """The jobs a dead process held: those to send again (with their restart count), in the
+    order sent; the others are answered render_failed here (returns how many). With `late_s`
+    (the process was killed as hung), a job begun more than `late_s` ago is the late one."""
+    now = time.monotonic()
+    resend: list[tuple[Job, int]] = []
+    failed = 0
+    for entry in held:
+        if late_s is not None and entry.started_at is not None and now - entry.started_at > late_s:
+            message = (
+                f"rendering took longer than limits.render_timeout_s ({late_s:g} s); the "
+                "renderer process was restarted and later frames are unaffected"
+            )
+        elif entry.restarts + 1 >= MAX_RESTARTS:
+            message = (
+                f"the renderer process died ({exit_words}) each time it held this frame; it has "
+                "been restarted and later frames are unaffected"
+            )
+        else:
+            resend.append((entry.job, entry.restarts + 1))
+            continue
+        fail(entry.job, message)
+        failed += 1
+    return resend, failed

@@ -9,6 +9,7 @@ over, and whether the connection is dead or draining.
 from __future__ import annotations
 
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -85,6 +86,8 @@ class Answers:
         self.goodbye: str | None = None
         self.dead = threading.Event()  # the peer is gone or the connection was evicted
         self.draining = threading.Event()  # the service is shutting down
+        self.evicted = threading.Event()  # closed while idle to make room for a new connection
+        self.last_active = time.monotonic()  # the last frame received or answer sent
 
     @property
     def owed(self) -> int:
@@ -94,7 +97,13 @@ class Answers:
         with self._changed:
             self._slots.append(slot)
             self._owed += 1
+            self.last_active = time.monotonic()
             self._changed.notify_all()
+
+    def idle_for(self, now: float) -> float:
+        """Seconds with nothing owed and nothing received (0 while a frame is in flight)."""
+        with self._changed:
+            return 0.0 if self._owed or self.evicted.is_set() else now - self.last_active
 
     def wait_for_room(self, limit: int) -> None:
         """Block the reader while `limit` answers are owed (unless dead or draining)."""
@@ -118,6 +127,7 @@ class Answers:
         with self._changed:
             self._slots.popleft()
             self._owed -= 1
+            self.last_active = time.monotonic()
             self._changed.notify_all()
 
     def abandon(self) -> list[Slot]:

@@ -82,12 +82,14 @@ class StreamConnection:
         self.session: Session | None = None
         self.hello: Hello | None = None
         self.connected_at = time.monotonic()
+        self.welcomed = False
         self.channel = Channel(
             sock,
             idle_timeout_s=self.config.idle_timeout_s,
             write_timeout_s=self.config.write_timeout_s,
             dead=self.answers.dead.is_set,
             draining=self.answers.draining.is_set,
+            evicted=self.answers.evicted.is_set,
             drain_deadline=lambda: service.drain_read_deadline,
             in_flight=lambda: self.answers.owed,
         )
@@ -100,6 +102,14 @@ class StreamConnection:
         self.answers.dead.set()
         with contextlib.suppress(OSError):
             self.sock.shutdown(socket.SHUT_RDWR)
+
+    def idle_for(self, now: float) -> float:
+        """Seconds this session has been idle (0 before its WELCOME or with a frame in flight)."""
+        return self.answers.idle_for(now) if self.welcomed else 0.0
+
+    def evict_idle(self) -> None:
+        """End an idle session with GOODBYE ``evicted`` (room for a newcomer)."""
+        self.answers.evicted.set()
 
     def _send_fatal(self, code: str, message: str, field: str | None) -> None:
         """An immediate fatal ERROR (handshake only; later ones go through the answer list)."""
@@ -117,7 +127,11 @@ class StreamConnection:
         end = "gone"
         try:
             if not self.server.register(self):
-                self._send_fatal(ErrorCode.BUSY, "too many stream connections", None)
+                message = (
+                    "too many stream connections (stream.max_connections) and none idle for "
+                    f"stream.evict_idle_s ({self.config.evict_idle_s:g} s); retry later"
+                )
+                self._send_fatal(ErrorCode.BUSY, message, None)
                 end = "busy"
                 return
             try:
@@ -212,4 +226,6 @@ class StreamConnection:
             send_counted(self.channel, self.service, encode_message(MessageType.WELCOME, welcome))
         except Closed as closed:
             return closed.reason
+        self.answers.last_active = time.monotonic()
+        self.welcomed = True
         return "ok"

@@ -99,6 +99,7 @@ def stream_timeouts(config: ServerConfig) -> dict[str, float]:
         "drain_read_s": config.lifecycle.drain_read_timeout_s,
         "linger_s": LINGER_S,
         "evict_handshake_s": EVICT_HANDSHAKE_AFTER_S,
+        "evict_idle_s": config.stream.evict_idle_s,
     }
 
 

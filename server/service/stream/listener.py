@@ -1,5 +1,6 @@
 """The stream listener: a threaded TCP server with one `StreamConnection` per client, at most
-``stream.max_connections`` at once (a full server evicts a connection stuck before its HELLO).
+``stream.max_connections`` at once (a full server closes a connection stuck before its HELLO,
+or else the session idle longest past ``stream.evict_idle_s``, to make room).
 """
 
 from __future__ import annotations
@@ -35,12 +36,15 @@ class StreamServer(socketserver.ThreadingTCPServer):
         handler = type("BoundStreamHandler", (StreamHandler,), {"service": service})
         super().__init__(address, handler)
         self._max = service.config.stream.max_connections
+        self._evict_idle_s = service.config.stream.evict_idle_s
         self._lock = threading.Lock()
         self._connections: set[StreamConnection] = set()
 
     def register(self, connection: StreamConnection) -> bool:
-        """Count a connection in; when full, the oldest one still without a session after
-        1 s (a client that connected and is not saying HELLO) is closed to make room."""
+        """Count a connection in; when full, make room: the oldest one still without a session
+        after 1 s (a client that connected and is not saying HELLO) is closed, or else the
+        session idle longest, if idle for more than ``stream.evict_idle_s``, gets GOODBYE
+        ``evicted``. Returns False when there is no room."""
         with self._lock:
             if len(self._connections) >= self._max:
                 now = time.monotonic()
@@ -49,11 +53,16 @@ class StreamServer(socketserver.ThreadingTCPServer):
                     for c in self._connections
                     if c.session is None and now - c.connected_at > EVICT_HANDSHAKE_AFTER_S
                 ]
-                if not waiting:
+                idle = max(self._connections, key=lambda c: c.idle_for(now))
+                if waiting:
+                    victim = min(waiting, key=lambda c: c.connected_at)
+                    victim.evict()
+                elif idle.idle_for(now) > self._evict_idle_s:
+                    victim = idle
+                    victim.evict_idle()
+                else:
                     return False
-                victim = min(waiting, key=lambda c: c.connected_at)
                 self._connections.discard(victim)
-                victim.evict()
             self._connections.add(connection)
             return True
 

@@ -160,7 +160,7 @@ class FrameReader:
                 extra={"event": "stream_drain_cut", "peer": self.peer},
             )
             self.answers.goodbye = reason = "shutdown"
-        elif reason in ("eof", "shutdown", "idle_timeout"):
+        elif reason in ("eof", "shutdown", "idle_timeout", "evicted"):
             self.answers.goodbye = reason
         elif reason == "vanished":
             log.info(

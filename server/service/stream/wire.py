@@ -38,6 +38,7 @@ class Channel:
         write_timeout_s: float,
         dead: Callable[[], bool],
         draining: Callable[[], bool],
+        evicted: Callable[[], bool],
         drain_deadline: Callable[[], float | None],
         in_flight: Callable[[], int],
     ) -> None:
@@ -46,6 +47,7 @@ class Channel:
         self._write_timeout_s = write_timeout_s
         self._dead = dead
         self._draining = draining
+        self._evicted = evicted
         self._drain_deadline = drain_deadline
         self._in_flight = in_flight
         sock.settimeout(TICK_S)
@@ -59,6 +61,8 @@ class Channel:
         if idle_deadline is not None and not started:
             if self._draining():
                 raise Closed("shutdown")
+            if self._evicted() and self._in_flight() == 0:
+                raise Closed("evicted")
             if self._in_flight() > 0:
                 idle_deadline = now + self._idle_timeout_s  # waiting for answers, not idle
             if now > idle_deadline:
