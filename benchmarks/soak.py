@@ -159,6 +159,7 @@ def soak(frames: int, seed: int) -> dict[str, Any]:
     rng = random.Random(seed)
     done = 0
     samples: dict[str, Any] = {}
+    trend: list[dict[str, int]] = []  # every 1,000 frames: growing or levelled off?
     errors = 0
     sessions = 0
     with tempfile.TemporaryDirectory() as tmp, ServerProcess(Path(tmp), {}) as server:
@@ -177,6 +178,8 @@ def soak(frames: int, seed: int) -> dict[str, Any]:
             done += burst
             if before < 1000 <= done:
                 samples["frame_1000"] = memory(pid)
+            if before // 1000 < done // 1000:
+                trend.append({"frames": done, **memory(pid)})
         elapsed = time.monotonic() - started
         time.sleep(2.0)
         samples["end"] = {**counts(pid), **memory(pid)}
@@ -188,6 +191,10 @@ def soak(frames: int, seed: int) -> dict[str, Any]:
         "seconds": round(elapsed, 1),
         "fps": round(done / elapsed, 1),
         "samples": samples,
+        "trend_mib": [
+            {k: v if k == "frames" else round(v / 2**20, 1) for k, v in row.items()}
+            for row in trend
+        ],
         "rss_growth_from_frame_1000_pct": {
             key: round(100.0 * (last[key] - first[key]) / first[key], 2)
             for key in ("service_rss", "renderer_rss", "total_rss")
