@@ -155,6 +155,8 @@ class RenderService:
             densities=arrays.get("densities"),
             radii=arrays.get("radii"),
             temperatures=arrays.get("temperatures"),
+            velocities=arrays.get("velocities"),
+            ids=arrays.get("ids"),
             max_particles=self.config.limits.max_particles,
         )
 
