@@ -148,7 +148,7 @@ class SurfaceRenderer:
             prepared = self._prepare.run(sph, camera, scene)
             stats.particles_drawn = prepared.visible
             stats.far = prepared.far
-        stats.notes += self._input_notes.of(frame, scene.camera, prepared.visible)
+        stats.notes += self._input_notes.of(frame, scene, prepared.visible)
         surface, bulk_splatted = self._draw_surface(prepared, camera, scene, stats)
         with self._stage(stats, "normals"):
             normal_depth = self._surface_normals(surface, prepared, camera, scene)
