@@ -30,6 +30,7 @@ from sphrender.server.engine.frame_output import (
 )
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.screen_box import ScreenBox
+from sphrender.server.engine.gpu.cl_context import CLDeviceInfo
 from sphrender.server.engine.gpu.draw import FullscreenTriangle, Target
 from sphrender.server.engine.gpu.gl_clock import StageTimer
 from sphrender.server.engine.gpu.gl_context import GLContext
@@ -110,6 +111,11 @@ class SurfaceRenderer:
         """The SPH engine and its CL context, created on first use (owner thread)."""
         self._gl.check_owner()
         return self._sph.engine()
+
+    def opencl_device(self) -> CLDeviceInfo:
+        """The SPH stages' OpenCL device, its context made now if need be (owner thread)."""
+        self._gl.check_owner()
+        return self._sph.device()
 
     def check_image_size(self, scene: Scene) -> None:
         limit = self.max_image_side()
