@@ -29,8 +29,10 @@ def preset_sections(name: str) -> dict[str, Any]:
 
 
 def load_scene_with_preset(path: str | Path | None, preset: str | None) -> Scene:
-    """The scene file (or the defaults) laid over the preset (or nothing)."""
-    data: dict[str, Any] = preset_sections(preset) if preset else {}
-    if path is not None:
-        data = merge_scene_dicts(data, read_scene_toml(path))
+    """The scene file (or the defaults) laid over the preset (or the file's own
+    ``quality.preset``, which `preset` replaces)."""
+    data: dict[str, Any] = {} if path is None else read_scene_toml(path)
+    if preset:
+        preset_sections(preset)  # an unknown name is refused naming `quality`, as before
+        data = merge_scene_dicts(data, {"quality": {"preset": preset}})
     return scene_from_dict(data)

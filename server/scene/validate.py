@@ -150,6 +150,7 @@ def scene_from_dict(data: Mapping[str, Any], *, bench: bool = False) -> Scene:
     if not isinstance(data, Mapping):
         raise InputError("scene", f"must be a table, got {kind_of(data)}")
     data, notes = upgrade_scene_dict(data)
+    data = _under_preset(data)
     sections: dict[str, Any] = {}
     known = {f.name: f for f in scene_sections()}
     hints = typing.get_type_hints(Scene)
@@ -164,6 +165,23 @@ def scene_from_dict(data: Mapping[str, Any], *, bench: bool = False) -> Scene:
     scene = Scene(**sections, notes=notes)
     _check_cross_field(scene)
     return scene
+
+
+def _under_preset(data: dict[str, Any]) -> dict[str, Any]:
+    """`data` laid over the sections of its ``quality.preset`` (its own keys win), as the CLI's
+    ``--quality`` does; unchanged without one."""
+    quality = data.get("quality")
+    name = quality.get("preset") if isinstance(quality, Mapping) else None
+    if name is None:
+        return data
+    # Both import this module (files.py directly, presets.py through the package).
+    from sphrender.server.scene.files import merge_scene_dicts
+    from sphrender.server.scene.presets import PRESETS, preset_sections
+
+    if not isinstance(name, str) or name not in PRESETS:
+        allowed = ", ".join(map(show, PRESETS))
+        raise InputError("quality.preset", f"must be one of {allowed}, got {show(name)}")
+    return merge_scene_dicts(preset_sections(name), data)
 
 
 def _check_cross_field(scene: Scene) -> None:
