@@ -227,7 +227,7 @@ class Client:
         self,
         positions: object,
         scene: Mapping[str, Any] | None,
-        arrays: Mapping[str, object | None],
+        arrays: Mapping[str, Any],
         format: ImageFormat | None,
     ) -> tuple[dict[str, str], bytes]:
         if format is not None and format not in IMAGE_FORMATS:

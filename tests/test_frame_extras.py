@@ -41,7 +41,7 @@ def test_make_frame_refuses_bad_velocities_and_ids(
     arrays: dict[str, object], field: str, words: str
 ) -> None:
     with pytest.raises(InputError) as caught:
-        make_frame(POSITIONS, **arrays)
+        make_frame(POSITIONS, **arrays)  # type: ignore[arg-type]
     assert caught.value.field == field
     assert words in caught.value.message
 
