@@ -17,6 +17,7 @@ from typing import Any, Literal, TypeVar, get_args, get_origin
 
 from sphrender.core.errors import InputError, kind_of, show
 from sphrender.server.scene.fields import is_bench_only
+from sphrender.server.scene.layering import PRESETS, merge_scene_dicts, preset_sections
 from sphrender.server.scene.renames import upgrade_scene_dict
 from sphrender.server.scene.schema import (
     MAX_IMAGE_PIXELS,
@@ -174,10 +175,6 @@ def _under_preset(data: dict[str, Any]) -> dict[str, Any]:
     name = quality.get("preset") if isinstance(quality, Mapping) else None
     if name is None:
         return data
-    # Both import this module (files.py directly, presets.py through the package).
-    from sphrender.server.scene.files import merge_scene_dicts
-    from sphrender.server.scene.presets import PRESETS, preset_sections
-
     if not isinstance(name, str) or name not in PRESETS:
         allowed = ", ".join(map(show, PRESETS))
         raise InputError("quality.preset", f"must be one of {allowed}, got {show(name)}")
