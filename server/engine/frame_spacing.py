@@ -1,5 +1,5 @@
 """A frame's typical particle spacing, cheaply: the median nearest-neighbour distance of the
-particles in one small cube of the frame's bulk (numpy only, no tree over the whole frame).
+particles in three small cubes of the frame's bulk (numpy only, no tree over the whole frame).
 
 1. A random probe of `PROBE` particles finds the bulk: probe particles whose `K`-th nearest
    probe neighbour is nearer than for 40-80 % of the probe (`CENTERS`) sit in the fluid's bulk,
@@ -12,8 +12,9 @@ particles in one small cube of the frame's bulk (numpy only, no tree over the wh
    by brute force; the median of their nearest-neighbour distances, pooled over the cubes, is
    the spacing.
 
-Cost: the probe and the cubes are bounded (at most 200 x 3000 distances each), so what grows
-with N is one pass over the x column per cube: ~1 ms per 100k particles each.
+Cost: the probe and the cubes are bounded (at most 100 x 3000 distances each), so what grows
+with N is one pass over the x column per cube. Measured (CPU time, one core): 3 ms for 13k
+particles, 4 ms for 57k, 13 ms for 440k, 90 ms for 4.2M.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ CUBE_RANGE = (250, 3000)
 INNER = 0.6
 #: Fewest inner particles a spacing is given from, and most that are queried.
 MIN_QUERIES = 32
-MAX_QUERIES = 200
+MAX_QUERIES = 100
 
 
 def _cube(positions: npt.NDArray[np.float64], center: np.ndarray, side: float) -> np.ndarray:
@@ -68,7 +69,8 @@ def _cube_nearest(
         side = min(side * (CUBE / max(rows.size, 1)) ** (1.0 / 3.0), limit)
         rows = _cube(positions, center, side)
     cube = positions[rows]
-    queries = cube[np.abs(cube - center).max(axis=1) <= INNER * side / 2][:MAX_QUERIES]
+    queries = cube[np.abs(cube - center).max(axis=1) <= INNER * side / 2]
+    queries = queries[:: -(-len(queries) // MAX_QUERIES) or 1]  # spread over the inner cube
     if not queries.shape[0]:
         return np.zeros(0)
     return np.partition(_distances(queries, cube), 1, axis=1)[:, 1]  # [:, 0]: itself

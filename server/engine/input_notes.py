@@ -16,14 +16,16 @@ replaces are noted there: sph/frame_densities.py.)
   (2r)^3), so a frame's own particles say what `particles.radius` should be. Forgetting it
   renders with the default 0.015 against, say, a simulator's 0.02: sheets break into beads.
   The measure is the median nearest-neighbour distance s of the frame's bulk (frame_spacing.py):
-  exactly 2r on the resting lattice (r/s = 0.50), 0.82-0.91 x 2r once the fluid flows (r/s =
-  0.55-0.62 on the vendored DFSPH dam break, t = 0.4 and 1.0 s). Outside RADIUS_BAND the frame
-  gets the note. Its low end catches a radius 25 % too small everywhere (r/s 0.375 on the
-  lattice, 0.42-0.46 flowing), which breaks sheets into beads. Its high end is lenient: a radius
-  too large only rounds the surface, and clouds that are not SPH (random points: r/s ~0.9 for
-  half their mean spacing) must not be told off; it catches a diameter sent as the radius
-  (r/s 1.0-1.24). Skipped for frames with per-particle radii; ~1 ms per 100k particles per cube
-  sampled (three), bounded work otherwise.
+  exactly 2r on the resting lattice (r/s = 0.50), 0.75-0.91 x 2r once the fluid flows (r/s =
+  0.55-0.67 on the vendored DFSPH dam break, t = 0.4 and 1.0 s, over 40 samplings; the high
+  end where the cubes land in a compressed wave front). Outside RADIUS_BAND the frame gets the
+  note. Its low end, 4 % under the lattice's exact 0.50, catches a radius 25 % too small
+  (r/s 0.375 on the lattice, 0.41-0.44 at t = 1.0 s: always; at t = 0.4 s in 34 of 40
+  samplings, the others reading the compressed front), which breaks sheets into beads. Its high
+  end is lenient: a radius too large only rounds the surface, and clouds that are not SPH
+  (random points: r/s ~0.9 for half their mean spacing) must not be told off; it catches a
+  diameter sent as the radius (r/s 1.0-1.3). Skipped for frames with per-particle radii; the
+  sampling is seeded, so a frame always gets the same answer; cost in frame_spacing.py.
 * **No particle in view** (`out_of_view_note`). A blank image is what a client sees when its
   positions are in other units than the scene's camera (millimetres against a camera in
   metres) or the camera looks away; the note gives the particles' extent and the camera, so
@@ -46,7 +48,7 @@ log = logging.getLogger("sphrender.render")
 #: Below this (kelvin) a temperature is taken to be in degrees Celsius, for the note.
 COLDEST_KELVIN = 200.0
 #: The scene's radius over the frame's typical spacing that fits SPH data (see the docstring).
-RADIUS_BAND = (0.47, 0.95)
+RADIUS_BAND = (0.48, 0.95)
 
 
 def celsius_note(frame: ParticleFrame) -> InputNote | None:
