@@ -9,7 +9,8 @@ Formats, chosen by the (case-insensitive) suffix:
 - ``.npy``: an (N, 3) positions array. Never unpickles.
 - ``.vtk`` (legacy), ``.vtu``, ``.ply``: via meshio; positions from the points, attributes from the
   point data (``density``/``densities``/``rho``, ``radius``/``radii``,
-  ``temperature``/``temperatures``, ``velocity``/``velocities``/``v``, ``id``/``ids``).
+  ``temperature``/``temperatures``, ``velocity``/``velocities``/``v`` or ``vx``/``vy``/``vz``,
+  ``id``/``ids``).
 - ``.bgeo``, ``.bgeo.gz``: Houdini classic binary geometry (version 5) as partio writes it, gzip
   compressed or not (decided by the gzip magic bytes, not by the name). Parsed here.
 - ``.csv``: a header row naming the columns; ``x``, ``y``, ``z`` required; ``density``, ``radius``,
@@ -385,6 +386,9 @@ def _read_meshio(path: str, mapped: dict[str, str], max_particles: int) -> Parti
     for canonical in _ATTRIBUTES:
         name = _choose_name(canonical, point_data, mapped, _DEFAULT_NAMES, path)
         arrays[canonical] = None if name is None else point_data[name]
+    if arrays["velocity"] is None and all(axis in point_data for axis in ("vx", "vy", "vz")):
+        # PLY keeps a vector as one scalar property per component
+        arrays["velocity"] = np.stack([_column(point_data[a]) for a in ("vx", "vy", "vz")], 1)
     return _frame_from(points, arrays, max_particles)
 
 

@@ -111,7 +111,11 @@ def test_memory_estimate_counts_velocities_and_ids() -> None:
     assert frame_estimate(1000, 100, 10, ["positions", "velocities", "ids"]) == plain + 100 * 32
 
 
-def test_readers_take_velocities_and_ids(tmp_path: Path) -> None:
+def test_readers_take_velocities_and_ids(tmp_path: Path, dambreak: Path) -> None:
+    simulated = read_particles(dambreak / "bgeo" / "ParticleData_Fluid_5.bgeo")
+    assert simulated.ids is not None and simulated.velocities is not None  # partio's id and v
+    assert simulated.velocities.shape == (simulated.count, 3)
+
     positions = ball(20)
     velocities = np.arange(60, dtype=np.float64).reshape(20, 3)
     ids = np.arange(20)[::-1]
@@ -125,6 +129,19 @@ def test_readers_take_velocities_and_ids(tmp_path: Path) -> None:
     ]
     (tmp_path / "frame.csv").write_text("\n".join(rows) + "\n")
     frame = read_particles(tmp_path / "frame.csv")
+    assert frame.ids is not None and frame.ids.tolist() == ids.tolist()
+    assert frame.velocities is not None and np.array_equal(frame.velocities, velocities)
+
+    import meshio
+
+    cells = [("vertex", np.arange(20).reshape(-1, 1))]
+    split = {f"v{a}": velocities[:, i].astype(np.float32) for i, a in enumerate("xyz")}
+    meshio.write(tmp_path / "frame.ply", meshio.Mesh(positions, cells, point_data=split))
+    frame = read_particles(tmp_path / "frame.ply")
+    assert frame.velocities is not None and np.array_equal(frame.velocities, velocities)
+    vectors = {"velocity": velocities, "id": ids.astype(np.int32)}
+    meshio.write(tmp_path / "frame.vtu", meshio.Mesh(positions, cells, point_data=vectors))
+    frame = read_particles(tmp_path / "frame.vtu")
     assert frame.ids is not None and frame.ids.tolist() == ids.tolist()
     assert frame.velocities is not None and np.array_equal(frame.velocities, velocities)
 
