@@ -110,6 +110,8 @@ def _frame_arrays(frame: ParticleFrame) -> dict[str, Any]:
         "densities": frame.densities,
         "radii": frame.radii,
         "temperatures": frame.temperatures,
+        "velocities": frame.velocities,
+        "ids": frame.ids,
     }
 
 
@@ -205,26 +207,32 @@ class Client:
         densities: object | None = None,
         radii: object | None = None,
         temperatures: object | None = None,
+        velocities: object | None = None,
+        ids: object | None = None,
         format: ImageFormat | None = None,
     ) -> bytes:
         """Render one frame over HTTP; returns the image bytes (PNG, EXR, JPEG or raw arrays:
-        `render_raw` decodes those)."""
-        return self._render(positions, scene, densities, radii, temperatures, format)[1]
+        `render_raw` decodes those). `velocities` (N, 3) and `ids` (N,) are validated and carried
+        with the frame."""
+        arrays = dict(
+            densities=densities,
+            radii=radii,
+            temperatures=temperatures,
+            velocities=velocities,
+            ids=ids,
+        )
+        return self._render(positions, scene, arrays, format)[1]
 
     def _render(
         self,
         positions: object,
         scene: Mapping[str, Any] | None,
-        densities: object | None,
-        radii: object | None,
-        temperatures: object | None,
+        arrays: Mapping[str, Any],
         format: ImageFormat | None,
     ) -> tuple[dict[str, str], bytes]:
         if format is not None and format not in IMAGE_FORMATS:
             raise InputError("format", f"must be one of {', '.join(IMAGE_FORMATS)}")
-        body = encode_npz_frame(
-            positions, densities=densities, radii=radii, temperatures=temperatures, scene=scene
-        )
+        body = encode_npz_frame(positions, scene=scene, **arrays)
         path = "/v1/render" + (f"?format={format}" if format else "")
         return self.request("POST", path, body, "application/x-npz")
 
@@ -236,10 +244,19 @@ class Client:
         densities: object | None = None,
         radii: object | None = None,
         temperatures: object | None = None,
+        velocities: object | None = None,
+        ids: object | None = None,
     ) -> dict[str, np.ndarray]:
         """Render as raw arrays (the scene's ``output.raw_type``) and decode them: ``rgba``
         (H, W, 4), plus ``Z`` and ``N`` for the float types (PROTOCOL.md §4.3)."""
-        headers, data = self._render(positions, scene, densities, radii, temperatures, "raw")
+        arrays = dict(
+            densities=densities,
+            radii=radii,
+            temperatures=temperatures,
+            velocities=velocities,
+            ids=ids,
+        )
+        headers, data = self._render(positions, scene, arrays, "raw")
         return decode_raw(json.loads(headers["x-sphrender-arrays"]), data)
 
     def render_arrays(
@@ -263,9 +280,7 @@ class Client:
         """`render_frame`, and the answer's notes: what the server changed about the frame's
         input to render it, ``{"field", "message"}`` (``X-Sphrender-Notes``, PROTOCOL.md 4.3;
         usually none)."""
-        headers, data = self._render(
-            frame.positions, scene, frame.densities, frame.radii, frame.temperatures, format
-        )
+        headers, data = self._render(frame.positions, scene, _frame_arrays(frame), format)
         notes: list[dict[str, str]] = json.loads(headers.get("x-sphrender-notes", "[]"))
         return data, notes
 
@@ -347,7 +362,8 @@ class StreamSession:
         return read_message(self._read_exact, max_payload_bytes=1 << 31)
 
     def send(self, positions: object, *, frame_id: int | None = None, **arrays: Any) -> int:
-        """Send one FRAME (does not wait); returns its id."""
+        """Send one FRAME (does not wait); returns its id. `arrays`: densities, radii,
+        temperatures, velocities, ids (PROTOCOL.md §4.2) and ``scene``, a per-frame override."""
         if frame_id is None:
             frame_id = self._next_id
         self._next_id = frame_id + 1

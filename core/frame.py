@@ -28,12 +28,16 @@ class ParticleFrame:
     densities: (N,) float32 kg/m^3, or None (the SPH pass computes them when a feature needs them).
     radii: (N,) float32 per-particle radii in scene units, or None (the scene's radius is used).
     temperatures: (N,) float32 kelvin, or None.
+    velocities: (N, 3) float32 scene units per second, or None (carried; the renderer ignores it).
+    ids: (N,) int64 unique non-negative particle ids, or None (carried; the renderer ignores it).
     """
 
     positions: npt.NDArray[np.float64]
     densities: npt.NDArray[np.float32] | None = None
     radii: npt.NDArray[np.float32] | None = None
     temperatures: npt.NDArray[np.float32] | None = None
+    velocities: npt.NDArray[np.float32] | None = None
+    ids: npt.NDArray[np.int64] | None = None
 
     @property
     def count(self) -> int:
@@ -59,6 +63,8 @@ def make_frame(
     densities: object | None = None,
     radii: object | None = None,
     temperatures: object | None = None,
+    velocities: object | None = None,
+    ids: object | None = None,
     *,
     max_particles: int = MAX_PARTICLES,
 ) -> ParticleFrame:
@@ -66,7 +72,8 @@ def make_frame(
 
     Raises `InputError` naming the array (and the first offending index) for: non-numeric dtypes,
     wrong shapes, mismatched lengths, more than `max_particles`, NaN/Inf anywhere, radii <= 0,
-    densities <= 0, temperatures < 0. Zero particles is valid.
+    densities <= 0, temperatures < 0, velocities not (N, 3), ids not integers, negative or
+    repeated. Zero particles is valid.
     """
     pos = _as_float_array("positions", positions, (3,))
     n = pos.shape[0]
@@ -95,9 +102,62 @@ def make_frame(
             raise InputError(f"{name}[{i}]", f"must be finite and {bound}, got {show(arr[i])}")
         return np.ascontiguousarray(arr32)
 
+    vel = None
+    if velocities is not None:
+        vel = _as_float_array("velocities", velocities, (3,))
+        if vel.shape[0] != n:
+            raise InputError("velocities", f"has {vel.shape[0]} rows but positions has {n}")
+        with np.errstate(over="ignore"):  # beyond float32's range becomes inf, refused below
+            vel = np.ascontiguousarray(vel, dtype=np.float32)
+        finite = np.isfinite(vel).all(axis=1)
+        if not finite.all():
+            raise InputError(
+                f"velocities[{_first_bad_index(np.logical_not(finite))}]",
+                "must be finite (a row of 3 components; found NaN or Infinity, or a value "
+                "beyond float32's range)",
+            )
     return ParticleFrame(
         positions=np.ascontiguousarray(pos64),
         densities=optional("densities", densities, 0.0, inclusive=False),
         radii=optional("radii", radii, 0.0, inclusive=False),
         temperatures=optional("temperatures", temperatures, 0.0, inclusive=True),
+        velocities=vel,
+        ids=None if ids is None else _checked_ids(ids, n),
     )
+
+
+def _checked_ids(value: object, n: int) -> npt.NDArray[np.int64]:
+    """(N,) int64 ids: integers, 0 <= id <= 2**63 - 1, no id twice."""
+    array = np.asarray(value)
+    if array.dtype.kind not in "iu":
+        raise InputError("ids", f"must be an integer array, got dtype {array.dtype}")
+    if array.ndim != 1:
+        raise InputError("ids", f"must have shape (N,), got {show(list(array.shape))}")
+    if array.shape[0] != n:
+        raise InputError("ids", f"has {array.shape[0]} entries but positions has {n}")
+    if not n:
+        return np.zeros(0, np.int64)
+    if array.dtype.kind == "i" and int(array.min()) < 0:
+        i = _first_bad_index(array < 0)
+        raise InputError(f"ids[{i}]", f"must be >= 0, got {show(array[i])}")
+    top = int(array.max())
+    if top > np.iinfo(np.int64).max:
+        i = _first_bad_index(array == top)
+        raise InputError(f"ids[{i}]", f"must be at most 2**63 - 1, got {top}")
+    ids = np.ascontiguousarray(array, dtype=np.int64)
+    if top < 8 * n:  # dense ids (the usual 0..N-1): a bitmap of <= 8 bytes a particle, O(N)
+        seen = np.zeros(top + 1, np.bool_)
+        seen[ids] = True
+        unique = int(np.count_nonzero(seen)) == n
+    else:
+        ordered = np.sort(ids)
+        unique = not bool((ordered[1:] == ordered[:-1]).any())
+    if not unique:
+        values, counts = np.unique(ids, return_counts=True)
+        twice = values[counts > 1][0]
+        where = np.flatnonzero(ids == twice)
+        raise InputError(
+            f"ids[{int(where[1])}]",
+            f"must be unique: id {int(twice)} also appears at ids[{int(where[0])}]",
+        )
+    return ids

@@ -10,8 +10,8 @@ every size is checked *before* the bytes it describes are read or allocated:
    against what the entry holds and against `max_uncompressed_bytes` summed over the entries (a
    small deflated body cannot expand into gigabytes); particles against `max_particles`; the
    scene text against `max_scene_bytes`;
-3. then `admit(scene_json, particles)`, the caller's last word (the service checks its memory
-   budget there), and only then the arrays' data.
+3. then `admit(scene_json, particles, array_names)`, the caller's last word (the service checks
+   its memory budget there), and only then the arrays' data.
 
 Any failure is an `InputError` naming the entry (or ``body``); a size limit is a `LimitError`.
 """
@@ -36,7 +36,14 @@ from sphrender.core.errors import InputError, LimitError, show
 __all__ = ["NpzFrame", "decode_npz_frame", "encode_npz_frame"]
 
 #: The arrays an .npz frame may carry (the same names as the stream's FRAME arrays).
-NPZ_ARRAYS: tuple[str, ...] = ("positions", "densities", "radii", "temperatures")
+NPZ_ARRAYS: tuple[str, ...] = (
+    "positions",
+    "densities",
+    "radii",
+    "temperatures",
+    "velocities",
+    "ids",
+)
 #: Default cap on entries in an archive (a frame needs at most five).
 DEFAULT_MAX_ENTRIES = 64
 #: Default cap on the scene entry's text, UTF-8 bytes.
@@ -77,12 +84,21 @@ def encode_npz_frame(
     densities: object | None = None,
     radii: object | None = None,
     temperatures: object | None = None,
+    velocities: object | None = None,
+    ids: object | None = None,
     scene: Mapping[str, Any] | str | None = None,
     compress: bool = False,
 ) -> bytes:
     """An .npz body for ``POST /v1/render`` (what ``np.savez`` writes; the scene as 0-d str)."""
     entries: dict[str, np.ndarray] = {"positions": np.asarray(positions)}
-    for name, value in (("densities", densities), ("radii", radii), ("temperatures", temperatures)):
+    named = (
+        ("densities", densities),
+        ("radii", radii),
+        ("temperatures", temperatures),
+        ("velocities", velocities),
+        ("ids", ids),
+    )
+    for name, value in named:
         if value is not None:
             entries[name] = np.asarray(value)
     if scene is not None:
@@ -218,12 +234,13 @@ def decode_npz_frame(
     max_uncompressed_bytes: int,
     max_entries: int = DEFAULT_MAX_ENTRIES,
     max_scene_bytes: int = DEFAULT_MAX_SCENE_BYTES,
-    admit: Callable[[str | None, int], None] | None = None,
+    admit: Callable[[str | None, int, tuple[str, ...]], None] | None = None,
 ) -> NpzFrame:
     """Parse an .npz body: arrays named as in `NPZ_ARRAYS` plus an optional ``scene``.
 
     Other entries are ignored unread. See the module docstring for the order of the checks;
-    `admit(scene_json, particles)` may raise to refuse the frame before its arrays are read.
+    `admit(scene_json, particles, array_names)` may raise to refuse the frame before its arrays
+    are read.
     """
     view = memoryview(data).cast("B")
     if bytes(view[:4]) != b"PK\x03\x04":
@@ -256,7 +273,8 @@ def decode_npz_frame(
                     scene_json = _scene_text(_read_data(archive, entry), max_scene_bytes)
             positions = next(e for e in entries if e.name == "positions")
             if admit is not None:
-                admit(scene_json, positions.shape[0] if positions.shape else 0)
+                names = tuple(e.name for e in entries if e.name != "scene")
+                admit(scene_json, positions.shape[0] if positions.shape else 0, names)
             arrays = {e.name: _read_data(archive, e) for e in entries if e.name != "scene"}
     except InputError:
         raise

@@ -45,11 +45,13 @@ from sphrender.core.npz_body import NpzFrame, decode_npz_frame, encode_npz_frame
 
 __all__ = [
     "ARRAY_NAMES",
+    "ID_DTYPES",
     "IMAGE_FORMATS",
     "MAGIC",
     "MAX_FRAME_ID",
     "PREFIX",
     "PREFIX_SIZE",
+    "VECTOR_ARRAYS",
     "VERSION",
     "WIRE_DTYPES",
     "ArraySlot",
@@ -81,12 +83,23 @@ PREFIX_SIZE = PREFIX.size  # 16
 #: Frame ids are JSON integers; 2**53 - 1 is the largest every JSON library represents exactly.
 MAX_FRAME_ID = 2**53 - 1
 #: The arrays a frame may carry, as in the .npz input format.
-ARRAY_NAMES: tuple[str, ...] = ("positions", "densities", "radii", "temperatures")
+ARRAY_NAMES: tuple[str, ...] = (
+    "positions",
+    "densities",
+    "radii",
+    "temperatures",
+    "velocities",
+    "ids",
+)
+#: Arrays of N rows of 3 values; the others are (N,).
+VECTOR_ARRAYS: frozenset[str] = frozenset({"positions", "velocities"})
 #: The image encodings an IMAGE (and an HTTP render) can carry (PROTOCOL.md §4.3).
 ImageFormat: TypeAlias = Literal["png", "exr", "jpeg", "raw"]
 IMAGE_FORMATS: tuple[ImageFormat, ...] = ("png", "exr", "jpeg", "raw")
 #: Wire dtype names (numpy's array-protocol strings, always little-endian) -> numpy dtype.
 WIRE_DTYPES: dict[str, np.dtype[Any]] = {"<f4": np.dtype("<f4"), "<f8": np.dtype("<f8")}
+#: The dtypes of ``ids`` (integers; the other arrays are floats).
+ID_DTYPES: dict[str, np.dtype[Any]] = {t: np.dtype(t) for t in ("<i4", "<u4", "<i8", "<u8")}
 #: How deep a JSON header may nest (a scene is 3 levels deep; this leaves room and no more).
 MAX_JSON_DEPTH = 16
 #: Longest JSON integer accepted, in digits: every 64-bit integer fits (2**64 has 20 digits).
@@ -298,6 +311,11 @@ def _wire_array(name: str, value: object, allow_f8: bool) -> np.ndarray:
     array = np.asarray(value)
     if array.dtype.kind not in "fiu":
         raise InputError(name, f"must be a numeric array, got dtype {array.dtype}")
+    if name == "ids":
+        if array.dtype.kind not in "iu":
+            raise InputError(name, f"must be an integer array, got dtype {array.dtype}")
+        wire = array.dtype.newbyteorder("<") if array.dtype.itemsize in (4, 8) else "<i8"
+        return np.ascontiguousarray(array, dtype=wire)
     wide = allow_f8 and array.dtype == np.float64
     return np.ascontiguousarray(array, dtype="<f8" if wide else "<f4")
 
@@ -309,11 +327,21 @@ def encode_frame(
     densities: object | None = None,
     radii: object | None = None,
     temperatures: object | None = None,
+    velocities: object | None = None,
+    ids: object | None = None,
     scene: Mapping[str, Any] | None = None,
 ) -> bytes:
-    """A FRAME message. Positions keep float64 when given as float64 (large coordinates)."""
+    """A FRAME message. Positions keep float64 when given as float64 (large coordinates); ids
+    keep a 4- or 8-byte integer dtype (others become int64); the rest are sent as float32."""
     arrays = {"positions": _wire_array("positions", positions, allow_f8=True)}
-    for name, value in (("densities", densities), ("radii", radii), ("temperatures", temperatures)):
+    named = (
+        ("densities", densities),
+        ("radii", radii),
+        ("temperatures", temperatures),
+        ("velocities", velocities),
+        ("ids", ids),
+    )
+    for name, value in named:
         if value is not None:
             arrays[name] = _wire_array(name, value, allow_f8=False)
     header: dict[str, Any] = {
@@ -330,8 +358,8 @@ def encode_frame(
 
 
 def _shape(field: str, value: Any, name: str) -> tuple[int, ...]:
-    expected = (None, 3) if name == "positions" else (None,)
-    text = "[N, 3]" if name == "positions" else "[N]"
+    expected = (None, 3) if name in VECTOR_ARRAYS else (None,)
+    text = "[N, 3]" if name in VECTOR_ARRAYS else "[N]"
     if (
         not isinstance(value, list)
         or len(value) != len(expected)
@@ -380,10 +408,11 @@ def plan_frame_arrays(
         if any(slot.name == name for slot in slots):
             raise InputError(f"{where}.name", f"{name} appears twice")
         wire = spec.get("dtype")
-        dtype = WIRE_DTYPES.get(wire) if isinstance(wire, str) else None
+        allowed = ID_DTYPES if name == "ids" else WIRE_DTYPES
+        dtype = allowed.get(wire) if isinstance(wire, str) else None
         if dtype is None:
             raise InputError(
-                f"{where}.dtype", f"must be one of the strings {', '.join(WIRE_DTYPES)}"
+                f"{where}.dtype", f"must be one of the strings {', '.join(allowed)} for {name}"
             )
         shape = _shape(f"{where}.shape", spec.get("shape"), name)
         n = shape[0]

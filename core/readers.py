@@ -2,17 +2,19 @@
 
 Formats, chosen by the (case-insensitive) suffix:
 
-- ``.npz``: entries ``positions`` (N, 3), optional ``densities``, ``radii``, ``temperatures`` (N,);
+- ``.npz``: entries ``positions`` (N, 3), optional ``densities``, ``radii``, ``temperatures``,
+  ``ids`` (N,) and ``velocities`` (N, 3);
   an optional ``scene`` entry (0-d string array with scene JSON, see `read_npz_scene_json`); any
   other entry is ignored. Never unpickles.
 - ``.npy``: an (N, 3) positions array. Never unpickles.
 - ``.vtk`` (legacy), ``.vtu``, ``.ply``: via meshio; positions from the points, attributes from the
   point data (``density``/``densities``/``rho``, ``radius``/``radii``,
-  ``temperature``/``temperatures``).
+  ``temperature``/``temperatures``, ``velocity``/``velocities``/``v`` or ``vx``/``vy``/``vz``,
+  ``id``/``ids``).
 - ``.bgeo``, ``.bgeo.gz``: Houdini classic binary geometry (version 5) as partio writes it, gzip
   compressed or not (decided by the gzip magic bytes, not by the name). Parsed here.
 - ``.csv``: a header row naming the columns; ``x``, ``y``, ``z`` required; ``density``, ``radius``,
-  ``temperature`` optional.
+  ``temperature``, ``vx``/``vy``/``vz`` (all three), ``id`` (whole numbers) optional.
 
 Every problem with the file (missing, unreadable, corrupt, truncated, unsupported) raises
 `InputError` with field ``file`` and a one-line message that names the path; problems with the
@@ -66,19 +68,27 @@ _CANONICAL_KEYS: dict[str, str] = {
     "radii": "radius",
     "temperature": "temperature",
     "temperatures": "temperature",
+    "velocity": "velocity",
+    "velocities": "velocity",
+    "id": "id",
+    "ids": "id",
 }
-_ATTRIBUTES: tuple[str, ...] = ("density", "radius", "temperature")
+_ATTRIBUTES: tuple[str, ...] = ("density", "radius", "temperature", "velocity", "id")
 
 #: Attribute names looked up when ``attribute_map`` says nothing (first match wins).
 _DEFAULT_NAMES: dict[str, tuple[str, ...]] = {
     "density": ("density", "densities", "rho"),
     "radius": ("radius", "radii"),
     "temperature": ("temperature", "temperatures"),
+    "velocity": ("velocity", "velocities", "v"),
+    "id": ("id", "ids"),
 }
 _NPZ_NAMES: dict[str, tuple[str, ...]] = {
     "density": ("densities",),
     "radius": ("radii",),
     "temperature": ("temperatures",),
+    "velocity": ("velocities",),
+    "id": ("ids",),
 }
 
 #: Exceptions that mean "this file could not be read"; turned into InputError("file", ...).
@@ -153,9 +163,10 @@ def read_particles(
 ) -> ParticleFrame:
     """Read one frame of particles from ``path``, dispatching on its suffix.
 
-    ``attribute_map`` maps our canonical names (``density``, ``radius``, ``temperature``; plural
-    spellings accepted too) to the attribute, column or entry name used in the file, e.g.
-    ``{"density": "rho0"}``. A mapped name that the file lacks is an `InputError`.
+    ``attribute_map`` maps our canonical names (``density``, ``radius``, ``temperature``,
+    ``velocity``, ``id``; plural spellings accepted too) to the attribute, column or entry name
+    used in the file, e.g. ``{"density": "rho0"}``. A mapped name that the file lacks is an
+    `InputError`.
     """
     where = os.fspath(path)
     names = _normalise_attribute_map(attribute_map)
@@ -289,6 +300,8 @@ def _frame_from(
         densities=prepared("density"),
         radii=prepared("radius"),
         temperatures=prepared("temperature"),
+        velocities=prepared("velocity"),
+        ids=prepared("id"),
         max_particles=max_particles,
     )
 
@@ -373,6 +386,9 @@ def _read_meshio(path: str, mapped: dict[str, str], max_particles: int) -> Parti
     for canonical in _ATTRIBUTES:
         name = _choose_name(canonical, point_data, mapped, _DEFAULT_NAMES, path)
         arrays[canonical] = None if name is None else point_data[name]
+    if arrays["velocity"] is None and all(axis in point_data for axis in ("vx", "vy", "vz")):
+        # PLY keeps a vector as one scalar property per component
+        arrays["velocity"] = np.stack([_column(point_data[a]) for a in ("vx", "vy", "vz")], 1)
     return _frame_from(points, arrays, max_particles)
 
 
@@ -401,6 +417,7 @@ def _read_csv(path: str, mapped: dict[str, str], max_particles: int) -> Particle
             wanted: dict[str, str | None] = {
                 canonical: _choose_name(canonical, columns, mapped, _DEFAULT_NAMES, path)
                 for canonical in _ATTRIBUTES
+                if canonical != "velocity"  # three columns, below
             }
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", UserWarning)  # "input contained no data"
@@ -421,6 +438,11 @@ def _read_csv(path: str, mapped: dict[str, str], max_particles: int) -> Particle
         canonical: None if name is None else data[:, index[name]]
         for canonical, name in wanted.items()
     }
+    if all(axis in index for axis in ("vx", "vy", "vz")):
+        arrays["velocity"] = data[:, [index["vx"], index["vy"], index["vz"]]]
+    ids = arrays.get("id")
+    if ids is not None and np.isfinite(ids).all() and (ids == np.round(ids)).all():
+        arrays["id"] = ids.astype(np.int64)  # whole numbers; anything else is refused as ids
     return _frame_from(positions, arrays, max_particles)
 
 

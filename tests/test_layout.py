@@ -106,6 +106,7 @@ LAYERS = (
     (
         "sphrender.server.engine.frame_output",
         "sphrender.server.engine.input_notes",
+        "sphrender.server.engine.frame_spacing",
         "sphrender.server.engine.geometry",
     ),
     ("sphrender.server.engine.gpu",),

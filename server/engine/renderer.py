@@ -30,6 +30,7 @@ from sphrender.server.engine.frame_output import (
 )
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.screen_box import ScreenBox
+from sphrender.server.engine.gpu.cl_context import CLDeviceInfo
 from sphrender.server.engine.gpu.draw import FullscreenTriangle, Target
 from sphrender.server.engine.gpu.gl_clock import StageTimer
 from sphrender.server.engine.gpu.gl_context import GLContext
@@ -111,6 +112,11 @@ class SurfaceRenderer:
         self._gl.check_owner()
         return self._sph.engine()
 
+    def opencl_device(self) -> CLDeviceInfo:
+        """The SPH stages' OpenCL device, its context made now if need be (owner thread)."""
+        self._gl.check_owner()
+        return self._sph.device()
+
     def check_image_size(self, scene: Scene) -> None:
         limit = self.max_image_side()
         for key in ("width", "height"):
@@ -148,7 +154,7 @@ class SurfaceRenderer:
             prepared = self._prepare.run(sph, camera, scene)
             stats.particles_drawn = prepared.visible
             stats.far = prepared.far
-        stats.notes += self._input_notes.of(frame, scene.camera, prepared.visible)
+        stats.notes += self._input_notes.of(frame, scene, prepared.visible)
         surface, bulk_splatted = self._draw_surface(prepared, camera, scene, stats)
         with self._stage(stats, "normals"):
             normal_depth = self._surface_normals(surface, prepared, camera, scene)

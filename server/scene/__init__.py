@@ -3,11 +3,12 @@
 * `schema.py`: every section and field, typed and documented in one place (the reference for
   TOML files and for JSON scenes over the wire);
 * `validate.py`: mappings -> dataclasses, errors that name the dotted key and the allowed range;
-* `files.py`: TOML files, layering one scene mapping over another;
+* `files.py`: TOML files; `layering.py`: one scene mapping over another, a preset's sections;
 * `export.py`: `Scene` -> plain JSON-safe mapping, defaults filled (`scene_to_dict`);
 * `json_schema.py`: the scene's JSON Schema (2020-12), generated from `schema.py`
   (committed as ``schema/scene.schema.json``, served at ``GET /v1/schema``);
-* `presets.py`: the quality presets of `configs/quality-*.toml` laid under a scene file;
+* `presets.py`: the quality presets of `configs/quality-*.toml` laid under a scene file (and
+  `quality.preset` under any scene, by validation);
 * `renames.py`: old key names read under their new ones (with a note), removed keys refused.
 
 Import from the package: ``from sphrender.server.scene import Scene, scene_from_dict``.

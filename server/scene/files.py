@@ -3,15 +3,16 @@ scenes); the way back from a `Scene` to a mapping is `export.scene_to_dict`."""
 
 from __future__ import annotations
 
-import copy
 import tomllib
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from sphrender.core.errors import InputError
+from sphrender.server.scene.layering import merge_scene_dicts
 from sphrender.server.scene.schema import Scene
 from sphrender.server.scene.validate import scene_from_dict
+
+__all__ = ["load_scene", "merge_scene_dicts", "read_scene_toml"]
 
 
 def read_scene_toml(path: str | Path) -> dict[str, Any]:
@@ -29,17 +30,3 @@ def read_scene_toml(path: str | Path) -> dict[str, Any]:
 def load_scene(path: str | Path) -> Scene:
     """Load and validate a scene TOML file (see `read_scene_toml` for file errors)."""
     return scene_from_dict(read_scene_toml(path))
-
-
-def merge_scene_dicts(base: Mapping[str, Any], top: Mapping[str, Any]) -> dict[str, Any]:
-    """`top` laid over `base` (neither is modified): tables merge key by key, anything else
-    (values, the ``lights`` array) replaces the base's value. Used for quality presets under a
-    scene file and for per-frame partial scenes over a session's scene."""
-    merged = copy.deepcopy(dict(base))
-    for key, value in top.items():
-        current = merged.get(key)
-        if isinstance(value, Mapping) and isinstance(current, Mapping):
-            merged[key] = merge_scene_dicts(current, value)
-        else:
-            merged[key] = copy.deepcopy(value)
-    return merged

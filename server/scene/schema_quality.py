@@ -12,12 +12,19 @@ from typing import Literal
 from sphrender.server.scene.fields import bench_spec, spec
 
 FilterName = Literal["narrow_range", "bilateral", "gaussian", "none"]
+QualityPreset = Literal["fast", "balanced", "best"]
 
 
 @dataclass(frozen=True)
 class QualityConfig:
     """Depth smoothing, anti-aliasing and the speed/error trade-offs of the surface."""
 
+    preset: QualityPreset = spec(
+        "balanced",
+        "speed/error preset the scene's own keys are laid over (they win): fast, balanced (the "
+        "built-in defaults) or best, i.e. [quality], [shading], [sph] of "
+        "configs/quality-NAME.toml. No preset sets it; pick one here as with the CLI's --quality",
+    )
     filter: FilterName = spec(
         "narrow_range",
         "depth smoothing filter: narrow_range (Truong & Yuksel 2018; a plane in perspective stays "

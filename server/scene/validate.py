@@ -17,6 +17,7 @@ from typing import Any, Literal, TypeVar, get_args, get_origin
 
 from sphrender.core.errors import InputError, kind_of, show
 from sphrender.server.scene.fields import is_bench_only
+from sphrender.server.scene.layering import PRESETS, merge_scene_dicts, preset_sections
 from sphrender.server.scene.renames import upgrade_scene_dict
 from sphrender.server.scene.schema import (
     MAX_IMAGE_PIXELS,
@@ -150,6 +151,7 @@ def scene_from_dict(data: Mapping[str, Any], *, bench: bool = False) -> Scene:
     if not isinstance(data, Mapping):
         raise InputError("scene", f"must be a table, got {kind_of(data)}")
     data, notes = upgrade_scene_dict(data)
+    data = _under_preset(data)
     sections: dict[str, Any] = {}
     known = {f.name: f for f in scene_sections()}
     hints = typing.get_type_hints(Scene)
@@ -164,6 +166,19 @@ def scene_from_dict(data: Mapping[str, Any], *, bench: bool = False) -> Scene:
     scene = Scene(**sections, notes=notes)
     _check_cross_field(scene)
     return scene
+
+
+def _under_preset(data: dict[str, Any]) -> dict[str, Any]:
+    """`data` laid over the sections of its ``quality.preset`` (its own keys win), as the CLI's
+    ``--quality`` does; unchanged without one."""
+    quality = data.get("quality")
+    name = quality.get("preset") if isinstance(quality, Mapping) else None
+    if name is None:
+        return data
+    if not isinstance(name, str) or name not in PRESETS:
+        allowed = ", ".join(map(show, PRESETS))
+        raise InputError("quality.preset", f"must be one of {allowed}, got {show(name)}")
+    return merge_scene_dicts(preset_sections(name), data)
 
 
 def _check_cross_field(scene: Scene) -> None:

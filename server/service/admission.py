@@ -5,13 +5,16 @@ documented errors.
 estimate of the memory it will need on its way through the service::
 
     estimate = bytes received (body or payload) + particles x PARTICLE_BYTES + pixels x PIXEL_BYTES
+               + particles x EXTRA_PARTICLE_BYTES[a] for each of velocities, ids the frame carries
 
 `PARTICLE_BYTES` covers the decoded arrays, the validated float64/float32 copies, the copy sent
 to the renderer process and the renderer's per-particle work (view-space positions, culling,
 the splat buffers). Measured on llvmpipe with 2M particles at 640x360: the service process
 peaked 96 MB above its resting RSS (48 B/particle), the renderer process 1155 MB (578
-B/particle); 640 covers both. `PIXEL_BYTES` the render targets, the RGBA float read-back and
-the encoder's buffers. One frame over ``limits.max_request_bytes``
+B/particle); 640 covers both. `EXTRA_PARTICLE_BYTES`: velocities and ids stay in the service
+(the renderer does not get them): their validated copies (float32 x 3, int64) and the checks'
+temporaries (finite mask; the ids' bitmap or sorted copy). `PIXEL_BYTES` the render targets,
+the RGBA float read-back and the encoder's buffers. One frame over ``limits.max_request_bytes``
 is refused (413 / ``too_large``, naming the numbers); frames in progress together may hold at
 most ``limits.memory_budget_bytes`` (HTTP: 503 + Retry-After; stream: the reader waits, which is
 TCP backpressure). A reservation is released when the frame has been answered.
@@ -29,7 +32,7 @@ import contextlib
 import logging
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 
 from sphrender.core.errors import InputError, LimitError
 
@@ -39,6 +42,8 @@ log = logging.getLogger("sphrender.service.admission")
 PARTICLE_BYTES = 640
 #: Estimated bytes per image pixel (targets, read-back, encoder).
 PIXEL_BYTES = 120
+#: Bytes per particle for the arrays the service holds but does not send to the renderer.
+EXTRA_PARTICLE_BYTES: dict[str, int] = {"velocities": 16, "ids": 16}
 _MIB = 1 << 20
 
 
@@ -46,8 +51,9 @@ class Busy(Exception):
     """No room in the memory budget right now (HTTP 503 + Retry-After, stream ``busy``)."""
 
 
-def frame_estimate(received: int, particles: int, pixels: int) -> int:
-    return received + particles * PARTICLE_BYTES + pixels * PIXEL_BYTES
+def frame_estimate(received: int, particles: int, pixels: int, arrays: Iterable[str] = ()) -> int:
+    extra = sum(EXTRA_PARTICLE_BYTES.get(name, 0) for name in arrays)
+    return received + particles * (PARTICLE_BYTES + extra) + pixels * PIXEL_BYTES
 
 
 def _mib(n: int) -> str:

@@ -19,12 +19,13 @@ import threading
 import time
 from collections.abc import Callable
 from importlib import metadata
-from typing import Any, Literal
+from typing import Any, Literal, get_args, get_type_hints
 
 from sphrender.core.frame import ParticleFrame, make_frame
+from sphrender.core.protocol import ARRAY_NAMES, IMAGE_FORMATS, ErrorCode, LimitError
 from sphrender.core.protocol import VERSION as PROTOCOL_VERSION
-from sphrender.core.protocol import ErrorCode, LimitError
 from sphrender.server.content.demo import demo_frame
+from sphrender.server.scene import OutputConfig
 from sphrender.server.service.admission import MemoryBudget, decoding
 from sphrender.server.service.config import (
     ServerConfig,
@@ -48,6 +49,9 @@ from sphrender.server.service.sessions import (
 )
 
 log = logging.getLogger("sphrender.service")
+
+#: The raw image types the scene's output.raw_type accepts (what /v1/info lists).
+RAW_TYPES: tuple[str, ...] = get_args(get_type_hints(OutputConfig)["raw_type"])
 
 __all__ = ["RenderService"]
 
@@ -155,6 +159,8 @@ class RenderService:
             densities=arrays.get("densities"),
             radii=arrays.get("radii"),
             temperatures=arrays.get("temperatures"),
+            velocities=arrays.get("velocities"),
+            ids=arrays.get("ids"),
             max_particles=self.config.limits.max_particles,
         )
 
@@ -297,8 +303,10 @@ class RenderService:
                 "version": self.worker.gl_version,
                 "max_image_side": self.worker.max_image_side,
             },
-            "opencl": None,
-            "formats": ["png", "exr"],
+            "opencl": self.worker.opencl,
+            "formats": list(IMAGE_FORMATS),
+            "raw_types": list(RAW_TYPES),
+            "frame_arrays": list(ARRAY_NAMES),
             "stream_port": self.stream_port,
             "auth": "bearer" if self.config.security.token else "none",
             "limits": public_limits(self.config),

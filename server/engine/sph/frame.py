@@ -13,7 +13,7 @@ import numpy.typing as npt
 
 from sphrender.core.frame import ParticleFrame
 from sphrender.server.engine.frame_output import InputNote
-from sphrender.server.engine.gpu.cl_context import CLContext, CLUnavailableError
+from sphrender.server.engine.gpu.cl_context import CLContext, CLDeviceInfo, CLUnavailableError
 from sphrender.server.engine.sph.anisotropy import AnisotropyParameters, AnisotropyResult
 from sphrender.server.engine.sph.droplets import (
     computes_droplet_densities,
@@ -145,6 +145,13 @@ class SphStage:
         self._warned_lone = False
         self._cl: CLContext | None = None
         self._engine: SphEngine | None = None
+
+    def device(self) -> CLDeviceInfo:
+        """The OpenCL device the stage uses, its context created now if it was not yet (raises
+        `CLUnavailableError` without one)."""
+        if self._cl is None:
+            self._cl = CLContext(self._cl_device)
+        return self._cl.device_info
 
     def engine(self) -> SphEngine:
         """The engine and its CL context, created on first use (the caller's thread owns it)."""

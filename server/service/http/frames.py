@@ -159,10 +159,10 @@ class FrameRoutes:
             body = self.http._read_body(length)
             decided: list[Scene] = []
 
-            def admit(scene_json: str | None, particles: int) -> None:
+            def admit(scene_json: str | None, particles: int, arrays: tuple[str, ...]) -> None:
                 scene = self._scene_for(session, scene_json)
                 pixels = scene.image.width * scene.image.height
-                total = frame_estimate(length, particles, pixels)
+                total = frame_estimate(length, particles, pixels, arrays)
                 what = f"{particles} particles at {scene.image.width}x{scene.image.height}"
                 service.memory.check(total, what, "positions")
                 extra = service.memory.reserve(total - length, what, "positions")

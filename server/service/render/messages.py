@@ -76,6 +76,10 @@ class Ready:
     gl_version: str
     max_image_side: int
     warm_ms: float
+    # The OpenCL device of the SPH stages (None without one): platform, device, type.
+    cl_platform: str | None = None
+    cl_device: str | None = None
+    cl_type: str | None = None
 
 
 @dataclass(frozen=True)
@@ -245,6 +249,9 @@ def _decode(tag: str, fields: _Fields) -> Answer:
                 gl_version=fields.text("gl_version"),
                 max_image_side=fields.integer("max_image_side"),
                 warm_ms=fields.number("warm_ms"),
+                cl_platform=fields.optional_text("cl_platform"),
+                cl_device=fields.optional_text("cl_device"),
+                cl_type=fields.optional_text("cl_type"),
             )
         case "startup_failed":
             return StartupFailed(fields.text("error"))

@@ -171,7 +171,13 @@ class RenderProcess:
             return
         warm_ms = round((time.perf_counter() - start) * 1e3, 1)
         limits = gl.limits.max_image_side
-        self.send(Ready(os.getpid(), gl.renderer, gl.version, limits, warm_ms))
+        # The SPH stages' OpenCL context, made now (~0.2 s with PoCL's kernel cache) so the
+        # service can name the device it will use; the first frame that needs it reuses it.
+        cl: tuple[str | None, ...] = (None, None, None)
+        with contextlib.suppress(Exception):  # no usable device: the stages report it per frame
+            device = self._renderer.opencl_device()
+            cl = (device.platform_name, device.device_name, device.device_type)
+        self.send(Ready(os.getpid(), gl.renderer, gl.version, limits, warm_ms, *cl))
         try:
             while True:
                 try:

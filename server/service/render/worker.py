@@ -126,6 +126,18 @@ class RenderWorker(threading.Thread):
         return self._gl.gl_version if self._gl else "unknown"
 
     @property
+    def opencl(self) -> dict[str, str] | None:
+        """The render process's OpenCL device (None without one, or before it started)."""
+        hello = self._gl
+        if hello is None or hello.cl_device is None:
+            return None
+        return {
+            "platform": hello.cl_platform or "",
+            "device": hello.cl_device,
+            "type": hello.cl_type or "",
+        }
+
+    @property
     def max_image_side(self) -> int:
         return self._gl.max_image_side if self._gl else 0
 

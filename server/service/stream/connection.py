@@ -215,9 +215,11 @@ class StreamConnection:
         except Exception as exc:  # GL failure while warming the scene, or a warm timeout
             self._send_fatal(ErrorCode.RENDER_FAILED, f"preparing the scene failed: {exc}", None)
             return "handshake"
+        info = self.service.info()
         server = {
-            "version": self.service.info()["version"],
+            "version": info["version"],
             "gl_renderer": self.service.worker.gl_renderer,
+            **{key: info[key] for key in ("opencl", "formats", "raw_types", "frame_arrays")},
         }
         welcome = welcome_header(
             self.session.id, self.session.scene, hello, self.service.config, server

@@ -239,12 +239,13 @@ class FrameReader:
                 if key not in _FRAME_KEYS:
                     allowed = ", ".join(_FRAME_KEYS)
                     raise InputError(f"header.{key}", f"unknown key; allowed: {allowed}")
-            _slots, count = plan_frame_arrays(
+            slots, count = plan_frame_arrays(
                 header.get("arrays"), payload_len, max_particles=service.config.limits.max_particles
             )
             scene = self._frame_scene(header)
         image = scene.image
-        estimate = frame_estimate(payload_len, count, image.width * image.height)
+        names = [slot.name for slot in slots]
+        estimate = frame_estimate(payload_len, count, image.width * image.height, names)
         what = f"{count} particles at {image.width}x{image.height}"
         reservation = service.memory.reserve(
             estimate,
