@@ -106,12 +106,12 @@ class StreamResult:
 
 
 def _frame_arrays(frame: ParticleFrame) -> dict[str, Any]:
+    """The arrays a frame read from a file sends: those the renderer uses. Velocities and ids
+    (20 bytes a particle) travel only when a caller passes them explicitly."""
     return {
         "densities": frame.densities,
         "radii": frame.radii,
         "temperatures": frame.temperatures,
-        "velocities": frame.velocities,
-        "ids": frame.ids,
     }
 
 
