@@ -12,15 +12,21 @@ import pytest
 from service_harness import SMALL_SCENE, ServerProcess
 
 from sphrender.client.api import Client
-from sphrender.core.frame import make_frame
+from sphrender.core.frame import ParticleFrame, make_frame
 from sphrender.core.readers import read_particles
 from sphrender.server.content.lattice import jittered_lattice_ball, lattice_slab
+from sphrender.server.engine.frame_output import InputNote
 from sphrender.server.engine.frame_spacing import typical_spacing
-from sphrender.server.engine.input_notes import RADIUS_BAND, radius_note
+from sphrender.server.engine.input_notes import RADIUS_BAND, SpacingCache
+from sphrender.server.engine.input_notes import radius_note as note_for_spacing
 
 #: SPH radius of the lattice below: spacing 2r = 0.04 exactly.
 R = 0.02
 LATTICE = lattice_slab(0.8, 0.8, 6, R)
+
+
+def radius_note(frame: ParticleFrame, radius: float) -> InputNote | None:
+    return note_for_spacing(frame, radius, typical_spacing(frame.positions))
 
 
 def test_spacing_of_a_lattice_is_exact_and_of_random_points_plausible() -> None:
@@ -45,6 +51,18 @@ def test_a_radius_25_percent_small_gets_a_note_the_right_one_none() -> None:
     assert radius_note(frame, RADIUS_BAND[1] * 2 * R * 0.99) is None
     with_radii = make_frame(LATTICE, radii=np.full(len(LATTICE), 0.75 * R))
     assert radius_note(with_radii, 0.75 * R) is None  # per-particle radii: not checked
+
+
+def test_the_spacing_is_measured_again_when_the_count_changes_or_after_its_reuse() -> None:
+    cache = SpacingCache()
+    frame = make_frame(LATTICE)
+    assert cache.of(frame) == pytest.approx(2 * R, rel=1e-9)
+    wider = make_frame(2 * LATTICE)  # same count, twice the spacing: reused until REUSE is up
+    assert all(cache.of(wider) == pytest.approx(2 * R) for _ in range(SpacingCache.REUSE - 1))
+    assert cache.of(wider) == pytest.approx(4 * R, rel=1e-9)
+    fewer = make_frame(2 * LATTICE[:-1])
+    assert cache.of(fewer) == pytest.approx(4 * R, rel=1e-2)  # a new count: measured at once
+    assert cache.of(make_frame(LATTICE, radii=np.full(len(LATTICE), R))) is None
 
 
 @pytest.mark.parametrize("name", ["1", "5", "11"])

@@ -16,16 +16,12 @@ replaces are noted there: sph/frame_densities.py.)
   (2r)^3), so a frame's own particles say what `particles.radius` should be. Forgetting it
   renders with the default 0.015 against, say, a simulator's 0.02: sheets break into beads.
   The measure is the median nearest-neighbour distance s of the frame's bulk (frame_spacing.py):
-  exactly 2r on the resting lattice (r/s = 0.50), 0.75-0.91 x 2r once the fluid flows (r/s =
-  0.55-0.67 on the vendored DFSPH dam break, t = 0.4 and 1.0 s, over 40 samplings; the high
-  end where the cubes land in a compressed wave front). Outside RADIUS_BAND the frame gets the
-  note. Its low end, 4 % under the lattice's exact 0.50, catches a radius 25 % too small
-  (r/s 0.375 on the lattice, 0.41-0.44 at t = 1.0 s: always; at t = 0.4 s in 34 of 40
-  samplings, the others reading the compressed front), which breaks sheets into beads. Its high
-  end is lenient: a radius too large only rounds the surface, and clouds that are not SPH
-  (random points: r/s ~0.9 for half their mean spacing) must not be told off; it catches a
-  diameter sent as the radius (r/s 1.0-1.3). Skipped for frames with per-particle radii; the
-  sampling is seeded, so a frame always gets the same answer; cost in frame_spacing.py.
+  2r on a resting lattice (r/s = 0.50), somewhat less once the fluid flows. RADIUS_BAND's low end,
+  just under 0.50, catches a radius 25 % too small, which breaks sheets into beads; its high end
+  is lenient (a radius too large only rounds the surface, and point clouds that are not SPH
+  must not be told off) but catches a diameter sent as the radius. Skipped for frames with
+  per-particle radii; the sampling is seeded, so a frame always gets the same answer, and a
+  stream of frames with one particle count is measured once every `SpacingCache.REUSE` frames.
 * **No particle in view** (`out_of_view_note`). A blank image is what a client sees when its
   positions are in other units than the scene's camera (millimetres against a camera in
   metres) or the camera looks away; the note gives the particles' extent and the camera, so
@@ -68,13 +64,10 @@ def celsius_note(frame: ParticleFrame) -> InputNote | None:
     )
 
 
-def radius_note(frame: ParticleFrame, radius: float) -> InputNote | None:
-    """The note of a frame without radii whose spacing does not fit the scene's `radius`; None
-    otherwise (or when the frame is too small or too sparse to tell)."""
-    if frame.radii is not None:
-        return None
-    spacing = typical_spacing(frame.positions)
-    if spacing is None:
+def radius_note(frame: ParticleFrame, radius: float, spacing: float | None) -> InputNote | None:
+    """The note of a frame without radii whose `spacing` (`typical_spacing`) does not fit the
+    scene's `radius`; None otherwise (or when the spacing could not be told)."""
+    if frame.radii is not None or spacing is None:
         return None
     low, high = RADIUS_BAND
     ratio = radius / spacing
@@ -88,6 +81,28 @@ def radius_note(frame: ParticleFrame, radius: float) -> InputNote | None:
         f"simulation's (likely {0.5 * spacing:.3g}-{0.6 * spacing:.3g}) or send radii; "
         "rendered as sent",
     )
+
+
+class SpacingCache:
+    """A simulation's spacing changes slowly from frame to frame: frames with the particle count
+    of the last one measured reuse its spacing for `REUSE` frames, so the measure costs the
+    render thread one frame in `REUSE`, not every frame."""
+
+    REUSE = 32
+
+    def __init__(self) -> None:
+        self._count = -1
+        self._left = 0
+        self._spacing: float | None = None
+
+    def of(self, frame: ParticleFrame) -> float | None:
+        if frame.radii is not None:
+            return None
+        if frame.count != self._count or self._left <= 0:
+            self._count, self._left = frame.count, self.REUSE
+            self._spacing = typical_spacing(frame.positions)
+        self._left -= 1
+        return self._spacing
 
 
 def _vector(values: tuple[float, float, float]) -> str:
@@ -113,10 +128,12 @@ class InputNotes:
 
     def __init__(self) -> None:
         self._logged: set[str] = set()
+        self._spacing = SpacingCache()
 
     def of(self, frame: ParticleFrame, scene: Scene, visible: int) -> list[InputNote]:
         """The notes of `frame`, of which `visible` particles are in view of the scene's camera."""
-        found = (celsius_note(frame), radius_note(frame, scene.particles.radius))
+        spacing = self._spacing.of(frame)
+        found = (celsius_note(frame), radius_note(frame, scene.particles.radius, spacing))
         notes = [note for note in found if note is not None]
         if not visible and frame.count:
             notes.append(out_of_view_note(frame, scene.camera))
