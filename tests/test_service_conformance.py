@@ -267,3 +267,24 @@ def test_python_warnings_are_json_log_lines(process: str) -> None:
     records = [json.loads(line) for line in done.stderr.decode().splitlines()]
     assert [r["category"] for r in records] == ["UserWarning", "RuntimeWarning"]
     assert records[1]["event"] == "python_warning" and "divide" in records[1]["message"]
+
+
+def test_values_from_the_request_are_shown_as_json(server: ServerProcess) -> None:
+    """Section 1: an unknown path is quoted as a JSON string; a demo frame's scene that is not
+    an object is named by its JSON kind, not a Python type."""
+    status, error = server.json("GET", "/v1/nothing")
+    assert (status, error["code"]) == (404, "not_found")
+    assert '"/v1/nothing"' in plain(error)["error"]
+    status, created = server.json("POST", "/v1/demo/sessions", {"image": SMALL_SCENE["image"]})
+    assert status == 201, created
+    frames = f"/v1/sessions/{created['id']}/frames"
+    for value, kind in ((None, "null"), ([1], "an array")):
+        status, _headers, payload = server.request(
+            "POST",
+            frames,
+            json.dumps({"scene": value}).encode(),
+            {"Content-Type": "application/json"},
+        )
+        error = plain(json.loads(payload))
+        assert (status, error["field"]) == (400, "scene") and error["error"].endswith(kind)
+    assert server.request("DELETE", f"/v1/sessions/{created['id']}")[0] == 204
