@@ -12,9 +12,12 @@ Starts a server with the default settings (ephemeral ports), then runs side by s
 
 At the end: the server must still be alive and answer /healthz, the renderer must never have
 been restarted (``sphrender_worker_restarts_total``), and the server's threads and open files
-must be back near their start. Prints and writes a JSON report: inputs (stream, HTTP), rate,
-crashes, hangs, 5xx for client errors, the good client's frames and mismatches. Bounded: it
-stops by itself after ``--seconds``. Run the million in chunks with different seeds.
+must be back near their start. Every error text of every answer is checked
+(`fuzz_inputs.text_faults`: no Python repr, module path or library message; PROTOCOL.md 1), and
+every line the server (``--log-json``) wrote to stderr must be a JSON object. Prints and writes
+a JSON report: inputs (stream, HTTP), rate, crashes, hangs, 5xx for client errors, bad error
+texts, non-JSON stderr lines, the good client's frames and mismatches. Bounded: it stops by
+itself after ``--seconds``. Run the million in chunks with different seeds.
 """
 
 from __future__ import annotations
@@ -113,6 +116,17 @@ def fuzz_http(port: int, seed: int, stop: threading.Event, tally: Tally) -> None
     http.close()
 
 
+def non_json_lines(text: str) -> int:
+    """Lines of a log that are not one JSON object each."""
+    count = 0
+    for line in text.splitlines():
+        try:
+            count += not isinstance(json.loads(line), dict)
+        except ValueError:
+            count += 1
+    return count
+
+
 def campaign(
     seconds: float, seed: int, frame_workers: int = 2, http_workers: int = 2
 ) -> dict[str, Any]:
@@ -182,6 +196,9 @@ def campaign(
         "hangs": tally.hangs,
         "server_errors_5xx": tally.server_errors,
         "busy_503": tally.busy,
+        "error_texts": tally.texts,
+        "bad_texts": tally.bad_texts,
+        "stderr_non_json_lines": non_json_lines(log_text),
         "fuzz_images": tally.images,
         "healthz_after": health,
         "threads_start_end": [start_counts[0], end_counts[0]],
@@ -203,6 +220,7 @@ def main() -> int:
     if args.out:
         args.out.write_text(text + "\n")
     bad = report["crashes"] or report["hangs"] or report["server_errors_5xx"]
+    bad = bad or report["bad_texts"] or report["stderr_non_json_lines"]
     good = report["good_client"]
     return 1 if bad or good["errors"] or good["mismatches"] or good["http_errors"] else 0
 

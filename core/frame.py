@@ -51,7 +51,7 @@ def _first_bad_index(mask: npt.NDArray[np.bool_]) -> int:
 def _as_float_array(name: str, value: object, shape_tail: tuple[int, ...]) -> np.ndarray:
     array = np.asarray(value)
     if array.dtype.kind not in "fiu":
-        raise InputError(name, f"must be a numeric array, got dtype {array.dtype}")
+        raise InputError(name, f"must be a numeric array, got dtype {show(array.dtype.str)}")
     expected = "(N, 3)" if shape_tail else "(N,)"
     if array.ndim != 1 + len(shape_tail) or tuple(array.shape[1:]) != shape_tail:
         raise InputError(name, f"must have shape {expected}, got {show(list(array.shape))}")

@@ -310,7 +310,9 @@ def _check_entry(entry: _Entry, max_particles: int, max_scene_bytes: int) -> Non
     if entry.name == "scene":
         if entry.dtype.kind not in "US" or math.prod(entry.shape) != 1:
             raise InputError(
-                "scene", f"must be a single string, got {entry.dtype} {list(entry.shape)}"
+                "scene",
+                f"must be a single string, got dtype {show(entry.dtype.str)} "
+                f"shape {show(list(entry.shape))}",
             )
         # UTF-32 in the archive (numpy's 'U' dtype): up to 4 bytes per character.
         if entry.nbytes > 4 * max_scene_bytes:
@@ -319,7 +321,7 @@ def _check_entry(entry: _Entry, max_particles: int, max_scene_bytes: int) -> Non
             )
         return
     if entry.dtype.kind not in "fiu":
-        raise InputError(entry.name, f"must be a numeric array, got dtype {entry.dtype}")
+        raise InputError(entry.name, f"must be a numeric array, got dtype {show(entry.dtype.str)}")
     if entry.shape and entry.shape[0] > max_particles:
         raise LimitError(
             entry.name, f"{entry.shape[0]} particles exceed the limit of {max_particles}"

@@ -220,8 +220,12 @@ def parse_prefix(
     return message_type, header_len, payload_len
 
 
+class _JsonRule(ValueError):
+    """One of this protocol's own JSON rules broken (its text is shown to the client)."""
+
+
 def _reject_constant(name: str) -> Any:
-    raise ValueError(f"{name} is not valid JSON")
+    raise _JsonRule(f"{name} is not valid JSON")
 
 
 def _depth(value: Any, limit: int) -> int:
@@ -232,7 +236,7 @@ def _depth(value: Any, limit: int) -> int:
         item, level = stack.pop()
         if isinstance(item, dict | list):
             if level > limit:
-                raise ValueError(f"JSON nests deeper than {limit} levels")
+                raise _JsonRule(f"JSON nests deeper than {limit} levels")
             deepest = max(deepest, level)
             children = item.values() if isinstance(item, dict) else item
             stack.extend((child, level + 1) for child in children)
@@ -242,7 +246,7 @@ def _depth(value: Any, limit: int) -> int:
 def _bounded_int(text: str) -> int:
     digits = len(text.lstrip("-"))
     if digits > MAX_JSON_INT_DIGITS:
-        raise ValueError(
+        raise _JsonRule(
             f"an integer of {digits} digits is out of range (at most {MAX_JSON_INT_DIGITS} digits)"
         )
     return int(text)
@@ -252,7 +256,7 @@ def _finite_float(text: str) -> float:
     value = float(text)
     if not math.isfinite(value):
         shown = text if len(text) <= 24 else text[:24] + "..."
-        raise ValueError(f"the number {shown} is out of range for a 64-bit float")
+        raise _JsonRule(f"the number {shown} is out of range for a 64-bit float")
     return value
 
 
@@ -271,8 +275,17 @@ def parse_json_object(data: bytes | bytearray | memoryview, what: str) -> dict[s
         _depth(value, MAX_JSON_DEPTH)
     except UnicodeDecodeError as exc:
         raise InputError(what, f"is not valid UTF-8 (byte {exc.start})") from None
-    except (ValueError, RecursionError) as exc:
-        raise InputError(what, f"is not valid JSON: {str(exc).splitlines()[0]}") from None
+    except _JsonRule as exc:
+        raise InputError(what, f"is not valid JSON: {exc}") from None
+    except json.JSONDecodeError as exc:  # the library's text is not shown, only the place
+        raise InputError(
+            what, f"is not valid JSON (line {exc.lineno}, column {exc.colno})"
+        ) from None
+    except RecursionError:
+        depth = f"is not valid JSON: nests deeper than {MAX_JSON_DEPTH} levels"
+        raise InputError(what, depth) from None
+    except ValueError:
+        raise InputError(what, "is not valid JSON") from None
     if not isinstance(value, dict):
         raise InputError(what, f"must be a JSON object, got {kind_of(value)}")
     return value
@@ -310,10 +323,10 @@ def read_message(
 def _wire_array(name: str, value: object, allow_f8: bool) -> np.ndarray:
     array = np.asarray(value)
     if array.dtype.kind not in "fiu":
-        raise InputError(name, f"must be a numeric array, got dtype {array.dtype}")
+        raise InputError(name, f"must be a numeric array, got dtype {show(array.dtype.str)}")
     if name == "ids":
         if array.dtype.kind not in "iu":
-            raise InputError(name, f"must be an integer array, got dtype {array.dtype}")
+            raise InputError(name, f"must be an integer array, got dtype {show(array.dtype.str)}")
         wire = array.dtype.newbyteorder("<") if array.dtype.itemsize in (4, 8) else "<i8"
         return np.ascontiguousarray(array, dtype=wire)
     wide = allow_f8 and array.dtype == np.float64
@@ -434,7 +447,7 @@ def plan_frame_arrays(
             "payload_length", f"is {payload_length} bytes but the arrays declare {offset} bytes"
         )
     if not any(slot.name == "positions" for slot in slots):
-        raise InputError("arrays", "must include 'positions'")
+        raise InputError("arrays", "must include an array named positions")
     return slots, count or 0
 
 

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from error_texts import text_faults
 
 from sphrender.core.protocol import (
     PREFIX_SIZE,
@@ -347,7 +348,9 @@ def http_input(rng: random.Random) -> bytes:
                 "*",
             )
         )
-        version = rng.choice(("HTTP/1.1", "HTTP/1.0", "HTTP/2.0", "HTTP/1.1x", ""))
+        version = rng.choice(
+            ("HTTP/1.1", "HTTP/1.0", "HTTP/2.0", "HTTP/1.1x", "HTTP/0.9", "HTTP/1.2", "")
+        )
         extra = "Content-Length: 0\r\n" if method in ("POST", "PUT") else ""
         return f"{method} {path} {version}\r\nHost: x\r\n{extra}\r\n".encode("utf-8", "replace")
     garbage = bytes(rng.randrange(256) for _ in range(rng.randrange(1, 80)))
@@ -366,11 +369,22 @@ class Tally:
     server_errors: int = 0  # HTTP >= 500 other than 503, stream render_failed
     busy: int = 0
     images: int = 0
+    texts: int = 0  # error texts checked
+    bad_texts: int = 0  # ... with a Python repr, a module path or a library message
     notes: list[str] = field(default_factory=list)
 
     def note(self, text: str) -> None:
         if len(self.notes) < 50:
             self.notes.append(text)
+
+    def check_text(self, answer: object, where: str) -> None:
+        """Count the error text of an ERROR header or an HTTP error body (`text_faults`)."""
+        text = answer.get("error") if isinstance(answer, dict) else None
+        self.texts += 1
+        faults = text_faults(text)
+        if faults:
+            self.bad_texts += 1
+            self.note(f"bad error text ({where}): {faults} in {text!r}")
 
 
 class Conn:
@@ -430,6 +444,8 @@ def run_frame_batch(
         if kind == 0x83 and header.get("fatal"):
             tally.note(f"frame {first_id + i}: fatal {header}")
             raise EOFError
+        if kind == 0x83:
+            tally.check_text(header, f"frame {first_id + i}")
         if kind == 0x82:
             tally.images += 1
         elif header.get("code") == "render_failed":
@@ -462,6 +478,8 @@ def run_connection_input(port: int, rng: random.Random, tally: Tally, timeout: f
             except Exception:  # not a valid message from the server
                 tally.note(f"connection input: bad server bytes after {data[:40]!r}")
                 break
+            if kind == 0x83:
+                tally.check_text(header, f"connection input {data[:40]!r}")
             if kind == 0x83 and header.get("code") == "render_failed":
                 tally.server_errors += 1
                 tally.note(f"render_failed for {data[:60]!r}: {header}")
@@ -479,6 +497,8 @@ class HttpConn:
         self.port = port
         self.timeout = timeout
         self.conn: Conn | None = None
+        #: The last answer's JSON body (an error's), or None (an image, or no answer).
+        self.answer: Any = None
 
     def request(self, data: bytes, *, last: bool = False) -> tuple[int, bool]:
         """(status or 0 for a close without answer, connection kept). `last`: half-close
@@ -503,8 +523,11 @@ class HttpConn:
             headers = {
                 k.strip().lower(): v.strip() for k, _, v in (x.partition(":") for x in lines[1:])
             }
+            self.answer = None
             if not data.startswith(b"HEAD "):
-                conn.read_exact(int(headers.get("content-length", "0")))
+                body = conn.read_exact(int(headers.get("content-length", "0")))
+                if headers.get("content-type", "").startswith("application/json"):
+                    self.answer = json.loads(body)
             keep = headers.get("connection", "").lower() != "close"
         except (EOFError, ConnectionError, OSError, ValueError, IndexError):
             self.close()
@@ -537,6 +560,8 @@ def run_http_input(http: HttpConn, rng: random.Random, tally: Tally) -> None:
         tally.busy += 1
     elif status == 200:
         tally.images += 1
+    if status >= 400 and not data.startswith(b"HEAD "):
+        tally.check_text(http.answer, f"HTTP {status} for {data[:60]!r}")
     if data.startswith(b"POST") and status != 200:
         http.close()  # the body may not have been read: start clean
     tally.inputs += 1

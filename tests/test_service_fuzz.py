@@ -5,6 +5,7 @@ A failure names its seed; rerun with it to reproduce."""
 
 from __future__ import annotations
 
+import json
 import random
 from collections.abc import Iterator
 
@@ -21,7 +22,7 @@ from fuzz_inputs import (
 from service_harness import ServerProcess, ball
 from test_service_http import metric_values
 
-from sphrender.core.protocol import encode_frame
+from sphrender.core.protocol import MessageType, encode_frame, encode_message
 
 SEEDS = (11, 12, 13)
 
@@ -43,7 +44,9 @@ def _good_frame(server: ServerProcess, reference: list[bytes]) -> None:
 
 
 def _check(tally: Tally, seed: int) -> None:
-    assert (tally.hangs, tally.server_errors) == (0, 0), (seed, tally.notes)
+    """No hang, no 5xx, and every error text in plain words and JSON values (PROTOCOL.md 1)."""
+    assert (tally.hangs, tally.server_errors, tally.bad_texts) == (0, 0, 0), (seed, tally.notes)
+    assert tally.texts > 0
 
 
 @pytest.mark.parametrize("seed", SEEDS)
@@ -83,6 +86,30 @@ def test_http_fuzz(server: ServerProcess, seed: int) -> None:
     finally:
         http.close()
     _check(tally, seed)
+
+
+def test_a_camera_target_at_1e308(server: ServerProcess) -> None:
+    """The campaign's numpy warning: now a bad_input naming the field, on both transports."""
+    far = {**SCENE, "camera": {**SCENE["camera"], "target": [1e308, 0.0, 0.0]}}
+    with server.stream() as client:
+        client.send(encode_message(MessageType.HELLO, {"scene": far}))
+        kind, header, _payload = client.receive()
+        assert (kind, header["code"], header["field"]) == (0x83, "bad_input", "camera.target")
+    with server.stream() as client:
+        client.hello(SCENE)
+        client.send(encode_frame(1, ball(30), scene={"camera": far["camera"]}))
+        assert client.receive()[1]["field"] == "camera.target"
+    status, answer = server.json("POST", "/v1/sessions", far)
+    assert (status, answer["field"]) == (400, "camera.target")
+
+
+def test_with_log_json_every_stderr_line_is_a_json_object(server: ServerProcess) -> None:
+    """`--log-json` (service_harness starts every server with it): after the fuzz inputs, the
+    main and the render process wrote nothing to stderr but JSON objects, one a line."""
+    lines = server.logs().splitlines()
+    assert lines
+    for line in lines:
+        assert isinstance(json.loads(line), dict), line
 
 
 def test_after_the_fuzz_the_server_is_whole(server: ServerProcess) -> None:

@@ -11,11 +11,11 @@ from __future__ import annotations
 import math
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import fields
 from typing import Any, Literal, TypeVar, get_args, get_origin
 
-from sphrender.core.errors import InputError, kind_of, show
+from sphrender.core.errors import InputError, LimitError, kind_of, show
 from sphrender.server.scene.fields import is_bench_only
 from sphrender.server.scene.layering import PRESETS, merge_scene_dicts, preset_sections
 from sphrender.server.scene.renames import upgrade_scene_dict
@@ -144,10 +144,14 @@ def _sections_from_list(cls: type[T], data: Any, prefix: str, section: Any) -> t
     return tuple(section_from_dict(cls, item, f"{prefix}[{i}]") for i, item in enumerate(data))
 
 
-def scene_from_dict(data: Mapping[str, Any], *, bench: bool = False) -> Scene:
+def scene_from_dict(
+    data: Mapping[str, Any], *, bench: bool = False, max_pixels: int | None = None
+) -> Scene:
     """Build and validate a `Scene` from a TOML/JSON-like mapping (missing keys keep defaults).
     Old key names are read under their new ones, with a note on the scene (`Scene.notes`);
-    `bench` also reads the benchmark's own settings (`bench_scene_from_dict` passes it)."""
+    `bench` also reads the benchmark's own settings (`bench_scene_from_dict` passes it).
+    `max_pixels`: a server's own image limit (``limits.max_pixels``), refused as `LimitError`
+    before any other cross-field rule; without it the absolute `MAX_IMAGE_PIXELS` applies."""
     if not isinstance(data, Mapping):
         raise InputError("scene", f"must be a table, got {kind_of(data)}")
     data, notes = upgrade_scene_dict(data)
@@ -164,6 +168,7 @@ def scene_from_dict(data: Mapping[str, Any], *, bench: bool = False) -> Scene:
         else:
             sections[key] = section_from_dict(hint, value, key, bench=bench)
     scene = Scene(**sections, notes=notes)
+    _check_pixels(scene, max_pixels)
     _check_cross_field(scene)
     return scene
 
@@ -181,6 +186,26 @@ def _under_preset(data: dict[str, Any]) -> dict[str, Any]:
     return merge_scene_dicts(preset_sections(name), data)
 
 
+def _check_pixels(scene: Scene, max_pixels: int | None) -> None:
+    w, h = scene.image.width, scene.image.height
+    if max_pixels is not None and w * h > max_pixels:
+        raise LimitError(
+            "image",
+            f"{w}x{h} = {w * h} pixels exceeds this server's limit of {max_pixels} "
+            "(limits.max_pixels)",
+        )
+    if w * h > MAX_IMAGE_PIXELS:
+        raise InputError("image", f"{w}x{h} exceeds the limit of {MAX_IMAGE_PIXELS} pixels")
+
+
+def _length(vector: Sequence[float], field: str, what: str = "the vector") -> float:
+    """A vector's length; one whose length overflows binary64 is refused naming `field`."""
+    length = math.sqrt(sum(c * c for c in vector))
+    if not math.isfinite(length):
+        raise InputError(field, f"{what} is too long: its length overflows a 64-bit float")
+    return length
+
+
 def _check_cross_field(scene: Scene) -> None:
     cam = scene.camera
     if cam.far is not None and cam.far <= cam.near:
@@ -188,10 +213,10 @@ def _check_cross_field(scene: Scene) -> None:
             "camera.far", f"must be greater than camera.near ({cam.near}), got {cam.far}"
         )
     view = [t - e for t, e in zip(cam.target, cam.eye, strict=True)]
-    length = math.sqrt(sum(v * v for v in view))
+    length = _length(view, "camera.target", "target - eye")
     if length == 0.0 or length < 1e-12 * max(1.0, *(abs(e) for e in cam.eye)):
         raise InputError("camera.target", "must differ from camera.eye (no view direction)")
-    up_len = math.sqrt(sum(u * u for u in cam.up))
+    up_len = _length(cam.up, "camera.up")
     if up_len == 0.0:
         raise InputError("camera.up", "must not be the zero vector")
     cos = abs(sum(v * u for v, u in zip(view, cam.up, strict=True))) / (length * up_len)
@@ -206,9 +231,6 @@ def _check_cross_field(scene: Scene) -> None:
         )
     if env.file is not None and not env.file.strip():
         raise InputError("environment.file", "must not be empty")
-    w, h = scene.image.width, scene.image.height
-    if w * h > MAX_IMAGE_PIXELS:
-        raise InputError("image", f"{w}x{h} exceeds the limit of {MAX_IMAGE_PIXELS} pixels")
 
 
 def _check_lights(lights: tuple[LightConfig, ...]) -> None:
@@ -217,7 +239,7 @@ def _check_lights(lights: tuple[LightConfig, ...]) -> None:
         if light.type == "directional":
             if light.direction is None:
                 raise InputError(f"{key}.direction", "a directional light needs a direction")
-            if math.sqrt(sum(c * c for c in light.direction)) == 0.0:
+            if _length(light.direction, f"{key}.direction") == 0.0:
                 raise InputError(f"{key}.direction", "must not be the zero vector")
             if light.position is not None:
                 raise InputError(f"{key}.position", "only point lights have a position")

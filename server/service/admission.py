@@ -131,8 +131,8 @@ def decoding(field: str, transport: str) -> Iterator[None]:
         yield
     except (InputError, Busy):
         raise
-    except (MemoryError, RecursionError) as exc:
-        raise LimitError(field, f"is too large or too deeply nested to decode ({exc})") from None
+    except (MemoryError, RecursionError):
+        raise LimitError(field, "is too large or too deeply nested to decode") from None
     except Exception:
         log.exception(
             "decoder failed on client input",

@@ -215,7 +215,9 @@ class SecurityConfig:
 
 @dataclass(frozen=True)
 class LoggingConfig:
-    json: bool = spec(False, "structured logs: one JSON object per line on stderr")
+    json: bool = spec(
+        False, "structured logs: one JSON object per line on stderr (Python warnings included)"
+    )
     level: Literal["debug", "info", "warning", "error"] = spec("info", "log level")
 
 

@@ -10,9 +10,15 @@ from __future__ import annotations
 import datetime
 import json
 import logging
+import os
 import sys
-from typing import Any
+import warnings
+from typing import Any, TextIO
 
+#: The environment variable that hands the logging choice to the render process.
+LOGGING_ENV = "SPHRENDER_LOGGING"
+#: Where Python warnings are logged.
+_warnings_log = logging.getLogger("sphrender.warnings")
 #: Attributes every LogRecord has; anything else on a record came from ``extra``.
 _RECORD_FIELDS = set(vars(logging.makeLogRecord({}))) | {"message", "asctime", "taskName"}
 
@@ -54,8 +60,29 @@ class KeyValueFormatter(logging.Formatter):
         return text
 
 
+def _show_warning(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: TextIO | None = None,
+    line: str | None = None,
+) -> None:
+    """Python warnings (numpy's RuntimeWarnings, say) as log records, not stderr text."""
+    _warnings_log.warning(
+        str(message),
+        extra={
+            "event": "python_warning",
+            "category": category.__name__,
+            "source": f"{os.path.basename(filename)}:{lineno}",
+        },
+    )
+
+
 def configure_logging(*, json_lines: bool, level: str) -> None:
-    """Route the ``sphrender`` loggers to stderr with the chosen format (replaces handlers)."""
+    """Route the ``sphrender`` loggers and Python warnings to stderr with the chosen format
+    (replaces handlers). The choice is kept in the environment for the render process
+    (`configure_inherited_logging`), which multiprocessing starts with a copy of it."""
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(JsonLinesFormatter() if json_lines else KeyValueFormatter())
     root = logging.getLogger("sphrender")
@@ -64,3 +91,15 @@ def configure_logging(*, json_lines: bool, level: str) -> None:
     root.addHandler(handler)
     root.setLevel(level.upper())
     root.propagate = False
+    warnings.showwarning = _show_warning
+    os.environ[LOGGING_ENV] = json.dumps({"json_lines": json_lines, "level": level})
+
+
+def configure_inherited_logging() -> None:
+    """In a child process: the parent's `configure_logging` choice, if it made one."""
+    try:
+        choice = json.loads(os.environ.get(LOGGING_ENV, ""))
+        json_lines, level = bool(choice["json_lines"]), str(choice["level"])
+    except (ValueError, KeyError, TypeError):
+        return
+    configure_logging(json_lines=json_lines, level=level)

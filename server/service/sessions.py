@@ -34,6 +34,9 @@ from sphrender.core.protocol import LimitError, parse_json_object
 from sphrender.server.engine.lighting.environment import EnvironmentLibrary
 from sphrender.server.scene import Scene, scene_from_dict, scene_to_dict
 
+#: The answer when the renderer fails to prepare a session's scene (the details are logged).
+WARM_FAILED = "preparing the scene failed in the renderer; the server logged the details"
+
 
 class SessionLimitReached(Exception):
     """``limits.max_sessions`` sessions are open."""
@@ -217,15 +220,8 @@ class SceneValidator:
         return result
 
     def from_dict(self, raw: Mapping[str, Any]) -> Scene:
-        scene = scene_from_dict(raw)
+        scene = scene_from_dict(raw, max_pixels=self.max_pixels)
         self._check_environment_file(scene)
-        pixels = scene.image.width * scene.image.height
-        if pixels > self.max_pixels:
-            raise LimitError(
-                "image",
-                f"{scene.image.width}x{scene.image.height} = {pixels} pixels exceeds this "
-                f"server's limit of {self.max_pixels}",
-            )
         return scene
 
     def _check_environment_file(self, scene: Scene) -> None:

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.core.errors import InputError
+from sphrender.core.errors import InputError, show
 from sphrender.server.scene import EnvironmentConfig
 
 F32 = npt.NDArray[np.float32]
@@ -294,7 +294,7 @@ def preset_image(name: str) -> EnvironmentImage:
     try:
         generate = _PRESETS[name]
     except KeyError:
-        raise InputError("environment.preset", f"unknown preset {name!r}") from None
+        raise InputError("environment.preset", f"unknown preset {show(name)}") from None
     return make_image(generate(width, height), f"preset:{name}")
 
 
@@ -381,16 +381,19 @@ class EnvironmentLibrary:
             )
         relative = Path(name)
         if relative.is_absolute() or ".." in relative.parts or name.startswith("~"):
-            raise InputError(key, f"must be a path relative to an environment directory: {name!r}")
+            raise InputError(
+                key, f"must be a path relative to an environment directory, got {show(name)}"
+            )
         if relative.suffix.lower() not in FILE_SUFFIXES:
-            raise InputError(key, f"must end in one of {', '.join(FILE_SUFFIXES)}, got {name!r}")
+            allowed = ", ".join(FILE_SUFFIXES)
+            raise InputError(key, f"must end in one of {allowed}, got {show(name)}")
         for directory in self.directories:
             candidate = (directory / relative).resolve()
             if not candidate.is_relative_to(directory):
-                raise InputError(key, f"{name!r} leads outside the environment directories")
+                raise InputError(key, f"{show(name)} leads outside the environment directories")
             if candidate.is_file():
                 return candidate
-        raise InputError(key, f"{name!r} not found in the environment directories")
+        raise InputError(key, f"{show(name)} not found in the environment directories")
 
     def _load_file(self, name: str) -> EnvironmentImage:
         path = self.find_file(name)

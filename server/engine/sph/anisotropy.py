@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.core.errors import InputError
+from sphrender.core.errors import InputError, show
 from sphrender.server.engine.gpu.cl_context import CLContext
 from sphrender.server.engine.sph.buffers import WORK_GROUP, BufferPool, round_up
 
@@ -132,7 +132,7 @@ def check_radii(radii: float | npt.ArrayLike, count: int) -> F32:
     bad = ~np.isfinite(array) | (array <= 0.0)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        raise InputError(f"radii[{i}]", f"must be finite and > 0, got {array[i]!r}")
+        raise InputError(f"radii[{i}]", f"must be finite and > 0, got {show(array[i])}")
     return np.ascontiguousarray(array)
 
 

@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from sphrender.core.errors import InputError
+from sphrender.core.errors import InputError, show
 from sphrender.server.engine.gpu.cl_context import CLContext
 from sphrender.server.engine.sph.anisotropy import (
     AnisotropyKernels,
@@ -125,7 +125,7 @@ def check_densities(densities: object, count: int, name: str = "densities") -> F
     bad = ~np.isfinite(values) | (values <= 0.0)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        raise InputError(f"{name}[{i}]", f"must be finite and > 0, got {array[i]!r}")
+        raise InputError(f"{name}[{i}]", f"must be finite and > 0, got {show(array[i])}")
     return np.ascontiguousarray(values)
 
 

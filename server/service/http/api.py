@@ -38,7 +38,7 @@ import logging
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
-from sphrender.core.errors import InputError
+from sphrender.core.errors import InputError, show
 from sphrender.core.protocol import (
     ErrorCode,
 )
@@ -99,7 +99,7 @@ class ApiHandler(ViewerRoutes):
                 raise HttpError(
                     404,
                     ErrorCode.NOT_FOUND,
-                    f"no such resource {url.path}",
+                    f"no such resource {show(url.path)}",
                     "path",
                     close=method in ("POST", "PUT"),
                 )

@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 from concurrent.futures import TimeoutError as FutureTimeout
 
-from sphrender.core.errors import InputError
+from sphrender.core.errors import InputError, kind_of
 from sphrender.core.protocol import (
     IMAGE_FORMATS,
     ErrorCode,
@@ -100,7 +100,7 @@ class FrameRoutes:
                     raise InputError(f"body.{key}", "unknown key; allowed: scene")
             override = document.get("scene", {})
             if not isinstance(override, dict):
-                raise InputError("scene", f"must be a JSON object, got {type(override).__name__}")
+                raise InputError("scene", f"must be a JSON object, got {kind_of(override)}")
             scene = service.scenes.from_dict(merge_scene_dicts(session.raw_scene, override))
             service.worker.check_image_size(scene)
         except InputError as exc:

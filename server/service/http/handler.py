@@ -20,6 +20,7 @@ from http.server import BaseHTTPRequestHandler
 from typing import Any, ClassVar, cast
 from urllib.parse import parse_qs, unquote, urlsplit
 
+from sphrender.core.errors import show
 from sphrender.core.protocol import ErrorCode
 from sphrender.server.service.facade import ServiceFacade
 from sphrender.server.service.http.errors import HttpError
@@ -54,6 +55,9 @@ HEALTH_ROUTES = ("/healthz", "/readyz", "/metrics")
 #: The head of a health-reserve connection must arrive within this (seconds).
 _HEALTH_HEAD_TIMEOUT_S = 2.0
 _CONTENT_LENGTH = re.compile(r"[0-9]{1,19}")
+#: The HTTP versions served (PROTOCOL.md 9); any other is answered 400 unsupported_version.
+_VERSIONS = ("HTTP/1.0", "HTTP/1.1")
+_VERSION_TEXT = "HTTP version not supported; use HTTP/1.1 or HTTP/1.0"
 #: The viewer page's credential: the token, percent-encoded (`viewer` sets it).
 VIEWER_COOKIE = "sphrender_token"
 #: Sent by the viewer's scripts with every request that is not a GET (see `_check_auth`).
@@ -61,13 +65,45 @@ VIEWER_HEADER = "X-Sphrender-Viewer"
 #: What the standard library's own errors mean in this API's codes.
 #: 501 (unknown method) and 505 (HTTP version) are answered 405 and 400: a client's mistake
 #: is never a 5xx here.
+#: The texts are this API's own: the standard library's quote the request Python-style.
 _STDLIB_CODES = {
-    HTTPStatus.REQUEST_URI_TOO_LONG: (414, ErrorCode.TOO_LARGE, "request line"),
-    HTTPStatus.REQUEST_HEADER_FIELDS_TOO_LARGE: (431, ErrorCode.TOO_LARGE, "headers"),
-    HTTPStatus.NOT_IMPLEMENTED: (405, ErrorCode.BAD_INPUT, "method"),
-    HTTPStatus.HTTP_VERSION_NOT_SUPPORTED: (400, ErrorCode.UNSUPPORTED_VERSION, "version"),
-    HTTPStatus.REQUEST_TIMEOUT: (408, ErrorCode.TIMEOUT, "request"),
+    HTTPStatus.REQUEST_URI_TOO_LONG: (
+        414,
+        ErrorCode.TOO_LARGE,
+        "request line",
+        "the request line exceeds the limit of 65536 bytes",
+    ),
+    HTTPStatus.REQUEST_HEADER_FIELDS_TOO_LARGE: (
+        431,
+        ErrorCode.TOO_LARGE,
+        "headers",
+        "a header line exceeds 65536 bytes or there are more than 100 headers",
+    ),
+    HTTPStatus.NOT_IMPLEMENTED: (
+        405,
+        ErrorCode.BAD_INPUT,
+        "method",
+        "unknown method; allowed: GET, POST, DELETE",
+    ),
+    HTTPStatus.HTTP_VERSION_NOT_SUPPORTED: (
+        400,
+        ErrorCode.UNSUPPORTED_VERSION,
+        "version",
+        _VERSION_TEXT,
+    ),
+    HTTPStatus.REQUEST_TIMEOUT: (
+        408,
+        ErrorCode.TIMEOUT,
+        "request",
+        "the request did not arrive in time",
+    ),
 }
+_MALFORMED = (
+    400,
+    ErrorCode.BAD_INPUT,
+    "request",
+    "malformed request line: expected METHOD PATH HTTP/1.1",
+)
 
 
 def viewer_cookie(headers: list[str]) -> str | None:
@@ -78,6 +114,19 @@ def viewer_cookie(headers: list[str]) -> str | None:
             if sep and name == VIEWER_COOKIE:
                 return unquote(value.strip().strip('"'), errors="surrogateescape")
     return None
+
+
+def _write_busy(wfile: io.BufferedIOBase) -> None:
+    """503 for a connection over ``http.max_connections``, written before any request."""
+    body = json.dumps(
+        {"error": "too many connections", "field": None, "code": ErrorCode.BUSY}
+    ).encode()
+    head = (
+        "HTTP/1.1 503 Service Unavailable\r\nContent-Type: application/json\r\n"
+        f"Content-Length: {len(body)}\r\nRetry-After: 1\r\nConnection: close\r\n\r\n"
+    )
+    with contextlib.suppress(OSError):
+        wfile.write(head.encode("ascii") + body)
 
 
 def route_label(path: str) -> str:
@@ -121,7 +170,7 @@ class HandlerBase(BaseHTTPRequestHandler):
         server = cast(SphrenderHttpServer, self.server)
         mode = server.enter_connection(id(self), self._reader)
         if mode is None:
-            self._raw_busy()
+            _write_busy(self.wfile)
             return
         self._mode = mode
         try:
@@ -139,26 +188,26 @@ class HandlerBase(BaseHTTPRequestHandler):
         self._status = 0
         super().handle_one_request()
 
-    def _raw_busy(self) -> None:
-        body = json.dumps(
-            {"error": "too many connections", "field": None, "code": ErrorCode.BUSY}
-        ).encode()
-        head = (
-            "HTTP/1.1 503 Service Unavailable\r\nContent-Type: application/json\r\n"
-            f"Content-Length: {len(body)}\r\nRetry-After: 1\r\nConnection: close\r\n\r\n"
-        )
-        with contextlib.suppress(OSError):
-            self.wfile.write(head.encode("ascii") + body)
-
     def log_message(self, format: str, *args: Any) -> None:
         log.debug(format % args, extra={"peer": self.client_address[0]})
 
+    def parse_request(self) -> bool:
+        """The standard parsing, then any version but 1.0/1.1 refused (HTTP/0.9's two-word
+        request line included: the standard library would answer it without a status line)."""
+        raw: bytes = getattr(self, "raw_requestline", b"")  # set by the standard library
+        words = str(raw, "iso-8859-1").rstrip("\r\n").split()
+        other = len(words) == 3 and words[2].startswith("HTTP/") and words[2] not in _VERSIONS
+        if len(words) == 2 or other:
+            self.command, self.path, self.requestline = "", "", ""
+            self.request_version = "HTTP/1.1"  # the refusal has a status line and headers
+            self.send_error(HTTPStatus.HTTP_VERSION_NOT_SUPPORTED)
+            return False
+        return super().parse_request()
+
     def send_error(self, code: int, message: str | None = None, explain: str | None = None) -> None:
-        """The standard library's errors (bad request line, 414, 431, 501, 505) as JSON."""
-        text = message or HTTPStatus(code).phrase
-        code, error_code, field = _STDLIB_CODES.get(
-            HTTPStatus(code), (400, ErrorCode.BAD_INPUT, "request")
-        )
+        """The standard library's errors (bad request line, 414, 431, 501, 505) as JSON, in
+        this API's words (`message` and `explain` are the library's and are not shown)."""
+        code, error_code, field, text = _STDLIB_CODES.get(HTTPStatus(code), _MALFORMED)
         if not hasattr(self, "command") or self.command is None:
             self.command = ""
         if getattr(self, "request_version", "HTTP/0.9") == "HTTP/0.9":
@@ -240,7 +289,7 @@ class HandlerBase(BaseHTTPRequestHandler):
         texts = {value.strip(" \t") for value in values}
         text = next(iter(texts))
         if len(texts) != 1 or not _CONTENT_LENGTH.fullmatch(text):
-            shown = ", ".join(repr(v[:40]) for v in values[:3])
+            shown = ", ".join(show(v, 40) for v in values[:3])
             raise HttpError(
                 400,
                 ErrorCode.BAD_INPUT,

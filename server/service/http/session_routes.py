@@ -7,6 +7,7 @@ compiling programs; the answer carries the resolved scene (every default filled 
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 from sphrender.core.errors import InputError
@@ -19,7 +20,9 @@ from sphrender.server.service.facade import ServiceFacade
 from sphrender.server.service.http.errors import HttpError
 from sphrender.server.service.http.handler import HandlerBase
 from sphrender.server.service.render.scheduler import SchedulerClosed
-from sphrender.server.service.sessions import Session, SessionLimitReached
+from sphrender.server.service.sessions import WARM_FAILED, Session, SessionLimitReached
+
+log = logging.getLogger("sphrender.service.http")
 
 
 def find_session(
@@ -98,9 +101,8 @@ class SessionRoutes:
                 503, ErrorCode.BUSY, "the scene could not be prepared in time", retry_after_s=1
             ) from None
         except Exception as exc:  # GL failure while warming: the context has been rebuilt
-            raise HttpError(
-                500, ErrorCode.RENDER_FAILED, f"preparing the scene failed: {exc}"
-            ) from None
+            log.warning("warm failed", extra={"event": "warm_failed", "detail": str(exc)})
+            raise HttpError(500, ErrorCode.RENDER_FAILED, WARM_FAILED) from None
         session.particles = particles  # before anyone knows the id
         return session
 

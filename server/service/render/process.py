@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import faulthandler
 import importlib.util
+import logging
 import os
 import signal
 import threading
@@ -31,6 +32,7 @@ import numpy as np
 
 from sphrender.server.scene import Scene
 from sphrender.server.service.heap import fix_mmap_threshold
+from sphrender.server.service.logs import configure_inherited_logging
 from sphrender.server.service.render.messages import (
     Answer,
     ArrayLayout,
@@ -54,6 +56,8 @@ if TYPE_CHECKING:
     from sphrender.server.engine.frame_output import RenderedFrame, RenderStats
     from sphrender.server.engine.gpu.gl_context import GLContext
     from sphrender.server.engine.renderer import SurfaceRenderer
+
+log = logging.getLogger("sphrender.service.renderer")
 
 #: Names the test-only fault module (see the module docstring); unset in production.
 FAULT_INJECTION_ENV = "SPHRENDER_FAULT_INJECTION"
@@ -207,7 +211,8 @@ class RenderProcess:
         except InputError as exc:
             error = WarmError(input=True, field=exc.field, message=exc.message)
         except Exception as exc:
-            error = WarmError(input=False, field=None, message=f"{type(exc).__name__}: {exc}")
+            log.warning("warm failed", extra={"event": "warm_failed", "detail": repr(exc)})
+            error = WarmError(input=False, field=None, message="the GL context failed")
             self.rebuild()
         self.send(WarmAnswer(request.id, error))
 
@@ -244,10 +249,8 @@ class RenderProcess:
         except InputError as exc:
             self._error(request.id, "bad_input", exc.message, exc.field)
         except Exception as exc:
-            message = (
-                f"rendering failed ({type(exc).__name__}: {exc}); the GL context was rebuilt, "
-                "later frames are unaffected"
-            )
+            log.warning("render failed", extra={"event": "render_failed", "detail": repr(exc)})
+            message = "rendering failed; the GL context was rebuilt, later frames are unaffected"
             self.rebuild()
             self._error(request.id, "render_failed", message)
         else:
@@ -289,7 +292,8 @@ class RenderProcess:
             del frame
             self.send(answer, data)
         except Exception as exc:
-            self._error(request.id, "render_failed", f"encoding failed: {exc}")
+            log.warning("encode failed", extra={"event": "encode_failed", "detail": repr(exc)})
+            self._error(request.id, "render_failed", "encoding the image failed")
         finally:
             self._encode_slots.release()
 
@@ -298,6 +302,7 @@ def process_main(conn: Connection, environment_dirs: tuple[str, ...], encoders: 
     """Entry point of the render process (multiprocessing ``spawn``)."""
     faulthandler.enable()  # a native fault prints the Python stacks of every thread to stderr
     fix_mmap_threshold()
+    configure_inherited_logging()  # the service's format (JSON lines or not), warnings included
     # The service drains and then sends a StopRequest; a Ctrl-C to the terminal's process group
     # must not kill the renderer while the service is still answering frames. SIGTERM keeps its
     # default (the service's own exit path terminates leftover processes with it); under

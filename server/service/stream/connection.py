@@ -48,7 +48,7 @@ from sphrender.core.protocol import (
 )
 from sphrender.server.service.facade import ServiceFacade
 from sphrender.server.service.render.scheduler import SchedulerClosed
-from sphrender.server.service.sessions import Session, SessionLimitReached
+from sphrender.server.service.sessions import WARM_FAILED, Session, SessionLimitReached
 from sphrender.server.service.stream.answers import Answers
 from sphrender.server.service.stream.handshake import Hello, check_hello, welcome_header
 from sphrender.server.service.stream.reader import FrameReader, read_head
@@ -213,7 +213,8 @@ class StreamConnection:
             self._send_fatal(ErrorCode.SHUTTING_DOWN, "the server is shutting down", None)
             return "shutdown"
         except Exception as exc:  # GL failure while warming the scene, or a warm timeout
-            self._send_fatal(ErrorCode.RENDER_FAILED, f"preparing the scene failed: {exc}", None)
+            log.warning("warm failed", extra={"event": "warm_failed", "detail": str(exc)})
+            self._send_fatal(ErrorCode.RENDER_FAILED, WARM_FAILED, None)
             return "handshake"
         info = self.service.info()
         server = {
