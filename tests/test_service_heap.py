@@ -7,6 +7,9 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import time
+
+from sphrender.server.service.heap import HeapTrimmer
 
 WORKLOAD = """
 import json, random, sys, threading
@@ -17,14 +20,14 @@ def rss_mib():
         return int(handle.read().split()[1]) * 4096 / 2**20
 def session(seed):
     rng, keep = random.Random(seed), []
-    for _ in range(150):
+    for _ in range(60):
         image = bytearray(rng.choice((4, 8, 16, 30)) << 20)  # an image or a payload
         keep.append([bytes(rng.randrange(100, 5000)) for _ in range(200)][::20])
         del image
         if len(keep) > 50:
             keep.pop(0)
 start = rss_mib()
-for round in range(3):
+for round in range(2):
     threads = [threading.Thread(target=session, args=(4 * round + i,)) for i in range(4)]
     for thread in threads:
         thread.start()
@@ -51,3 +54,10 @@ def test_a_fixed_threshold_returns_large_blocks_to_the_system() -> None:
     assert fixed["fixed"] is True
     assert dynamic["growth_mib"] > 60, dynamic
     assert fixed["growth_mib"] < 20, fixed
+
+
+def test_the_trimmer_trims_once_per_interval() -> None:
+    trimmer = HeapTrimmer(interval_s=0.2)
+    assert not trimmer.maybe_trim()  # the interval starts at construction
+    time.sleep(0.25)
+    assert trimmer.maybe_trim() and not trimmer.maybe_trim()

@@ -18,7 +18,7 @@ from typing import Any
 
 from sphrender.server.service.app import RenderService, package_version
 from sphrender.server.service.config import ServerConfig, check_bind_policy
-from sphrender.server.service.heap import fix_mmap_threshold
+from sphrender.server.service.heap import HeapTrimmer, fix_mmap_threshold
 from sphrender.server.service.http.api import make_http_server
 from sphrender.server.service.http.listener import SphrenderHttpServer
 from sphrender.server.service.logs import configure_logging
@@ -118,7 +118,9 @@ class Listeners:
     def _reap_sessions(self) -> None:
         service = self.service
         interval = min(5.0, max(0.05, service.config.limits.session_idle_timeout_s / 4))
+        heap = HeapTrimmer()
         while not service.draining.wait(interval):
+            heap.maybe_trim()
             for session in service.sessions.reap_idle():
                 service.scheduler.cancel_key(session.id)
                 log.info("session expired", extra={"event": "session_expired", "id": session.id})

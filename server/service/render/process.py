@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, TypeAlias
 import numpy as np
 
 from sphrender.server.scene import Scene
-from sphrender.server.service.heap import fix_mmap_threshold
+from sphrender.server.service.heap import HeapTrimmer, fix_mmap_threshold
 from sphrender.server.service.logs import configure_inherited_logging
 from sphrender.server.service.render.messages import (
     Answer,
@@ -182,8 +182,10 @@ class RenderProcess:
             device = self._renderer.opencl_device()
             cl = (device.platform_name, device.device_name, device.device_type)
         self.send(Ready(os.getpid(), gl.renderer, gl.version, limits, warm_ms, *cl))
+        heap = HeapTrimmer()
         try:
             while True:
+                heap.maybe_trim()
                 try:
                     request = self.conn.recv()
                 except (EOFError, OSError):
