@@ -293,7 +293,7 @@ def test_actors_that_cannot_render_the_scene_fail_at_start_in_one_line(
     assert result.returncode == 2, result.stderr
     last = result.stderr.strip().splitlines()[-1]
     assert last.startswith("sphrender: error: --ray: no render actor could start: InputError")
-    assert "environment.file: 'missing.exr' not found" in last
+    assert 'environment.file: "missing.exr" not found' in last
 
 
 @pytest.mark.parametrize(
