@@ -149,6 +149,20 @@ class MaterialConfig:
         low=0.0,
         high=1.0,
     )
+    solidus_k: float | None = spec(
+        None,
+        "override: temperature (K) below which a particle is solid; the preset gives its "
+        "metal's (mild steel for iron, 304 for stainless). No preset sets it; for an alloy",
+        low=0.0,
+        high=1e4,
+    )
+    liquidus_k: float | None = spec(
+        None,
+        "override: temperature (K) above which a particle is liquid; between solidus and "
+        "liquidus it is mushy. No preset sets it; for an alloy",
+        low=0.0,
+        high=1e4,
+    )
 
 
 LightType = Literal["directional", "point"]

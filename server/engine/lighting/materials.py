@@ -32,6 +32,22 @@ METAL_F0: dict[str, Vec3] = {
     "zinc": (0.808, 0.844, 0.865),
 }
 
+#: Solidus and liquidus per preset, kelvin: the temperatures where melting begins and ends. Pure
+#: metals melt at one temperature (both equal); iron is taken as mild steel, stainless as 304
+#: (ASM Handbook vol. 2 and 1 melting ranges).
+MELTING_RANGE_K: dict[str, tuple[float, float]] = {
+    "iron": (1700.0, 1790.0),
+    "stainless_steel": (1673.0, 1727.0),
+    "silver": (1234.9, 1234.9),
+    "gold": (1337.3, 1337.3),
+    "copper": (1357.8, 1357.8),
+    "aluminium": (933.5, 933.5),
+    "titanium": (1941.0, 1941.0),
+    "chromium": (2180.0, 2180.0),
+    "nickel": (1728.0, 1728.0),
+    "zinc": (692.7, 692.7),
+}
+
 #: Roughness a preset uses when the scene does not set one: a lightly worked metal surface.
 PRESET_ROUGHNESS = 0.35
 
@@ -52,6 +68,8 @@ class Material:
     roughness: float  # perceptual, as given (the shader clamps to MIN_ROUGHNESS)
     metallic: float
     emissivity: Vec3 | None  # None = 1 - F0 (per channel)
+    solidus_k: float  # below: solid
+    liquidus_k: float  # above: liquid; between: the mushy range
 
     @property
     def specular_f0(self) -> Vec3:
@@ -79,4 +97,16 @@ def resolve_material(config: MaterialConfig) -> Material:
     f0 = config.f0 if config.f0 is not None else METAL_F0[config.preset]
     roughness = config.roughness if config.roughness is not None else PRESET_ROUGHNESS
     metallic = config.metallic if config.metallic is not None else 1.0
-    return Material(f0=f0, roughness=roughness, metallic=metallic, emissivity=config.emissivity)
+    solidus, liquidus = MELTING_RANGE_K[config.preset]
+    if config.solidus_k is not None:
+        solidus = config.solidus_k
+    if config.liquidus_k is not None:
+        liquidus = config.liquidus_k
+    return Material(
+        f0=f0,
+        roughness=roughness,
+        metallic=metallic,
+        emissivity=config.emissivity,
+        solidus_k=min(solidus, liquidus),
+        liquidus_k=max(solidus, liquidus),
+    )
