@@ -8,9 +8,10 @@ with one-shot POST /v1/render frames, /v1/info and /metrics between them. Sessio
 size, particle count, radius and output encoding (png, jpeg, exr, raw); frames carry scene
 overrides and some are bad input (NaN positions, unknown keys) answered as errors in between.
 Checks every answer is the one expected, and reports the resident memory of the service
-process and of the renderer process at frame 1,000 (after warm-up), every 1,000 frames and at
-the end, and the service's threads and open files at the start and after the last session
-closed. Bounded by --frames.
+process and of the renderer process every 1,000 frames, and at frame 1,000 (after warm-up) and
+at the end both live and settled (no session left: growth is judged on the settled pair), and
+the service's threads and open files at the start and after the last session closed. Bounded by
+--frames.
 """
 
 from __future__ import annotations
@@ -74,6 +75,15 @@ FORMATS = ("png", "jpeg", "exr", "raw")
 #: Sessions left behind (with their latest image) expire within the warm-up, so the samples after
 #: it compare steady states, not a growing number of live sessions.
 CONFIG = {"limits": {"session_idle_timeout_s": 20.0}}
+#: Seconds to wait before a settled sample: abandoned sessions expire (idle timeout + a reaper
+#: period) and both processes trim their heaps (every 5 s).
+SETTLE_S = 20.0 + 5.0 + 6.0
+
+
+def settled(pid: int) -> dict[str, int]:
+    """Memory once no session is live: the same state at frame 1,000 and at the end."""
+    time.sleep(SETTLE_S)
+    return memory(pid)
 
 
 def scene(rng: random.Random) -> dict[str, Any]:
@@ -182,12 +192,13 @@ def soak(frames: int, seed: int) -> dict[str, Any]:
             done += burst
             if before < 1000 <= done:
                 samples["frame_1000"] = memory(pid)
+                samples["frame_1000_settled"] = settled(pid)
             if before // 1000 < done // 1000:
                 trend.append({"frames": done, **memory(pid)})
-        elapsed = time.monotonic() - started
-        time.sleep(2.0)
-        samples["end"] = {**counts(pid), **memory(pid)}
-    first, last = samples["frame_1000"], samples["end"]
+        elapsed = time.monotonic() - started - SETTLE_S
+        samples["end"] = memory(pid)
+        samples["end_settled"] = {**counts(pid), **settled(pid)}
+    first, last = samples["frame_1000_settled"], samples["end_settled"]
     return {
         "frames": done,
         "sessions": sessions,
