@@ -54,7 +54,7 @@ def make_frames(count: int, particles: int) -> list[dict[str, np.ndarray]]:
     ball = RADIUS * 2 * (3 * particles / (4 * np.pi)) ** (1 / 3)
     frames = []
     for k in range(count):
-        positions = jittered_lattice_ball(ball, RADIUS, seed=k) + [0.0, 0.001 * k, 0.0]
+        positions = jittered_lattice_ball(ball, RADIUS, seed=k) + np.array([0.0, 0.001 * k, 0.0])
         n = len(positions)
         frames.append(
             {
@@ -79,9 +79,8 @@ def stream_session(client: Client, scene: dict[str, Any], frames: list[dict[str,
     rows = []
     start = time.perf_counter()
     with client.stream(scene) as session:
-        print(
-            f"stream HELLO to WELCOME (the scene warmed): {(time.perf_counter() - start) * 1e3:.0f} ms"
-        )
+        hello_ms = (time.perf_counter() - start) * 1e3
+        print(f"stream HELLO to WELCOME (the scene warmed): {hello_ms:.0f} ms")
         for frame in frames:
             start = time.perf_counter()
             arrays = {k: v for k, v in frame.items() if k != "positions"}
@@ -146,16 +145,20 @@ def main() -> None:
     frames = make_frames(args.frames, args.particles)
     print(f"{len(frames[0]['positions'])} particles, {width}x{height}, {args.frames} frames")
     ratios: dict[str, list[float]] = {"stream": [], "http": []}
-    for _ in range(args.servers):
+    for k in range(args.servers):
         proc, ready = start_server()
         try:
             client = Client(f"http://127.0.0.1:{ready['http_port']}")
-            stream = stream_session(client, scene_for(width, height, "png", RADIUS), frames)
-            ratios["stream"].append(report("stream session (png)", stream))
-            scene = scene_for(width - 32, height - 32, "jpeg", RADIUS * 1.1)
-            ratios["http"].append(
-                report("HTTP session (jpeg)", http_session(client, scene, frames))
-            )
+            stream_scene = scene_for(width, height, "png", RADIUS)
+            http_scene = scene_for(width - 32, height - 32, "jpeg", RADIUS * 1.1)
+            runs: list[tuple[str, Any, dict[str, Any]]] = [
+                ("stream", stream_session, stream_scene),
+                ("http", http_session, http_scene),
+            ]
+            order = runs if k % 2 == 0 else runs[::-1]  # each transport first on a fresh server
+            for place, (name, run, scene) in enumerate(order):
+                label = f"{name} session, server {k + 1}, {('first', 'second')[place]} session"
+                ratios[name].append(report(label, run(client, scene, frames)))
         finally:
             proc.terminate()
             proc.wait(30)

@@ -5,7 +5,10 @@ accepted frame gets exactly one result."""
 
 from __future__ import annotations
 
+import json
 import signal
+import subprocess
+import sys
 import threading
 from pathlib import Path
 from typing import Any
@@ -234,3 +237,18 @@ def test_session_errors_reach_on_error_and_lost_frames_are_reported(tmp_path: Pa
     assert sorted(results) == accepted
     lost = [r for r in results.values() if r.kind == "dropped"]
     assert lost and all(r.header["reason"] == "disconnected" for r in lost)
+
+
+def test_the_simulator_example_streams_from_its_step_callback(service: ServerProcess) -> None:
+    example = Path(__file__).resolve().parents[1] / "examples" / "live_drops.py"
+    url = f"http://127.0.0.1:{service.http_port}"
+    done = subprocess.run(
+        [sys.executable, str(example), "--server", url, "--steps", "16", "--size", "96x64"],
+        capture_output=True,
+        text=True,
+        timeout=WAIT_S,
+    )
+    assert done.returncode == 0, done.stderr
+    counts = json.loads(done.stdout.split("answers: ")[1].split(";")[0].replace("'", '"'))
+    assert counts["image"] >= 1 and counts["error"] == 0
+    assert sum(counts.values()) == 16  # one result per step's frame
