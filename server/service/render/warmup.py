@@ -35,9 +35,7 @@ def warm_frames(scene: Scene) -> Iterator[ParticleFrame]:
     from sphrender.core.frame import make_frame
 
     radius = scene.particles.radius
-    positions = jittered_lattice_ball(
-        WARM_BALL_RADII * radius, radius, center=tuple(scene.camera.target)
-    )
+    positions = jittered_lattice_ball(WARM_BALL_RADII * radius, radius, center=scene.camera.target)
     n = len(positions)
     rest = scene.sph.rest_density
     # Densities from a lone droplet's (0.35 rest) to rest: in the scene's units, so used as given.
