@@ -3,6 +3,8 @@ frames a client sends build no GL program and no OpenCL program of their own (re
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import pytest
 
@@ -43,11 +45,14 @@ def client_frames(scene: Scene) -> list[ParticleFrame]:
     [("png", (96, 64)), ("jpeg", (80, 72)), ("exr", (64, 48))],
 )
 def test_first_frames_after_warm_build_nothing(
-    gl_context: GLContext, fmt: str, size: tuple[int, int]
+    gl_context: GLContext, fmt: str, size: tuple[int, int], caplog: pytest.LogCaptureFixture
 ) -> None:
     renderer = SurfaceRenderer(gl_context)
     try:
-        warm_scene(renderer, Scene())  # what the process does at start
+        with caplog.at_level(logging.WARNING):
+            warm_scene(renderer, Scene())  # what the process does at start
+        # No note on the warm-up frames: the first client frame that earns one logs it.
+        assert [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING] == []
         scene = scene_from_dict(
             {
                 "image": {"width": size[0], "height": size[1]},

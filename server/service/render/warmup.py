@@ -31,7 +31,7 @@ WARM_BALL_RADII = 4.0
 
 
 def warm_frames(scene: Scene) -> Iterator[ParticleFrame]:
-    """The frames that warm `scene`: one per kind of frame a client sends (module docstring)."""
+    """The frames that warm `scene` (module docstring)."""
     from sphrender.core.frame import make_frame
 
     radius = scene.particles.radius
@@ -43,8 +43,6 @@ def warm_frames(scene: Scene) -> Iterator[ParticleFrame]:
     kelvin = np.linspace(300.0, 2500.0, n, dtype=np.float32)
     yield make_frame(positions)
     yield make_frame(positions, densities=fit, temperatures=kelvin)
-    # One value for every particle: unfit, replaced by densities computed on OpenCL.
-    yield make_frame(positions, densities=np.full(n, rest, np.float32), temperatures=kelvin)
 
 
 def warm_scene(renderer: SurfaceRenderer, scene: Scene) -> None:
