@@ -138,6 +138,7 @@ class LiveSession:
         self._waiting: deque[_Frame] = deque()
         self._sent: dict[int, None] = {}  # ids sent and not answered, in the order sent
         self._next_id = 0
+        self._undelivered = 0  # accepted frames whose result has not been handed over yet
         self._closing = False
         self._results: queue.SimpleQueue[StreamResult | BaseException | None] = queue.SimpleQueue()
         self._polled: queue.SimpleQueue[StreamResult | None] = queue.SimpleQueue()
@@ -198,6 +199,7 @@ class LiveSession:
                 raise TimeoutError(f"no room for a frame within {timeout} s")
             frame.id = self._next_id
             self._next_id += 1
+            self._undelivered += 1
             if self.mode == "latest":
                 superseded = list(self._waiting)
                 self._waiting.clear()
@@ -221,9 +223,10 @@ class LiveSession:
         return item
 
     def drain(self, timeout: float | None = None) -> bool:
-        """Wait until every accepted frame has its result (True) or `timeout` s pass (False)."""
+        """Wait until every accepted frame's result has been handed over (``on_result`` returned,
+        or `poll` can return it): True, or False after `timeout` s. Not from a callback."""
         with self._lock:
-            return self._lock.wait_for(lambda: not self._waiting and not self._sent, timeout)
+            return self._lock.wait_for(lambda: self._undelivered == 0, timeout)
 
     def close(self, timeout: float = 30.0) -> None:
         """Stop accepting frames, send those accepted, wait up to `timeout` s for their answers,
@@ -343,3 +346,7 @@ class LiveSession:
                     self._polled.put(item)
             except Exception:
                 log.exception("a LiveSession callback raised; the session goes on")
+            if isinstance(item, StreamResult):
+                with self._lock:
+                    self._undelivered -= 1
+                    self._lock.notify_all()

@@ -78,6 +78,7 @@ def test_threads_submit_concurrently_and_each_frame_is_answered_once_in_order(
             thread.join()
         assert live.drain(WAIT_S)
         assert live.in_flight == 0 and live.pending == 0
+        assert len(collected.results) == len(sizes)  # drained: every result handed over
         check_id = live.submit(ball(2000))  # one frame checked against the engine in-process
         assert live.drain(WAIT_S)
     results = collected.by_id()
