@@ -26,7 +26,7 @@ def client_frames(scene: Scene) -> list[ParticleFrame]:
     """What simulators send: ~2000 particles, positions alone, with their densities (a spread
     around rest) and temperatures, with one density for all (replaced), with per-particle radii."""
     r = scene.particles.radius
-    positions = jittered_lattice_ball(16 * r, r, center=tuple(scene.camera.target), seed=3)
+    positions = jittered_lattice_ball(16 * r, r, center=scene.camera.target, seed=3)
     n = len(positions)
     rest = scene.sph.rest_density
     rng = np.random.default_rng(1)
