@@ -15,6 +15,7 @@ at once as `ServerError`, carrying the server's message, field and code.
 
 from __future__ import annotations
 
+import contextlib
 import http.client
 import json
 import socket
@@ -317,7 +318,9 @@ def _error_from_http(status: int, data: bytes) -> ServerError:
 class StreamSession:
     """One streaming connection (PROTOCOL.md): HELLO, pipelined FRAMEs, answers in order.
 
-    Use as a context manager; `render_all` keeps up to ``max_in_flight`` frames outstanding."""
+    Use as a context manager; `render_all` keeps up to ``max_in_flight`` frames outstanding.
+    Not thread-safe: one thread sends and receives. A producer that hands frames over from its own
+    callbacks or threads uses `sphrender.client.live.LiveSession`, built on this."""
 
     def __init__(
         self,
@@ -351,6 +354,25 @@ class StreamSession:
         self._next_id = 0
         self._outstanding: deque[int] = deque()
         self.closed_reason: str | None = None
+
+    @property
+    def in_flight(self) -> int:
+        """Frames sent and not yet answered."""
+        return len(self._outstanding)
+
+    def set_timeout(self, seconds: float | None) -> None:
+        """How long a read or write may wait (None: for ever, until `abort`)."""
+        self._socket.settimeout(seconds)
+
+    def bye(self) -> None:
+        """Send BYE: no more frames; the server answers those it owes, then GOODBYE."""
+        self._socket.sendall(encode_message(MessageType.BYE, {}))
+
+    def abort(self) -> None:
+        """Close the connection now, without BYE; a thread blocked reading it wakes up."""
+        with contextlib.suppress(OSError):
+            self._socket.shutdown(socket.SHUT_RDWR)
+        self._socket.close()
 
     def _read_exact(self, n: int) -> bytes:
         data = self._reader.read(n)
@@ -407,7 +429,7 @@ class StreamSession:
             if self.closed_reason is None:
                 while self._outstanding:
                     self.receive()
-                self._socket.sendall(encode_message(MessageType.BYE, {}))
+                self.bye()
                 while True:
                     message = self._read()
                     if message.type == MessageType.GOODBYE:

@@ -290,6 +290,11 @@ class CLContext:
             raise RuntimeError("the OpenCL context has been released")
         return self._queue
 
+    @property
+    def built(self) -> int:
+        """How many programs have been built (and are held)."""
+        return len(self._programs)
+
     def program(self, name: str, defines: Mapping[str, int | float] | None = None) -> cl.Program:
         """The built program of ``shaders/<name>`` with ``-D`` defines; built once, then cached."""
         context = self.context

@@ -29,6 +29,11 @@ class ProgramCache:
         # and value types included): the per-frame lookup, in front of the canonical key.
         self._by_repr: dict[tuple[str, str, str], moderngl.Program] = {}
 
+    @property
+    def built(self) -> int:
+        """How many programs and compute shaders have been compiled (and are held)."""
+        return len(self._programs) + len(self._compute)
+
     def get(
         self,
         vertex: str,

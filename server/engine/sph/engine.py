@@ -164,6 +164,10 @@ def column_bounds(points: npt.NDArray[np.floating[Any]]) -> tuple[F64, F64]:
 class SphEngine:
     """Runs the SPH kernels on one `CLContext`; owns its device buffers (see module docstring)."""
 
+    @property
+    def cl(self) -> CLContext:
+        return self._cl
+
     def __init__(self, cl: CLContext) -> None:
         import pyopencl
 

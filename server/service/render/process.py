@@ -50,6 +50,7 @@ from sphrender.server.service.render.messages import (
     WarmRequest,
     encode_answer,
 )
+from sphrender.server.service.render.warmup import warm_scene
 
 if TYPE_CHECKING:
     from sphrender.core.frame import ParticleFrame
@@ -155,13 +156,6 @@ class RenderProcess:
             self._renderer = None
         return self._renderer
 
-    def warm(self, renderer: SurfaceRenderer, scene: Scene) -> None:
-        from sphrender.core.frame import make_frame
-
-        positions = np.array([scene.camera.target], dtype=np.float64)
-        radii = np.array([scene.particles.radius], dtype=np.float32)
-        renderer.render(make_frame(positions, radii=radii), scene)
-
     # -- jobs -----------------------------------------------------------------------------------
 
     def run(self) -> None:
@@ -169,7 +163,7 @@ class RenderProcess:
             gl = self.open()
             start = time.perf_counter()
             assert self._renderer is not None
-            self.warm(self._renderer, Scene())
+            warm_scene(self._renderer, Scene())
         except BaseException as exc:
             self.send(StartupFailed(f"{type(exc).__name__}: {exc}"))
             return
@@ -209,7 +203,7 @@ class RenderProcess:
         try:
             if renderer is None:
                 raise RuntimeError("the GL context is unavailable")
-            self.warm(renderer, request.scene)
+            warm_scene(renderer, request.scene)
         except InputError as exc:
             error = WarmError(input=True, field=exc.field, message=exc.message)
         except Exception as exc:
