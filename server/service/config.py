@@ -208,6 +208,11 @@ class SecurityConfig:
     allow_remote_without_token: bool = spec(
         False, "allow binding a non-loopback address without a token (not recommended)"
     )
+    allowed_origins: tuple[str, ...] = spec(
+        (),
+        "web origins (scheme://host[:port]) besides the server's own whose pages may open the "
+        "WebSocket stream (GET /v1/stream); a request with another Origin gets 403",
+    )
     environment_dirs: tuple[str, ...] = spec(
         (), "directories environment maps ([environment] file) may be read from; empty = none"
     )

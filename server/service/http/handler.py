@@ -49,6 +49,7 @@ _ROUTES = (
     "/",
     "/viewer/viewer.js",
     "/viewer/viewer.css",
+    "/v1/stream",
 )
 #: Routes a health-reserve connection may use (see listener).
 HEALTH_ROUTES = ("/healthz", "/readyz", "/metrics")
