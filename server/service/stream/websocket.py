@@ -146,21 +146,24 @@ class WebSocketChannel(Channel):
                     )
 
     def _take_boundary(self, deadline: float, idle_deadline: float) -> float:
-        """Before a stream message: the previous WebSocket message must be over."""
+        """Before a stream message: the previous WebSocket message must be over. Bytes it
+        carried past its stream message are read to its end (so its size decides: 1009 once
+        over the limit, else 1002), never kept."""
+        excess = 0
         while self._in_message:
             if not self._chunks:
                 idle_deadline = self._pull(deadline, False, idle_deadline)
                 continue
-            data, ends = self._chunks[0]
-            if len(data) > self._offset:
-                self._fail(
-                    1002,
-                    "each stream message must be exactly one binary WebSocket message; "
-                    "the last one went on past its stream message",
-                )
-            self._chunks.popleft()
+            data, ends = self._chunks.popleft()
+            excess += len(data) - self._offset
             self._offset = 0
             self._in_message = not ends
+        if excess:
+            self._fail(
+                1002,
+                "each stream message must be exactly one binary WebSocket message; "
+                f"the last one went on {excess} bytes past its stream message",
+            )
         return idle_deadline
 
     def _pull(self, deadline: float, started: bool, idle_deadline: float | None) -> float | None:
