@@ -160,6 +160,7 @@ class ApiHandler(ViewerRoutes):
             "/v1/demo/sessions": {"POST": sessions.create_demo_session},
             "/v1/status": {"GET": self._service_status},
             "/v1/schema": {"GET": self._schema},
+            "/v1/demo/frame": {"GET": self._demo_frame},
             STREAM_PATH: {"GET": WebSocketRoute(self, self.service, self.streams).upgrade},
         }
         for asset_path in ASSETS:

@@ -50,6 +50,7 @@ _ROUTES = (
     "/viewer/viewer.js",
     "/viewer/viewer.css",
     "/v1/stream",
+    "/v1/demo/frame",
 )
 #: Routes a health-reserve connection may use (see listener).
 HEALTH_ROUTES = ("/healthz", "/readyz", "/metrics")
