@@ -21,6 +21,7 @@ import pytest
 from service_harness import SMALL_SCENE, ServerProcess, ball
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
+from websockets.typing import Subprotocol
 from ws_client import PING, PONG, TEXT, RawWebSocket, frame_bytes
 
 from sphrender.core.protocol import (
@@ -138,7 +139,7 @@ def test_hello_frame_image_over_websocket_equals_the_raw_stream(server: ServerPr
 
 def test_subprotocol_is_selected_when_offered(server: ServerProcess) -> None:
     with connect(
-        ws_url(server), additional_headers=BEARER, subprotocols=["sphrender.stream.v1"]
+        ws_url(server), additional_headers=BEARER, subprotocols=[Subprotocol("sphrender.stream.v1")]
     ) as ws:
         assert ws.subprotocol == "sphrender.stream.v1"
         hello(ws)
@@ -175,7 +176,12 @@ def test_latest_mode_drops_superseded_frames_over_websocket(server: ServerProces
         ws.send(encode_message(MessageType.HELLO, {"scene": scene, "mode": "latest"}))
         assert decode(ws.recv(timeout=60))[1]["mode"] == "latest"
         frames = [encode_frame(i, ball(2000, seed=i)) for i in range(count)]
-        sender = threading.Thread(target=lambda: [ws.send(f) for f in frames])
+
+        def send_all() -> None:
+            for data in frames:
+                ws.send(data)
+
+        sender = threading.Thread(target=send_all)
         sender.start()
         answers = [decode(ws.recv(timeout=60)) for _ in range(count)]
         sender.join(30)

@@ -132,13 +132,13 @@ class RawWebSocket:
                 return kind, header, body
             assert opcode in (PING, PONG), opcode
 
-    def until_close(self, limit: int = 100) -> tuple[list[Any], tuple[str, int, str]]:
+    def until_close(self, limit: int = 100) -> tuple[list[Any], Any]:
         """The stream messages before the server's Close, and the Close."""
-        seen = []
+        seen: list[Any] = []
         for _ in range(limit):
             answer = self.receive()
             if answer[0] == "close":
-                return seen, answer  # type: ignore[return-value]
+                return seen, answer
             seen.append(answer)
         raise AssertionError(f"no Close after {limit} messages")
 

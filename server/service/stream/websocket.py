@@ -118,7 +118,7 @@ class WebSocketChannel(Channel):
     ) -> None:
         view = memoryview(buffer).cast("B")
         first = idle_deadline is not None
-        if first:
+        if idle_deadline is not None:
             idle_deadline = self._take_boundary(deadline, idle_deadline)
         got = 0
         while got < len(view):
@@ -145,7 +145,7 @@ class WebSocketChannel(Channel):
                         "this one ended inside a stream message",
                     )
 
-    def _take_boundary(self, deadline: float, idle_deadline: float) -> float:
+    def _take_boundary(self, deadline: float, idle_deadline: float | None) -> float | None:
         """Before a stream message: the previous WebSocket message must be over. Bytes it
         carried past its stream message are read to its end (so its size decides: 1009 once
         over the limit, else 1002), never kept."""
