@@ -318,6 +318,12 @@ def test_idle_and_slow_clients_follow_the_streams_timeouts(server: ServerProcess
         seen, close = ws.until_close()
     assert [(k, h["code"]) for k, h, _p in seen] == [(MessageType.ERROR, "timeout")]
     assert close[1] == 1008 and "message_timeout_s" in close[2]
+    with raw_open(server) as ws:  # a frame's head without its data: the message has begun
+        raw_hello(ws)
+        ws.send(frame_bytes(0x2, bytes(100))[:6])
+        seen, close = ws.until_close()
+    assert [(k, h["code"]) for k, h, _p in seen] == [(MessageType.ERROR, "timeout")]
+    assert close[1] == 1008 and "message_timeout_s" in close[2]
 
 
 def test_close_from_the_client_ends_the_session(server: ServerProcess) -> None:

@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import socket
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from typing import Any
@@ -95,10 +96,14 @@ class WebSocketChannel(Channel):
         *,
         trailing: bytes,
         max_message_bytes: int,
+        message_timeout_s: float,
         gone: Callable[[], None],
         **options: Any,
     ) -> None:
         super().__init__(sock, **options)
+        self._message_timeout_s = message_timeout_s
+        #: When bytes of a frame that has yielded nothing yet arrived: a message has begun.
+        self._partial_since: float | None = None
         self._ws = Connection(ConnectionType.SERVER)
         self._lock = threading.Lock()  # wsproto's state and whole frames on the socket
         self._unfed = trailing  # bytes that came with the upgrade request
@@ -124,6 +129,10 @@ class WebSocketChannel(Channel):
         while got < len(view):
             if not self._chunks:
                 starting = first and not got and not self._in_message
+                if starting and self._partial_since is not None:  # a frame has begun
+                    limit = self._partial_since + self._message_timeout_s
+                    self._pull(limit, True, None)
+                    continue
                 idle_deadline = self._pull(deadline, not starting, idle_deadline)
                 continue
             data, ends = self._chunks[0]
@@ -185,6 +194,10 @@ class WebSocketChannel(Channel):
         with self._lock:
             self._ws.receive_data(data)
             events = list(self._ws.events())
+        if events:
+            self._partial_since = None
+        elif self._partial_since is None:
+            self._partial_since = time.monotonic()
         for event in events:
             self._handle(event)
         return idle_deadline
@@ -208,7 +221,7 @@ class WebSocketChannel(Channel):
             self._send_event(event.response())
         elif isinstance(event, CloseConnection):
             if self._ws.state is ConnectionState.REMOTE_CLOSING:  # the client's Close
-                self._send_event(event.response())
+                self._send_event(CloseConnection(code=1000, reason="closed by the client"))
                 self._closing = True
                 self._gone()
                 raise Closed("client_close")
@@ -280,6 +293,7 @@ class WebSocketConnection(StreamConnection):
             sock,
             trailing=self._trailing,
             max_message_bytes=max_message_bytes(self.service),
+            message_timeout_s=self.config.message_timeout_s,
             gone=self.answers.dead.set,
             **self._channel_options(),
         )
