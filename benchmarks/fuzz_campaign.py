@@ -11,7 +11,8 @@ Starts a server with the default settings (ephemeral ports), then runs side by s
 * an **HTTP** fuzzer on keep-alive connections.
 
 With ``--websocket`` the same campaign runs on the WebSocket transport instead (``GET
-/v1/stream``, PROTOCOL.md §10; a server with a token and ``stream.max_payload_bytes`` of 1 MiB):
+/v1/stream``, PROTOCOL.md §10; a server with a token, ``stream.max_payload_bytes`` of 1 MiB and
+``stream.message_timeout_s`` of 3 s):
 the well-behaved client streams over a WebSocket, 2 frame-level fuzzers send fragmented
 FRAMEs with pings between fragments, and 2 connection-level fuzzers send
 `tests/fuzz_ws_inputs.py`'s inputs (bad origin and token, bad upgrades, garbage, unmasked,
@@ -127,7 +128,12 @@ def fuzz_http(port: int, seed: int, stop: threading.Event, tally: Tally) -> None
 
 
 WS_TOKEN = "fuzz-campaign-token-0123456789"
-WS_CONFIG = {"security": {"token": WS_TOKEN}, "stream": {"max_payload_bytes": 1 << 20}}
+#: A message that has begun must end within 3 s here (30 s by default), below the fuzzers' 8 s
+#: wait for a Close: random bytes often form a frame header announcing more than follows.
+WS_CONFIG = {
+    "security": {"token": WS_TOKEN},
+    "stream": {"max_payload_bytes": 1 << 20, "message_timeout_s": 3.0},
+}
 WS_MAX_MESSAGE = 16 + 65536 + (1 << 20)
 
 

@@ -192,8 +192,12 @@ def _run_after_upgrade(
     ws = ws_hello(port, token, rng)
     try:
         ws.sock.settimeout(timeout)
+        # Then BYE: an input the server answers without closing (a FRAME error) ends with
+        # GOODBYE and Close 1000 instead of waiting for the idle timeout.
+        bye = frame_bytes(BINARY, encode_message(MessageType.BYE, {}))
+        sent = _after_upgrade(kind, rng, max_message) + bye
         with contextlib.suppress(OSError):  # the server may close before taking it all
-            ws.send(_after_upgrade(kind, rng, max_message))
+            ws.send(sent)
         start = time.monotonic()
         while True:
             try:
@@ -201,9 +205,10 @@ def _run_after_upgrade(
             except (TimeoutError, EOFError, ConnectionError) as exc:
                 if isinstance(exc, TimeoutError):
                     tally.hangs += 1
-                    tally.note(f"ws {kind}: no Close within {timeout} s")
+                    tally.note(f"ws {kind}: no Close within {timeout} s after {sent[:48]!r}")
                 else:
                     tally.note(f"ws {kind}: closed without a Close frame")
+                    tally.bad_texts += 1
                 return
             if answer[0] == "close":
                 _check_close(kind, answer, tally)
