@@ -22,7 +22,7 @@ from service_harness import SMALL_SCENE, ServerProcess, ball
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 from websockets.typing import Subprotocol
-from ws_client import PING, PONG, TEXT, RawWebSocket, frame_bytes
+from ws_client import PING, PONG, TEXT, RawWebSocket, frame_bytes, upgrade_request
 
 from sphrender.core.protocol import (
     PREFIX,
@@ -340,3 +340,35 @@ def test_metrics_count_the_upgrades(server: ServerProcess) -> None:
     text = server.metrics_text(BEARER)
     assert 'route="/v1/stream",code="101"' in text
     assert 'route="/v1/stream",code="403"' in text
+
+
+def test_watch_pushes_a_sessions_images_until_it_ends(server: ServerProcess) -> None:
+    with RawWebSocket(server.http_port) as ws:  # unknown session: 404 before any upgrade
+        ws.sock.sendall(upgrade_request(server.http_port, f"/v1/sessions/{'0' * 32}/watch", BEARER))
+        status, _f, body = ws.read_answer()
+    assert (status, json.loads(body)["field"]) == (404, "session")
+    with server.stream() as client:
+        session = client.hello(token=TOKEN)["session"]
+        with RawWebSocket(server.http_port) as watcher:
+            watcher.sock.sendall(
+                upgrade_request(server.http_port, f"/v1/sessions/{session}/watch", BEARER)
+            )
+            assert watcher.read_answer()[0] == 101
+            images = []
+            for frame_id in (1, 2):
+                client.frame(frame_id, ball(400, seed=frame_id))
+                kind, _header, image = client.receive()
+                assert kind == MessageType.IMAGE
+                images.append(image)
+                pushed_kind, pushed, data = watcher.receive()
+                assert (pushed_kind, pushed["image"], pushed["session"]) == (
+                    MessageType.IMAGE,
+                    frame_id,
+                    session,
+                )
+                assert data == image
+            client.send(encode_message(MessageType.BYE, {}))
+            assert client.receive()[1] == {"reason": "bye"}
+            seen, close = watcher.until_close()
+    assert [(k, h) for k, h, _p in seen] == [(MessageType.GOODBYE, {"reason": "session_closed"})]
+    assert close[1] == 1000

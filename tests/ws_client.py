@@ -67,6 +67,10 @@ class RawWebSocket:
     ) -> tuple[int, dict[str, str], bytes]:
         """Upgrade (after `before`); (status, headers, body) where a refusal has a body."""
         self.sock.sendall(before + upgrade_request(self.port, headers=headers))
+        return self.read_answer()
+
+    def read_answer(self) -> tuple[int, dict[str, str], bytes]:
+        """The HTTP answer to an upgrade request: (status, headers, body)."""
         while b"\r\n\r\n" not in self._buffer:
             chunk = self.sock.recv(65536)
             if not chunk:

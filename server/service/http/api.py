@@ -12,6 +12,7 @@ Routes::
     GET    /healthz  /readyz  /v1/info  /metrics
     GET    /  /viewer/*  /v1/status  /v1/schema  /v1/sessions/{id}/latest   (viewer.py)
     GET    /v1/stream                 WebSocket upgrade onto the stream (websocket_route.py)
+    GET    /v1/sessions/{id}/watch    WebSocket pushing a session's new images (watch_route.py)
 
 ``POST /v1/sessions`` and ``GET /v1/sessions/{id}`` return the resolved scene (every default
 filled in, `scene_to_dict`); frame overrides are merged onto the scene as the client sent it.
@@ -51,10 +52,12 @@ from sphrender.server.service.http.handler import (
     SESSION_FRAMES_PATH,
     SESSION_LATEST_PATH,
     SESSION_PATH,
+    SESSION_WATCH_PATH,
 )
 from sphrender.server.service.http.listener import SphrenderHttpServer
 from sphrender.server.service.http.session_routes import SessionRoutes
 from sphrender.server.service.http.viewer import ASSETS, ViewerRoutes
+from sphrender.server.service.http.watch_route import watch_session
 from sphrender.server.service.http.websocket_route import STREAM_PATH, WebSocketRoute
 from sphrender.server.service.metrics import CONTENT_TYPE as METRICS_CONTENT_TYPE
 from sphrender.server.service.stream.registry import StreamConnections
@@ -169,6 +172,9 @@ class ApiHandler(ViewerRoutes):
         if routes is None and (match := SESSION_LATEST_PATH.match(path)):
             sid = match.group(1)
             routes = {"GET": lambda: self._latest_image(sid)}
+        if routes is None and (match := SESSION_WATCH_PATH.match(path)):
+            sid = match.group(1)
+            routes = {"GET": lambda: watch_session(self, self.service, self.streams, sid)}
         if routes is None and (match := SESSION_FRAMES_PATH.match(path)):
             sid = match.group(1)
             routes = {"POST": lambda: frames.session_frame(sid)}

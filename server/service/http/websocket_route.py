@@ -46,6 +46,15 @@ class WebSocketRoute:
         self.table = table
 
     def upgrade(self) -> None:
+        trailing = self.accept()
+        http = self.http
+        WebSocketConnection(
+            http.connection, http.client_address, self.service, self.table, trailing=trailing
+        ).run()
+
+    def accept(self) -> bytes:
+        """Check the upgrade and answer 101; returns what the client sent after its request
+        (the start of its first frames). Every refusal raises `HttpError` before any 101."""
         headers = self.http.headers
         self._check_origin(headers.get("Origin"), headers.get("Host", ""))
         key = self._check_upgrade_headers()
@@ -66,10 +75,7 @@ class WebSocketRoute:
         http.end_headers()
         http.close_connection = True  # after the WebSocket, no more HTTP on this socket
         http._reader.detach()
-        trailing = http.rfile.read1(1 << 16) or b""
-        WebSocketConnection(
-            http.connection, http.client_address, self.service, self.table, trailing=trailing
-        ).run()
+        return http.rfile.read1(1 << 16) or b""
 
     def _check_origin(self, origin: str | None, host: str) -> None:
         if origin is None:

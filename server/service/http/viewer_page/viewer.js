@@ -8,8 +8,8 @@
 //        IMAGE (drawn) or DROPPED (superseded by a newer frame: latest-frame-wins)
 // and the HTTP API for the rest:
 //   GET  /v1/status, /v1/info                       every second / once
-//   GET  /v1/sessions/{id}/latest                    another session's latest image (any
-//        transport), polled with If-None-Match while that session is the one watched
+//   WS   /v1/sessions/{id}/watch                     another session's images (any transport),
+//        pushed as they come while that session is the one watched
 // With a token, open /?token=...: the server sets a cookie that authorises these requests and
 // the WebSocket upgrade (the X-Sphrender-Viewer header is required with it on POST and DELETE).
 //
@@ -48,8 +48,7 @@
     lastBody: null,
     timer: null,
     watch: null, // the id of the session watched instead of the demo, or null
-    watchTag: null,
-    watchTimer: null,
+    watchSocket: null,
   };
   const $ = (id) => document.getElementById(id);
 
@@ -142,47 +141,43 @@
     }
   }
 
-  async function pollWatched() {
-    const id = state.watch;
-    if (!id || state.stopped) return;
-    try {
-      const headers = { ...HEADERS };
-      if (state.watchTag) headers["If-None-Match"] = state.watchTag;
-      const response = await fetch(`/v1/sessions/${id}/latest`, {
-        headers,
-        cache: "no-store",
-        credentials: "same-origin",
-      });
+  // Another session's images, pushed on a WebSocket (GET /v1/sessions/{id}/watch) as they come.
+  function openWatch(id) {
+    const scheme = location.protocol === "https:" ? "wss" : "ws";
+    const socket = new WebSocket(`${scheme}://${location.host}/v1/sessions/${id}/watch`);
+    socket.binaryType = "arraybuffer";
+    socket.onmessage = async (event) => {
+      const { type, header, payload } = decodeMessage(event.data);
       if (id !== state.watch) return;
-      if (response.status === 200) {
-        const blob = await response.blob();
-        await draw(blob);
-        state.watchTag = response.headers.get("ETag");
-        const canvas = $("live");
-        canvas.dataset.source = id;
-        canvas.dataset.image = response.headers.get("X-Sphrender-Image") || "";
-        $("frame-info").textContent =
-          `session ${id.slice(0, 8)}, image ${canvas.dataset.image}: ` +
-          `${canvas.width}x${canvas.height}, ${blob.size} bytes`;
-        showError("");
-      } else if (response.status !== 304) {
-        const error = await response.json();
-        showError(`${error.field ? error.field + ": " : ""}${error.error}`);
+      if (type === TYPE.GOODBYE) {
+        showError(`session ${id.slice(0, 8)} ended`);
+        return;
       }
-    } catch (error) {
-      showError(String(error.message || error));
-    }
+      if (type !== TYPE.IMAGE) return;
+      const blob = new Blob([payload], { type: `image/${header.format}` });
+      await draw(blob);
+      const canvas = $("live");
+      canvas.dataset.source = id;
+      canvas.dataset.image = String(header.image);
+      $("frame-info").textContent =
+        `session ${id.slice(0, 8)}, image ${header.image}: ` +
+        `${canvas.width}x${canvas.height}, ${blob.size} bytes`;
+      showError("");
+    };
+    socket.onclose = (event) => {
+      if (id === state.watch && event.code !== 1000) showError(closeText(event));
+    };
+    return socket;
   }
 
-  async function watch(id) {
+  function watch(id) {
     state.watch = id === "demo" ? null : id;
-    state.watchTag = null;
-    clearInterval(state.watchTimer);
+    if (state.watchSocket) state.watchSocket.close(1000, "watching another");
+    state.watchSocket = null;
     $("hint").hidden = state.watch !== null;
     $("source").value = id;
     if (state.watch) {
-      state.watchTimer = setInterval(pollWatched, 250);
-      await pollWatched();
+      state.watchSocket = openWatch(state.watch);
     } else {
       $("live").dataset.source = "demo";
       renderFrame();
@@ -470,7 +465,6 @@
   function stop() {
     state.stopped = true;
     clearInterval(state.timer);
-    clearInterval(state.watchTimer);
   }
 
   window.addEventListener("pagehide", () => {
@@ -481,7 +475,7 @@
   });
 
   // For tests and the console: the page's state and its two actions.
-  window.sphrenderViewer = { state, refreshStatus, renderFrame, stop, watch, pollWatched };
+  window.sphrenderViewer = { state, refreshStatus, renderFrame, stop, watch };
 
   async function start() {
     $("spin").checked = params.get("spin") === "1";
