@@ -19,9 +19,9 @@ step), served from memory. It streams the demo over the WebSocket (``GET /v1/str
 on ``GET /v1/sessions/{id}/watch`` (`watch_route`); it polls only for status. It is behind
 the same token rule as the API: with a token configured, open ``/?token=<token>`` once; the
 server answers 303 to ``/`` with the token in an HttpOnly, SameSite=Strict cookie, so the
-token leaves the address bar and
-history, and the page's own requests (the WebSocket upgrade included) carry the cookie (plus
-the ``X-Sphrender-Viewer`` header on POST/DELETE; see `HandlerBase._check_auth`).
+token leaves the address bar and history, and the page's own requests (the WebSocket upgrades
+included) carry the cookie (plus the ``X-Sphrender-Viewer`` header on POST/DELETE; see
+`HandlerBase._check_auth`).
 """
 
 from __future__ import annotations
