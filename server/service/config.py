@@ -116,7 +116,8 @@ class StreamConfig:
     )
     max_connections: int = spec(
         32,
-        "concurrent stream connections (separate from limits.max_sessions). When full, a "
+        "concurrent stream connections, the stream port's and WebSocket ones (GET /v1/stream) "
+        "together, separate from limits.max_sessions. When full, a "
         "connection still waiting for its HELLO after 1 s, or else the session idle longest "
         "(past stream.evict_idle_s), is closed to make room",
         low=1,
