@@ -11,6 +11,7 @@ change nothing about a frame.
 from __future__ import annotations
 
 import json
+import random
 import struct
 import threading
 import time
@@ -18,6 +19,8 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
+from fuzz_inputs import Tally
+from fuzz_ws_inputs import run_ws_connection_input, run_ws_frame_batch, ws_hello
 from service_harness import SMALL_SCENE, ServerProcess, ball
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
@@ -372,3 +375,20 @@ def test_watch_pushes_a_sessions_images_until_it_ends(server: ServerProcess) -> 
             seen, close = watcher.until_close()
     assert [(k, h) for k, h, _p in seen] == [(MessageType.GOODBYE, {"reason": "session_closed"})]
     assert close[1] == 1000
+
+
+def test_seeded_hostile_inputs_each_end_clearly(server: ServerProcess) -> None:
+    """A bounded run of the campaign's WebSocket inputs (benchmarks/fuzz_campaign.py
+    --websocket): every connection ends with a JSON error or a documented Close code and a
+    clear reason, promptly; pipelined fragmented bad FRAMEs get one non-fatal answer each."""
+    tally = Tally()
+    rng = random.Random(20261206)
+    for _ in range(90):
+        run_ws_connection_input(server.http_port, TOKEN, rng, tally, MAX_MESSAGE)
+    ws = ws_hello(server.http_port, TOKEN, rng)
+    for batch in range(4):
+        run_ws_frame_batch(ws, rng, 1 + 8 * batch, 8, tally)
+    ws.close()
+    assert (tally.hangs, tally.bad_texts, tally.server_errors) == (0, 0, 0), tally.notes
+    assert tally.texts >= 90
+    check_still_serving(server)
