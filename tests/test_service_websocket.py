@@ -12,10 +12,12 @@ from __future__ import annotations
 
 import json
 import random
+import signal
 import struct
 import threading
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -392,3 +394,27 @@ def test_seeded_hostile_inputs_each_end_clearly(server: ServerProcess) -> None:
     assert (tally.hangs, tally.bad_texts, tally.server_errors) == (0, 0, 0), tally.notes
     assert tally.texts >= 90
     check_still_serving(server)
+
+
+def test_drain_says_goodbye_on_websockets_and_exits_0(tmp_path: Path) -> None:
+    """SIGTERM: a WebSocket stream gets GOODBYE shutdown and Close 1001, a watcher Close 1001,
+    and the process still exits 0 (the drain reaches connections of both transports)."""
+    with ServerProcess(tmp_path, CONFIG) as process:
+        stream = raw_open(process)
+        raw_hello(stream)
+        stream.send_message(encode_frame(1, ball(300)))
+        assert stream.receive()[0] == MessageType.IMAGE
+        session = process.json("GET", "/v1/status", headers=BEARER)[1]["session_list"][0]["id"]
+        watcher = RawWebSocket(process.http_port)
+        path = f"/v1/sessions/{session}/watch"
+        watcher.sock.sendall(upgrade_request(process.http_port, path, BEARER))
+        assert watcher.read_answer()[0] == 101
+        assert watcher.receive()[0] == MessageType.IMAGE  # the latest, at once
+        process.proc.send_signal(signal.SIGTERM)
+        seen, close = stream.until_close()
+        assert [(k, h) for k, h, _p in seen] == [(MessageType.GOODBYE, {"reason": "shutdown"})]
+        assert close[1] == 1001
+        assert watcher.until_close()[1][1] == 1001
+        assert process.proc.wait(60) == 0
+        stream.close()
+        watcher.close()
