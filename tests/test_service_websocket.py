@@ -418,3 +418,13 @@ def test_drain_says_goodbye_on_websockets_and_exits_0(tmp_path: Path) -> None:
         assert process.proc.wait(60) == 0
         stream.close()
         watcher.close()
+
+
+def test_frames_sent_with_the_upgrade_request_are_kept(server: ServerProcess) -> None:
+    """A client that does not wait for the 101 (RFC 6455 says it should): the frames that came
+    in the same packets as its request are the start of the WebSocket, not lost."""
+    with RawWebSocket(server.http_port) as ws:
+        hello = frame_bytes(0x2, HELLO)
+        ws.send(upgrade_request(server.http_port, headers=BEARER) + hello)
+        assert ws.read_answer()[0] == 101
+        assert ws.receive()[0] == MessageType.WELCOME
