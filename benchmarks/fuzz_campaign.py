@@ -10,6 +10,16 @@ Starts a server with the default settings (ephemeral ports), then runs side by s
   **connection-level** fuzzer (one connection per input), from `tests/fuzz_inputs.py`;
 * an **HTTP** fuzzer on keep-alive connections.
 
+With ``--websocket`` the same campaign runs on the WebSocket transport instead (``GET
+/v1/stream``, PROTOCOL.md §10; a server with a token, ``stream.max_payload_bytes`` of 1 MiB and
+``stream.message_timeout_s`` of 3 s):
+the well-behaved client streams over a WebSocket, 2 frame-level fuzzers send fragmented
+FRAMEs with pings between fragments, and 2 connection-level fuzzers send
+`tests/fuzz_ws_inputs.py`'s inputs (bad origin and token, bad upgrades, garbage, unmasked,
+reserved bits, bad opcodes and control frames, text, oversized, random bytes, stream garbage in
+binary messages), each of which must end in a JSON error or a documented Close code with a
+clear reason.
+
 At the end: the server must still be alive and answer /healthz, the renderer must never have
 been restarted (``sphrender_worker_restarts_total``), and the server's threads and open files
 must be back near their start. Every error text of every answer is checked
@@ -45,6 +55,7 @@ from fuzz_inputs import (
     run_http_input,
     stream_hello,
 )
+from fuzz_ws_inputs import run_ws_connection_input, run_ws_frame_batch, ws_hello
 from service_harness import ServerProcess
 
 from sphrender.core.protocol import encode_frame, encode_npz_frame
@@ -116,6 +127,86 @@ def fuzz_http(port: int, seed: int, stop: threading.Event, tally: Tally) -> None
     http.close()
 
 
+WS_TOKEN = "fuzz-campaign-token-0123456789"
+#: A message that has begun must end within 3 s here (30 s by default), below the fuzzers' 8 s
+#: wait for a Close: random bytes often form a frame header announcing more than follows.
+WS_CONFIG = {
+    "security": {"token": WS_TOKEN},
+    "stream": {"max_payload_bytes": 1 << 20, "message_timeout_s": 3.0},
+}
+WS_MAX_MESSAGE = 16 + 65536 + (1 << 20)
+
+
+def good_ws_client(http_port: int, stop: threading.Event, result: dict[str, Any]) -> None:
+    frame = encode_frame(0, np.random.default_rng(7).normal(size=(400, 3)) * 0.15)
+    reference: bytes | None = None
+    ws = ws_hello(http_port, WS_TOKEN, random.Random(3), timeout=30)
+    while not stop.is_set():
+        ws.send_message(frame)
+        answer = ws.receive()
+        result["frames"] += 1
+        if answer[0] != 0x82:
+            result["errors"] += 1
+            result.setdefault("notes", []).append(str(answer)[:200])
+            continue
+        reference = reference or answer[2]
+        result["mismatches"] += answer[2] != reference
+    ws.close()
+
+
+def fuzz_ws_frames(port: int, seed: int, stop: threading.Event, tally: Tally) -> None:
+    rng = random.Random(seed)
+    ws = ws_hello(port, WS_TOKEN, rng)
+    next_id = 1
+    while not stop.is_set():
+        try:
+            run_ws_frame_batch(ws, rng, next_id, 8, tally)
+            next_id += 8
+        except (EOFError, TimeoutError, ConnectionError, OSError):
+            ws.close()
+            ws = ws_hello(port, WS_TOKEN, rng)
+    ws.close()
+
+
+def fuzz_ws_connections(port: int, seed: int, stop: threading.Event, tally: Tally) -> None:
+    rng = random.Random(seed)
+    while not stop.is_set():
+        try:
+            run_ws_connection_input(port, WS_TOKEN, rng, tally, WS_MAX_MESSAGE)
+        except (ConnectionError, OSError, AssertionError) as exc:
+            tally.note(f"ws connection fuzzer: {exc!r}")
+
+
+def worker_threads(
+    server: ServerProcess,
+    seed: int,
+    stop: threading.Event,
+    tally: Tally,
+    good: dict[str, Any],
+    websocket: bool,
+    frame_workers: int,
+    http_workers: int,
+) -> list[threading.Thread]:
+    """The campaign's clients (module docstring), on the stream port or the WebSocket."""
+    calls: list[tuple[Any, tuple[Any, ...]]] = []
+    if websocket:
+        calls.append((good_ws_client, (server.http_port, stop, good)))
+        for i in range(frame_workers):
+            calls.append((fuzz_ws_frames, (server.http_port, seed * 100 + i, stop, tally)))
+        for i in range(2):
+            calls.append(
+                (fuzz_ws_connections, (server.http_port, seed * 100 + 50 + i, stop, tally))
+            )
+    else:
+        calls.append((good_client, (server.stream_port, server.http_port, stop, good)))
+        for i in range(frame_workers):
+            calls.append((fuzz_frames, (server.stream_port, seed * 100 + i, stop, tally)))
+        calls.append((fuzz_connections, (server.stream_port, seed * 100 + 50, stop, tally)))
+        for i in range(http_workers):
+            calls.append((fuzz_http, (server.http_port, seed * 100 + 70 + i, stop, tally)))
+    return [threading.Thread(target=target, args=args, daemon=True) for target, args in calls]
+
+
 def non_json_lines(text: str) -> int:
     """Lines of a log that are not one JSON object each."""
     count = 0
@@ -128,43 +219,28 @@ def non_json_lines(text: str) -> int:
 
 
 def campaign(
-    seconds: float, seed: int, frame_workers: int = 2, http_workers: int = 2
+    seconds: float,
+    seed: int,
+    frame_workers: int = 2,
+    http_workers: int = 2,
+    websocket: bool = False,
 ) -> dict[str, Any]:
     tally = Tally()
     good: dict[str, Any] = {"frames": 0, "errors": 0, "mismatches": 0, "http_frames": 0}
     good["http_errors"] = 0
     with tempfile.TemporaryDirectory() as tmp:
         env = {"PYTHONFAULTHANDLER": "1"}
-        with ServerProcess(Path(tmp), {}, env=env) as server:
+        config = WS_CONFIG if websocket else {}
+        with ServerProcess(Path(tmp), config, env=env) as server:
             pid = server.proc.pid
             time.sleep(0.5)
             start_counts = proc_counts(pid)
             stop = threading.Event()
-            threads = [
-                threading.Thread(
-                    target=good_client, args=(server.stream_port, server.http_port, stop, good)
-                )
-            ]
-            for i in range(frame_workers):
-                threads.append(
-                    threading.Thread(
-                        target=fuzz_frames, args=(server.stream_port, seed * 100 + i, stop, tally)
-                    )
-                )
-            threads.append(
-                threading.Thread(
-                    target=fuzz_connections, args=(server.stream_port, seed * 100 + 50, stop, tally)
-                )
+            threads = worker_threads(
+                server, seed, stop, tally, good, websocket, frame_workers, http_workers
             )
-            for i in range(http_workers):
-                threads.append(
-                    threading.Thread(
-                        target=fuzz_http, args=(server.http_port, seed * 100 + 70 + i, stop, tally)
-                    )
-                )
             started = time.monotonic()
             for thread in threads:
-                thread.daemon = True
                 thread.start()
             stop.wait(seconds)
             stop.set()
@@ -173,7 +249,8 @@ def campaign(
             elapsed = time.monotonic() - started
             alive = server.proc.poll() is None
             health = server.json("GET", "/healthz", timeout=10)[0] if alive else 0
-            metrics = server.metrics_text() if alive else ""
+            auth = {"Authorization": f"Bearer {WS_TOKEN}"} if websocket else None
+            metrics = server.metrics_text(auth) if alive else ""
             restarts = sum(
                 float(line.rsplit(" ", 1)[1])
                 for line in metrics.splitlines()
@@ -183,6 +260,7 @@ def campaign(
             end_counts = proc_counts(pid) if alive else (0, 0)
             log_text = server.logs()
     return {
+        "transport": "websocket" if websocket else "stream+http",
         "seed": seed,
         "seconds": round(elapsed, 1),
         "inputs": tally.inputs,
@@ -213,8 +291,9 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, default=120.0)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--out", type=Path)
+    parser.add_argument("--websocket", action="store_true", help="fuzz GET /v1/stream instead")
     args = parser.parse_args()
-    report = campaign(args.seconds, args.seed)
+    report = campaign(args.seconds, args.seed, websocket=args.websocket)
     text = json.dumps(report, indent=2)
     print(text)
     if args.out:

@@ -8,7 +8,9 @@ What the browser test asserts, and why it is exact:
 * the live view shows the server's frame: the page hashes the RGBA bytes of its canvas (FNV-1a)
   after drawing the PNG (decoded without colour conversion or premultiplication; the demo's
   background is the environment, so alpha is 255 everywhere and nothing is rounded), and the
-  test renders the same frame (the same session and request body) and hashes its own decode.
+  test sends the same FRAME (the page's HELLO scene, the demo's arrays, the page's camera) on
+  a raw stream connection and hashes its own decode. The page streams over the WebSocket
+  (/v1/stream), and /metrics must show it made no HTTP frame request.
   The renderer is deterministic for a fixed build (see test_service_http.py), so any
   difference is a real one;
 * the status the page shows is the server's: each value is compared with GET /v1/status read
@@ -32,7 +34,13 @@ import pytest
 from browser_harness import Browser
 from service_harness import SMALL_SCENE, ServerProcess, ball, png_pixels
 
-from sphrender.core.protocol import MessageType
+from sphrender.core.protocol import (
+    PREFIX_SIZE,
+    MessageType,
+    encode_message,
+    parse_header,
+    parse_prefix,
+)
 from sphrender.server.scene import Scene, scene_to_dict
 from sphrender.server.scene.json_schema import scene_json_schema_text
 
@@ -165,6 +173,19 @@ READ_SHOWN = (
 )
 
 
+def decode_message(data: bytes) -> tuple[MessageType, dict[str, Any], bytes]:
+    kind, hlen, _plen = parse_prefix(
+        data[:PREFIX_SIZE], max_header_bytes=1 << 20, max_payload_bytes=1 << 30
+    )
+    return kind, parse_header(data[PREFIX_SIZE : PREFIX_SIZE + hlen]), data[PREFIX_SIZE + hlen :]
+
+
+def http_frame_counts(server: ServerProcess) -> list[str]:
+    """The /metrics lines counting HTTP frame requests (the page must add none)."""
+    text = server.metrics_text(AUTH)
+    return [line for line in text.splitlines() if 'route="/v1/sessions/{id}/frames"' in line]
+
+
 def same(shown: str, value: Any) -> bool:
     return shown == value if isinstance(value, str) else float(shown) == float(value)
 
@@ -214,6 +235,7 @@ def check_screenshot(browser: Browser, rect: list[float], tmp_path: Path) -> Non
 def test_the_page_in_chromium_shows_the_servers_status_and_frames(
     server: ServerProcess, tmp_path: Path
 ) -> None:
+    http_frames_before = http_frame_counts(server)
     with Browser(tmp_path / "profile") as browser:
         browser.command("Page.enable")
         url = f"http://127.0.0.1:{server.http_port}/?token={TOKEN}&width=480&height=270"
@@ -238,7 +260,7 @@ def test_the_page_in_chromium_shows_the_servers_status_and_frames(
         browser.command("Input.dispatchMouseEvent", type="mouseReleased", x=x + 60, y=y + 15,
                         button="left", buttons=0, clickCount=1)  # fmt: skip
         browser.wait_for(
-            "window.sphrenderViewer.state.inFlight === null && "
+            "window.sphrenderViewer.state.inFlight === 0 && "
             "!window.sphrenderViewer.state.dirty && "
             f"window.sphrenderViewer.state.frames > {first['frames']}",
             timeout=150,
@@ -252,14 +274,24 @@ def test_the_page_in_chromium_shows_the_servers_status_and_frames(
         )
         assert moved["fnv1a"] != first["fnv1a"]
 
-        # The canvas holds exactly the server's frame for that request.
-        status, _headers, data = server.request(
-            "POST",
-            f"/v1/sessions/{moved['session']}/frames?format=png",
-            moved["body"].encode(),
-            {**AUTH, "Content-Type": "application/json"},
-        )
+        # The page streamed over the WebSocket, not over HTTP frames.
+        assert 'route="/v1/stream",code="101"' in server.metrics_text(AUTH)
+        assert http_frame_counts(server) == http_frames_before
+        assert browser.evaluate("window.sphrenderViewer.state.socket.readyState") == 1
+
+        # The canvas holds exactly the server's frame for that FRAME: the same HELLO scene, the
+        # demo's arrays and the page's camera, sent again on a raw stream connection.
+        hello_scene = browser.evaluate("window.sphrenderViewer.state.helloScene")
+        status, _headers, demo = server.request("GET", "/v1/demo/frame", headers=AUTH)
         assert status == 200
+        kind, demo_header, demo_payload = decode_message(demo)
+        assert kind == MessageType.FRAME and demo_header["id"] == 0
+        header = {"id": 1, "arrays": demo_header["arrays"], **json.loads(moved["body"])}
+        with server.stream() as client:
+            client.hello(hello_scene, token=TOKEN)
+            client.send(encode_message(MessageType.FRAME, header, demo_payload))
+            kind, answer, data = client.receive()
+            assert kind == MessageType.IMAGE, answer
         pixels = png_pixels(data, tmp_path)
         assert pixels.shape == (270, 480, 4) and (pixels[..., 3] == 255).all()
         assert pixels[..., :3].std() > 8  # a picture, not a flat fill
@@ -276,7 +308,8 @@ def test_the_page_in_chromium_shows_the_servers_status_and_frames(
             assert kind == MessageType.IMAGE and header["format"] == "png", header
             stream_pixels = png_pixels(payload, tmp_path)
             assert (stream_pixels[..., 3] == 255).all()
-            stream_id = server.json("GET", "/v1/status", headers=AUTH)[1]["session_list"][0]
+            listed = server.json("GET", "/v1/status", headers=AUTH)[1]["session_list"]
+            stream_id = next(s for s in listed if s["id"] != moved["session"])
             assert stream_id["transport"] == "stream" and stream_id["images"] == 1
             browser.evaluate("window.sphrenderViewer.refreshStatus()")
             options = browser.evaluate(
@@ -298,7 +331,8 @@ def test_the_page_in_chromium_shows_the_servers_status_and_frames(
             info = server.json("GET", "/v1/info", headers=AUTH)[1]
             assert shown_status["renderer"] == info["gl"]["renderer"]
             assert shown_status["frames_total"]["image"] >= 4  # page 2+, here 1, stream 1
-            assert shown_status["sessions"] == {"http": 1, "stream": 1}  # the demo + ours
+            # The page's WebSocket session + ours.
+            assert shown_status["sessions"] == {"http": 0, "stream": 2}
 
 
 def test_the_pages_files_are_package_data() -> None:

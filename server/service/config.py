@@ -116,7 +116,8 @@ class StreamConfig:
     )
     max_connections: int = spec(
         32,
-        "concurrent stream connections (separate from limits.max_sessions). When full, a "
+        "concurrent stream connections, the stream port's and WebSocket ones (GET /v1/stream) "
+        "together, separate from limits.max_sessions. When full, a "
         "connection still waiting for its HELLO after 1 s, or else the session idle longest "
         "(past stream.evict_idle_s), is closed to make room",
         low=1,
@@ -207,6 +208,11 @@ class SecurityConfig:
     )
     allow_remote_without_token: bool = spec(
         False, "allow binding a non-loopback address without a token (not recommended)"
+    )
+    allowed_origins: tuple[str, ...] = spec(
+        (),
+        "web origins (scheme://host[:port]) besides the server's own whose pages may open the "
+        "WebSocket stream (GET /v1/stream); a request with another Origin gets 403",
     )
     environment_dirs: tuple[str, ...] = spec(
         (), "directories environment maps ([environment] file) may be read from; empty = none"

@@ -23,6 +23,7 @@ from sphrender.server.service.http.api import make_http_server
 from sphrender.server.service.http.listener import SphrenderHttpServer
 from sphrender.server.service.logs import configure_logging
 from sphrender.server.service.stream.listener import StreamServer, make_stream_server
+from sphrender.server.service.stream.registry import StreamConnections
 
 log = logging.getLogger("sphrender.service")
 
@@ -36,11 +37,11 @@ class Listeners:
         self.service = service
         self.http_server: SphrenderHttpServer | None = None
         self.stream_server: StreamServer | None = None
+        #: Stream connections over both transports (the stream port and WebSocket upgrades).
+        self.streams = StreamConnections(service.config.stream)
         self._threads: list[threading.Thread] = []
         service.metrics.transport.open_connections.set_callback(
-            lambda: [
-                ((), 0.0 if self.stream_server is None else self.stream_server.open_connections())
-            ]
+            lambda: [((), float(self.streams.open_connections()))]
         )
 
     # -- start / stop ---------------------------------------------------------------------------
@@ -54,9 +55,9 @@ class Listeners:
             raise service.worker.startup_error
         service.metrics.build_info.set(1, package_version("sphrender"), service.worker.gl_renderer)
         try:
-            self.http_server = http_server = make_http_server(service)
+            self.http_server = http_server = make_http_server(service, self.streams)
             if service.config.stream.enabled:
-                self.stream_server = make_stream_server(service)
+                self.stream_server = make_stream_server(service, self.streams)
         except BaseException:
             service.worker.kill()
             raise
@@ -102,10 +103,9 @@ class Listeners:
             if server is not None:
                 server.shutdown()  # stop accepting
                 server.server_close()
-        if self.stream_server is not None:
-            self.stream_server.drain_connections()
+        self.streams.drain_connections()
         while time.monotonic() < deadline:
-            streams = 0 if self.stream_server is None else self.stream_server.open_connections()
+            streams = self.streams.open_connections()
             if service.http_requests.count == 0 and streams == 0:
                 break
             time.sleep(0.05)

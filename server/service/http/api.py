@@ -11,6 +11,8 @@ Routes::
     POST   /v1/demo/sessions          optional partial scene over the demo's -> 201 {"id", "scene"}
     GET    /healthz  /readyz  /v1/info  /metrics
     GET    /  /viewer/*  /v1/status  /v1/schema  /v1/sessions/{id}/latest   (viewer.py)
+    GET    /v1/stream                 WebSocket upgrade onto the stream (websocket_route.py)
+    GET    /v1/sessions/{id}/watch    WebSocket pushing a session's new images (watch_route.py)
 
 ``POST /v1/sessions`` and ``GET /v1/sessions/{id}`` return the resolved scene (every default
 filled in, `scene_to_dict`); frame overrides are merged onto the scene as the client sent it.
@@ -35,7 +37,7 @@ validates; rendering happens on the render thread.
 from __future__ import annotations
 
 import logging
-from typing import Any
+from typing import Any, ClassVar
 from urllib.parse import parse_qs, urlsplit
 
 from sphrender.core.errors import InputError, show
@@ -50,17 +52,25 @@ from sphrender.server.service.http.handler import (
     SESSION_FRAMES_PATH,
     SESSION_LATEST_PATH,
     SESSION_PATH,
+    SESSION_WATCH_PATH,
 )
 from sphrender.server.service.http.listener import SphrenderHttpServer
 from sphrender.server.service.http.session_routes import SessionRoutes
 from sphrender.server.service.http.viewer import ASSETS, ViewerRoutes
+from sphrender.server.service.http.watch_route import watch_session
+from sphrender.server.service.http.websocket_route import STREAM_PATH, WebSocketRoute
 from sphrender.server.service.metrics import CONTENT_TYPE as METRICS_CONTENT_TYPE
+from sphrender.server.service.stream.registry import StreamConnections
 
 log = logging.getLogger("sphrender.service.http")
 
 
 class ApiHandler(ViewerRoutes):
-    """Request handler (routes and their work); `service` is bound by `make_handler`."""
+    """Request handler (routes and their work); `service` and `streams` are bound by
+    `make_handler`."""
+
+    #: The stream connections of both transports (WebSocket upgrades count in them).
+    streams: ClassVar[StreamConnections]
 
     def do_GET(self) -> None:
         self._dispatch("GET")
@@ -153,6 +163,8 @@ class ApiHandler(ViewerRoutes):
             "/v1/demo/sessions": {"POST": sessions.create_demo_session},
             "/v1/status": {"GET": self._service_status},
             "/v1/schema": {"GET": self._schema},
+            "/v1/demo/frame": {"GET": self._demo_frame},
+            STREAM_PATH: {"GET": WebSocketRoute(self, self.service, self.streams).upgrade},
         }
         for asset_path in ASSETS:
             table[asset_path] = {"GET": lambda p=asset_path: self._viewer_asset(p)}
@@ -160,6 +172,9 @@ class ApiHandler(ViewerRoutes):
         if routes is None and (match := SESSION_LATEST_PATH.match(path)):
             sid = match.group(1)
             routes = {"GET": lambda: self._latest_image(sid)}
+        if routes is None and (match := SESSION_WATCH_PATH.match(path)):
+            sid = match.group(1)
+            routes = {"GET": lambda: watch_session(self, self.service, self.streams, sid)}
         if routes is None and (match := SESSION_FRAMES_PATH.match(path)):
             sid = match.group(1)
             routes = {"POST": lambda: frames.session_frame(sid)}
@@ -191,19 +206,23 @@ class ApiHandler(ViewerRoutes):
         self._send(200, body, METRICS_CONTENT_TYPE)
 
 
-def make_handler(service: ServiceFacade) -> type[ApiHandler]:
+def make_handler(service: ServiceFacade, streams: StreamConnections) -> type[ApiHandler]:
     """A handler class with `service` bound (no module-level state)."""
     # `timeout` is StreamRequestHandler's per-read socket timeout.
-    attributes = {"service": service, "timeout": service.config.http.read_timeout_s}
+    attributes = {
+        "service": service,
+        "streams": streams,
+        "timeout": service.config.http.read_timeout_s,
+    }
     return type("BoundApiHandler", (ApiHandler,), attributes)
 
 
-def make_http_server(service: ServiceFacade) -> SphrenderHttpServer:
+def make_http_server(service: ServiceFacade, streams: StreamConnections) -> SphrenderHttpServer:
     config = service.config.http
     try:
         return SphrenderHttpServer(
             (config.host, config.port),
-            make_handler(service),
+            make_handler(service, streams),
             config.max_connections,
             config.health_connections,
         )

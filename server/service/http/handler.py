@@ -35,6 +35,7 @@ log = logging.getLogger("sphrender.service.http")
 SESSION_PATH = re.compile(r"^/v1/sessions/([0-9a-f]{32})$")
 SESSION_FRAMES_PATH = re.compile(r"^/v1/sessions/([0-9a-f]{32})/frames$")
 SESSION_LATEST_PATH = re.compile(r"^/v1/sessions/([0-9a-f]{32})/latest$")
+SESSION_WATCH_PATH = re.compile(r"^/v1/sessions/([0-9a-f]{32})/watch$")
 #: Fixed routes; anything else is reported as "other" so metric labels stay bounded.
 _ROUTES = (
     "/healthz",
@@ -49,6 +50,8 @@ _ROUTES = (
     "/",
     "/viewer/viewer.js",
     "/viewer/viewer.css",
+    "/v1/stream",
+    "/v1/demo/frame",
 )
 #: Routes a health-reserve connection may use (see listener).
 HEALTH_ROUTES = ("/healthz", "/readyz", "/metrics")
@@ -134,6 +137,8 @@ def route_label(path: str) -> str:
         return "/v1/sessions/{id}/frames"
     if SESSION_LATEST_PATH.match(path):
         return "/v1/sessions/{id}/latest"
+    if SESSION_WATCH_PATH.match(path):
+        return "/v1/sessions/{id}/watch"
     if SESSION_PATH.match(path):
         return "/v1/sessions/{id}"
     return path if path in _ROUTES else "other"

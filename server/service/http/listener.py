@@ -55,6 +55,7 @@ class DeadlineReader(io.RawIOBase):
         self.waiting_since = time.monotonic()
         self._deadline: float | None = None
         self.evicted = False
+        self.detached = False
 
     def readable(self) -> bool:
         return True
@@ -73,13 +74,20 @@ class DeadlineReader(io.RawIOBase):
         self.phase = "body"
         self._deadline = time.monotonic() + timeout_s
 
+    def detach(self) -> None:
+        """The socket now belongs to another protocol (a WebSocket upgrade): reads report
+        nothing more, so the buffered reader hands over only what it already holds."""
+        self.detached = True
+
     def evict(self) -> None:
         """Close the reading side: the handler's pending read sees end of file."""
         self.evicted = True
         with contextlib.suppress(OSError):
             self._sock.shutdown(socket.SHUT_RD)
 
-    def readinto(self, buffer: Any) -> int:
+    def readinto(self, buffer: Any) -> int | None:
+        if self.detached:
+            return None
         while True:
             if self.evicted:
                 return 0

@@ -6,15 +6,21 @@ Routes::
     GET /viewer/viewer.js      its script, /viewer/viewer.css its style sheet
     GET /v1/status             live numbers: sessions, frames/s, queue, latency percentiles
     GET /v1/schema             the scene's JSON Schema (generated, = schema/scene.schema.json)
+    GET /v1/demo/frame         the built-in demo's particles as one stream FRAME message (id 0,
+                               its scene in the header), which the page streams over
+                               ``/v1/stream`` (WebSocket) with a camera per frame
     GET /v1/sessions/{id}/latest   the last image any session (HTTP or stream) was answered,
                                if its format is one a browser shows; ETag = its number, so a
                                poll with If-None-Match costs a 304 until the next frame
 
 The page is plain HTML, CSS and JavaScript shipped as package data (no framework, no build
-step), served from memory. It is behind the same token rule as the API: with a token configured,
-open ``/?token=<token>`` once; the server answers 303 to ``/`` with the token in an HttpOnly,
-SameSite=Strict cookie, so the token leaves the address bar and history, and the page's own
-requests carry the cookie (plus the ``X-Sphrender-Viewer`` header on POST/DELETE; see
+step), served from memory. It streams the demo over the WebSocket (``GET /v1/stream``,
+`websocket_route`), composing stream messages itself; another session's images come pushed
+on ``GET /v1/sessions/{id}/watch`` (`watch_route`); it polls only for status. It is behind
+the same token rule as the API: with a token configured, open ``/?token=<token>`` once; the
+server answers 303 to ``/`` with the token in an HttpOnly, SameSite=Strict cookie, so the
+token leaves the address bar and history, and the page's own requests (the WebSocket upgrades
+included) carry the cookie (plus the ``X-Sphrender-Viewer`` header on POST/DELETE; see
 `HandlerBase._check_auth`).
 """
 
@@ -24,7 +30,8 @@ import functools
 import importlib.resources
 from urllib.parse import quote, urlencode
 
-from sphrender.core.protocol import ErrorCode
+from sphrender.core.protocol import ErrorCode, encode_frame
+from sphrender.server.content.demo import demo_frame, demo_scene_dict
 from sphrender.server.scene.json_schema import scene_json_schema_text
 from sphrender.server.service.http.errors import HttpError
 from sphrender.server.service.http.handler import VIEWER_COOKIE, HandlerBase
@@ -54,6 +61,15 @@ def asset(name: str) -> bytes:
     """A file of the viewer (package data of sphrender.server.service.http)."""
     page = importlib.resources.files("sphrender.server.service.http").joinpath("viewer_page")
     return page.joinpath(name).read_bytes()
+
+
+@functools.cache
+def demo_frame_message() -> bytes:
+    """The demo's particles and scene as a FRAME (deterministic: built once)."""
+    frame = demo_frame()
+    return encode_frame(
+        0, frame.positions, temperatures=frame.temperatures, scene=demo_scene_dict()
+    )
 
 
 @functools.cache
@@ -115,6 +131,9 @@ class ViewerRoutes(HandlerBase):
             self._send(304, b"", CONTENT_TYPES.get(latest.format, "image/png"), headers)
             return
         self._send(200, latest.data, CONTENT_TYPES.get(latest.format, "image/png"), headers)
+
+    def _demo_frame(self) -> None:
+        self._send(200, demo_frame_message(), "application/octet-stream", _PAGE_HEADERS)
 
     def _schema(self) -> None:
         self._send(200, _schema_body(), "application/schema+json")

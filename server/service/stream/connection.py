@@ -83,16 +83,28 @@ class StreamConnection:
         self.hello: Hello | None = None
         self.connected_at = time.monotonic()
         self.welcomed = False
-        self.channel = Channel(
-            sock,
-            idle_timeout_s=self.config.idle_timeout_s,
-            write_timeout_s=self.config.write_timeout_s,
-            dead=self.answers.dead.is_set,
-            draining=self.answers.draining.is_set,
-            evicted=self.answers.evicted.is_set,
-            drain_deadline=lambda: service.drain_read_deadline,
-            in_flight=lambda: self.answers.owed,
-        )
+        self.channel = self._make_channel(sock)
+
+    def _make_channel(self, sock: socket.socket) -> Channel:
+        """The transport under the stream's messages (a WebSocket connection overrides it)."""
+        return Channel(sock, **self._channel_options())
+
+    def _channel_options(self) -> dict[str, Any]:
+        """The deadlines and states a channel reads (the stream's idle and drain rules)."""
+        service = self.service
+        return {
+            "idle_timeout_s": self.config.idle_timeout_s,
+            "write_timeout_s": self.config.write_timeout_s,
+            "dead": self.answers.dead.is_set,
+            "draining": self.answers.draining.is_set,
+            "evicted": self.answers.evicted.is_set,
+            "drain_deadline": lambda: service.drain_read_deadline,
+            "in_flight": lambda: self.answers.owed,
+        }
+
+    #: True when the transport authenticated the client already (a WebSocket upgrade that
+    #: passed the HTTP token rule): HELLO then needs no token, though one it carries is checked.
+    authenticated = False
 
     def begin_drain(self) -> None:
         self.answers.draining.set()
@@ -122,6 +134,7 @@ class StreamConnection:
                     {"id": None, "code": code, "error": message, "field": field, "fatal": True},
                 ),
             )
+        self.channel.close_for_error(code, message)
 
     def run(self) -> None:
         end = "gone"
@@ -196,7 +209,9 @@ class StreamConnection:
             self._send_fatal(exc.code, exc.message, exc.field)
             return "protocol"
         try:
-            hello = check_hello(kind, header, payload_len, self.service.config)
+            hello = check_hello(
+                kind, header, payload_len, self.service.config, authenticated=self.authenticated
+            )
             self.hello = hello
             self.session = self.service.create_session(hello.scene, "stream")
         except ProtocolError as exc:

@@ -33,9 +33,16 @@ class Hello:
 
 
 def check_hello(
-    kind: MessageType, header: dict[str, Any], payload_len: int, config: ServerConfig
+    kind: MessageType,
+    header: dict[str, Any],
+    payload_len: int,
+    config: ServerConfig,
+    *,
+    authenticated: bool = False,
 ) -> Hello:
-    """The HELLO's settings, or `ProtocolError` (fatal: the connection closes after it)."""
+    """The HELLO's settings, or `ProtocolError` (fatal: the connection closes after it).
+    `authenticated`: the transport checked the token already; a token HELLO carries must
+    still match."""
     if kind != MessageType.HELLO:
         raise ProtocolError(ErrorCode.PROTOCOL, f"expected HELLO, got {kind.name}", "type")
     if payload_len:
@@ -47,7 +54,8 @@ def check_hello(
                 f"unknown key; allowed: {', '.join(sorted(HELLO_KEYS))}",
                 f"header.{key}",
             )
-    _check_token(header.get("token"), config.security.token)
+    if not (authenticated and "token" not in header):
+        _check_token(header.get("token"), config.security.token)
     scene = header.get("scene", {})
     if not isinstance(scene, dict):
         raise ProtocolError(ErrorCode.BAD_INPUT, "must be a JSON object", "scene")

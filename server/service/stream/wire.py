@@ -10,6 +10,7 @@ discarded in small chunks when the frame was refused from its header alone.
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import time
 from collections.abc import Callable
@@ -110,6 +111,20 @@ class Channel:
             chunk = memoryview(scratch)[: min(n, len(scratch))]
             self.recv_into(chunk, deadline)
             n -= len(chunk)
+
+    # -- how the connection ends (a WebSocket channel also sends its Close frame) ----------------
+
+    def close_for_error(self, code: str, message: str) -> None:
+        """After a fatal ERROR: nothing more to say on a raw socket (the ERROR said it)."""
+
+    def end_orderly(self, reason: str, seconds: float) -> None:
+        """After GOODBYE: let the client read everything, then close (`linger`)."""
+        linger(self.sock, seconds)
+
+    def shutdown(self) -> None:
+        """Close both directions; the peer sees end of file."""
+        with contextlib.suppress(OSError):
+            self.sock.shutdown(socket.SHUT_RDWR)
 
     def send_all(self, data: bytes) -> None:
         view = memoryview(data)

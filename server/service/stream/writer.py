@@ -5,16 +5,15 @@ when the connection ends in an orderly way. Whatever ends it, what is still owed
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import socket
 
 from sphrender.core.protocol import MessageType, encode_message
 from sphrender.server.service.facade import ServiceFacade
-from sphrender.server.service.render.jobs import Outcome
+from sphrender.server.service.render.jobs import ErrorOutcome, Outcome
 from sphrender.server.service.stream.answers import Answers, Slot, answer_bytes
 from sphrender.server.service.stream.handshake import LINGER_S
-from sphrender.server.service.stream.wire import TICK_S, Channel, Closed, linger
+from sphrender.server.service.stream.wire import TICK_S, Channel, Closed
 
 log = logging.getLogger("sphrender.service.stream")
 
@@ -23,6 +22,13 @@ def send_counted(channel: Channel, service: ServiceFacade, data: bytes) -> None:
     """Send `data` and count its bytes (``sphrender_bytes_out_total{transport="stream"}``)."""
     channel.send_all(data)
     service.metrics.transport.bytes_out.inc("stream", amount=len(data))
+
+
+def _error_of(outcome: Outcome) -> tuple[str, str]:
+    """A fatal answer's code and text (what a WebSocket Close frame repeats)."""
+    if isinstance(outcome, ErrorOutcome):
+        return outcome.code, outcome.message
+    return "protocol", "the connection is closed"
 
 
 class AnswerWriter:
@@ -70,6 +76,7 @@ class AnswerWriter:
                     slot.release()
                 self.answers.sent_first()
                 if slot.fatal:
+                    self.channel.close_for_error(*_error_of(outcome))
                     return
             if self.answers.goodbye is not None:
                 send_counted(
@@ -77,7 +84,7 @@ class AnswerWriter:
                     self.service,
                     encode_message(MessageType.GOODBYE, {"reason": self.answers.goodbye}),
                 )
-                linger(self.sock, LINGER_S)
+                self.channel.end_orderly(self.answers.goodbye, LINGER_S)
         except Closed as closed:
             log.info(
                 "stream client gone while answering",
@@ -86,8 +93,7 @@ class AnswerWriter:
             self.answers.dead.set()
         finally:
             self._abandon()
-            with contextlib.suppress(OSError):
-                self.sock.shutdown(socket.SHUT_RDWR)
+            self.channel.shutdown()
 
     def _abandon(self) -> None:
         """Cancel whatever is still owed (the client cannot receive it any more)."""

@@ -1,15 +1,17 @@
-// The sphrender viewer: live service status and a demo session orbited with the mouse.
+// The sphrender viewer: live service status and the built-in demo orbited with the mouse.
 //
-// Plain JavaScript, no framework. It talks to the same HTTP API as any client:
+// Plain JavaScript, no framework. The demo streams over the stream protocol on a WebSocket
+// (PROTOCOL.md §10), as a browser frontend would:
+//   GET  /v1/demo/frame          the demo's particles as one FRAME message (arrays + its scene)
+//   WS   /v1/stream              HELLO {scene, mode: "latest"} -> WELCOME; then per camera change
+//        FRAME {id, arrays, scene: {camera: {eye}, output: {format}}} + the demo's payload ->
+//        IMAGE (drawn) or DROPPED (superseded by a newer frame: latest-frame-wins)
+// and the HTTP API for the rest:
 //   GET  /v1/status, /v1/info                       every second / once
-//   POST /v1/demo/sessions {"image": {...}}          a session of the built-in weld bead
-//   POST /v1/sessions/{id}/frames?format=png         body {"scene": {"camera": {"eye": [...]}}}:
-//        a per-frame camera override, merged onto the session's scene like an .npz frame's
-//   DELETE /v1/sessions/{id}                         when the page goes away
-//   GET  /v1/sessions/{id}/latest                    another session's latest image (any
-//        transport), polled with If-None-Match while that session is the one watched
-// With a token, open /?token=...: the server sets a cookie that authorises these requests (the
-// X-Sphrender-Viewer header is required with it on POST and DELETE).
+//   WS   /v1/sessions/{id}/watch                     another session's images (any transport),
+//        pushed as they come while that session is the one watched
+// With a token, open /?token=...: the server sets a cookie that authorises these requests and
+// the WebSocket upgrade (the X-Sphrender-Viewer header is required with it on POST and DELETE).
 //
 // Query parameters: format (an image encoding the browser can show: png, or jpeg where the
 // server offers it; default png), width and height of the demo frames (default 480 x 270),
@@ -31,7 +33,14 @@
     height: number(params.get("height"), 270),
     session: null,
     orbit: null,
-    inFlight: null,
+    socket: null, // the WebSocket once WELCOME came, else null
+    connecting: null, // the promise of the WELCOME being waited for
+    demo: null, // {arrays, payload, scene}: the demo frame from /v1/demo/frame
+    helloScene: null,
+    nextId: 0,
+    sent: new Map(), // frame id -> the FRAME's scene override, until its answer
+    inFlight: 0,
+    dropped: 0,
     dirty: false,
     frames: 0,
     statusUpdates: 0,
@@ -39,8 +48,7 @@
     lastBody: null,
     timer: null,
     watch: null, // the id of the session watched instead of the demo, or null
-    watchTag: null,
-    watchTimer: null,
+    watchSocket: null,
   };
   const $ = (id) => document.getElementById(id);
 
@@ -118,7 +126,7 @@
 
   function listSessions(sessions) {
     const select = $("source");
-    const wanted = sessions.filter((s) => !s.demo && s.latest_format);
+    const wanted = sessions.filter((s) => !s.demo && s.latest_format && s.id !== state.session);
     const ids = new Set(wanted.map((s) => s.id));
     for (const option of [...select.options]) {
       if (option.value !== "demo" && !ids.has(option.value)) option.remove();
@@ -133,51 +141,46 @@
     }
   }
 
-  async function pollWatched() {
-    const id = state.watch;
-    if (!id || state.stopped) return;
-    try {
-      const headers = { ...HEADERS };
-      if (state.watchTag) headers["If-None-Match"] = state.watchTag;
-      const response = await fetch(`/v1/sessions/${id}/latest`, {
-        headers,
-        cache: "no-store",
-        credentials: "same-origin",
-      });
+  // Another session's images, pushed on a WebSocket (GET /v1/sessions/{id}/watch) as they come.
+  function openWatch(id) {
+    const scheme = location.protocol === "https:" ? "wss" : "ws";
+    const socket = new WebSocket(`${scheme}://${location.host}/v1/sessions/${id}/watch`);
+    socket.binaryType = "arraybuffer";
+    socket.onmessage = async (event) => {
+      const { type, header, payload } = decodeMessage(event.data);
       if (id !== state.watch) return;
-      if (response.status === 200) {
-        const blob = await response.blob();
-        await draw(blob);
-        state.watchTag = response.headers.get("ETag");
-        const canvas = $("live");
-        canvas.dataset.source = id;
-        canvas.dataset.image = response.headers.get("X-Sphrender-Image") || "";
-        $("frame-info").textContent =
-          `session ${id.slice(0, 8)}, image ${canvas.dataset.image}: ` +
-          `${canvas.width}x${canvas.height}, ${blob.size} bytes`;
-        showError("");
-      } else if (response.status !== 304) {
-        const error = await response.json();
-        showError(`${error.field ? error.field + ": " : ""}${error.error}`);
+      if (type === TYPE.GOODBYE) {
+        showError(`session ${id.slice(0, 8)} ended`);
+        return;
       }
-    } catch (error) {
-      showError(String(error.message || error));
-    }
+      if (type !== TYPE.IMAGE) return;
+      const blob = new Blob([payload], { type: `image/${header.format}` });
+      await draw(blob);
+      const canvas = $("live");
+      canvas.dataset.source = id;
+      canvas.dataset.image = String(header.image);
+      $("frame-info").textContent =
+        `session ${id.slice(0, 8)}, image ${header.image}: ` +
+        `${canvas.width}x${canvas.height}, ${blob.size} bytes`;
+      showError("");
+    };
+    socket.onclose = (event) => {
+      if (id === state.watch && event.code !== 1000) showError(closeText(event));
+    };
+    return socket;
   }
 
-  async function watch(id) {
+  function watch(id) {
     state.watch = id === "demo" ? null : id;
-    state.watchTag = null;
-    clearInterval(state.watchTimer);
+    if (state.watchSocket) state.watchSocket.close(1000, "watching another");
+    state.watchSocket = null;
     $("hint").hidden = state.watch !== null;
     $("source").value = id;
     if (state.watch) {
-      if (state.inFlight) await state.inFlight;
-      state.watchTimer = setInterval(pollWatched, 250);
-      await pollWatched();
+      state.watchSocket = openWatch(state.watch);
     } else {
       $("live").dataset.source = "demo";
-      await renderFrame();
+      renderFrame();
     }
   }
 
@@ -206,15 +209,6 @@
       round(o.target[1] + o.radius * Math.sin(o.pitch)),
       round(o.target[2] + o.radius * Math.cos(o.pitch) * Math.cos(o.yaw)),
     ];
-  }
-
-  async function openDemo() {
-    const response = await api("POST", "/v1/demo/sessions", {
-      image: { width: state.width, height: state.height },
-    });
-    const created = await response.json();
-    state.session = created.id;
-    state.orbit = state.orbit || orbitFrom(created.scene.camera);
   }
 
   // The frame's pixels, as the test reads them: FNV-1a over the RGBA bytes, and the mean.
@@ -247,61 +241,168 @@
     return summary;
   }
 
+  // -- the stream protocol over WebSocket (PROTOCOL.md §2 framing, §10 transport) -----------------
+
+  const TYPE = {
+    HELLO: 0x01,
+    FRAME: 0x02,
+    BYE: 0x03,
+    WELCOME: 0x81,
+    IMAGE: 0x82,
+    ERROR: 0x83,
+    DROPPED: 0x84,
+    GOODBYE: 0x85,
+  };
+  // Frames unanswered at once: one rendering, one waiting; a newer one supersedes the waiting.
+  const MAX_IN_FLIGHT = 2;
+
+  // magic "SPHR", version 1, type, flags 0, header length, payload length (little-endian).
+  function encodeMessage(type, header, payload) {
+    const head = new TextEncoder().encode(JSON.stringify(header));
+    const body = payload || new Uint8Array(0);
+    const out = new Uint8Array(16 + head.length + body.length);
+    const view = new DataView(out.buffer);
+    out.set([0x53, 0x50, 0x48, 0x52, 1, type], 0);
+    view.setUint16(6, 0, true);
+    view.setUint32(8, head.length, true);
+    view.setUint32(12, body.length, true);
+    out.set(head, 16);
+    out.set(body, 16 + head.length);
+    return out;
+  }
+
+  function decodeMessage(buffer) {
+    const view = new DataView(buffer);
+    const headerLength = view.getUint32(8, true);
+    const text = new TextDecoder().decode(new Uint8Array(buffer, 16, headerLength));
+    return {
+      type: view.getUint8(5),
+      header: headerLength ? JSON.parse(text) : {},
+      payload: new Uint8Array(buffer, 16 + headerLength),
+    };
+  }
+
+  async function loadDemo() {
+    const demo = decodeMessage(await (await api("GET", "/v1/demo/frame")).arrayBuffer());
+    const scene = demo.header.scene || {};
+    state.demo = { arrays: demo.header.arrays, payload: demo.payload.slice(), scene };
+  }
+
+  function connect() {
+    if (state.connecting) return state.connecting;
+    state.connecting = (async () => {
+      if (!state.demo) await loadDemo();
+      const scene = state.demo.scene;
+      state.helloScene = {
+        ...scene,
+        image: { ...(scene.image || {}), width: state.width, height: state.height },
+      };
+      const scheme = location.protocol === "https:" ? "wss" : "ws";
+      const socket = new WebSocket(`${scheme}://${location.host}/v1/stream`, "sphrender.stream.v1");
+      socket.binaryType = "arraybuffer";
+      await new Promise((resolve, reject) => {
+        const hello = { scene: state.helloScene, mode: "latest", max_in_flight: MAX_IN_FLIGHT };
+        socket.onopen = () => socket.send(encodeMessage(TYPE.HELLO, hello));
+        socket.onclose = (event) => reject(new Error(closeText(event)));
+        socket.onmessage = (event) => {
+          const message = decodeMessage(event.data);
+          if (message.type === TYPE.WELCOME) {
+            state.session = message.header.session;
+            state.orbit = state.orbit || orbitFrom(message.header.scene.camera);
+            resolve();
+          } else {
+            onAnswer(message);
+          }
+        };
+      });
+      socket.onmessage = (event) => onAnswer(decodeMessage(event.data));
+      socket.onclose = (event) => closed(socket, event);
+      state.socket = socket;
+    })();
+    state.connecting.catch(() => {}).then(() => {
+      state.connecting = null;
+    });
+    return state.connecting;
+  }
+
+  function closeText(event) {
+    return `stream closed (${event.code}${event.reason ? ": " + event.reason : ""})`;
+  }
+
+  function closed(socket, event) {
+    if (state.socket !== socket) return;
+    state.socket = null; // the next frame opens a new session
+    state.sent.clear();
+    state.inFlight = 0;
+    if (event.code !== 1000) showError(closeText(event));
+  }
+
+  function onAnswer(message) {
+    const { type, header } = message;
+    if (type === TYPE.ERROR) {
+      showError(`${header.field ? header.field + ": " : ""}${header.error} (${header.code})`);
+    }
+    if (type === TYPE.GOODBYE || header.id === null || header.id === undefined) return;
+    const scene = state.sent.get(header.id);
+    state.sent.delete(header.id);
+    state.inFlight = Math.max(0, state.inFlight - 1);
+    if (type === TYPE.IMAGE) {
+      drawImage(message, scene).then(next, (error) => showError(String(error.message || error)));
+      return;
+    }
+    if (type === TYPE.DROPPED) state.dropped += 1;
+    next();
+  }
+
+  async function drawImage(message, scene) {
+    const { header, payload } = message;
+    const blob = new Blob([payload], { type: `image/${header.format}` });
+    await draw(blob);
+    state.lastBody = JSON.stringify({ scene });
+    state.frames += 1;
+    const canvas = $("live");
+    canvas.dataset.frames = String(state.frames);
+    canvas.dataset.session = state.session;
+    canvas.dataset.source = "demo";
+    const render = Object.entries(header.timings_ms || {})
+      .filter(([name]) => name !== "queue" && name !== "encode")
+      .reduce((sum, [, ms]) => sum + Number(ms || 0), 0);
+    $("frame-info").textContent =
+      `frame ${state.frames}: ${canvas.width}x${canvas.height} ${header.format}, ` +
+      `${blob.size} bytes, rendered in ${render.toFixed(0)} ms, ${state.dropped} superseded`;
+    showError("");
+  }
+
+  function next() {
+    if (state.stopped || state.watch) return;
+    if (state.dirty || $("spin").checked) {
+      if ($("spin").checked && !state.dirty) state.orbit.yaw += 0.03;
+      requestAnimationFrame(renderFrame);
+    }
+  }
+
+  // Send the demo from the current eye; with MAX_IN_FLIGHT unanswered, only remember to.
   async function renderFrame() {
-    if (state.watch) return; // another session is shown
-    if (state.inFlight || state.stopped) {
+    if (state.watch || state.stopped) return;
+    if (!state.socket) {
+      try {
+        await connect();
+      } catch (error) {
+        showError(String(error.message || error));
+        return;
+      }
+    }
+    if (state.inFlight >= MAX_IN_FLIGHT) {
       state.dirty = true;
       return;
     }
     state.dirty = false;
-    state.inFlight = (async () => {
-      try {
-        if (!state.session) await openDemo();
-        const body = JSON.stringify({ scene: { camera: { eye: eye() } } });
-        const path = `/v1/sessions/${state.session}/frames?format=${state.format}`;
-        const response = await fetch(path, {
-          method: "POST",
-          headers: { ...HEADERS, "Content-Type": "application/json" },
-          credentials: "same-origin",
-          body,
-        });
-        if (response.status === 404) {
-          state.session = null; // expired (limits.session_idle_timeout_s): open a new one
-          state.dirty = true;
-          return;
-        }
-        if (!response.ok) {
-          const error = await response.json();
-          throw new Error(`${error.field ? error.field + ": " : ""}${error.error}`);
-        }
-        const blob = await response.blob();
-        await draw(blob);
-        state.lastBody = body;
-        state.frames += 1;
-        const canvas = $("live");
-        canvas.dataset.frames = String(state.frames);
-        canvas.dataset.session = state.session;
-        canvas.dataset.source = "demo";
-        const timing = response.headers.get("Server-Timing") || "";
-        const render = timing
-          .split(",")
-          .map((part) => part.trim().split(";dur="))
-          .filter(([name]) => name !== "queue" && name !== "encode")
-          .reduce((sum, [, ms]) => sum + Number(ms || 0), 0);
-        $("frame-info").textContent =
-          `frame ${state.frames}: ${canvas.width}x${canvas.height} ${state.format}, ` +
-          `${blob.size} bytes, rendered in ${render.toFixed(0)} ms`;
-        showError("");
-      } catch (error) {
-        showError(String(error.message || error));
-      }
-    })();
-    await state.inFlight;
-    state.inFlight = null;
-    if (!state.stopped && (state.dirty || $("spin").checked)) {
-      if ($("spin").checked) state.orbit.yaw += 0.03;
-      requestAnimationFrame(renderFrame);
-    }
+    const id = state.nextId++;
+    const scene = { camera: { eye: eye() }, output: { format: state.format } };
+    const header = { id, arrays: state.demo.arrays, scene };
+    state.sent.set(id, scene);
+    state.inFlight += 1;
+    state.socket.send(encodeMessage(TYPE.FRAME, header, state.demo.payload));
   }
 
   function bindMouse() {
@@ -361,21 +462,20 @@
     });
   }
 
-  async function stop() {
+  function stop() {
     state.stopped = true;
     clearInterval(state.timer);
-    clearInterval(state.watchTimer);
-    if (state.inFlight) await state.inFlight;
   }
 
   window.addEventListener("pagehide", () => {
-    if (state.session) {
-      fetch(`/v1/sessions/${state.session}`, { method: "DELETE", headers: HEADERS, keepalive: true });
+    if (state.socket) {
+      state.socket.send(encodeMessage(TYPE.BYE, {}));
+      state.socket.close(1000, "page closed");
     }
   });
 
   // For tests and the console: the page's state and its two actions.
-  window.sphrenderViewer = { state, refreshStatus, renderFrame, stop, watch, pollWatched };
+  window.sphrenderViewer = { state, refreshStatus, renderFrame, stop, watch };
 
   async function start() {
     $("spin").checked = params.get("spin") === "1";
@@ -387,7 +487,7 @@
     } catch (error) {
       showError(String(error.message || error));
     }
-    await renderFrame();
+    renderFrame();
   }
 
   start();
