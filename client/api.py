@@ -112,6 +112,7 @@ def _frame_arrays(frame: ParticleFrame) -> dict[str, Any]:
         "densities": frame.densities,
         "radii": frame.radii,
         "temperatures": frame.temperatures,
+        "peak_temperatures": frame.peak_temperatures,
     }
 
 

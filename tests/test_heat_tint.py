@@ -15,6 +15,7 @@ from single_passes import SinglePasses
 from sphrender.core.frame import make_frame
 from sphrender.server.bench.analytic import pixel_rays
 from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.lighting.blackbody import XYZ_TO_REC709
 from sphrender.server.engine.lighting.cie_cmf import CIE_1931_2DEG_5NM
 from sphrender.server.engine.lighting.materials import (
@@ -194,7 +195,7 @@ def test_rendered_peak_ramp_shows_the_temper_chart_in_order(
     scene = scene_from_dict(
         {
             "image": {"width": width, "height": height},
-            "camera": {"eye": [0.0, 0.0, 6.0], "fov_y": 19.0},
+            "camera": {"eye": [0.0, 0.0, 6.0], "fov_y": 2.4},  # the plate fills the width
             "particles": {"radius": 0.015},
             "material": {"preset": preset, "roughness": 0.5, "heat_tint": True},
             "lights": [{"direction": [0.0, 0.0, -1.0], "intensity": 3.0}],
@@ -258,3 +259,45 @@ def test_molten_blend_follows_the_melting_range(renderer: SurfaceRenderer) -> No
             )
             want = lobe * ref.schlick(f, vh) * 2.0
             assert np.allclose(got[row, column], want, rtol=1e-4), (row, column)
+
+
+def test_peak_temperatures_tint_what_has_cooled(
+    renderer: SurfaceRenderer, gl_context: GLContext
+) -> None:
+    """A plate at room temperature whose right half peaked at 300 C (carbon steel: blue) and
+    whose left half never warmed: with the frame's peaks the right half turns blue and the left
+    stays as without any tint, bit for bit where the blur reaches no peak; peaks below the
+    current temperature count as the current one; a scene without heat_tint renders the frame
+    exactly as if it carried no peaks. Host and device prepare agree."""
+    positions, _ = _plate("iron", (20.0, 20.0))
+    current = np.full(len(positions), 293.15)
+    peak = np.where(positions[:, 0] > 0.0, 573.15, 0.0)
+    width, height = 96, 16
+    sections: dict[str, object] = {
+        "image": {"width": width, "height": height},
+        "camera": {"eye": [0.0, 0.0, 6.0], "fov_y": 3.4},  # the plate fills the width
+        "particles": {"radius": 0.015},
+        "material": {"preset": "iron", "roughness": 0.5, "heat_tint": True},
+        "lights": [{"direction": [0.0, 0.0, -1.0], "intensity": 3.0}],
+        "shading": {"ibl_mode": "none"},
+    }
+    scene = scene_from_dict(sections)
+    with_peak = make_frame(positions, temperatures=current, peak_temperatures=peak)
+    tinted, _ = renderer.render(with_peak, scene)
+    cold, _ = renderer.render(make_frame(positions, temperatures=current), scene)
+    rgb = tinted.rgba[height // 2, :, :3].astype(np.float64)
+    left, right = rgb[width // 8], rgb[7 * width // 8]
+    assert right[2] > right[0] * 1.5  # blue
+    assert np.array_equal(tinted.rgba[:, : width // 4], cold.rgba[:, : width // 4])
+    assert not np.allclose(left, right, rtol=0.1)
+    plain_sections = {**sections, "material": {"preset": "iron", "roughness": 0.5}}
+    plain = scene_from_dict(plain_sections)
+    untinted_peak, _ = renderer.render(with_peak, plain)
+    untinted, _ = renderer.render(make_frame(positions, temperatures=current), plain)
+    assert np.array_equal(untinted_peak.rgba, untinted.rgba)
+    device = SurfaceRenderer(gl_context, prepare="device")
+    try:
+        on_device, _ = device.render(with_peak, scene)
+    finally:
+        device.release()
+    assert np.abs(on_device.rgba - tinted.rgba).max() < 1e-3

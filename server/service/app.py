@@ -161,6 +161,7 @@ class RenderService:
             temperatures=arrays.get("temperatures"),
             velocities=arrays.get("velocities"),
             ids=arrays.get("ids"),
+            peak_temperatures=arrays.get("peak_temperatures"),
             max_particles=self.config.limits.max_particles,
         )
 

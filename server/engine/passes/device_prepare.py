@@ -29,6 +29,7 @@ from sphrender.server.engine.passes.splat import SplatBatch
 from sphrender.server.engine.passes.splat_buffers import (
     AXES,
     DROPLETS,
+    PEAKS,
     POSITIONS,
     RADII,
     SPHERES,
@@ -94,8 +95,11 @@ class DevicePrepare:
             reference_radius = frame_reference_radius(frame, scene.particles.radius)
         has_temperature = frame.temperatures is not None
         ellipsoid = ellipsoids is not None
-        bulk = SplatBatch(count, far, has_temperature, ellipsoid)
-        drop_batch = SplatBatch(count, far, has_temperature, ellipsoid, droplets=True)
+        peak = frame.peak_temperatures is not None
+        bulk = SplatBatch(count, far, has_temperature, ellipsoid, has_peak=peak)
+        drop_batch = SplatBatch(
+            count, far, has_temperature, ellipsoid, droplets=True, has_peak=peak
+        )
         return DevicePrepared(
             bulk, drop_batch if drops else None, visible, box, reference_radius, nearest
         )
@@ -117,6 +121,8 @@ class DevicePrepare:
             buffers.write(RADII, np.asarray(frame.radii, dtype=np.float32))
         if frame.temperatures is not None:
             buffers.write(TEMPERATURES, np.asarray(frame.temperatures, dtype=np.float32))
+        if frame.peak_temperatures is not None:
+            buffers.write(PEAKS, np.asarray(frame.peak_temperatures, dtype=np.float32))
         if droplets is not None:
             buffers.write(DROPLETS, droplets.view(np.uint8))
         with self._context.gl.clock:
