@@ -71,7 +71,8 @@ def test_peaks_round_trip_every_codec_and_reader(tmp_path: Path) -> None:
     )
     assert np.array_equal(arrays["peak_temperatures"], peak.astype(np.float32))
     np.savez(tmp_path / "f.npz", positions=positions, temperatures=current, peak_temperatures=peak)
-    assert np.array_equal(read_particles(tmp_path / "f.npz").peak_temperatures, peak)
+    read = read_particles(tmp_path / "f.npz").peak_temperatures
+    assert read is not None and np.array_equal(read, peak)
     (tmp_path / "f.csv").write_text("x,y,z,temperature,peak_temperature\n0,0,0,300,900\n")
     assert read_particles(tmp_path / "f.csv").peak_temperatures.tolist() == [900.0]  # type: ignore[union-attr]
 

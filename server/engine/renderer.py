@@ -150,8 +150,6 @@ class SurfaceRenderer:
         camera = Camera.from_config(scene.camera, scene.image.width, scene.image.height)
         stats = RenderStats(particles_in=frame.count)
         stats.notes += [InputNote(note.field, note.message) for note in scene.notes]
-        if frame.peak_temperatures is not None and not scene.material.heat_tint:
-            frame = replace(frame, peak_temperatures=None)  # only the heat tint reads them
         sph = self._run_sph(frame, scene, stats)
         with self._stage(stats, "prepare"):
             prepared = self._prepare.run(sph, camera, scene)

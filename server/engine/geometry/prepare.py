@@ -112,9 +112,9 @@ def prepare_particles(
         if frame.temperatures is not None
         else None
     )
-    peaks = (
+    peaks = (  # only the heat tint reads them
         np.ascontiguousarray(frame.peak_temperatures[keep], dtype=np.float32)
-        if frame.peak_temperatures is not None
+        if frame.peak_temperatures is not None and scene.material.heat_tint
         else None
     )
     kept_droplets = None if droplets is None else droplets[keep]

@@ -12,7 +12,7 @@ whose rasteriser is the cost; see `SurfaceRenderer` for the switch).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import moderngl
 import numpy as np
@@ -74,6 +74,8 @@ class DevicePrepare:
         """Upload `frame` (or the ellipsoid centres and axes) and run the compute shader; the
         arguments mean what they mean for `geometry.prepare.prepare_particles`."""
         count = frame.count
+        if frame.peak_temperatures is not None and not scene.material.heat_tint:
+            frame = replace(frame, peak_temperatures=None)  # only the heat tint reads them
         self._upload(frame, droplets, ellipsoids)
         summary = self._dispatch(camera, scene, frame, count, droplets, ellipsoids)
         box_min_x, box_min_y, neg_max_x, neg_max_y, _, visible, drops, unbounded = summary[
