@@ -21,6 +21,7 @@ from sphrender.core.protocol import (
     parse_prefix,
 )
 from sphrender.core.readers import read_particles
+from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import scene_from_dict
 from sphrender.server.service.thermal_history import PeakHistory
 
@@ -144,3 +145,21 @@ def test_service_keeps_the_history_of_a_stream_session(service: ServerProcess) -
     without = client.render(positions[shuffle], scene, temperatures=cold[shuffle], format="raw")
     assert cooled.data == want
     assert cooled.data != without
+
+
+def test_peaks_in_celsius_get_a_note(renderer: SurfaceRenderer) -> None:
+    """Peaks sent in degrees Celsius (20 ... 600) beside kelvin temperatures: rendered as sent,
+    with a note on `peak_temperatures` saying what to add; kelvin peaks get none."""
+    positions = ball(300, seed=6)
+    current = np.full(300, 300.0)
+    celsius = np.linspace(20.0, 600.0, 300)
+    scene = scene_from_dict({"image": {"width": 32, "height": 24}, "material": {"heat_tint": True}})
+    _, stats = renderer.render(
+        make_frame(positions, temperatures=current, peak_temperatures=celsius), scene
+    )
+    peak_notes = [n for n in stats.notes if n.field == "peak_temperatures"]
+    assert len(peak_notes) == 1 and "add 273.15" in peak_notes[0].message
+    _, plain = renderer.render(
+        make_frame(positions, temperatures=current, peak_temperatures=celsius + 273.15), scene
+    )
+    assert all(n.field != "peak_temperatures" for n in plain.notes)
