@@ -113,6 +113,7 @@ def _frame_arrays(frame: ParticleFrame) -> dict[str, Any]:
         "densities": frame.densities,
         "radii": frame.radii,
         "temperatures": frame.temperatures,
+        "peak_temperatures": frame.peak_temperatures,
     }
 
 
@@ -211,16 +212,18 @@ class Client:
         velocities: object | None = None,
         ids: object | None = None,
         format: ImageFormat | None = None,
+        peak_temperatures: object | None = None,
     ) -> bytes:
         """Render one frame over HTTP; returns the image bytes (PNG, EXR, JPEG or raw arrays:
         `render_raw` decodes those). `velocities` (N, 3) and `ids` (N,) are validated and carried
-        with the frame."""
+        with the frame; `peak_temperatures` (N,) kelvin feed the heat tint."""
         arrays = dict(
             densities=densities,
             radii=radii,
             temperatures=temperatures,
             velocities=velocities,
             ids=ids,
+            peak_temperatures=peak_temperatures,
         )
         return self._render(positions, scene, arrays, format)[1]
 
@@ -385,7 +388,8 @@ class StreamSession:
 
     def send(self, positions: object, *, frame_id: int | None = None, **arrays: Any) -> int:
         """Send one FRAME (does not wait); returns its id. `arrays`: densities, radii,
-        temperatures, velocities, ids (PROTOCOL.md §4.2) and ``scene``, a per-frame override."""
+        temperatures, velocities, ids, peak_temperatures (PROTOCOL.md §4.2) and ``scene``, a
+        per-frame override."""
         if frame_id is None:
             frame_id = self._next_id
         self._next_id = frame_id + 1

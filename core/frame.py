@@ -29,7 +29,11 @@ class ParticleFrame:
     radii: (N,) float32 per-particle radii in scene units, or None (the scene's radius is used).
     temperatures: (N,) float32 kelvin, or None.
     velocities: (N, 3) float32 scene units per second, or None (carried; the renderer ignores it).
-    ids: (N,) int64 unique non-negative particle ids, or None (carried; the renderer ignores it).
+    ids: (N,) int64 unique non-negative particle ids, or None (carried; the renderer ignores it;
+        the service keeps each id's peak temperature when `peak_temperatures` is absent).
+    peak_temperatures: (N,) float32 kelvin, the hottest each particle has been (the heat tint
+        reads it), or None (the current temperature stands in); needs temperatures. A peak below
+        the current temperature is taken as the current one (max of the two).
     """
 
     positions: npt.NDArray[np.float64]
@@ -38,6 +42,7 @@ class ParticleFrame:
     temperatures: npt.NDArray[np.float32] | None = None
     velocities: npt.NDArray[np.float32] | None = None
     ids: npt.NDArray[np.int64] | None = None
+    peak_temperatures: npt.NDArray[np.float32] | None = None
 
     @property
     def count(self) -> int:
@@ -65,6 +70,7 @@ def make_frame(
     temperatures: object | None = None,
     velocities: object | None = None,
     ids: object | None = None,
+    peak_temperatures: object | None = None,
     *,
     max_particles: int = MAX_PARTICLES,
 ) -> ParticleFrame:
@@ -72,8 +78,9 @@ def make_frame(
 
     Raises `InputError` naming the array (and the first offending index) for: non-numeric dtypes,
     wrong shapes, mismatched lengths, more than `max_particles`, NaN/Inf anywhere, radii <= 0,
-    densities <= 0, temperatures < 0, velocities not (N, 3), ids not integers, negative or
-    repeated. Zero particles is valid.
+    densities <= 0, temperatures or peak_temperatures < 0, peak_temperatures without
+    temperatures, velocities not (N, 3), ids not integers, negative or repeated. Zero particles
+    is valid.
     """
     pos = _as_float_array("positions", positions, (3,))
     n = pos.shape[0]
@@ -116,6 +123,10 @@ def make_frame(
                 "must be finite (a row of 3 components; found NaN or Infinity, or a value "
                 "beyond float32's range)",
             )
+    if peak_temperatures is not None and temperatures is None:
+        raise InputError(
+            "peak_temperatures", "needs temperatures in the same frame (the current kelvin)"
+        )
     return ParticleFrame(
         positions=np.ascontiguousarray(pos64),
         densities=optional("densities", densities, 0.0, inclusive=False),
@@ -123,6 +134,7 @@ def make_frame(
         temperatures=optional("temperatures", temperatures, 0.0, inclusive=True),
         velocities=vel,
         ids=None if ids is None else _checked_ids(ids, n),
+        peak_temperatures=optional("peak_temperatures", peak_temperatures, 0.0, inclusive=True),
     )
 
 

@@ -43,6 +43,7 @@ NPZ_ARRAYS: tuple[str, ...] = (
     "temperatures",
     "velocities",
     "ids",
+    "peak_temperatures",
 )
 #: Default cap on entries in an archive (a frame needs at most five).
 DEFAULT_MAX_ENTRIES = 64
@@ -86,6 +87,7 @@ def encode_npz_frame(
     temperatures: object | None = None,
     velocities: object | None = None,
     ids: object | None = None,
+    peak_temperatures: object | None = None,
     scene: Mapping[str, Any] | str | None = None,
     compress: bool = False,
 ) -> bytes:
@@ -97,6 +99,7 @@ def encode_npz_frame(
         ("temperatures", temperatures),
         ("velocities", velocities),
         ("ids", ids),
+        ("peak_temperatures", peak_temperatures),
     )
     for name, value in named:
         if value is not None:

@@ -90,6 +90,7 @@ ARRAY_NAMES: tuple[str, ...] = (
     "temperatures",
     "velocities",
     "ids",
+    "peak_temperatures",
 )
 #: Arrays of N rows of 3 values; the others are (N,).
 VECTOR_ARRAYS: frozenset[str] = frozenset({"positions", "velocities"})
@@ -342,6 +343,7 @@ def encode_frame(
     temperatures: object | None = None,
     velocities: object | None = None,
     ids: object | None = None,
+    peak_temperatures: object | None = None,
     scene: Mapping[str, Any] | None = None,
 ) -> bytes:
     """A FRAME message. Positions keep float64 when given as float64 (large coordinates); ids
@@ -353,6 +355,7 @@ def encode_frame(
         ("temperatures", temperatures),
         ("velocities", velocities),
         ("ids", ids),
+        ("peak_temperatures", peak_temperatures),
     )
     for name, value in named:
         if value is not None:

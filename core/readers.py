@@ -3,18 +3,19 @@
 Formats, chosen by the (case-insensitive) suffix:
 
 - ``.npz``: entries ``positions`` (N, 3), optional ``densities``, ``radii``, ``temperatures``,
-  ``ids`` (N,) and ``velocities`` (N, 3);
+  ``peak_temperatures``, ``ids`` (N,) and ``velocities`` (N, 3);
   an optional ``scene`` entry (0-d string array with scene JSON, see `read_npz_scene_json`); any
   other entry is ignored. Never unpickles.
 - ``.npy``: an (N, 3) positions array. Never unpickles.
 - ``.vtk`` (legacy), ``.vtu``, ``.ply``: via meshio; positions from the points, attributes from the
   point data (``density``/``densities``/``rho``, ``radius``/``radii``,
   ``temperature``/``temperatures``, ``velocity``/``velocities``/``v`` or ``vx``/``vy``/``vz``,
-  ``id``/``ids``).
+  ``id``/``ids``, ``peak_temperature``/``peak_temperatures``).
 - ``.bgeo``, ``.bgeo.gz``: Houdini classic binary geometry (version 5) as partio writes it, gzip
   compressed or not (decided by the gzip magic bytes, not by the name). Parsed here.
 - ``.csv``: a header row naming the columns; ``x``, ``y``, ``z`` required; ``density``, ``radius``,
-  ``temperature``, ``vx``/``vy``/``vz`` (all three), ``id`` (whole numbers) optional.
+  ``temperature``, ``peak_temperature``, ``vx``/``vy``/``vz`` (all three), ``id`` (whole numbers)
+  optional.
 
 Every problem with the file (missing, unreadable, corrupt, truncated, unsupported) raises
 `InputError` with field ``file`` and a one-line message that names the path; problems with the
@@ -72,8 +73,17 @@ _CANONICAL_KEYS: dict[str, str] = {
     "velocities": "velocity",
     "id": "id",
     "ids": "id",
+    "peak_temperature": "peak_temperature",
+    "peak_temperatures": "peak_temperature",
 }
-_ATTRIBUTES: tuple[str, ...] = ("density", "radius", "temperature", "velocity", "id")
+_ATTRIBUTES: tuple[str, ...] = (
+    "density",
+    "radius",
+    "temperature",
+    "velocity",
+    "id",
+    "peak_temperature",
+)
 
 #: Attribute names looked up when ``attribute_map`` says nothing (first match wins).
 _DEFAULT_NAMES: dict[str, tuple[str, ...]] = {
@@ -82,6 +92,7 @@ _DEFAULT_NAMES: dict[str, tuple[str, ...]] = {
     "temperature": ("temperature", "temperatures"),
     "velocity": ("velocity", "velocities", "v"),
     "id": ("id", "ids"),
+    "peak_temperature": ("peak_temperature", "peak_temperatures"),
 }
 _NPZ_NAMES: dict[str, tuple[str, ...]] = {
     "density": ("densities",),
@@ -89,6 +100,7 @@ _NPZ_NAMES: dict[str, tuple[str, ...]] = {
     "temperature": ("temperatures",),
     "velocity": ("velocities",),
     "id": ("ids",),
+    "peak_temperature": ("peak_temperatures",),
 }
 
 #: Exceptions that mean "this file could not be read"; turned into InputError("file", ...).
@@ -302,6 +314,7 @@ def _frame_from(
         temperatures=prepared("temperature"),
         velocities=prepared("velocity"),
         ids=prepared("id"),
+        peak_temperatures=prepared("peak_temperature"),
         max_particles=max_particles,
     )
 

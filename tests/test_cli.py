@@ -83,6 +83,9 @@ def test_demo_renders_a_png(tmp_path: Path) -> None:
     assert (np.minimum(r, g) > 0.95).mean() > 0.001
     # Elsewhere it is a grey scene: the median pixel is nearly neutral.
     assert abs(float(np.median(r)) - float(np.median(b))) < 0.08
+    # Heat tint beside the bead: a band of temper blue, which neither the grey hall nor the glow
+    # has (0.1% of the pixels without the tint, 6.7% with it).
+    assert ((b > r + 0.08) & (b > 0.15)).mean() > 0.02
 
 
 def test_render_exr_matches_in_process_render(

@@ -5,7 +5,10 @@ Generated procedurally (no downloads). Units are millimetres, particle radius 0.
 Temperatures follow a moving-heat-source picture (Rosenthal): a liquid pool at ~2500 K where the
 arc is (GTA pools on stainless reach 2000-2800 K, validation-data.md), a long hot trail behind it
 along the bead, a short steep fall ahead and sideways, and the plate at room temperature away
-from it.
+from it. The frame carries each particle's peak temperature too: the field moved with the arc
+from the bead's start, so a particle's peak is the field where the arc passed closest to it; the
+heat tint (configs/demo.toml sets material.heat_tint) reads it as temper-colour bands beside the
+bead, behind the molten pool (material.molten).
 """
 
 from __future__ import annotations
@@ -24,6 +27,8 @@ from sphrender.server.scene import Scene, scene_from_dict
 PARTICLE_RADIUS = 0.4
 #: Where the arc is (mm): near the end of the bead, which the torch travels towards (+x).
 ARC_POSITION = (24.0, 3.0, 0.0)
+#: Where the torch started (x, mm): the bead's start.
+ARC_START_X = -30.0
 POOL_KELVIN = 2500.0
 ROOM_KELVIN = 300.0
 #: The temperature excess over room temperature is the sum of a small, hot pool (1/e radius
@@ -68,10 +73,13 @@ def weld_bead_positions(seed: int = 7) -> npt.NDArray[np.float64]:
     return np.concatenate([plate, bead, spatter])
 
 
-def weld_temperatures(positions: npt.NDArray[np.float64]) -> npt.NDArray[np.float32]:
-    """Kelvin per particle: POOL_KELVIN at the arc, a pool term plus a long trail behind it."""
+def weld_temperatures(
+    positions: npt.NDArray[np.float64], arc_x: float | npt.NDArray[np.float64] = ARC_POSITION[0]
+) -> npt.NDArray[np.float32]:
+    """Kelvin per particle: POOL_KELVIN at the arc, a pool term plus a long trail behind it;
+    `arc_x`: where the arc is along x (per particle, for the peak)."""
     offset = positions - np.asarray(ARC_POSITION)
-    along = offset[:, 0]
+    along = positions[:, 0] - arc_x
     ahead = along > 0.0
     behind_scale = np.where(ahead, 1.0 / AHEAD_FACTOR, 1.0)
     across = np.hypot(offset[:, 1], offset[:, 2])
@@ -80,6 +88,14 @@ def weld_temperatures(positions: npt.NDArray[np.float64]) -> npt.NDArray[np.floa
     excess = POOL_SHARE * np.exp(-pool) + (1.0 - POOL_SHARE) * np.exp(-trail)
     kelvin = ROOM_KELVIN + (POOL_KELVIN - ROOM_KELVIN) * excess
     return kelvin.astype(np.float32)
+
+
+def weld_peak_temperatures(positions: npt.NDArray[np.float64]) -> npt.NDArray[np.float32]:
+    """Kelvin per particle: the hottest the moving field made it while the arc travelled from
+    ARC_START_X to the arc. The field falls monotonically with |along| on both sides, so the
+    peak is where the arc passed closest: along the travel, clipped to the particle's x."""
+    closest = np.clip(positions[:, 0], ARC_START_X, ARC_POSITION[0])
+    return weld_temperatures(positions, closest)
 
 
 def demo_scene_dict() -> dict[str, Any]:
@@ -94,4 +110,8 @@ def demo_scene() -> Scene:
 
 def demo_frame() -> ParticleFrame:
     positions = weld_bead_positions()
-    return make_frame(positions, temperatures=weld_temperatures(positions))
+    return make_frame(
+        positions,
+        temperatures=weld_temperatures(positions),
+        peak_temperatures=weld_peak_temperatures(positions),
+    )

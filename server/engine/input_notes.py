@@ -10,7 +10,8 @@ replaces are noted there: sph/frame_densities.py.)
   frame whose coldest particle is below COLDEST_KELVIN is almost surely in Celsius (its
   workpiece and spatter at room temperature read 20-25). A cryogenic simulation is kelvin
   there, so the frame renders as sent. One pass over the array on the host (~6 us per 100k
-  particles), no copy.
+  particles), no copy. `peak_temperatures` get the same note (read as kelvin, Celsius peaks
+  fall below the current temperatures and the tint reads those instead).
 * **A radius that does not fit the frame's spacing** (`radius_note`). SPH fills its fluid with
   particles spaced 2r apart (SPlisHSPlasH, DualSPHysics: the particle mass is rest density x
   (2r)^3), so a frame's own particles say what `particles.radius` should be. Forgetting it
@@ -61,6 +62,20 @@ def celsius_note(frame: ParticleFrame) -> InputNote | None:
         f"read in kelvin, they run from {coldest:.4g} K to {hottest:.4g} K; below "
         f"{COLDEST_KELVIN:g} K they are likely degrees Celsius: add 273.15 (1500 degrees C is "
         "1773 K, which glows ~12x brighter at 600 nm than 1500 K); rendered as sent",
+    )
+
+
+def peak_celsius_note(frame: ParticleFrame) -> InputNote | None:
+    """`celsius_note` for the frame's peak temperatures (None without them)."""
+    peaks = frame.peak_temperatures
+    if peaks is None or not frame.count or float(np.min(peaks)) >= COLDEST_KELVIN:
+        return None
+    return InputNote(
+        "peak_temperatures",
+        f"read in kelvin, they run from {float(np.min(peaks)):.4g} K to "
+        f"{float(np.max(peaks)):.4g} K; below {COLDEST_KELVIN:g} K they are likely degrees "
+        "Celsius: add 273.15 (a peak below the current temperature counts as the current one, "
+        "so the heat tint reads those instead); rendered as sent",
     )
 
 
@@ -133,7 +148,11 @@ class InputNotes:
     def of(self, frame: ParticleFrame, scene: Scene, visible: int) -> list[InputNote]:
         """The notes of `frame`, of which `visible` particles are in view of the scene's camera."""
         spacing = self._spacing.of(frame)
-        found = (celsius_note(frame), radius_note(frame, scene.particles.radius, spacing))
+        found = (
+            celsius_note(frame),
+            peak_celsius_note(frame),
+            radius_note(frame, scene.particles.radius, spacing),
+        )
         notes = [note for note in found if note is not None]
         if not visible and frame.count:
             notes.append(out_of_view_note(frame, scene.camera))

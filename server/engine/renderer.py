@@ -76,6 +76,7 @@ class SurfaceRenderer:
         self._smooth = SmoothPass(self._context)
         self._normals = NormalsPass(self._context)
         self._temperature = TemperaturePass(self._context)
+        self._peak_temperature = TemperaturePass(self._context, channel=1)
         self._shade = ShadePass(self._context, environment_dirs)
         self._display = DisplayPass(self._context)
         self._readback = ReadbackPass(self._context)
@@ -248,16 +249,14 @@ class SurfaceRenderer:
         prepared: PreparedFrame,
     ) -> Target:
         """The shaded colour target (the temperature blurred along the surface first)."""
-        temperature = surface.temperature
+        temperature, peak = surface.temperature, None
         if temperature is not None and prepared.visible:
-            temperature = self._temperature.run(
-                temperature,
-                surface.depth,
-                camera.pixels_per_unit_at_unit_depth,
-                prepared.reference_radius,
-            )
+            blur = (surface.depth, camera.pixels_per_unit_at_unit_depth, prepared.reference_radius)
+            if temperature.components == 2:
+                peak = self._peak_temperature.run(temperature, *blur)
+            temperature = self._temperature.run(temperature, *blur)
         return self._shade.run(
-            scene, camera, normal_depth.texture, temperature, prepared.box, surface.coverage
+            scene, camera, normal_depth.texture, temperature, prepared.box, surface.coverage, peak
         )
 
     def _read_back(
@@ -292,7 +291,7 @@ class SurfaceRenderer:
         """Release every GPU object this renderer owns (on the owner thread)."""
         self._gl.check_owner()
         passes = (self._splat, self._smooth, self._normals, self._temperature, self._shade)
-        for gpu_pass in (*passes, self._display, self._readback):
+        for gpu_pass in (*passes, self._peak_temperature, self._display, self._readback):
             gpu_pass.release()
         self._context.fullscreen.release()
         self._context.programs.release()

@@ -163,6 +163,30 @@ class MaterialConfig:
         low=0.0,
         high=1e4,
     )
+    heat_tint: bool = spec(
+        False,
+        "frames with temperatures: solid metal shows the oxide film (temper colours) its peak "
+        "temperature left, by thin-film interference. The demo sets it; no quality preset does",
+    )
+    oxide_reference_k: float | None = spec(
+        None,
+        "override: peak temperature (K) that leaves a 50 nm oxide film (heat_tint's calibration). "
+        "Presets: iron 578, stainless_steel 813, others use iron's; for another alloy",
+        low=300.0,
+        high=3000.0,
+    )
+    oxide_activation_k: float | None = spec(
+        None,
+        "override: E = Q / 2R (K) of film growth, d = 50 nm exp(E (1/oxide_reference_k - 1/T)); "
+        "more: colours crowd closer in temperature. Presets: iron 3240, stainless_steel 1500",
+        low=100.0,
+        high=1e5,
+    )
+    molten: bool = spec(
+        False,
+        "frames with temperatures: liquid metal (smooth, no oxide) above liquidus_k, the "
+        "material's own below solidus_k, blended between. The demo sets it; no quality preset does",
+    )
 
 
 LightType = Literal["directional", "point"]

@@ -161,6 +161,7 @@ class RenderService:
             temperatures=arrays.get("temperatures"),
             velocities=arrays.get("velocities"),
             ids=arrays.get("ids"),
+            peak_temperatures=arrays.get("peak_temperatures"),
             max_particles=self.config.limits.max_particles,
         )
 
@@ -174,6 +175,11 @@ class RenderService:
     ) -> None:
         """Queue a frame; raises `QueueFull`, or `SchedulerClosed` once the drain has closed the
         scheduler (which happens only after every request in flight has been queued)."""
+        particles = job.particles
+        if particles.ids is not None and particles.temperatures is not None:
+            session = self.sessions.get(job.key, touch=False)
+            if session is not None:
+                job.particles = session.peaks.apply(particles, job.scene)
         self.metrics.in_flight.add(1)
         job.add_done_callback(self._record)
         try:

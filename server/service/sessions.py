@@ -33,6 +33,7 @@ from sphrender.core.frame import ParticleFrame
 from sphrender.core.protocol import LimitError, parse_json_object
 from sphrender.server.engine.lighting.environment import EnvironmentLibrary
 from sphrender.server.scene import Scene, scene_from_dict, scene_to_dict
+from sphrender.server.service.thermal_history import PeakHistory
 
 #: The answer when the renderer fails to prepare a session's scene (the details are logged).
 WARM_FAILED = "preparing the scene failed in the renderer; the server logged the details"
@@ -75,6 +76,7 @@ class Session:
     particles: ParticleFrame | None = None
     latest: LatestImage | None = None
     images: int = 0
+    peaks: PeakHistory = field(default_factory=PeakHistory)  # thermal history by particle id
 
     def keep_latest(self, fmt: str, data: bytes, width: int, height: int) -> None:
         """Record an answered image (called once per image, from the answering thread)."""

@@ -55,6 +55,11 @@ vec3 fresnel_schlick(vec3 f0, float cos_theta) {
     return f0 + (1.0 - f0) * pow5(clamp(1.0 - cos_theta, 0.0, 1.0));
 }
 
+// The Fresnel of the specular lobes; a shader may name its own (declared before this include).
+#ifndef SURFACE_FRESNEL
+#define SURFACE_FRESNEL fresnel_schlick
+#endif
+
 // The two lobes of f_r (no cosine) for unit n, v, l with n.l > 0: (1 - F) c_diff / pi and D V F.
 void brdf_lobes(
     vec3 n, vec3 v, vec3 l, vec3 f0, vec3 diffuse_albedo, float alpha,
@@ -67,7 +72,7 @@ void brdf_lobes(
     float vh = max(dot(v, h), 0.0);
     vec3 nxh = cross(n, h);
     float d = d_ggx(nh, dot(nxh, nxh), alpha);
-    vec3 f = fresnel_schlick(f0, vh);
+    vec3 f = SURFACE_FRESNEL(f0, vh);
     diffuse = (1.0 - f) * diffuse_albedo * (1.0 / PI);
     specular = d * visibility(nl, nv, nh, vh, alpha) * f;
 }

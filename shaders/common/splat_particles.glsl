@@ -14,10 +14,12 @@ layout(std430, binding = 1) readonly buffer SplatIds { uint splat_ids[]; };
 layout(std430, binding = 2) readonly buffer SplatTemperatures { float splat_temperatures[]; };
 layout(std430, binding = 3) readonly buffer SplatAxes { float splat_axes[]; };  // 9 per particle, row-major 3x3, columns = semi-axes
 layout(std430, binding = 8) readonly buffer SplatFlags { uint splat_flags[]; };  // device culling
+layout(std430, binding = 25) readonly buffer SplatPeaks { float splat_peaks[]; };
 
 uniform bool u_use_ids;
 uniform float u_class;           // 1: bulk (w > 0), -1: droplets (w < 0)
 uniform bool u_has_temperature;  // splat_temperatures is bound
+uniform bool u_has_peak;         // splat_peaks is bound (the frame carries peak temperatures)
 uniform mat3 u_view_rotation;    // world -> view (ellipsoid axes)
 uniform uint u_flag_mask;        // 0: every particle of the class; else those with one of these
                                  // device-culling flags (splat/occlusion_cull.comp.glsl)
@@ -47,6 +49,11 @@ bool splat_sphere(uint particle, out vec4 sphere) {
 
 float splat_temperature(uint particle) {
     return u_has_temperature ? splat_temperatures[particle] : 0.0;
+}
+
+// (kelvin, peak kelvin) of the particle; the peak is 0 when the frame has none.
+vec2 splat_kelvin(uint particle) {
+    return vec2(splat_temperature(particle), u_has_peak ? splat_peaks[particle] : 0.0);
 }
 
 // Semi-axis k (a column of A) of an ellipsoid, in view space.

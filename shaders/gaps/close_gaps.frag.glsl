@@ -54,7 +54,7 @@ uniform float u_edge_jump;        // a surface nearer by more than this is in fr
 
 layout(location = 0) out vec4 out_depth;
 #if HAS_TEMPERATURE
-uniform sampler2D u_temperature;  // the splat's front-sphere kelvin (0 where no sphere)
+uniform sampler2D u_temperature;  // the splat's front-sphere kelvin (0 where no sphere), peak in g
 layout(location = 1) out vec4 out_temperature;
 #endif
 
@@ -91,7 +91,7 @@ void main() {
     float limit_px = tolerance * u_focal_px;  // the gap limit in pixels is limit_px / min(za, zb)
     out_depth = vec4(zc, 0.0, 0.0, 0.0);
 #if HAS_TEMPERATURE
-    out_temperature = vec4(texelFetch(u_temperature, p, 0).r, 0.0, 0.0, 0.0);
+    out_temperature = vec4(texelFetch(u_temperature, p, 0).rg, 0.0, 0.0);
 #endif
 #if BACKGROUND_ONLY
     if (zc > 0.0) {
@@ -155,9 +155,9 @@ void main() {
     if (enclosing >= need) {
         out_depth = vec4(fill, 0.0, 0.0, 0.0);
 #if HAS_TEMPERATURE
-        float ta = texelFetch(u_temperature, fill_a, 0).r;
-        float tb = texelFetch(u_temperature, fill_b, 0).r;
-        out_temperature = vec4(ta + (tb - ta) * fill_t, 0.0, 0.0, 0.0);
+        vec2 ta = texelFetch(u_temperature, fill_a, 0).rg;
+        vec2 tb = texelFetch(u_temperature, fill_b, 0).rg;
+        out_temperature = vec4(ta + (tb - ta) * fill_t, 0.0, 0.0);
 #endif
     }
 }

@@ -23,6 +23,8 @@
 #define COMBINE_WEIGHTED 1
 #define COMBINE 0
 #define HAS_TEMPERATURE 0
+#define HEAT_TINT 0
+#define MOLTEN 0
 #define MULTIPLE_SCATTERING 0
 #define BACKGROUND_ENVIRONMENT 0
 #define VIEW_BEAUTY 0
@@ -38,6 +40,10 @@
 #define LIGHT_POINT 1
 
 #include "common/depth_image.glsl"
+#if HEAT_TINT
+vec3 heat_fresnel(vec3 f0, float cos_theta);  // lighting/thin_film.glsl
+#define SURFACE_FRESNEL heat_fresnel
+#endif
 #include "common/brdf.glsl"
 #include "common/sampling.glsl"
 #include "common/equirect.glsl"
@@ -81,6 +87,15 @@ uniform vec2 u_blackbody_range;     // kelvin at the first and last texel centre
 uniform vec3 u_emissivity;          // normal-incidence emissivity
 uniform float u_emission_scale;     // scene-linear per cd/m^2
 
+// This pixel's F0, diffuse albedo and roughness: the uniforms', or with HEAT_TINT / MOLTEN
+// the hot metal's (lighting/thin_film.glsl).
+vec3 g_f0;
+vec3 g_diffuse_albedo;
+float g_roughness;
+#if HAS_TEMPERATURE && (HEAT_TINT || MOLTEN)
+#include "lighting/thin_film.glsl"
+#endif
+
 layout(location = 0) out vec4 out_color;
 
 vec3 environment_radiance(vec3 world_direction, float lod) {
@@ -111,7 +126,7 @@ vec3 direct_light(vec3 n, vec3 v, vec3 position, float alpha, vec3 specular_ener
         if (nl > 0.0) {
             vec3 diffuse;
             vec3 specular;
-            brdf_lobes(n, v, l, u_f0, u_diffuse_albedo, alpha, diffuse, specular);
+            brdf_lobes(n, v, l, g_f0, g_diffuse_albedo, alpha, diffuse, specular);
             sum += (diffuse + specular * specular_energy) * irradiance * nl;
         }
     }
@@ -145,7 +160,7 @@ vec3 sampled_specular(vec3 n, vec3 v, float nv, float alpha) {
         float lod = max(0.5 * log2(omega_s / omega_p) + 1.0, 0.0);
         vec3 radiance = textureLod(u_env_source, equirect_uv(l_env), lod).rgb;
         float weight = visibility(nl, nv, nh, vh, alpha) * 4.0 * nl * vh / nh;
-        sum += radiance * fresnel_schlick(u_f0, vh) * weight;
+        sum += radiance * SURFACE_FRESNEL(g_f0, vh) * weight;
     }
     return sum * (u_env_intensity / float(u_ibl_samples));
 }
@@ -228,14 +243,20 @@ void main() {
     vec3 n = normalize(normal_depth.xyz);
     vec3 v = -normalize(position);
     float nv = max(dot(n, v), MIN_NV);
-    float alpha = alpha_from_roughness(u_roughness);
+    g_f0 = u_f0;
+    g_diffuse_albedo = u_diffuse_albedo;
+    g_roughness = u_roughness;
+#if HAS_TEMPERATURE && (HEAT_TINT || MOLTEN)
+    hot_metal(source);
+#endif
+    float alpha = alpha_from_roughness(g_roughness);
 
 #if IBL_MODE != IBL_NONE || MULTIPLE_SCATTERING
-    vec2 scale_bias = texture(u_brdf_lut, vec2(nv, u_roughness)).rg;
+    vec2 scale_bias = texture(u_brdf_lut, vec2(nv, g_roughness)).rg;
 #endif
 #if MULTIPLE_SCATTERING
     // E_ss >= ~0.3 for GGX (alpha = 1, grazing); the floor only guards a broken table.
-    vec3 specular_energy = 1.0 + u_f0 * (1.0 / max(scale_bias.x + scale_bias.y, 0.05) - 1.0);
+    vec3 specular_energy = 1.0 + g_f0 * (1.0 / max(scale_bias.x + scale_bias.y, 0.05) - 1.0);
 #else
     vec3 specular_energy = vec3(1.0);
 #endif
@@ -245,12 +266,15 @@ void main() {
     vec3 specular_ibl = vec3(0.0);
     vec3 irradiance = vec3(0.0);
 #if IBL_MODE != IBL_NONE
-    vec3 specular_albedo = u_f0 * scale_bias.x + scale_bias.y;
+    vec3 specular_albedo = g_f0 * scale_bias.x + scale_bias.y;
+#if HEAT_TINT && HAS_TEMPERATURE
+    specular_albedo *= film_tint(nv);
+#endif
     irradiance = max(sh9_irradiance(u_sh, u_world_to_env * n), 0.0) * u_env_intensity;
-    diffuse_ibl = (1.0 - specular_albedo) * u_diffuse_albedo * irradiance * (1.0 / PI);
+    diffuse_ibl = (1.0 - specular_albedo) * g_diffuse_albedo * irradiance * (1.0 / PI);
 #if IBL_MODE == IBL_PREFILTERED
     vec3 r = u_world_to_env * reflect(-v, n);
-    float lod = clamp(u_roughness, 0.0, 1.0) * u_prefiltered_max_lod;
+    float lod = clamp(g_roughness, 0.0, 1.0) * u_prefiltered_max_lod;
     specular_ibl = textureLod(u_env_prefiltered, equirect_uv(r), lod).rgb * u_env_intensity
         * specular_albedo;
 #else

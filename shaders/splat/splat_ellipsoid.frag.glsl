@@ -12,11 +12,12 @@
 #define COVERAGE 0
 
 #include "common/edge_coverage.glsl"
+#include "common/splat_kelvin.glsl"
 
 in vec3 v_view_position;
 flat in vec3 v_center;
 flat in mat3 v_to_unit;
-flat in float v_temperature;
+flat in vec2 v_temperature;
 
 uniform float u_near;
 uniform float u_far;
@@ -29,7 +30,7 @@ layout(location = 0) out float out_coverage;
 #else
 layout(location = 0) out float out_eye_depth;
 #if HAS_TEMPERATURE
-layout(location = 1) out float out_temperature;
+layout(location = 1) out SPLAT_KELVIN out_temperature;
 #endif
 #endif
 
@@ -66,7 +67,7 @@ void main() {
     }
     out_eye_depth = eye_depth;
 #if HAS_TEMPERATURE
-    out_temperature = v_temperature;
+    out_temperature = SPLAT_KELVIN_OF(v_temperature);
 #endif
     gl_FragDepth = clamp(eye_depth / u_far, 0.0, 1.0);
 #endif

@@ -13,7 +13,7 @@ uniform float u_margin;     // pixels / focal length in pixels (0 for the depth 
 out vec3 v_view_position;
 flat out vec3 v_center;
 flat out mat3 v_to_unit;    // view offsets -> unit-sphere coordinates: rows a_k / |a_k|^2
-flat out float v_temperature;
+flat out vec2 v_temperature;   // kelvin, peak kelvin
 
 void main() {
     uint particle = splat_particle();
@@ -30,6 +30,6 @@ void main() {
     vec3 a2 = splat_axis(particle, 2);
     // A has orthogonal columns, so A^-1 = diag(1 / |a_k|^2) A^T: its rows are a_k / |a_k|^2.
     v_to_unit = transpose(mat3(a0 / dot(a0, a0), a1 / dot(a1, a1), a2 / dot(a2, a2)));
-    v_temperature = splat_temperature(particle);
+    v_temperature = splat_kelvin(particle);
     gl_Position = u_projection * vec4(corner, 1.0);
 }

@@ -2,20 +2,23 @@
 // Ray-sphere intersection per fragment gives the exact, perspective-correct front surface.
 // Output: eye depth (positive, along the view axis) into an R32F target, and a *linear*
 // gl_FragDepth (eye depth / far) for the depth test, so precision does not depend on near.
-// With HAS_TEMPERATURE a second target receives the front-most particle's temperature (kelvin).
+// With HAS_TEMPERATURE a second target receives the front-most particle's temperature (kelvin)
+// (and its peak: common/splat_kelvin.glsl).
 
 #define HAS_TEMPERATURE 0
 
+#include "common/splat_kelvin.glsl"
+
 in vec3 v_view_position;
 flat in vec4 v_sphere;
-flat in float v_temperature;
+flat in vec2 v_temperature;
 
 uniform float u_near;
 uniform float u_far;
 
 layout(location = 0) out float out_eye_depth;
 #if HAS_TEMPERATURE
-layout(location = 1) out float out_temperature;
+layout(location = 1) out SPLAT_KELVIN out_temperature;
 #endif
 
 void main() {
@@ -37,7 +40,7 @@ void main() {
     }
     out_eye_depth = eye_depth;
 #if HAS_TEMPERATURE
-    out_temperature = v_temperature;
+    out_temperature = SPLAT_KELVIN_OF(v_temperature);
 #endif
     gl_FragDepth = clamp(eye_depth / u_far, 0.0, 1.0);
 }

@@ -12,7 +12,7 @@ uniform mat4 u_projection;
 
 out vec3 v_view_position;   // point on the quad, view space; interpolated perspective-correctly
 flat out vec4 v_sphere;     // view-space centre and radius
-flat out float v_temperature;
+flat out vec2 v_temperature;   // kelvin, peak kelvin
 
 void main() {
     uint particle = splat_particle();
@@ -24,6 +24,6 @@ void main() {
     vec3 corner = sphere_quad_corner(sphere.xyz, sphere.w, splat_corner(), 0.0);
     v_view_position = corner;
     v_sphere = sphere;
-    v_temperature = splat_temperature(particle);
+    v_temperature = splat_kelvin(particle);
     gl_Position = u_projection * vec4(corner, 1.0);
 }

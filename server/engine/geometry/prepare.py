@@ -30,6 +30,7 @@ class PreparedParticles:
     #: (the splat's vertex stage rotates them to view space); `center_radius[:, 3]` is then each
     #: ellipsoid's bounding radius (its longest semi-axis).
     axes: npt.NDArray[np.float32] | None = None
+    peak_temperatures: npt.NDArray[np.float32] | None = None  # (N,) kelvin, as temperatures
 
     def subset(self, rows: npt.NDArray[np.bool_]) -> PreparedParticles:
         """The particles where `rows` is true (same far and reference radius)."""
@@ -40,6 +41,9 @@ class PreparedParticles:
             None if self.temperatures is None else np.ascontiguousarray(self.temperatures[rows]),
             None if self.droplets is None else self.droplets[rows],
             None if self.axes is None else np.ascontiguousarray(self.axes[rows]),
+            None
+            if self.peak_temperatures is None
+            else np.ascontiguousarray(self.peak_temperatures[rows]),
         )
 
 
@@ -108,8 +112,13 @@ def prepare_particles(
         if frame.temperatures is not None
         else None
     )
+    peaks = (  # only the heat tint reads them
+        np.ascontiguousarray(frame.peak_temperatures[keep], dtype=np.float32)
+        if frame.peak_temperatures is not None and scene.material.heat_tint
+        else None
+    )
     kept_droplets = None if droplets is None else droplets[keep]
     axes = None if ellipsoids is None else np.ascontiguousarray(ellipsoids[1][keep])
     return PreparedParticles(
-        center_radius, far, reference_radius, temperatures, kept_droplets, axes
+        center_radius, far, reference_radius, temperatures, kept_droplets, axes, peaks
     )

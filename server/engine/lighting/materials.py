@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from sphrender.server.engine.lighting.thin_film import OXIDE_CALIBRATION
 from sphrender.server.scene import MaterialConfig, Vec3
 
 #: Measured linear-sRGB F0 per preset name (validation-data.md, "Metal F0").
@@ -59,6 +60,13 @@ MIN_ROUGHNESS = 0.045
 #: F0 of the dielectric end of the metallic workflow (4%, most non-metals).
 DIELECTRIC_F0 = 0.04
 
+#: Liquid metal (`material.molten`): the normal spectral emissivity of liquid iron and steels
+#: near 0.65 um is 0.35-0.38 (Watanabe, Susa, Fukuyama & Nagata 2003, Int. J. Thermophys. 24;
+#: Krishnan et al. 1991 for liquid Fe), so F0 = 1 - 0.37, taken grey. A free liquid surface is a
+#: mirror at the pixel's scale; its ripples are the SPH surface's own: roughness 0.1.
+LIQUID_F0: Vec3 = (0.63, 0.63, 0.63)
+LIQUID_ROUGHNESS = 0.1
+
 
 @dataclass(frozen=True)
 class Material:
@@ -70,6 +78,10 @@ class Material:
     emissivity: Vec3 | None  # None = 1 - F0 (per channel)
     solidus_k: float  # below: solid
     liquidus_k: float  # above: liquid; between: the mushy range
+    preset: str = "iron"  # the film's optical constants (thin_film.FILM_INDEX)
+    heat_tint: bool = False
+    oxide_calibration: tuple[float, float] = OXIDE_CALIBRATION["iron"]  # (T_ref K, E K)
+    molten: bool = False
 
     @property
     def specular_f0(self) -> Vec3:
@@ -102,6 +114,11 @@ def resolve_material(config: MaterialConfig) -> Material:
         solidus = config.solidus_k
     if config.liquidus_k is not None:
         liquidus = config.liquidus_k
+    reference_k, activation_k = OXIDE_CALIBRATION.get(config.preset, OXIDE_CALIBRATION["iron"])
+    if config.oxide_reference_k is not None:
+        reference_k = config.oxide_reference_k
+    if config.oxide_activation_k is not None:
+        activation_k = config.oxide_activation_k
     return Material(
         f0=f0,
         roughness=roughness,
@@ -109,4 +126,8 @@ def resolve_material(config: MaterialConfig) -> Material:
         emissivity=config.emissivity,
         solidus_k=min(solidus, liquidus),
         liquidus_k=max(solidus, liquidus),
+        preset=config.preset,
+        heat_tint=config.heat_tint,
+        oxide_calibration=(reference_k, activation_k),
+        molten=config.molten,
     )

@@ -12,7 +12,7 @@ whose rasteriser is the cost; see `SurfaceRenderer` for the switch).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import moderngl
 import numpy as np
@@ -29,6 +29,7 @@ from sphrender.server.engine.passes.splat import SplatBatch
 from sphrender.server.engine.passes.splat_buffers import (
     AXES,
     DROPLETS,
+    PEAKS,
     POSITIONS,
     RADII,
     SPHERES,
@@ -73,6 +74,8 @@ class DevicePrepare:
         """Upload `frame` (or the ellipsoid centres and axes) and run the compute shader; the
         arguments mean what they mean for `geometry.prepare.prepare_particles`."""
         count = frame.count
+        if frame.peak_temperatures is not None and not scene.material.heat_tint:
+            frame = replace(frame, peak_temperatures=None)  # only the heat tint reads them
         self._upload(frame, droplets, ellipsoids)
         summary = self._dispatch(camera, scene, frame, count, droplets, ellipsoids)
         box_min_x, box_min_y, neg_max_x, neg_max_y, _, visible, drops, unbounded = summary[
@@ -94,8 +97,11 @@ class DevicePrepare:
             reference_radius = frame_reference_radius(frame, scene.particles.radius)
         has_temperature = frame.temperatures is not None
         ellipsoid = ellipsoids is not None
-        bulk = SplatBatch(count, far, has_temperature, ellipsoid)
-        drop_batch = SplatBatch(count, far, has_temperature, ellipsoid, droplets=True)
+        peak = frame.peak_temperatures is not None
+        bulk = SplatBatch(count, far, has_temperature, ellipsoid, has_peak=peak)
+        drop_batch = SplatBatch(
+            count, far, has_temperature, ellipsoid, droplets=True, has_peak=peak
+        )
         return DevicePrepared(
             bulk, drop_batch if drops else None, visible, box, reference_radius, nearest
         )
@@ -117,6 +123,8 @@ class DevicePrepare:
             buffers.write(RADII, np.asarray(frame.radii, dtype=np.float32))
         if frame.temperatures is not None:
             buffers.write(TEMPERATURES, np.asarray(frame.temperatures, dtype=np.float32))
+        if frame.peak_temperatures is not None:
+            buffers.write(PEAKS, np.asarray(frame.peak_temperatures, dtype=np.float32))
         if droplets is not None:
             buffers.write(DROPLETS, droplets.view(np.uint8))
         with self._context.gl.clock:

@@ -101,10 +101,17 @@ class _GapTargets:
             self.reclosed = Target.float(self._ctx, self.closed.texture.size, 1)
         return self.reclosed
 
-    def with_kelvin(self, out: Target) -> tuple[moderngl.Framebuffer, Target]:
-        """A framebuffer on `out` (`closed` or `reclosed`) and the filled kelvin, and that."""
+    def with_kelvin(self, out: Target, channels: int) -> tuple[moderngl.Framebuffer, Target]:
+        """A framebuffer on `out` (`closed` or `reclosed`) and the filled kelvin (`channels`:
+        2 with peaks), and that."""
+        if self.kelvin is not None and self.kelvin.texture.components != channels:
+            for fbo in self.both.values():
+                fbo.release()
+            self.both.clear()
+            self.kelvin.release()
+            self.kelvin = None
         if self.kelvin is None:
-            self.kelvin = Target.float(self._ctx, self.closed.texture.size, 1)
+            self.kelvin = Target.float(self._ctx, self.closed.texture.size, channels)
         again = out is not self.closed
         both = self.both.get(again)
         if both is None:
@@ -258,7 +265,7 @@ class GapPass:
         with gl.clock:
             ctx.copy_framebuffer(out.fbo, targets.input(depth))
             if temperature is not None:
-                fbo, kelvin = targets.with_kelvin(out)
+                fbo, kelvin = targets.with_kelvin(out, temperature.components)
                 ctx.copy_framebuffer(kelvin.fbo, targets.back_into(temperature))
         depth.use(0)
         targets.dilated.texture.use(1)

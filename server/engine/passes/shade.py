@@ -29,6 +29,7 @@ from sphrender.server.engine.lighting.environment import EnvironmentLibrary, rot
 from sphrender.server.engine.lighting.ibl import PREFILTER_LEVELS, EnvironmentTextures, IblCache
 from sphrender.server.engine.lighting.materials import resolve_material
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
+from sphrender.server.engine.passes.shade_heat import FilmTables, heat_defines, heat_uniforms
 from sphrender.server.scene import MAX_LIGHTS, Scene
 
 SHADER = "shade/shade_pbr.frag.glsl"
@@ -51,6 +52,7 @@ class ShadePass:
         self.environments = EnvironmentLibrary(environment_dirs)
         self.ibl = IblCache(context.gl, context.programs)
         self._blackbody: moderngl.Texture | None = None
+        self._film = FilmTables(context)
         self._target = PerSize(lambda size: Target.float(context.gl.ctx, size, 4))
 
     def program_for(
@@ -70,6 +72,7 @@ class ShadePass:
                 "G_TERM": _G_TERM_DEFINES[shading.g_term],
                 "MAX_LIGHTS": MAX_LIGHTS,
                 "ANTIALIAS": antialias,
+                **heat_defines(scene.material, has_temperature),
             },
         )
 
@@ -96,13 +99,15 @@ class ShadePass:
         temperature: moderngl.Texture | None,
         box: ScreenBox | None = None,
         coverage: moderngl.Texture | None = None,
+        peak: moderngl.Texture | None = None,
     ) -> Target:
         """Shade `normal_depth` (world normal xyz, eye depth w) into the colour target;
         `temperature` (kelvin per pixel, already smoothed) adds the hot-metal glow. With a
         transparent background only `box` can be non-zero (the shader writes vec4(0) where
         there is no surface), so only `box` is shaded; an environment background covers every
         pixel. `coverage` (the splat's sub-pixel coverage) anti-aliases the silhouettes: alpha
-        = coverage, and the pixels just outside show their neighbours' surface."""
+        = coverage, and the pixels just outside show their neighbours' surface. `peak` (kelvin,
+        smoothed) is the heat tint's peak temperature; without it the tint reads `temperature`."""
         program = self.program_for(scene, temperature is not None, coverage is not None)
         shading = scene.shading
         entry = None
@@ -111,6 +116,11 @@ class ShadePass:
         # Textures are bound only after every resource exists: building one (prefiltering, the
         # BRDF table) runs passes of its own that rebind texture units.
         textures = self._textures(program, scene, entry, normal_depth, temperature, coverage)
+        if temperature is not None and uses(program, "u_film_table"):
+            textures += [
+                ("u_film_table", self._film.texture(resolve_material(scene.material))),
+                ("u_peak_temperature", peak if peak is not None else temperature),
+            ]
         set_group(
             program,
             "scene",
@@ -174,6 +184,7 @@ class ShadePass:
             "u_blackbody_range": (TABLE_MIN_K, TABLE_MAX_K),
             "u_emissivity": material.normal_emissivity,
             "u_emission_scale": shading.emission_scale,
+            **heat_uniforms(material),
         }
         write_matrix(program, "u_view_to_world", lambda: camera.rotation.T, camera)
         if entry is not None:
@@ -215,6 +226,7 @@ class ShadePass:
     def release(self) -> None:
         self._target.release()
         self.ibl.release()
+        self._film.release()
         if self._blackbody is not None:
             self._blackbody.release()
             self._blackbody = None

@@ -44,6 +44,7 @@ from sphrender.server.engine.passes.device_culling import (
 from sphrender.server.engine.passes.splat_buffers import (
     AXES,
     IDS,
+    PEAKS,
     SPHERES,
     TEMPERATURES,
     SplatBuffers,
@@ -75,7 +76,8 @@ COVERAGE_NEED_PX = 0
 @dataclass(frozen=True)
 class SplatOutput:
     depth: moderngl.Texture  # eye depth, R32F, 0 = background
-    temperature: moderngl.Texture | None  # kelvin of the front sphere, when the frame has them
+    # kelvin of the front sphere, when the frame has them (RG32F: + its peak, when it has those)
+    temperature: moderngl.Texture | None
     splatted: int  # particles rasterised (visible less those found hidden); -1: device prepare
     coverage: moderngl.Texture | None = None  # sub-pixel coverage (R32F), when anti-aliasing
     # The bulk's eye depth the droplets drew over (run_droplets); None: `depth` is the bulk's.
@@ -101,7 +103,7 @@ class SplatTargets:
         self.composite_with_temperature: moderngl.Framebuffer | None = None
 
     def composite_targets(
-        self, with_temperature: bool
+        self, with_temperature: bool, channels: int = 1
     ) -> tuple[moderngl.Texture, moderngl.Framebuffer, moderngl.Framebuffer]:
         """(composite texture, its seed framebuffer, the framebuffer the droplets draw into:
         composite + temperature when `with_temperature`), all on the splat's depth buffer."""
@@ -110,7 +112,7 @@ class SplatTargets:
             self.composite_fbo = self._ctx.framebuffer([self.composite], self.depth_buffer)
         if not with_temperature:
             return self.composite, self.composite_fbo, self.composite_fbo
-        temperature, _ = self.temperature_targets()
+        temperature, _ = self.temperature_targets(channels)
         if self.composite_with_temperature is None:
             self.composite_with_temperature = self._ctx.framebuffer(
                 [self.composite, temperature], self.depth_buffer
@@ -122,9 +124,19 @@ class SplatTargets:
             self.coverage = Target.float(self._ctx, self.size, 1)
         return self.coverage
 
-    def temperature_targets(self) -> tuple[moderngl.Texture, moderngl.Framebuffer]:
+    def temperature_targets(
+        self, channels: int = 1
+    ) -> tuple[moderngl.Texture, moderngl.Framebuffer]:
+        """The kelvin target (`channels` 2: kelvin and peak kelvin) and its framebuffer with the
+        depth; rebuilt when the frames switch between with and without peaks."""
+        if self.temperature is not None and self.temperature.components != channels:
+            for fbo in (self.fbo_with_temperature, self.composite_with_temperature):
+                if fbo is not None:
+                    fbo.release()
+            self.temperature.release()
+            self.temperature = self.fbo_with_temperature = self.composite_with_temperature = None
         if self.temperature is None or self.fbo_with_temperature is None:
-            self.temperature = float_texture(self._ctx, self.size, 1)
+            self.temperature = float_texture(self._ctx, self.size, channels)
             self.fbo_with_temperature = self._ctx.framebuffer(
                 [self.depth, self.temperature], self.depth_buffer
             )
@@ -157,6 +169,8 @@ class SplatBatch:
     droplets: bool = False
     #: The CPU's copy (host prepare): what the occlusion culling reads. None: device prepare.
     host: PreparedParticles | None = None
+    #: The frame's peak temperatures are in the buffers (written beside the kelvin).
+    has_peak: bool = False
 
 
 class SplatPass:
@@ -169,9 +183,9 @@ class SplatPass:
         self.buffers = SplatBuffers(context.gl)
         self._culling = DeviceCulling(context, self.buffers, COVERAGE_NEED_PX)
         self._culled_on_device = False
-        # Keyed by (ellipsoid, has temperature, coverage).
+        # Keyed by (ellipsoid, has temperature, coverage, has peak).
         self._vaos: dict[
-            tuple[bool, bool, bool], tuple[moderngl.Program, moderngl.VertexArray]
+            tuple[bool, bool, bool, bool], tuple[moderngl.Program, moderngl.VertexArray]
         ] = {}
         self._targets = PerSize(lambda size: SplatTargets(context.gl.ctx, size))
         self._band = CoverageBand(context)  # where the coverage pass does its work
@@ -188,12 +202,15 @@ class SplatPass:
             buffers.write(TEMPERATURES, prepared.temperatures)
         if prepared.axes is not None:
             buffers.write(AXES, prepared.axes)
+        if prepared.peak_temperatures is not None:
+            buffers.write(PEAKS, prepared.peak_temperatures)
         return SplatBatch(
             int(prepared.center_radius.shape[0]),
             prepared.far,
             prepared.temperatures is not None,
             prepared.axes is not None,
             host=prepared,
+            has_peak=prepared.temperatures is not None and prepared.peak_temperatures is not None,
         )
 
     def run(
@@ -215,7 +232,7 @@ class SplatPass:
         temperature: moderngl.Texture | None = None
         fbo = targets.fbo
         if batch.has_temperature:
-            temperature, fbo = targets.temperature_targets()
+            temperature, fbo = targets.temperature_targets(2 if batch.has_peak else 1)
         clock = self._context.gl.clock
         fbo.use()
         with clock:
@@ -276,7 +293,8 @@ class SplatPass:
         droplets' coverage is added to it."""
         targets = self.targets((camera.width, camera.height))
         with_temperature = temperature is not None and droplets.has_temperature
-        composite, seed_fbo, draw_fbo = targets.composite_targets(with_temperature)
+        channels = temperature.components if temperature is not None else 1
+        composite, seed_fbo, draw_fbo = targets.composite_targets(with_temperature, channels)
         ctx = self._context.gl.ctx
         seed_fbo.use()
         with self._context.gl.clock:
@@ -291,7 +309,14 @@ class SplatPass:
             if count:
                 self.buffers.ensure_quads(count)
                 self.buffers.bind()
-                vao = self._depth_draw(camera, replace(droplets, has_temperature=with_temperature))
+                vao = self._depth_draw(
+                    camera,
+                    replace(
+                        droplets,
+                        has_temperature=with_temperature,
+                        has_peak=with_temperature and channels == 2,
+                    ),
+                )
                 draw_fbo.use()
                 _render(vao, 0, count, use_ids=False, clock=self._context.gl.clock)
         finally:
@@ -303,7 +328,9 @@ class SplatPass:
 
     def _depth_draw(self, camera: Camera, batch: SplatBatch) -> moderngl.VertexArray:
         """The vertex array of `batch`'s depth splat, its uniforms set."""
-        program, vao = self._vertex_array(batch.ellipsoid, batch.has_temperature)
+        program, vao = self._vertex_array(
+            batch.ellipsoid, batch.has_temperature, has_peak=batch.has_peak
+        )
         set_group(
             program,
             "batch",
@@ -450,12 +477,18 @@ class SplatPass:
         self._culled_on_device = True
 
     def _vertex_array(
-        self, ellipsoid: bool, has_temperature: bool, *, coverage: bool = False
+        self,
+        ellipsoid: bool,
+        has_temperature: bool,
+        *,
+        coverage: bool = False,
+        has_peak: bool = False,
     ) -> tuple[moderngl.Program, moderngl.VertexArray]:
         """The program and vertex array of one kind of splat draw (spheres or ellipsoids,
         with or without temperatures, depth or coverage). The arrays have no attributes: the
         vertex stage pulls its particle from the storage buffers."""
-        key = (ellipsoid, has_temperature, coverage)
+        has_peak = has_peak and has_temperature and not coverage
+        key = (ellipsoid, has_temperature, coverage, has_peak)
         known = self._vaos.get(key)
         if known is not None:
             return known
@@ -464,12 +497,14 @@ class SplatPass:
             program = programs.get(
                 ELLIPSOID_VERTEX_SHADER,
                 ELLIPSOID_FRAGMENT_SHADER,
-                {"HAS_TEMPERATURE": has_temperature, "COVERAGE": coverage},
+                {"HAS_TEMPERATURE": has_temperature, "COVERAGE": coverage, "HAS_PEAK": has_peak},
             )
         elif coverage:
             program = programs.get(COVERAGE_VERTEX_SHADER, COVERAGE_FRAGMENT_SHADER)
         else:
             sphere_defines = {"HAS_TEMPERATURE": True} if has_temperature else None
+            if has_peak:
+                sphere_defines = {"HAS_TEMPERATURE": True, "HAS_PEAK": True}
             program = programs.get(VERTEX_SHADER, FRAGMENT_SHADER, sphere_defines)
         vao = self._context.gl.ctx.vertex_array(
             program, [], index_buffer=self.buffers.index_buffer, index_element_size=4
@@ -489,7 +524,14 @@ class SplatPass:
 def _uniform_key(camera: Camera, batch: SplatBatch) -> tuple[object, ...]:
     """What `_particle_uniforms` depends on (not the batch itself: its host arrays would be
     compared element by element)."""
-    return (camera, batch.far, batch.droplets, batch.has_temperature, batch.ellipsoid)
+    return (
+        camera,
+        batch.far,
+        batch.droplets,
+        batch.has_temperature,
+        batch.ellipsoid,
+        batch.has_peak,
+    )
 
 
 def _particle_uniforms(
@@ -504,6 +546,7 @@ def _particle_uniforms(
     return {
         "u_class": -1.0 if batch.droplets else 1.0,
         "u_has_temperature": batch.has_temperature,
+        "u_has_peak": batch.has_peak,
         "u_near": camera.near,
         "u_far": batch.far,
         "u_margin": margin,

@@ -12,7 +12,8 @@ buffers by `gl_VertexID`, so nothing is copied per quad corner on the CPU. Two w
 
 Binding points (the shaders' `binding = k`): 0 spheres, 1 ids, 2 temperatures, 3 axes,
 4 positions, 5 radii, 6 droplet mask, 7 the device prepare's summary; the device occlusion
-culling's 8 per-particle flags, 9 tile minima, 10 max-depth pyramid, 11 drawn counts. Buffers grow
+culling's 8 per-particle flags, 9 tile minima, 10 max-depth pyramid, 11 drawn counts; 25 peak
+temperatures (12-24 are the field normals'). Buffers grow
 geometrically (`orphan`, so the vertex arrays stay valid) and are never shrunk: a steady stream
 of frames allocates nothing.
 
@@ -29,10 +30,11 @@ from sphrender.server.engine.gpu.gl_context import GLContext
 
 SPHERES, IDS, TEMPERATURES, AXES, POSITIONS, RADII, DROPLETS, SUMMARY = range(8)
 FLAGS, TILES, PYRAMID, COUNTS = range(8, 12)
+PEAKS = 25
 #: Bytes per particle of each per-particle buffer.
 STRIDE = {
     SPHERES: 16, IDS: 4, TEMPERATURES: 4, AXES: 36, POSITIONS: 24, RADII: 4, DROPLETS: 1,
-    FLAGS: 4, TILES: 4, PYRAMID: 4,
+    FLAGS: 4, TILES: 4, PYRAMID: 4, PEAKS: 4,
 }  # fmt: skip
 SUMMARY_BYTES = 48
 COUNTS_BYTES = 16

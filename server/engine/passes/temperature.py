@@ -46,8 +46,11 @@ class _BlurTargets:
 
 
 class TemperaturePass:
-    def __init__(self, context: PassContext) -> None:
+    def __init__(self, context: PassContext, channel: int = 0) -> None:
+        """`channel`: which channel of the kelvin image this instance blurs (1: the peak kelvin
+        of an RG32F image; a second instance, so each owns its result)."""
         self._context = context
+        self._pack_defines = {"CHANNEL": channel} if channel else None
         self._targets = PerSize(lambda size: _BlurTargets(context.gl.ctx, size))
 
     def run(
@@ -63,10 +66,14 @@ class TemperaturePass:
         blur = self._targets.get(temperature.size)
         programs, draw = self._context.programs, self._context.fullscreen.draw
         pack = programs.get(FULLSCREEN_VERT, PACK_SHADER, samplers={"u_image": 0})
-        for source, target in ((depth, blur.packed_depth), (temperature, blur.packed[0])):
+        channel = programs.get(FULLSCREEN_VERT, PACK_SHADER, self._pack_defines, {"u_image": 0})
+        for source, target, program in (
+            (depth, blur.packed_depth, pack),
+            (temperature, blur.packed[0], channel),
+        ):
             source.use(0)
             target.fbo.use()
-            draw(pack)
+            draw(program)
         blur.packed_depth.texture.use(1)
         for axis in (0, 1):
             blur.packed[axis].texture.use(0)

@@ -108,6 +108,9 @@ def apply_sph(
             densities=None if out.densities is None else out.densities[keep],
             radii=None if out.radii is None else out.radii[keep],
             temperatures=None if out.temperatures is None else out.temperatures[keep],
+            peak_temperatures=None
+            if out.peak_temperatures is None
+            else out.peak_temperatures[keep],
         )
         ellipsoids = None if ellipsoids is None else ellipsoids.subset(keep)
     return SphFrame(out, result, ellipsoids)

@@ -225,6 +225,7 @@ class RenderProcess:
             densities=arrays.get("densities"),
             radii=arrays.get("radii"),
             temperatures=arrays.get("temperatures"),
+            peak_temperatures=arrays.get("peak_temperatures"),
         )
 
     def _frame_job(self, request: FrameRequest) -> None:
