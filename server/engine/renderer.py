@@ -42,6 +42,7 @@ from sphrender.server.engine.passes.normals import NormalsPass
 from sphrender.server.engine.passes.prepare_stage import PreparedFrame, PrepareMode, PrepareStage
 from sphrender.server.engine.passes.readback import ReadbackPass
 from sphrender.server.engine.passes.shade import ShadePass
+from sphrender.server.engine.passes.shadow import ShadowMaps, ShadowPass, shadowed
 from sphrender.server.engine.passes.smooth import SmoothPass
 from sphrender.server.engine.passes.splat import SplatOutput, SplatPass
 from sphrender.server.engine.passes.temperature import TemperaturePass
@@ -77,6 +78,7 @@ class SurfaceRenderer:
         self._normals = NormalsPass(self._context)
         self._temperature = TemperaturePass(self._context)
         self._shade = ShadePass(self._context, environment_dirs)
+        self._shadow = ShadowPass(self._context)
         self._display = DisplayPass(self._context)
         self._readback = ReadbackPass(self._context)
 
@@ -158,8 +160,12 @@ class SurfaceRenderer:
         surface, bulk_splatted = self._draw_surface(prepared, camera, scene, stats)
         with self._stage(stats, "normals"):
             normal_depth = self._surface_normals(surface, prepared, camera, scene)
+        shadows = None
+        if shadowed(scene):
+            with self._stage(stats, "shadow"):
+                shadows = self._shadow.run(sph.frame, scene, camera, prepared.reference_radius)
         with self._stage(stats, "shade"):
-            color = self._shade_surface(surface, normal_depth, camera, scene, prepared)
+            color = self._shade_surface(surface, normal_depth, camera, scene, prepared, shadows)
         with self._stage(stats, "readback"):
             rendered = self._read_back(
                 color, normal_depth, scene, prepared.box, depth, normals, display
@@ -246,6 +252,7 @@ class SurfaceRenderer:
         camera: Camera,
         scene: Scene,
         prepared: PreparedFrame,
+        shadows: ShadowMaps | None = None,
     ) -> Target:
         """The shaded colour target (the temperature blurred along the surface first)."""
         temperature = surface.temperature
@@ -257,7 +264,13 @@ class SurfaceRenderer:
                 prepared.reference_radius,
             )
         return self._shade.run(
-            scene, camera, normal_depth.texture, temperature, prepared.box, surface.coverage
+            scene,
+            camera,
+            normal_depth.texture,
+            temperature,
+            prepared.box,
+            surface.coverage,
+            shadows,
         )
 
     def _read_back(
@@ -292,7 +305,7 @@ class SurfaceRenderer:
         """Release every GPU object this renderer owns (on the owner thread)."""
         self._gl.check_owner()
         passes = (self._splat, self._smooth, self._normals, self._temperature, self._shade)
-        for gpu_pass in (*passes, self._display, self._readback):
+        for gpu_pass in (*passes, self._shadow, self._display, self._readback):
             gpu_pass.release()
         self._context.fullscreen.release()
         self._context.programs.release()

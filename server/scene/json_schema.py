@@ -136,9 +136,9 @@ _NONZERO = {"not": {"items": {"const": 0}}}
 def _light_schema() -> dict[str, Any]:
     out = _section_schema(LightConfig)
     out["properties"]["direction"]["anyOf"][0].update(_NONZERO)
-    # type defaults to directional: a point light needs a position and has no direction,
-    # a directional light the other way round.
-    point = {"required": ["type"], "properties": {"type": {"const": "point"}}}
+    # type defaults to directional: a point or sphere light needs a position and has no
+    # direction, a directional light the other way round.
+    point = {"required": ["type"], "properties": {"type": {"enum": ["point", "sphere"]}}}
     out["if"] = point
     out["then"] = {"allOf": [_given("position"), {"not": _given("direction")}]}
     out["else"] = {"allOf": [_given("direction"), {"not": _given("position")}]}
