@@ -17,11 +17,13 @@ F64 = npt.NDArray[np.float64]
 def occluded(
     points: F64, light: F64, centres: F64, radius: float, chunk: int = 2048
 ) -> npt.NDArray[np.bool_]:
-    """(N,) whether the segment points[i] -> light meets any sphere (centres, radius)."""
+    """(N,) whether the segment points[i] -> light (one point, or one per point) meets any
+    sphere (centres, radius)."""
     out = np.zeros(points.shape[0], dtype=bool)
+    lights = np.broadcast_to(light, points.shape)
     for start in range(0, points.shape[0], chunk):
         p = points[start : start + chunk]
-        seg = light[None, :] - p
+        seg = lights[start : start + chunk] - p
         length = np.linalg.norm(seg, axis=1)
         d = seg / length[:, None]
         oc = centres[None, :, :] - p[:, None, :]  # (n, m, 3)

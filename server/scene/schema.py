@@ -31,12 +31,12 @@ from sphrender.server.scene.schema_quality import FilterName, QualityConfig, Sph
 
 __all__ = [
     "MAX_IMAGE_PIXELS",
-    "MAX_LIGHTS",
-    "LightConfig",
-    "LightType",
     "MAX_IMAGE_SIDE",
+    "MAX_LIGHTS",
     "MAX_STRING_LENGTH",
     "FilterName",
+    "LightConfig",
+    "LightType",
     "QualityConfig",
     "SceneNote",
     "SphConfig",

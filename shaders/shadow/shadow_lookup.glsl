@@ -5,7 +5,9 @@
 //   blocker search  taps over a disc around the receiver's ray; a tap's receiver depth is that of
 //                   the receiver's tangent plane along the tap (receiver-plane bias), so a
 //                   tilted surface does not shadow itself
-//   penumbra        w = R (d_r - d_b) / d_b at the receiver for a sphere light of radius R
+//   penumbra        w = R (d_r - d_b) / d_b at the receiver for a sphere light of radius R, d_b
+//                   the farthest blocker found (the edge that casts the penumbra: an average
+//                   takes in a convex occluder's near face and widens it)
 //                   (similar triangles); the PCF disc has radius w, so a straight edge's
 //                   profile is the disc's circular-segment area, as a real disc light gives
 //   acne            depth bias = (SHADOW_SURFACE_DEPTH particle radii + a texel across the
@@ -120,7 +122,7 @@ float shadow_visibility(int i, vec3 position, vec3 n) {
     vec3 helper = abs(along.y) < 0.9 ? vec3(0.0, 1.0, 0.0) : vec3(1.0, 0.0, 0.0);
     s.t = normalize(cross(helper, along));
     s.b = cross(along, s.t);
-    float cos_t = clamp(abs(dot(s.normal, along)), 0.05, 1.0);
+    float cos_t = clamp(abs(dot(s.normal, along)), 0.1, 1.0);
     float bias = (SHADOW_SURFACE_DEPTH * slot.w + texel * sqrt(1.0 - cos_t * cos_t)) / cos_t;
 
     // Blockers nearer the light than a fifth of the receiver's distance would need a wider search
@@ -134,13 +136,13 @@ float shadow_visibility(int i, vec3 position, vec3 n) {
         vec2 tap = shadow_tap(s, vogel_disc(k, SHADOW_SEARCH_TAPS, turn) * search);
         if (tap.y < tap.x - bias) {
             blockers += 1.0;
-            blocker_depth += tap.y;
+            blocker_depth = max(blocker_depth, tap.y);
         }
     }
     if (blockers == 0.0) {
         return 1.0;
     }
-    blocker_depth /= blockers;
+
     float width = s.kind == SHADOW_CUBE
         ? radius * max(s.depth - blocker_depth, 0.0) / max(blocker_depth, 1e-30) : 0.0;
     width = clamp(width, 1.5 * texel, 0.5 * s.depth);

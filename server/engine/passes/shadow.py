@@ -169,6 +169,7 @@ class ShadowPass:
             vao = self._context.gl.ctx.vertex_array(
                 program, [], index_buffer=self._indices, index_element_size=4
             )
+            set_if_used(program, "u_cube", cube)
             self._vaos[cube] = vao
         return vao
 
