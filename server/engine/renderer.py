@@ -3,9 +3,9 @@
 `SurfaceRenderer` orchestrates a frame and holds no GL code; each pass owns its programs,
 targets and uniforms (`passes/`): sph (OpenCL, only when the scene asks) -> prepare (host or
 device, `passes/prepare_stage.py`) -> splat (+ occlusion culling, coverage) -> smooth ->
-droplets -> normals (+ field normals near rims) -> shade (temperature blur, PBR + IBL +
-emission) -> readback (+ display codes). ARCHITECTURE.md "Data flow of one frame" has each
-step. `RenderStats.host_ms` is the frame's work outside GL calls (`gpu/gl_clock.py`).
+droplets -> normals (+ field normals near rims) -> shadow (maps of the lights that cast them)
+-> shade (temperature blur, PBR + IBL + emission) -> readback (+ display codes). ARCHITECTURE.md
+"Data flow of one frame" has each step. `RenderStats.host_ms` is the frame's work outside GL calls (`gpu/gl_clock.py`).
 
 One renderer belongs to one `GLContext` and is used only on that context's owner thread. It owns
 the passes and what they share (`PassContext`: program cache, full-screen triangle) and releases
@@ -252,9 +252,10 @@ class SurfaceRenderer:
         camera: Camera,
         scene: Scene,
         prepared: PreparedFrame,
-        shadows: ShadowMaps | None = None,
+        maps: ShadowMaps | None = None,
     ) -> Target:
-        """The shaded colour target (the temperature blurred along the surface first)."""
+        """The shaded colour target (the temperature blurred along the surface first; `maps`:
+        the lights' shadow maps)."""
         temperature = surface.temperature
         if temperature is not None and prepared.visible:
             temperature = self._temperature.run(
@@ -264,13 +265,7 @@ class SurfaceRenderer:
                 prepared.reference_radius,
             )
         return self._shade.run(
-            scene,
-            camera,
-            normal_depth.texture,
-            temperature,
-            prepared.box,
-            surface.coverage,
-            shadows,
+            scene, camera, normal_depth.texture, temperature, prepared.box, surface.coverage, maps
         )
 
     def _read_back(

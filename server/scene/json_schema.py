@@ -142,6 +142,9 @@ def _light_schema() -> dict[str, Any]:
     out["if"] = point
     out["then"] = {"allOf": [_given("position"), {"not": _given("direction")}]}
     out["else"] = {"allOf": [_given("direction"), {"not": _given("position")}]}
+    # Only a sphere light has a radius above 0.
+    sphere = {"required": ["type"], "properties": {"type": {"const": "sphere"}}}
+    out["allOf"] = [{"if": sphere, "else": {"properties": {"radius": {"const": 0}}}}]
     return out
 
 
