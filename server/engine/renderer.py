@@ -5,7 +5,8 @@ targets and uniforms (`passes/`): sph (OpenCL, only when the scene asks) -> prep
 device, `passes/prepare_stage.py`) -> splat (+ occlusion culling, coverage) -> smooth ->
 droplets -> normals (+ field normals near rims) -> shadow (maps of the lights that cast them)
 -> shade (temperature blur, PBR + IBL + emission) -> readback (+ display codes). ARCHITECTURE.md
-"Data flow of one frame" has each step. `RenderStats.host_ms` is the frame's work outside GL calls (`gpu/gl_clock.py`).
+"Data flow of one frame" has each step. `RenderStats.host_ms` is the frame's work outside GL
+calls (`gpu/gl_clock.py`).
 
 One renderer belongs to one `GLContext` and is used only on that context's owner thread. It owns
 the passes and what they share (`PassContext`: program cache, full-screen triangle) and releases

@@ -144,7 +144,6 @@ class ShadowPass:
             self._atlas = (texture, ctx.framebuffer([texture]))
         texture, fbo = self._atlas
         fbo.viewport = (0, 0, *size)
-        fbo.scissor = None
         with self._context.gl.clock:
             fbo.clear(NOTHING, 0.0, 0.0, 0.0)
         return texture
@@ -187,7 +186,7 @@ class ShadowPass:
             self._context.gl.clock.call(vao.render, moderngl.TRIANGLES, vertices=6 * self._count)
         finally:
             ctx.blend_equation = moderngl.FUNC_ADD  # type: ignore[assignment]
-            ctx.blend_func = moderngl.DEFAULT_BLENDING
+            ctx.blend_func = moderngl.DEFAULT_BLENDING  # type: ignore[assignment]
             ctx.disable(moderngl.BLEND)
 
     def _draw_cube(
