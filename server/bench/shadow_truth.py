@@ -1,4 +1,5 @@
-"""Ray-traced truth for shadows (tests/test_shadows.py, benchmarks/bench_shadows.py): numpy only.
+"""Ray-traced truth for shadows (tests/test_shadows.py, benchmarks/bench_shadows.py): numpy only;
+the product never imports it.
 
 `occluded`: does the segment from each point to a point light hit any particle sphere?
 `visible_fraction`: the fraction of a sphere light's disc (as seen from each point) whose rays
