@@ -1,0 +1,94 @@
+"""Shadow cost per light and error against the ray-traced truth, for REPORT.md ("Shadows").
+
+Cost: the ball over the plate (server/bench/shadow_scene.py) at 2 x 2 x the particles of the
+tests' scene, 320 x 320, median of timed frames after a warm-up; each light with shadows against
+the same light without, measured in the same run. Error: the tests' scene (160 x 160, r 0.05) at
+each map size: IoU of the plate's shadow against the truth (point, directional) and the
+penumbra's full width against similar triangles (sphere).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from sphrender.core.frame import ParticleFrame
+from sphrender.server.bench.shadow_scene import BallOverPlate, penumbra, render_both, shadow_iou
+from sphrender.server.engine.renderer import SurfaceRenderer
+
+TRAVEL = [0.4, -1.0, 0.5]
+LIGHTS: dict[str, dict[str, Any]] = {
+    "point": {"type": "point", "position": [-0.5, 3.0, -0.7], "intensity": 8.0},
+    "sphere r 0.35": {
+        "type": "sphere",
+        "position": [0.0, 3.0, 0.0],
+        "radius": 0.35,
+        "intensity": 8.0,
+    },
+    "directional": {"type": "directional", "direction": TRAVEL, "intensity": 3.0},
+}
+MAP_SIZES = (256, 512, 1024)
+
+
+def frame_ms(
+    renderer: SurfaceRenderer, setup: BallOverPlate, lights: list[dict[str, Any]], frames: int
+) -> tuple[float, float]:
+    """Median wall ms of a frame and of its shadow stage."""
+    frame, scene = ParticleFrame(setup.positions()), setup.scene(lights)
+    renderer.render(frame, scene)
+    walls, stages = [], []
+    for _ in range(frames):
+        start = time.perf_counter()
+        _, stats = renderer.render(frame, scene)
+        walls.append((time.perf_counter() - start) * 1e3)
+        stages.append(stats.stage_ms.get("shadow", 0.0))
+    return float(np.median(walls)), float(np.median(stages))
+
+
+def error(renderer: SurfaceRenderer, name: str, size: int) -> str:
+    light = dict(LIGHTS[name], shadow_map_size=size)
+    if light["type"] == "sphere":
+        setup = BallOverPlate(ball_y=1.2)
+        found = penumbra(render_both(renderer, light, setup), 3.0, 0.35, 1.2, setup.radius)
+        return f"penumbra width {100 * found.error:+.1f} %"
+    setup = BallOverPlate()
+    result = render_both(renderer, light, setup)
+    if light["type"] == "directional":
+        travel = np.asarray(TRAVEL) / np.linalg.norm(TRAVEL)
+        target = result.world - 10.0 * travel
+    else:
+        target = np.asarray(light["position"], dtype=np.float64)
+    score, _ = shadow_iou(result, target, setup.radius)
+    return f"IoU {score:.4f}"
+
+
+def shadows_section(
+    renderer: SurfaceRenderer, frames: int = 5, log: Callable[[str], None] = print
+) -> list[str]:
+    heavy = BallOverPlate(radius=0.025, size=320)
+    particles = heavy.positions().shape[0]
+    lines = [
+        "## Shadows",
+        "",
+        f"Ball over plate, {particles:,} particles, 320x320, median of {frames} frames "
+        "(`benchmarks/bench_shadows.py`; llvmpipe on 2 shared cores unless noted). Cost: the "
+        "same light without and with shadows, side by side; error: the tests' scene "
+        "(tests/test_shadows.py) against the ray-traced truth at each map size.",
+        "",
+        "| light | map | frame ms, no shadows | with shadows | ratio | shadow stage ms | error |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, light in LIGHTS.items():
+        plain, _ = frame_ms(renderer, heavy, [light], frames)
+        for size in MAP_SIZES:
+            log(f"shadows: {name}, map {size}")
+            shadowed = dict(light, shadows=True, shadow_map_size=size)
+            wall, stage = frame_ms(renderer, heavy, [shadowed], frames)
+            lines.append(
+                f"| {name} | {size} | {plain:.1f} | {wall:.1f} | {wall / plain:.2f} | "
+                f"{stage:.1f} | {error(renderer, name, size)} |"
+            )
+    return [*lines, ""]
