@@ -1,8 +1,8 @@
 """The studies this repository's REPORT.md adds to `sphrender bench` (`run_bench(studies=...)`,
 run by benchmarks/bench_report.py): the dam break on every frame of the data set, the flicker
-under both readings of the jitter, shadows (cost per light, error), and the crops of what field normals, `last_pass_sigma` and
-`destreak` change. Each needs ../shared/data (and pysplashsurf, or the reference cache) and is
-skipped without it.
+under both readings of the jitter, shadows (cost per light, error; needs nothing), and the crops
+of what field normals, `last_pass_sigma` and `destreak` change. The others need ../shared/data
+(and pysplashsurf, or the reference cache) and are skipped without it.
 """
 
 from __future__ import annotations
