@@ -210,3 +210,16 @@ def test_temperature_tints_the_light() -> None:
     assert warm[0] > warm[1] > warm[2]
     luminance = warm @ REC709_LUMINANCE
     assert luminance == pytest.approx(POINT["intensity"], rel=1e-6)
+
+
+def test_shadow_maps_beyond_the_gpu_are_a_clear_error(renderer: SurfaceRenderer) -> None:
+    """Eight 2048 cube maps need a 6144 x 32768 atlas: more than a GL texture may be here
+    (llvmpipe and most GPUs: 16384), answered as bad input naming the lights."""
+    light = dict(POINT, shadows=True, shadow_map_size=2048)
+    limit = renderer.gl.limits.max_texture_size
+    if 8 * 2 * 2048 <= limit:
+        pytest.skip(f"this GL takes {limit}-texel textures")
+    with pytest.raises(InputError) as caught:
+        renderer.render(ParticleFrame(SETUP.positions()), SETUP.scene([light] * 8))
+    assert caught.value.field == "lights"
+    assert "shadow_map_size" in str(caught.value)
