@@ -19,6 +19,8 @@
 #define SHADOW_ORTHO 2
 #define SHADOW_SEARCH_TAPS 16
 #define SHADOW_FILTER_TAPS 32
+#define SHADOW_HARD_TAPS 8
+#define SHADOW_MIN_TEXELS 1.5  // the narrowest filter: hard shadows' edges, in texels
 // How far (in particle radii, along the normal) the smoothed surface may lie behind the fronts of
 // the spheres the map holds: up to ~2.2 r for lattices of touching spheres, 99th percentile of
 // the lit pixels of a lattice ball (tests/test_shadows.py).
@@ -91,6 +93,16 @@ vec2 shadow_tap(ShadowFrame s, vec2 offset) {
                 ortho_stored(s.slot, q.xy, s.half_extent));
 }
 
+// Fraction of `taps` taps over a disc of radius `width` around the receiver's ray that see the light.
+float shadow_pcf(ShadowFrame s, float width, int taps, float bias, float turn) {
+    float lit = 0.0;
+    for (int k = 0; k < taps; ++k) {
+        vec2 tap = shadow_tap(s, vogel_disc(k, taps, turn) * width);
+        lit += tap.y < tap.x - bias ? 0.0 : 1.0;
+    }
+    return lit / float(taps);
+}
+
 // Fraction of light `i` that reaches `position` (eye-relative, world axes) with normal `n`. The
 // tap discs turn per pixel (interleaved gradient noise, Jimenez 2014): banding becomes fine noise.
 float shadow_visibility(int i, vec3 position, vec3 n) {
@@ -129,7 +141,11 @@ float shadow_visibility(int i, vec3 position, vec3 n) {
     // than this; their penumbrae are cut at this width.
     float nearest = max(0.2 * s.depth, radius);
     float search = s.kind == SHADOW_CUBE ? radius * (s.depth - nearest) / nearest : 0.0;
-    search = clamp(search, 1.5 * texel, 0.5 * s.depth);
+    search = clamp(search, SHADOW_MIN_TEXELS * texel, 0.5 * s.depth);
+    if (search <= SHADOW_MIN_TEXELS * texel) {
+        // No penumbra wider than the filter: a hard shadow, its edge filtered over a few texels.
+        return shadow_pcf(s, search, SHADOW_HARD_TAPS, bias, turn);
+    }
     float blockers = 0.0;
     float blocker_depth = 0.0;
     for (int k = 0; k < SHADOW_SEARCH_TAPS; ++k) {
@@ -142,14 +158,7 @@ float shadow_visibility(int i, vec3 position, vec3 n) {
     if (blockers == 0.0) {
         return 1.0;
     }
-
-    float width = s.kind == SHADOW_CUBE
-        ? radius * max(s.depth - blocker_depth, 0.0) / max(blocker_depth, 1e-30) : 0.0;
-    width = clamp(width, 1.5 * texel, 0.5 * s.depth);
-    float lit = 0.0;
-    for (int k = 0; k < SHADOW_FILTER_TAPS; ++k) {
-        vec2 tap = shadow_tap(s, vogel_disc(k, SHADOW_FILTER_TAPS, turn) * width);
-        lit += tap.y < tap.x - bias ? 0.0 : 1.0;
-    }
-    return lit / float(SHADOW_FILTER_TAPS);
+    float width = radius * max(s.depth - blocker_depth, 0.0) / max(blocker_depth, 1e-30);
+    width = clamp(width, SHADOW_MIN_TEXELS * texel, 0.5 * s.depth);
+    return shadow_pcf(s, width, SHADOW_FILTER_TAPS, bias, turn);
 }
