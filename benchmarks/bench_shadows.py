@@ -3,7 +3,7 @@
 one. `--no-shadow-cost N` instead prints the median frame ms of the scene with a point light and
 no shadows (run it under this checkout's and another's interpreter, alternately, to compare).
 
-    .venv/bin/python benchmarks/bench_shadows.py [--frames 5] [--write]
+    .venv/bin/python benchmarks/bench_shadows.py [--frames 7] [--write]
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ def replace_section(text: str, section: list[str]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    parser.add_argument("--frames", type=int, default=5)
+    parser.add_argument("--frames", type=int, default=7)
     parser.add_argument("--write", action="store_true", help="update REPORT.md")
     parser.add_argument("--no-shadow-cost", type=int, default=0, metavar="FRAMES")
     args = parser.parse_args()

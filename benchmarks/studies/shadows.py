@@ -37,15 +37,32 @@ def frame_ms(
     renderer: SurfaceRenderer, setup: BallOverPlate, lights: list[dict[str, Any]], frames: int
 ) -> tuple[float, float]:
     """Median wall ms of a frame and of its shadow stage."""
-    frame, scene = ParticleFrame(setup.positions()), setup.scene(lights)
-    renderer.render(frame, scene)
-    walls, stages = [], []
+    plain, _, stage = paired_ms(renderer, setup, lights, lights, frames)
+    return plain, stage
+
+
+def paired_ms(
+    renderer: SurfaceRenderer,
+    setup: BallOverPlate,
+    first: list[dict[str, Any]],
+    second: list[dict[str, Any]],
+    frames: int,
+) -> tuple[float, float, float]:
+    """Median wall ms of frames under lights `first` and `second`, drawn alternately (so both
+    see the same load on a shared machine), and of the second's shadow stage."""
+    frame = ParticleFrame(setup.positions())
+    scenes = (setup.scene(first), setup.scene(second))
+    for scene in scenes:
+        renderer.render(frame, scene)
+    walls: tuple[list[float], list[float]] = ([], [])
+    stages = []
     for _ in range(frames):
-        start = time.perf_counter()
-        _, stats = renderer.render(frame, scene)
-        walls.append((time.perf_counter() - start) * 1e3)
+        for k, scene in enumerate(scenes):
+            start = time.perf_counter()
+            _, stats = renderer.render(frame, scene)
+            walls[k].append((time.perf_counter() - start) * 1e3)
         stages.append(stats.stage_ms.get("shadow", 0.0))
-    return float(np.median(walls)), float(np.median(stages))
+    return float(np.median(walls[0])), float(np.median(walls[1])), float(np.median(stages))
 
 
 def error(renderer: SurfaceRenderer, name: str, size: int) -> str:
@@ -66,7 +83,7 @@ def error(renderer: SurfaceRenderer, name: str, size: int) -> str:
 
 
 def shadows_section(
-    renderer: SurfaceRenderer, frames: int = 5, log: Callable[[str], None] = print
+    renderer: SurfaceRenderer, frames: int = 7, log: Callable[[str], None] = print
 ) -> list[str]:
     heavy = BallOverPlate(radius=0.025, size=320)
     particles = heavy.positions().shape[0]
@@ -75,18 +92,17 @@ def shadows_section(
         "",
         f"Ball over plate, {particles:,} particles, 320x320, median of {frames} frames "
         "(`benchmarks/bench_shadows.py`; llvmpipe on 2 shared cores unless noted). Cost: the "
-        "same light without and with shadows, side by side; error: the tests' scene "
+        "same light without and with shadows, frames alternating; error: the tests' scene "
         "(tests/test_shadows.py) against the ray-traced truth at each map size.",
         "",
         "| light | map | frame ms, no shadows | with shadows | ratio | shadow stage ms | error |",
         "|---|---|---|---|---|---|---|",
     ]
     for name, light in LIGHTS.items():
-        plain, _ = frame_ms(renderer, heavy, [light], frames)
         for size in MAP_SIZES:
             log(f"shadows: {name}, map {size}")
             shadowed = dict(light, shadows=True, shadow_map_size=size)
-            wall, stage = frame_ms(renderer, heavy, [shadowed], frames)
+            plain, wall, stage = paired_ms(renderer, heavy, [light], [shadowed], frames)
             lines.append(
                 f"| {name} | {size} | {plain:.1f} | {wall:.1f} | {wall / plain:.2f} | "
                 f"{stage:.1f} | {error(renderer, name, size)} |"
