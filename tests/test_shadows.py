@@ -81,6 +81,18 @@ def test_directional_shadow_matches_ray_traced_truth(renderer: SurfaceRenderer) 
     assert score >= 0.95
 
 
+def test_directional_penumbra_follows_the_angular_radius(renderer: SurfaceRenderer) -> None:
+    """A sun of angular radius 8 degrees straight above: the same similar triangles as a sphere
+    light of radius H tan(8 deg) at a great height H."""
+    setup = BallOverPlate(radius=R, ball_y=1.2, turned=True)  # no lattice holes along y
+    light = {"type": "directional", "direction": [0, -1, 0], "angular_radius_deg": 8.0}
+    height = 1e3
+    disc = height * np.tan(np.radians(8.0))
+    found = penumbra(render_both(renderer, dict(light, intensity=3.0), setup), height, disc, 1.2, R)
+    print(f"directional penumbra: {found}, rendered full width {found.rendered_full:.4f}")
+    assert abs(found.error) <= 0.2
+
+
 def _colour(renderer: SurfaceRenderer, light: dict[str, Any]) -> np.ndarray:
     frame, _ = renderer.render(ParticleFrame(SETUP.positions()), SETUP.scene([light]))
     return frame.rgba
@@ -171,6 +183,11 @@ def test_shadows_at_1e5_match_the_origin(renderer: SurfaceRenderer) -> None:
             {"type": "point", "position": [0, 1, 0], "shadow_map_size": 8},
             "lights[0].shadow_map_size",
             "16",
+        ),
+        (
+            {"type": "point", "position": [0, 1, 0], "angular_radius_deg": 1},
+            "lights[0].angular_radius_deg",
+            "only directional",
         ),
         (
             {"type": "point", "position": [0, 1, 0], "temperature_k": 50},

@@ -37,10 +37,15 @@ class BallOverPlate:
     size: int = 160
     ball_y: float = 1.0
     offset: float = 0.0
+    #: Turn the ball's lattice 37 degrees about (1, 2, 3): its columns then let no axis-aligned
+    #: rays through (a lattice of touching spheres has straight holes along its axes).
+    turned: bool = False
 
     def ball(self) -> F64:
-        centre = (0.0, self.ball_y, 0.0)
-        return jittered_lattice_ball(BALL_RADIUS, self.radius, center=centre, seed=3) + self.offset
+        local = jittered_lattice_ball(BALL_RADIUS, self.radius, seed=3)
+        if self.turned:
+            local = local @ _rotation(np.array([1.0, 2.0, 3.0]), np.radians(37.0)).T
+        return local + np.array([0.0, self.ball_y, 0.0]) + self.offset
 
     def positions(self) -> F64:
         plate = lattice_slab(3.2, 3.2, 2, self.radius, top_y=0.0) + self.offset
@@ -61,6 +66,14 @@ class BallOverPlate:
 
     def camera(self) -> Camera:
         return Camera.from_config(self.scene([]).camera, self.size, self.size)
+
+
+def _rotation(axis: F64, angle: float) -> F64:
+    """Rodrigues: the rotation by `angle` about `axis`."""
+    k = axis / np.linalg.norm(axis)
+    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    rotation: F64 = np.eye(3) + np.sin(angle) * cross + (1.0 - np.cos(angle)) * cross @ cross
+    return rotation
 
 
 @dataclass(frozen=True)

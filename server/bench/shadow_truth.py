@@ -73,10 +73,14 @@ def penumbra_edges(
     cross_y = h + gap * b / (a + b)
     sin_out = b / (cross_y - h)
     outer = (cross_y - plane) * sin_out / np.sqrt(1.0 - sin_out**2)
-    if a < b:  # external tangents meet above the light
+    if a < b:  # external tangents meet above the light: the umbra widens downwards
         apex = big_h + gap * a / (b - a)
         sin_in = b / (apex - h)
         inner = (apex - plane) * sin_in / np.sqrt(1.0 - sin_in**2)
-    else:  # the umbra closes below the occluder (or never, a = b): none on the plane
-        inner = 0.0
+    elif a > b:  # they meet below the occluder: the umbra narrows down to that apex
+        apex = h - gap * b / (a - b)
+        sin_in = b / (h - apex)
+        inner = max(plane - apex, 0.0) * sin_in / np.sqrt(1.0 - sin_in**2)
+    else:  # a cylinder
+        inner = b
     return float(inner), float(outer)

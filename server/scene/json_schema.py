@@ -145,6 +145,14 @@ def _light_schema() -> dict[str, Any]:
     # Only a sphere light has a radius above 0.
     sphere = {"required": ["type"], "properties": {"type": {"const": "sphere"}}}
     out["allOf"] = [{"if": sphere, "else": {"properties": {"radius": {"const": 0}}}}]
+    # Only a directional light has an angular radius above 0 (type defaults to directional).
+    not_directional = {
+        "required": ["type"],
+        "not": {"properties": {"type": {"const": "directional"}}},
+    }
+    out["allOf"].append(
+        {"if": not_directional, "then": {"properties": {"angular_radius_deg": {"const": 0}}}}
+    )
     return out
 
 

@@ -250,3 +250,7 @@ def _check_lights(lights: tuple[LightConfig, ...]) -> None:
                 raise InputError(f"{key}.direction", "only directional lights have a direction")
         if light.radius > 0.0 and light.type != "sphere":
             raise InputError(f"{key}.radius", "only sphere lights have a radius")
+        if light.angular_radius_deg > 0.0 and light.type != "directional":
+            raise InputError(
+                f"{key}.angular_radius_deg", "only directional lights have an angular radius"
+            )

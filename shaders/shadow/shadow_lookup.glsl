@@ -29,6 +29,7 @@
 uniform sampler2D u_shadow_atlas;
 uniform vec4 u_shadow_slot[MAX_LIGHTS];   // kind, first row, side in texels, depth bias
 uniform vec4 u_shadow_light[MAX_LIGHTS];  // ortho: near-plane centre (eye-relative); w: radius
+                                          // (cube) or tan(angular radius) (ortho)
 uniform mat3 u_shadow_axes[MAX_LIGHTS];   // ortho: world -> map axes (z along the travel)
 uniform vec2 u_shadow_half[MAX_LIGHTS];   // ortho: half extents, scene units
 
@@ -140,7 +141,9 @@ float shadow_visibility(int i, vec3 position, vec3 n) {
     // Blockers nearer the light than a fifth of the receiver's distance would need a wider search
     // than this; their penumbrae are cut at this width.
     float nearest = max(0.2 * s.depth, radius);
-    float search = s.kind == SHADOW_CUBE ? radius * (s.depth - nearest) / nearest : 0.0;
+    // Ortho: `radius` is tan(angular radius); a blocker anywhere in front of the receiver counts.
+    float search = s.kind == SHADOW_CUBE ? radius * (s.depth - nearest) / nearest
+                                         : radius * s.depth;
     search = clamp(search, SHADOW_MIN_TEXELS * texel, 0.5 * s.depth);
     if (search <= SHADOW_MIN_TEXELS * texel) {
         // No penumbra wider than the filter: a hard shadow, its edge filtered over a few texels.
@@ -158,7 +161,9 @@ float shadow_visibility(int i, vec3 position, vec3 n) {
     if (blockers == 0.0) {
         return 1.0;
     }
-    float width = radius * max(s.depth - blocker_depth, 0.0) / max(blocker_depth, 1e-30);
+    float width = s.kind == SHADOW_CUBE
+        ? radius * max(s.depth - blocker_depth, 0.0) / max(blocker_depth, 1e-30)
+        : radius * max(s.depth - blocker_depth, 0.0);
     width = clamp(width, SHADOW_MIN_TEXELS * texel, 0.5 * s.depth);
     return shadow_pcf(s, width, SHADOW_FILTER_TAPS, bias, turn);
 }

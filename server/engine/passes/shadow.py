@@ -51,7 +51,8 @@ class ShadowMaps:
 
     atlas: moderngl.Texture
     slot: npt.NDArray[np.float32]  # (MAX_LIGHTS, 4): kind, first row, side, depth bias
-    light: npt.NDArray[np.float32]  # (MAX_LIGHTS, 4): ortho origin (eye-relative), radius
+    #: (MAX_LIGHTS, 4): ortho origin (eye-relative); w: radius (cube), tan(angular radius) (ortho)
+    light: npt.NDArray[np.float32]
     axes: npt.NDArray[np.float32]  # (MAX_LIGHTS, 3, 3): ortho world -> map axes, rows
     half: npt.NDArray[np.float32]  # (MAX_LIGHTS, 2): ortho half extents
 
@@ -221,6 +222,7 @@ class ShadowPass:
         maps.light[i, :3] = spheres.centre + frame_of.origin - camera.eye
         maps.axes[i] = frame_of.axes
         maps.half[i] = frame_of.half_extent
+        maps.light[i, 3] = np.tan(np.radians(light.angular_radius_deg))
 
     def release(self) -> None:
         for vao in self._vaos.values():
