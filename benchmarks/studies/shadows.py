@@ -29,6 +29,12 @@ LIGHTS: dict[str, dict[str, Any]] = {
         "intensity": 8.0,
     },
     "directional": {"type": "directional", "direction": TRAVEL, "intensity": 3.0},
+    "sun 8 deg": {
+        "type": "directional",
+        "direction": [0.0, -1.0, 0.0],
+        "angular_radius_deg": 8.0,
+        "intensity": 3.0,
+    },
 }
 MAP_SIZES = (256, 512, 1024)
 
@@ -70,6 +76,11 @@ def error(renderer: SurfaceRenderer, name: str, size: int) -> str:
     if light["type"] == "sphere":
         setup = BallOverPlate(ball_y=1.2)
         found = penumbra(render_both(renderer, light, setup), 3.0, 0.35, 1.2, setup.radius)
+        return f"penumbra width {100 * found.error:+.1f} %"
+    if light.get("angular_radius_deg"):
+        setup = BallOverPlate(ball_y=1.2, turned=True)
+        disc = 1e3 * np.tan(np.radians(light["angular_radius_deg"]))
+        found = penumbra(render_both(renderer, light, setup), 1e3, disc, 1.2, setup.radius)
         return f"penumbra width {100 * found.error:+.1f} %"
     setup = BallOverPlate()
     result = render_both(renderer, light, setup)
