@@ -1,8 +1,8 @@
 """The studies this repository's REPORT.md adds to `sphrender bench` (`run_bench(studies=...)`,
 run by benchmarks/bench_report.py): the dam break on every frame of the data set, the flicker
-under both readings of the jitter, and the crops of what field normals, `last_pass_sigma` and
-`destreak` change. Each needs ../shared/data (and pysplashsurf, or the reference cache) and is
-skipped without it.
+under both readings of the jitter, shadows (cost per light, error; needs nothing), and the crops
+of what field normals, `last_pass_sigma` and `destreak` change. The others need ../shared/data
+(and pysplashsurf, or the reference cache) and are skipped without it.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from benchmarks.studies.dam_frames import (
     surface_notes,
 )
 from benchmarks.studies.jitter_readings import jitter_readings_section, run_jitter_readings
+from benchmarks.studies.shadows import shadows_section
 from sphrender.server.bench.run import StudyContext
 from sphrender.server.bench.surface_bench import (
     NO_FIELD_NORMALS,
@@ -50,6 +51,8 @@ def run_studies(ctx: StudyContext) -> None:
     )
     if readings:
         results.extra_sections += [*jitter_readings_section(readings), ""]
+    log("shadows: cost per light and error against the truth")
+    results.extra_sections += shadows_section(ctx.renderer, log=log)
     surfaces = results.surfaces
     if surfaces is None:
         return

@@ -3,9 +3,10 @@
 `SurfaceRenderer` orchestrates a frame and holds no GL code; each pass owns its programs,
 targets and uniforms (`passes/`): sph (OpenCL, only when the scene asks) -> prepare (host or
 device, `passes/prepare_stage.py`) -> splat (+ occlusion culling, coverage) -> smooth ->
-droplets -> normals (+ field normals near rims) -> shade (temperature blur, PBR + IBL +
-emission) -> readback (+ display codes). ARCHITECTURE.md "Data flow of one frame" has each
-step. `RenderStats.host_ms` is the frame's work outside GL calls (`gpu/gl_clock.py`).
+droplets -> normals (+ field normals near rims) -> shadow (maps of the lights that cast them)
+-> shade (temperature blur, PBR + IBL + emission) -> readback (+ display codes). ARCHITECTURE.md
+"Data flow of one frame" has each step. `RenderStats.host_ms` is the frame's work outside GL
+calls (`gpu/gl_clock.py`).
 
 One renderer belongs to one `GLContext` and is used only on that context's owner thread. It owns
 the passes and what they share (`PassContext`: program cache, full-screen triangle) and releases
@@ -42,6 +43,7 @@ from sphrender.server.engine.passes.normals import NormalsPass
 from sphrender.server.engine.passes.prepare_stage import PreparedFrame, PrepareMode, PrepareStage
 from sphrender.server.engine.passes.readback import ReadbackPass
 from sphrender.server.engine.passes.shade import ShadePass
+from sphrender.server.engine.passes.shadow import ShadowMaps, ShadowPass, shadowed
 from sphrender.server.engine.passes.smooth import SmoothPass
 from sphrender.server.engine.passes.splat import SplatOutput, SplatPass
 from sphrender.server.engine.passes.temperature import TemperaturePass
@@ -78,6 +80,7 @@ class SurfaceRenderer:
         self._temperature = TemperaturePass(self._context)
         self._peak_temperature = TemperaturePass(self._context, channel=1)
         self._shade = ShadePass(self._context, environment_dirs)
+        self._shadow = ShadowPass(self._context)
         self._display = DisplayPass(self._context)
         self._readback = ReadbackPass(self._context)
 
@@ -159,8 +162,12 @@ class SurfaceRenderer:
         surface, bulk_splatted = self._draw_surface(prepared, camera, scene, stats)
         with self._stage(stats, "normals"):
             normal_depth = self._surface_normals(surface, prepared, camera, scene)
+        shadows = None
+        if shadowed(scene):
+            with self._stage(stats, "shadow"):
+                shadows = self._shadow.run(sph.frame, scene, camera, prepared.reference_radius)
         with self._stage(stats, "shade"):
-            color = self._shade_surface(surface, normal_depth, camera, scene, prepared)
+            color = self._shade_surface(surface, normal_depth, camera, scene, prepared, shadows)
         with self._stage(stats, "readback"):
             rendered = self._read_back(
                 color, normal_depth, scene, prepared.box, depth, normals, display
@@ -247,8 +254,10 @@ class SurfaceRenderer:
         camera: Camera,
         scene: Scene,
         prepared: PreparedFrame,
+        maps: ShadowMaps | None = None,
     ) -> Target:
-        """The shaded colour target (the temperature blurred along the surface first)."""
+        """The shaded colour target (the temperature blurred along the surface first; `maps`:
+        the lights' shadow maps)."""
         temperature, peak = surface.temperature, None
         if temperature is not None and prepared.visible:
             blur = (surface.depth, camera.pixels_per_unit_at_unit_depth, prepared.reference_radius)
@@ -256,7 +265,14 @@ class SurfaceRenderer:
                 peak = self._peak_temperature.run(temperature, *blur)
             temperature = self._temperature.run(temperature, *blur)
         return self._shade.run(
-            scene, camera, normal_depth.texture, temperature, prepared.box, surface.coverage, peak
+            scene,
+            camera,
+            normal_depth.texture,
+            temperature,
+            prepared.box,
+            surface.coverage,
+            peak,
+            maps,
         )
 
     def _read_back(
@@ -291,7 +307,13 @@ class SurfaceRenderer:
         """Release every GPU object this renderer owns (on the owner thread)."""
         self._gl.check_owner()
         passes = (self._splat, self._smooth, self._normals, self._temperature, self._shade)
-        for gpu_pass in (*passes, self._peak_temperature, self._display, self._readback):
+        for gpu_pass in (
+            *passes,
+            self._peak_temperature,
+            self._shadow,
+            self._display,
+            self._readback,
+        ):
             gpu_pass.release()
         self._context.fullscreen.release()
         self._context.programs.release()

@@ -136,12 +136,23 @@ _NONZERO = {"not": {"items": {"const": 0}}}
 def _light_schema() -> dict[str, Any]:
     out = _section_schema(LightConfig)
     out["properties"]["direction"]["anyOf"][0].update(_NONZERO)
-    # type defaults to directional: a point light needs a position and has no direction,
-    # a directional light the other way round.
-    point = {"required": ["type"], "properties": {"type": {"const": "point"}}}
+    # type defaults to directional: a point or sphere light needs a position and has no
+    # direction, a directional light the other way round.
+    point = {"required": ["type"], "properties": {"type": {"enum": ["point", "sphere"]}}}
     out["if"] = point
     out["then"] = {"allOf": [_given("position"), {"not": _given("direction")}]}
     out["else"] = {"allOf": [_given("direction"), {"not": _given("position")}]}
+    # Only a sphere light has a radius above 0.
+    sphere = {"required": ["type"], "properties": {"type": {"const": "sphere"}}}
+    out["allOf"] = [{"if": sphere, "else": {"properties": {"radius": {"const": 0}}}}]
+    # Only a directional light has an angular radius above 0 (type defaults to directional).
+    not_directional = {
+        "required": ["type"],
+        "not": {"properties": {"type": {"const": "directional"}}},
+    }
+    out["allOf"].append(
+        {"if": not_directional, "then": {"properties": {"angular_radius_deg": {"const": 0}}}}
+    )
     return out
 
 

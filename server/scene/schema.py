@@ -26,13 +26,17 @@ from sphrender.server.scene.fields import (
     Vec3,
     spec,
 )
+from sphrender.server.scene.schema_lights import MAX_LIGHTS, LightConfig, LightType
 from sphrender.server.scene.schema_quality import FilterName, QualityConfig, SphConfig
 
 __all__ = [
     "MAX_IMAGE_PIXELS",
     "MAX_IMAGE_SIDE",
+    "MAX_LIGHTS",
     "MAX_STRING_LENGTH",
     "FilterName",
+    "LightConfig",
+    "LightType",
     "QualityConfig",
     "SceneNote",
     "SphConfig",
@@ -186,35 +190,6 @@ class MaterialConfig:
         False,
         "frames with temperatures: liquid metal (smooth, no oxide) above liquidus_k, the "
         "material's own below solidus_k, blended between. The demo sets it; no quality preset does",
-    )
-
-
-LightType = Literal["directional", "point"]
-
-#: Most lights a scene may have (uniform arrays in the shading shader are sized for it).
-MAX_LIGHTS = 8
-
-
-@dataclass(frozen=True)
-class LightConfig:
-    """One direct light ([[lights]] array of tables). A scene without lights has none."""
-
-    type: LightType = spec(
-        "directional", "directional (parallel rays, like the sun) or point (inverse square)"
-    )
-    color: Vec3 = spec((1.0, 1.0, 1.0), "linear RGB tint multiplied with intensity", low=0.0)
-    intensity: float = spec(
-        1.0,
-        "directional: irradiance on a surface facing the light (scene-linear radiance x sr); "
-        "point: radiant intensity (per sr), divided by distance^2",
-        low=0.0,
-        high=1e12,
-    )
-    direction: Vec3 | None = spec(
-        None, "directional only: the direction the light travels (from the light to the scene)"
-    )
-    position: Vec3 | None = spec(
-        None, "point only: world position (float64 precision)", unit="scene units"
     )
 
 

@@ -245,6 +245,12 @@ def _check_lights(lights: tuple[LightConfig, ...]) -> None:
                 raise InputError(f"{key}.position", "only point lights have a position")
         else:
             if light.position is None:
-                raise InputError(f"{key}.position", "a point light needs a position")
+                raise InputError(f"{key}.position", f"a {light.type} light needs a position")
             if light.direction is not None:
                 raise InputError(f"{key}.direction", "only directional lights have a direction")
+        if light.radius > 0.0 and light.type != "sphere":
+            raise InputError(f"{key}.radius", "only sphere lights have a radius")
+        if light.angular_radius_deg > 0.0 and light.type != "directional":
+            raise InputError(
+                f"{key}.angular_radius_deg", "only directional lights have an angular radius"
+            )

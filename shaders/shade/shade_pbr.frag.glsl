@@ -1,6 +1,8 @@
 #version 330 core
 // Physically based shading of the reconstructed surface (thesis chapter 4):
 //   direct   sum over lights of f_r (Lambert + Cook-Torrance, common/brdf.glsl) E_light (n.l)
+//            x the light's shadow visibility (SHADOWS, shadow/shadow_lookup.glsl); sphere
+//            lights: representative point + form factor (SPHERE_LIGHTS, shade/sphere_light.glsl)
 //   indirect diffuse (1 - (F0 A + B)) c_diff E_sh(n) / pi, E_sh from 9 SH coefficients
 //            + specular IBL: prefiltered mip chain x (F0 A + B) (split sum), or per-pixel GGX
 //            importance sampling with pdf-based source LOD (eq 50-53, corrected)
@@ -38,6 +40,9 @@
 #define ANTIALIAS 0
 #define LIGHT_DIRECTIONAL 0
 #define LIGHT_POINT 1
+#define LIGHT_SPHERE 2
+#define SPHERE_LIGHTS 0
+#define SHADOWS 0
 
 #include "common/depth_image.glsl"
 #if HEAT_TINT
@@ -62,6 +67,7 @@ uniform int u_light_type[MAX_LIGHTS];
 uniform vec3 u_light_vector[MAX_LIGHTS];    // directional: unit vector towards the light;
                                             // point: position relative to the eye (world axes)
 uniform vec3 u_light_radiance[MAX_LIGHTS];  // colour * intensity
+uniform float u_light_radius[MAX_LIGHTS];   // sphere lights
 
 uniform mat3 u_world_to_env;
 uniform float u_env_intensity;
@@ -98,6 +104,13 @@ float g_roughness;
 
 layout(location = 0) out vec4 out_color;
 
+#if SPHERE_LIGHTS
+#include "shade/sphere_light.glsl"
+#endif
+#if SHADOWS
+#include "shadow/shadow_lookup.glsl"
+#endif
+
 vec3 environment_radiance(vec3 world_direction, float lod) {
     vec3 d = u_world_to_env * world_direction;
     return textureLod(u_env_source, equirect_uv(d), lod).rgb * u_env_intensity;
@@ -110,6 +123,20 @@ vec3 direct_light(vec3 n, vec3 v, vec3 position, float alpha, vec3 specular_ener
         if (i >= u_light_count) {
             break;
         }
+#if SPHERE_LIGHTS
+        if (u_light_type[i] == LIGHT_SPHERE) {
+            vec3 to_sphere = u_light_vector[i] - position;
+            vec3 light = sphere_light(to_sphere, u_light_radius[i], u_light_radiance[i], n, v,
+                alpha, u_f0, u_diffuse_albedo, specular_energy);
+#if SHADOWS
+            if (any(greaterThan(light, vec3(0.0)))) {
+                light *= shadow_visibility(i, position, n);
+            }
+#endif
+            sum += light;
+            continue;
+        }
+#endif
         vec3 l;
         vec3 irradiance = u_light_radiance[i];
         if (u_light_type[i] == LIGHT_POINT) {
@@ -124,6 +151,9 @@ vec3 direct_light(vec3 n, vec3 v, vec3 position, float alpha, vec3 specular_ener
         }
         float nl = dot(n, l);
         if (nl > 0.0) {
+#if SHADOWS
+            irradiance *= shadow_visibility(i, position, n);
+#endif
             vec3 diffuse;
             vec3 specular;
             brdf_lobes(n, v, l, g_f0, g_diffuse_albedo, alpha, diffuse, specular);

@@ -27,9 +27,11 @@ from sphrender.server.engine.gpu.uniforms import set_group, set_if_used, uses, w
 from sphrender.server.engine.lighting.blackbody import TABLE_MAX_K, TABLE_MIN_K, blackbody_table
 from sphrender.server.engine.lighting.environment import EnvironmentLibrary, rotation_about_y
 from sphrender.server.engine.lighting.ibl import PREFILTER_LEVELS, EnvironmentTextures, IblCache
+from sphrender.server.engine.lighting.lights import DIRECTIONAL, SPHERE, light_kind, light_radiance
 from sphrender.server.engine.lighting.materials import resolve_material
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 from sphrender.server.engine.passes.shade_heat import FilmTables, heat_defines, heat_uniforms
+from sphrender.server.engine.passes.shadow import ShadowMaps
 from sphrender.server.scene import MAX_LIGHTS, Scene
 
 SHADER = "shade/shade_pbr.frag.glsl"
@@ -56,7 +58,7 @@ class ShadePass:
         self._target = PerSize(lambda size: Target.float(context.gl.ctx, size, 4))
 
     def program_for(
-        self, scene: Scene, has_temperature: bool, antialias: bool = False
+        self, scene: Scene, has_temperature: bool, antialias: bool = False, shadows: bool = False
     ) -> moderngl.Program:
         shading = scene.shading
         return self._context.programs.get(
@@ -73,6 +75,8 @@ class ShadePass:
                 "MAX_LIGHTS": MAX_LIGHTS,
                 "ANTIALIAS": antialias,
                 **heat_defines(scene.material, has_temperature),
+                "SPHERE_LIGHTS": any(light_kind(light) == SPHERE for light in scene.lights),
+                "SHADOWS": shadows,
             },
         )
 
@@ -100,6 +104,7 @@ class ShadePass:
         box: ScreenBox | None = None,
         coverage: moderngl.Texture | None = None,
         peak: moderngl.Texture | None = None,
+        shadows: ShadowMaps | None = None,
     ) -> Target:
         """Shade `normal_depth` (world normal xyz, eye depth w) into the colour target;
         `temperature` (kelvin per pixel, already smoothed) adds the hot-metal glow. With a
@@ -107,8 +112,11 @@ class ShadePass:
         there is no surface), so only `box` is shaded; an environment background covers every
         pixel. `coverage` (the splat's sub-pixel coverage) anti-aliases the silhouettes: alpha
         = coverage, and the pixels just outside show their neighbours' surface. `peak` (kelvin,
-        smoothed) is the heat tint's peak temperature; without it the tint reads `temperature`."""
-        program = self.program_for(scene, temperature is not None, coverage is not None)
+        smoothed) is the heat tint's peak temperature; without it the tint reads `temperature`.
+        `shadows`: the shadow maps of the lights that cast shadows (passes/shadow.py)."""
+        program = self.program_for(
+            scene, temperature is not None, coverage is not None, shadows is not None
+        )
         shading = scene.shading
         entry = None
         if shading.ibl_mode != "none" or shading.background == "environment":
@@ -127,6 +135,9 @@ class ShadePass:
             (scene, camera, entry),
             lambda: self._scene_uniforms(program, scene, camera, entry),
         )
+        if shadows is not None:
+            textures.append(("u_shadow_atlas", shadows.atlas))
+            _set_shadows(program, shadows)
         for unit, (name, texture) in enumerate(textures):
             texture.use(unit)
             set_if_used(program, name, unit)
@@ -207,11 +218,13 @@ class ShadePass:
         types = np.zeros(MAX_LIGHTS, dtype=np.int32)
         vectors = np.zeros((MAX_LIGHTS, 3), dtype=np.float32)
         radiance = np.zeros((MAX_LIGHTS, 3), dtype=np.float32)
+        radii = np.zeros(MAX_LIGHTS, dtype=np.float32)
         for i, light in enumerate(scene.lights):
-            radiance[i] = np.asarray(light.color) * light.intensity
-            if light.type == "point":
+            radiance[i] = light_radiance(light)
+            types[i] = light_kind(light)
+            radii[i] = light.radius
+            if types[i] != DIRECTIONAL:
                 assert light.position is not None
-                types[i] = 1
                 # float64 subtraction first: a light at 1e5 near a surface at 1e5 keeps its
                 # millimetres (the same rule as the particles).
                 vectors[i] = np.asarray(light.position, dtype=np.float64) - camera.eye
@@ -222,6 +235,8 @@ class ShadePass:
         program["u_light_type"].write(types.tobytes())  # type: ignore[union-attr]
         program["u_light_vector"].write(vectors.tobytes())  # type: ignore[union-attr]
         program["u_light_radiance"].write(radiance.tobytes())  # type: ignore[union-attr]
+        if uses(program, "u_light_radius"):
+            program["u_light_radius"].write(radii.tobytes())  # type: ignore[union-attr]
 
     def release(self) -> None:
         self._target.release()
@@ -230,3 +245,17 @@ class ShadePass:
         if self._blackbody is not None:
             self._blackbody.release()
             self._blackbody = None
+
+
+def _set_shadows(program: moderngl.Program, shadows: ShadowMaps) -> None:
+    """The shadow lookup's per-light uniforms (shadow/shadow_lookup.glsl), every frame: the
+    orthographic maps follow the particles' bounds."""
+    for name, values in (
+        ("u_shadow_slot", shadows.slot),
+        ("u_shadow_light", shadows.light),
+        ("u_shadow_half", shadows.half),
+        # GLSL matrices are column-major: the transposes of the rows.
+        ("u_shadow_axes", np.ascontiguousarray(shadows.axes.transpose(0, 2, 1))),
+    ):
+        if uses(program, name):
+            program[name].write(np.asarray(values, dtype=np.float32).tobytes())  # type: ignore[union-attr]
