@@ -43,6 +43,8 @@ from sphrender.server.engine.passes.prepare_stage import PreparedFrame, PrepareM
 from sphrender.server.engine.passes.readback import ReadbackPass
 from sphrender.server.engine.passes.shade import ShadePass
 from sphrender.server.engine.passes.smooth import SmoothPass
+from sphrender.server.engine.passes.solid_split import split_solid
+from sphrender.server.engine.passes.solid_surface import SolidParticles, SolidSurfacePass
 from sphrender.server.engine.passes.splat import SplatOutput, SplatPass
 from sphrender.server.engine.passes.temperature import TemperaturePass
 from sphrender.server.engine.sph.engine import SphEngine
@@ -79,6 +81,7 @@ class SurfaceRenderer:
         self._shade = ShadePass(self._context, environment_dirs)
         self._display = DisplayPass(self._context)
         self._readback = ReadbackPass(self._context)
+        self._solids = SolidSurfacePass(self._context)  # frames with solid particles only
 
     @property
     def gl(self) -> GLContext:
@@ -149,6 +152,7 @@ class SurfaceRenderer:
         camera = Camera.from_config(scene.camera, scene.image.width, scene.image.height)
         stats = RenderStats(particles_in=frame.count)
         stats.notes += [InputNote(note.field, note.message) for note in scene.notes]
+        frame, solid = split_solid(frame, scene)
         sph = self._run_sph(frame, scene, stats)
         with self._stage(stats, "prepare"):
             prepared = self._prepare.run(sph, camera, scene)
@@ -158,12 +162,15 @@ class SurfaceRenderer:
         surface, bulk_splatted = self._draw_surface(prepared, camera, scene, stats)
         with self._stage(stats, "normals"):
             normal_depth = self._surface_normals(surface, prepared, camera, scene)
+        box, shaded = prepared.box, bool(prepared.visible)
+        if solid is not None:
+            with self._stage(stats, "solids"):
+                surface, normal_depth = self._add_solid(solid, surface, normal_depth, camera)
+            box, shaded = None, True
         with self._stage(stats, "shade"):
-            color = self._shade_surface(surface, normal_depth, camera, scene, prepared)
+            color = self._shade_surface(surface, normal_depth, camera, scene, prepared, box, shaded)
         with self._stage(stats, "readback"):
-            rendered = self._read_back(
-                color, normal_depth, scene, prepared.box, depth, normals, display
-            )
+            rendered = self._read_back(color, normal_depth, scene, box, depth, normals, display)
         # After the read-back, so a count the device kept waits for nothing.
         stats.particles_splatted += self._splat.splatted(bulk_splatted, prepared.visible)
         wall_ms = (time.perf_counter() - start) * 1e3
@@ -239,6 +246,26 @@ class SurfaceRenderer:
             bulk=surface.bulk_depth,
         )
 
+    def _add_solid(
+        self, solid: SolidParticles, surface: SplatOutput, normal_depth: Target, camera: Camera
+    ) -> tuple[SplatOutput, Target]:
+        """The solid drawn and composed with the fluid by depth: the surface and normal target
+        the temperature blur, the shading and the read-back use from here on."""
+        self._solids.run(solid, camera)
+        composed = self._solids.compose(
+            normal_depth.texture,
+            surface.temperature,
+            surface.coverage,
+            has_temperature=solid.temperatures is not None,
+        )
+        merged = replace(
+            surface,
+            depth=composed.depth,
+            temperature=composed.temperature,
+            coverage=composed.coverage if surface.coverage is not None else None,
+        )
+        return merged, composed.normal_depth
+
     def _shade_surface(
         self,
         surface: SplatOutput,
@@ -246,10 +273,13 @@ class SurfaceRenderer:
         camera: Camera,
         scene: Scene,
         prepared: PreparedFrame,
+        box: ScreenBox | None,
+        shaded: bool,
     ) -> Target:
-        """The shaded colour target (the temperature blurred along the surface first)."""
+        """The shaded colour target (the temperature blurred along the surface first) in `box`;
+        `shaded`: whether any surface was drawn."""
         temperature = surface.temperature
-        if temperature is not None and prepared.visible:
+        if temperature is not None and shaded:
             temperature = self._temperature.run(
                 temperature,
                 surface.depth,
@@ -257,7 +287,7 @@ class SurfaceRenderer:
                 prepared.reference_radius,
             )
         return self._shade.run(
-            scene, camera, normal_depth.texture, temperature, prepared.box, surface.coverage
+            scene, camera, normal_depth.texture, temperature, box, surface.coverage
         )
 
     def _read_back(
@@ -292,7 +322,7 @@ class SurfaceRenderer:
         """Release every GPU object this renderer owns (on the owner thread)."""
         self._gl.check_owner()
         passes = (self._splat, self._smooth, self._normals, self._temperature, self._shade)
-        for gpu_pass in (*passes, self._display, self._readback):
+        for gpu_pass in (*passes, self._display, self._readback, self._solids):
             gpu_pass.release()
         self._context.fullscreen.release()
         self._context.programs.release()
