@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 F64 = npt.NDArray[np.float64]
@@ -35,7 +37,9 @@ FACE_SPACINGS = 3.1  # a face's plane is fitted over its particles within this m
 FLATNESS = 0.02  # smallest / middle PCA eigenvalue below this: the points lie on a plane
 SAME_FACE_COS = float(np.cos(np.radians(15.0)))  # votes within 15 degrees are one direction
 ON_PLANE_SPACINGS = 0.3  # a particle this close to a face's plane (in spacings) lies on it
-MAX_DIRECTIONS = 32  # face directions looked for per solid
+SKIN_SPACINGS = 0.15  # a face's outer layer: within this of the local top (jitter is 0.05 s)
+MAX_DIRECTIONS = 32
+ARC_SIN = float(np.sin(np.radians(5.0)))  # face directions looked for per solid
 MIN_FACE_VOTES = 12  # fewer votes than this: no face (curved or rough bits stay spheres)
 # Disc radius: covers the holes of a square lattice (0.71 s) and of a bevel's sheared rows
 # (0.76 s at 30 degrees), with jitter to spare.
@@ -146,6 +150,7 @@ class _Faces:
     particle: npt.NDArray[np.int64]  # one row per (particle, face) the particle lies on, sorted
     normal: F64
     offset: F64  # plane n . x = offset, grown by r
+    direction: npt.NDArray[np.int64]  # which face direction the row came from
 
 
 def _faces_along(
@@ -156,46 +161,87 @@ def _faces_along(
     spacing: float,
 ) -> tuple[npt.NDArray[np.int64], F64, npt.NDArray[np.float64]]:
     """The surface particles extremal along `direction` (no neighbour rises above them by
-    more than the on-plane tolerance), the face normal refined over them, and each one's plane
-    offset (before growing by r) fitted to its extremal neighbours on the same plane."""
+    more than the on-plane tolerance), each one's face normal (refined over its connected
+    patch) and plane offset (before growing by r, fitted over its patch's outer layer nearby)."""
     index, mask = neighbours
     tolerance = ON_PLANE_SPACINGS * spacing
     rise = np.einsum("nki,i->nk", points[index[surface_rows]], direction)
     rise -= (points[surface_rows] @ direction)[:, None]
     rise = np.where(mask[surface_rows], rise, -np.inf)
     rows = surface_rows[rise.max(axis=1) < tolerance]
-    if len(rows) < 3 or _collinear(points[rows], spacing):
-        # A row of particles is an edge, rounded, not a face (a chamfer the votes made up).
-        empty = np.zeros(0, np.int64)
-        return empty, direction, np.zeros(0)
-    normal = _refined(points[rows], direction)
-    height = points[rows] @ normal
+    label = _patches(points[rows], direction, spacing) if len(rows) else np.zeros(0, np.int64)
+    # A patch that is a row of particles is an edge (rounded), not a face: a chamfer the votes
+    # made up, or a sheet's rim.
+    lines = [
+        p for p in range(len(np.unique(label))) if _collinear(points[rows][label == p], spacing)
+    ]
+    if lines:
+        keep = ~np.isin(label, lines)
+        rows, label = rows[keep], np.unique(label[keep], return_inverse=True)[1]
+    if len(rows) == 0:
+        return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0)
+    normal = np.empty((len(rows), 3))
+    for patch in range(int(label.max()) + 1):
+        members = label == patch
+        normal[members] = _refined(points[rows][members], direction, spacing)
+    height = np.einsum("ni,ni->n", points[rows], normal)
     tree = cKDTree(points[rows])
     lists = tree.query_ball_point(points[rows], FACE_SPACINGS * spacing, workers=-1)
     lengths = np.fromiter((len(x) for x in lists), np.int64, len(lists))
     owner = np.repeat(np.arange(len(rows)), lengths)
     other = np.concatenate([np.asarray(x, np.int64) for x in lists])
-    same = np.abs(height[other] - height[owner]) < tolerance
-    total = np.bincount(owner[same], weights=height[other][same], minlength=len(rows))
-    count = np.bincount(owner[same], minlength=len(rows))
+    same = label[other] == label[owner]
+    top = np.full(len(rows), -np.inf)
+    np.maximum.at(top, owner[same], height[other][same])
+    # The plane is the outermost layer: heights near the local top, not a particle set back
+    # at an obtuse edge that the on-plane tolerance let in.
+    outer = same & (height[other] > top[owner] - SKIN_SPACINGS * spacing)
+    total = np.bincount(owner[outer], weights=height[other][outer], minlength=len(rows))
+    count = np.bincount(owner[outer], minlength=len(rows))
     return rows, normal, total / np.maximum(count, 1)
+
+
+def _patches(face_points: F64, direction: F64, spacing: float) -> npt.NDArray[np.int64]:
+    """Connected patches of particles extremal along one direction: neighbours on the same
+    plane (a root gap's two sides, the two plates' far sides are different patches)."""
+    pairs = cKDTree(face_points).query_pairs(NEIGHBOUR_SPACINGS * spacing, output_type="ndarray")
+    height = face_points @ direction
+    pairs = pairs[np.abs(height[pairs[:, 0]] - height[pairs[:, 1]]) < ON_PLANE_SPACINGS * spacing]
+    n = len(face_points)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)[1].astype(np.int64)
 
 
 def _collinear(face_points: F64, spacing: float) -> bool:
     """The points spread less than 0.3 spacings across their main axis: a line, not a patch."""
+    if len(face_points) < 3:
+        return True
     centred = face_points - face_points.mean(axis=0)
     values = np.linalg.eigvalsh(centred.T @ centred / len(face_points))
     return bool(values[1] < (0.3 * spacing) ** 2)
 
 
-def _refined(face_points: F64, direction: F64) -> F64:
-    """The plane normal of `face_points` (PCA) when they are planar and it agrees with the
-    direction the votes found; else that direction."""
-    centred = face_points - face_points.mean(axis=0)
-    values, vectors = np.linalg.eigh(centred.T @ centred)
-    normal = vectors[:, 0] * np.sign(vectors[:, 0] @ direction)
-    planar = values[0] < FLATNESS * max(values[1], 1e-30)
-    return normal if planar and normal @ direction > SAME_FACE_COS else direction
+def _refined(face_points: F64, direction: F64, spacing: float) -> F64:
+    """The plane normal of `face_points` (PCA, refitted over the points near the first fit's
+    outer layer) when they are planar and it agrees with the direction the votes found; else
+    that direction."""
+    normal = direction
+    keep = np.ones(len(face_points), np.bool_)
+    for _ in range(2):
+        chosen = face_points[keep]
+        centred = chosen - chosen.mean(axis=0)
+        values, vectors = np.linalg.eigh(centred.T @ centred)
+        candidate = vectors[:, 0] * np.sign(vectors[:, 0] @ direction)
+        if not (
+            values[0] < FLATNESS * max(values[1], 1e-30) and candidate @ direction > SAME_FACE_COS
+        ):
+            return normal
+        normal = candidate
+        height = face_points @ normal
+        keep = height > height.max() - SKIN_SPACINGS * spacing - 0.1 * spacing
+        if keep.sum() < 3:
+            return normal
+    return normal
 
 
 def build_surfels(points: F64, radius: float) -> SolidSurfels:
@@ -211,13 +257,49 @@ def build_surfels(points: F64, radius: float) -> SolidSurfels:
     directions = _dominant_directions(votes, MIN_FACE_VOTES)
     parts = [_faces_along(points, surface_rows, neighbours, d, spacing) for d in directions]
     particle = np.concatenate([p for p, _, _ in parts] + [np.zeros(0, np.int64)])
-    normal = np.concatenate(
-        [np.broadcast_to(n, (len(p), 3)) for p, n, _ in parts] + [np.zeros((0, 3))]
-    )
+    normal = np.concatenate([n for _, n, _ in parts] + [np.zeros((0, 3))])
     offset = np.concatenate([o for _, _, o in parts] + [np.zeros(0)]) + radius
+    direction = np.repeat(np.arange(len(parts)), [len(p) for p, _, _ in parts])
     order = np.argsort(particle, kind="stable")
-    faces = _Faces(particle[order], normal[order], offset[order])
+    faces = _without_between(
+        _Faces(particle[order], normal[order], offset[order], direction[order])
+    )
     return _assemble(points, radius, spacing, surface_rows, faces)
+
+
+def _without_between(faces: _Faces) -> _Faces:
+    """Drop the face directions that are chamfers: where over a quarter of a direction's
+    particles have it between two of their other faces (on the arc between their normals),
+    the direction only rounds an edge those faces already make sharp."""
+    counts = np.bincount(faces.particle) if len(faces.particle) else np.zeros(0, np.int64)
+    between = np.zeros(len(faces.particle), np.bool_)
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    for particle in np.flatnonzero(counts >= 3):
+        rows = np.arange(starts[particle], starts[particle + 1])
+        normals = faces.normal[rows]
+        for k, n in enumerate(normals):
+            others = np.delete(normals, k, axis=0)
+            between[rows[k]] = any(
+                _on_arc(n, others[a], others[b])
+                for a in range(len(others))
+                for b in range(a + 1, len(others))
+            )
+    total = np.bincount(faces.direction, minlength=1)
+    flagged = np.bincount(faces.direction[between], minlength=len(total))
+    chamfer = flagged > total / 4
+    keep = ~chamfer[faces.direction]
+    return _Faces(
+        faces.particle[keep], faces.normal[keep], faces.offset[keep], faces.direction[keep]
+    )
+
+
+def _on_arc(n: F64, a: F64, b: F64) -> bool:
+    """n lies on the shorter great-circle arc from a to b (within 5 degrees of it)."""
+    axis = np.cross(a, b)
+    length = float(np.linalg.norm(axis))
+    if length < 1e-6:
+        return False
+    return bool(abs(n @ axis) / length < ARC_SIN and n @ a > a @ b and n @ b > a @ b)
 
 
 def _assemble(
