@@ -103,6 +103,11 @@ class SurfaceRenderer:
         return self._splat, self._smooth, self._normals, self._temperature, self._shade
 
     @property
+    def solid_pass(self) -> SolidSurfacePass:
+        """The solid workpieces' pass and its surfel cache (tests count its builds)."""
+        return self._solids
+
+    @property
     def shade_pass(self) -> ShadePass:
         """The shading pass and its caches (environments, IBL, BRDF tables)."""
         return self._shade
