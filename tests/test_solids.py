@@ -124,7 +124,7 @@ def test_static_solid_is_built_once(renderer: SurfaceRenderer) -> None:
     _render(renderer, SMALL_PLATE)
     assert cache.builds - before <= 1
     _render(renderer, SMALL_PLATE, positions=SMALL_PLATE.positions + 0.001)
-    assert cache.builds - before == 2 or cache.builds - before == 1 and before == 0
+    assert cache.builds - before == 2 or (cache.builds - before == 1 and before == 0)
 
 
 def test_no_solid_particle_changes_nothing(renderer: SurfaceRenderer) -> None:
