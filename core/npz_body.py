@@ -43,8 +43,9 @@ NPZ_ARRAYS: tuple[str, ...] = (
     "temperatures",
     "velocities",
     "ids",
+    "solid",
 )
-#: Default cap on entries in an archive (a frame needs at most five).
+#: Default cap on entries in an archive (a frame needs at most eight).
 DEFAULT_MAX_ENTRIES = 64
 #: Default cap on the scene entry's text, UTF-8 bytes.
 DEFAULT_MAX_SCENE_BYTES = 1 << 20
@@ -86,6 +87,7 @@ def encode_npz_frame(
     temperatures: object | None = None,
     velocities: object | None = None,
     ids: object | None = None,
+    solid: object | None = None,
     scene: Mapping[str, Any] | str | None = None,
     compress: bool = False,
 ) -> bytes:
@@ -97,6 +99,7 @@ def encode_npz_frame(
         ("temperatures", temperatures),
         ("velocities", velocities),
         ("ids", ids),
+        ("solid", solid),
     )
     for name, value in named:
         if value is not None:
@@ -320,7 +323,8 @@ def _check_entry(entry: _Entry, max_particles: int, max_scene_bytes: int) -> Non
                 "scene", f"the scene text exceeds this server's limit of {max_scene_bytes} bytes"
             )
         return
-    if entry.dtype.kind not in "fiu":
+    kinds = "biu" if entry.name == "solid" else "fiu"
+    if entry.dtype.kind not in kinds:
         raise InputError(entry.name, f"must be a numeric array, got dtype {show(entry.dtype.str)}")
     if entry.shape and entry.shape[0] > max_particles:
         raise LimitError(

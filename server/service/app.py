@@ -161,6 +161,7 @@ class RenderService:
             temperatures=arrays.get("temperatures"),
             velocities=arrays.get("velocities"),
             ids=arrays.get("ids"),
+            solid=arrays.get("solid"),
             max_particles=self.config.limits.max_particles,
         )
 
