@@ -117,7 +117,7 @@ def test_far_from_the_origin_renders_alike(renderer: SurfaceRenderer) -> None:
 def test_static_solid_is_built_once(renderer: SurfaceRenderer) -> None:
     """A session's static solid: surfels built on the first frame only, whatever the camera;
     moving the solid builds them again."""
-    cache = renderer.solid_pass.cache
+    cache = renderer._solids.cache  # the renderer's own pass: its builds are what is counted
     _render(renderer, SMALL_PLATE)
     first = cache.builds
     _render(renderer, SMALL_PLATE, camera={"eye": [0.2, 0.9, 0.6], "target": [0.0, 0.0, 0.0]})

@@ -3,9 +3,10 @@
 `SurfaceRenderer` orchestrates a frame and holds no GL code; each pass owns its programs,
 targets and uniforms (`passes/`): sph (OpenCL, only when the scene asks) -> prepare (host or
 device, `passes/prepare_stage.py`) -> splat (+ occlusion culling, coverage) -> smooth ->
-droplets -> normals (+ field normals near rims) -> shade (temperature blur, PBR + IBL +
-emission) -> readback (+ display codes). ARCHITECTURE.md "Data flow of one frame" has each
-step. `RenderStats.host_ms` is the frame's work outside GL calls (`gpu/gl_clock.py`).
+droplets -> normals (+ field normals near rims) -> solids (a frame's solid particles, flat
+faces composed by depth) -> shade (temperature blur, PBR + IBL + emission) -> readback.
+ARCHITECTURE.md "Data flow of one frame" has each step. `RenderStats.host_ms` is the frame's
+work outside GL calls (`gpu/gl_clock.py`).
 
 One renderer belongs to one `GLContext` and is used only on that context's owner thread. It owns
 the passes and what they share (`PassContext`: program cache, full-screen triangle) and releases
@@ -43,8 +44,7 @@ from sphrender.server.engine.passes.prepare_stage import PreparedFrame, PrepareM
 from sphrender.server.engine.passes.readback import ReadbackPass
 from sphrender.server.engine.passes.shade import ShadePass
 from sphrender.server.engine.passes.smooth import SmoothPass
-from sphrender.server.engine.passes.solid_split import split_solid
-from sphrender.server.engine.passes.solid_surface import SolidParticles, SolidSurfacePass
+from sphrender.server.engine.passes.solid_surface import SolidSurfacePass
 from sphrender.server.engine.passes.splat import SplatOutput, SplatPass
 from sphrender.server.engine.passes.temperature import TemperaturePass
 from sphrender.server.engine.sph.engine import SphEngine
@@ -103,11 +103,6 @@ class SurfaceRenderer:
         return self._splat, self._smooth, self._normals, self._temperature, self._shade
 
     @property
-    def solid_pass(self) -> SolidSurfacePass:
-        """The solid workpieces' pass and its surfel cache (tests count its builds)."""
-        return self._solids
-
-    @property
     def shade_pass(self) -> ShadePass:
         """The shading pass and its caches (environments, IBL, BRDF tables)."""
         return self._shade
@@ -157,7 +152,7 @@ class SurfaceRenderer:
         camera = Camera.from_config(scene.camera, scene.image.width, scene.image.height)
         stats = RenderStats(particles_in=frame.count)
         stats.notes += [InputNote(note.field, note.message) for note in scene.notes]
-        frame, solid = split_solid(frame, scene)
+        frame, solid = self._solids.split(frame, scene)
         sph = self._run_sph(frame, scene, stats)
         with self._stage(stats, "prepare"):
             prepared = self._prepare.run(sph, camera, scene)
@@ -167,17 +162,18 @@ class SurfaceRenderer:
         surface, bulk_splatted = self._draw_surface(prepared, camera, scene, stats)
         with self._stage(stats, "normals"):
             normal_depth = self._surface_normals(surface, prepared, camera, scene)
-        box, shaded = prepared.box, bool(prepared.visible)
-        if solid is not None:
+        if solid is not None:  # composed by depth; the shading and read-back cover the image
             with self._stage(stats, "solids"):
-                surface, normal_depth = self._add_solid(solid, surface, normal_depth, camera)
-            box, shaded = None, True
+                surface, normal_depth = self._solids.add(solid, surface, normal_depth, camera)
+            prepared = replace(prepared, box=None, visible=max(prepared.visible, 1))
         with self._stage(stats, "shade"):
-            color = self._shade_surface(surface, normal_depth, camera, scene, prepared, box, shaded)
+            color = self._shade_surface(surface, normal_depth, camera, scene, prepared)
         with self._stage(stats, "readback"):
-            rendered = self._read_back(color, normal_depth, scene, box, depth, normals, display)
+            rendered = self._read_back(
+                color, normal_depth, scene, prepared.box, depth, normals, display
+            )
         # After the read-back, so a count the device kept waits for nothing.
-        stats.particles_splatted += self._splat.splatted(bulk_splatted, prepared.visible)
+        stats.particles_splatted += self._splat.splatted(bulk_splatted, stats.particles_drawn)
         wall_ms = (time.perf_counter() - start) * 1e3
         device_ms = (self._gl.clock.seconds - in_gl) * 1e3
         stats.host_ms = max(wall_ms - device_ms - stats.stage_ms.get("sph", 0.0), 0.0)
@@ -251,26 +247,6 @@ class SurfaceRenderer:
             bulk=surface.bulk_depth,
         )
 
-    def _add_solid(
-        self, solid: SolidParticles, surface: SplatOutput, normal_depth: Target, camera: Camera
-    ) -> tuple[SplatOutput, Target]:
-        """The solid drawn and composed with the fluid by depth: the surface and normal target
-        the temperature blur, the shading and the read-back use from here on."""
-        self._solids.run(solid, camera)
-        composed = self._solids.compose(
-            normal_depth.texture,
-            surface.temperature,
-            surface.coverage,
-            has_temperature=solid.temperatures is not None,
-        )
-        merged = replace(
-            surface,
-            depth=composed.depth,
-            temperature=composed.temperature,
-            coverage=composed.coverage if surface.coverage is not None else None,
-        )
-        return merged, composed.normal_depth
-
     def _shade_surface(
         self,
         surface: SplatOutput,
@@ -278,13 +254,10 @@ class SurfaceRenderer:
         camera: Camera,
         scene: Scene,
         prepared: PreparedFrame,
-        box: ScreenBox | None,
-        shaded: bool,
     ) -> Target:
-        """The shaded colour target (the temperature blurred along the surface first) in `box`;
-        `shaded`: whether any surface was drawn."""
+        """The shaded colour target (the temperature blurred along the surface first)."""
         temperature = surface.temperature
-        if temperature is not None and shaded:
+        if temperature is not None and prepared.visible:
             temperature = self._temperature.run(
                 temperature,
                 surface.depth,
@@ -292,7 +265,7 @@ class SurfaceRenderer:
                 prepared.reference_radius,
             )
         return self._shade.run(
-            scene, camera, normal_depth.texture, temperature, box, surface.coverage
+            scene, camera, normal_depth.texture, temperature, prepared.box, surface.coverage
         )
 
     def _read_back(

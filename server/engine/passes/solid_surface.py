@@ -7,17 +7,20 @@ subtraction on the host), draws them depth-tested into a normal + eye depth targ
 and composes that with the fluid's normal target by depth: per pixel the nearer surface's normal,
 eye depth, temperature and coverage, which the temperature blur and the shading then read as
 they read the fluid's. Owns: its programs' uses, the instance buffers, the solid and composed
-targets, the surfel cache.
+targets, the surfel cache. Which particles are solid: the frame's `solid` flags, or its
+temperatures against the material's solidus (`[solids] source`); a frame with none is passed
+on as it came (nothing copied).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import moderngl
 import numpy as np
 import numpy.typing as npt
 
+from sphrender.core.frame import ParticleFrame
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.solid_surfels import (
     MAX_CLIP_PLANES,
@@ -26,7 +29,10 @@ from sphrender.server.engine.geometry.solid_surfels import (
 )
 from sphrender.server.engine.gpu.draw import Target, float_texture
 from sphrender.server.engine.gpu.uniforms import set_if_used, write_matrix
+from sphrender.server.engine.lighting.materials import resolve_material
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
+from sphrender.server.engine.passes.splat import SplatOutput
+from sphrender.server.scene import Scene
 
 F64 = npt.NDArray[np.float64]
 _CORNERS = np.array([[-1, -1], [1, -1], [-1, 1], [1, 1]], dtype=np.float32)
@@ -171,6 +177,33 @@ class SolidSurfacePass:
             ctx.disable(moderngl.DEPTH_TEST)
         return targets.solid
 
+    def split(
+        self, frame: ParticleFrame, scene: Scene
+    ) -> tuple[ParticleFrame, SolidParticles | None]:
+        """The fluid part of `frame` and its solid part (None: nothing is solid, and `frame`
+        comes back as it came)."""
+        return split_solid(frame, scene)
+
+    def add(
+        self, solid: SolidParticles, surface: SplatOutput, normal_depth: Target, camera: Camera
+    ) -> tuple[SplatOutput, Target]:
+        """The solid drawn and composed with the fluid by depth: the surface and the normal
+        target the temperature blur, the shading and the read-back use from here on."""
+        self.run(solid, camera)
+        composed = self.compose(
+            normal_depth.texture,
+            surface.temperature,
+            surface.coverage,
+            has_temperature=solid.temperatures is not None,
+        )
+        merged = replace(
+            surface,
+            depth=composed.depth,
+            temperature=composed.temperature,
+            coverage=composed.coverage if surface.coverage is not None else None,
+        )
+        return merged, composed.normal_depth
+
     def compose(
         self,
         fluid_normal_depth: moderngl.Texture,
@@ -254,3 +287,41 @@ def _view_instances(
     depths = np.concatenate([-centers[:, 2], -sphere_view[:, 2]])
     far = float(depths.max(initial=camera.near)) + 2.0 * reach
     return discs, spheres, max(far, camera.near * 2.0)
+
+
+def solid_mask(frame: ParticleFrame, scene: Scene) -> npt.NDArray[np.bool_] | None:
+    """True where a particle is solid, None when the scene and frame say nothing is."""
+    source = scene.solids.source
+    if source == "flag":
+        return frame.solid
+    if source == "temperature" and frame.temperatures is not None:
+        solidus = resolve_material(scene.material).solidus_k
+        return frame.temperatures < np.float32(solidus)
+    return None
+
+
+def split_solid(frame: ParticleFrame, scene: Scene) -> tuple[ParticleFrame, SolidParticles | None]:
+    """The fluid part of `frame` and its solid part (None: no particle is solid)."""
+    mask = solid_mask(frame, scene)
+    if mask is None or not mask.any():
+        return frame, None
+    keep = ~mask
+    radius = scene.particles.radius
+    if frame.radii is not None:
+        radius = float(np.median(frame.radii[mask]))
+
+    def part(array: np.ndarray | None) -> np.ndarray | None:
+        return None if array is None else np.ascontiguousarray(array[keep])
+
+    fluid = replace(
+        frame,
+        positions=np.ascontiguousarray(frame.positions[keep]),
+        densities=part(frame.densities),
+        radii=part(frame.radii),
+        temperatures=part(frame.temperatures),
+        velocities=part(frame.velocities),
+        ids=part(frame.ids),
+        solid=None,
+    )
+    temperatures = None if frame.temperatures is None else frame.temperatures[mask]
+    return fluid, SolidParticles(np.ascontiguousarray(frame.positions[mask]), radius, temperatures)
