@@ -12,9 +12,10 @@ composes them into planes meeting at sharp creases. The faces come from the part
    extremal); the face's plane is fitted over its extremal neighbours on the same plane, so
    jitter averages out and parallel faces (a root gap's two sides) stay apart.
 
-Particles with no face (thin rods, curved or rough bits) and every surface particle's core are
-drawn as spheres, which the discs hide wherever the faces are whole. numpy + scipy (cKDTree) on the
-host; `SolidSurfelCache` keeps the result while the solid particles do not move.
+Particles with no face (thin rods, curved or rough bits) are drawn as spheres, and so are the
+cores of particles on more than one face (edges), which the discs hide wherever they are whole.
+numpy + scipy (cKDTree) on the host; `SolidSurfelCache` keeps the result while the solid
+particles do not move.
 """
 
 from __future__ import annotations
@@ -322,9 +323,11 @@ def _assemble(
         slot[rows] += 1
     along = np.einsum("ni,ni->n", faces.normal, points[faces.particle])
     centers = points[faces.particle] + faces.normal * (faces.offset - along)[:, None]
-    has_face = np.zeros(len(points), np.bool_)
-    has_face[faces.particle] = True
-    sphere_radii = np.where(has_face[surface_rows], CORE_RADII * radius, radius)
+    face_count = np.bincount(faces.particle, minlength=len(points))
+    # Spheres where the discs may leave a hole: particles with no face, and those on more than
+    # one (along edges); a face's inside is covered by its discs (0.9 s over a lattice's 0.71 s).
+    cores = surface_rows[face_count[surface_rows] != 1]
+    sphere_radii = np.where(face_count[cores] > 0, CORE_RADII * radius, radius)
     return SolidSurfels(
         centers,
         faces.normal,
@@ -332,9 +335,9 @@ def _assemble(
         clip_normals,
         clip_offsets,
         faces.particle,
-        points[surface_rows],
+        points[cores],
         sphere_radii,
-        surface_rows,
+        cores,
         spacing,
     )
 
