@@ -162,10 +162,11 @@ class SurfaceRenderer:
         surface, bulk_splatted = self._draw_surface(prepared, camera, scene, stats)
         with self._stage(stats, "normals"):
             normal_depth = self._surface_normals(surface, prepared, camera, scene)
-        if solid is not None:  # composed by depth; the shading and read-back cover the image
+        if solid is not None:  # composed by depth; the shading and read-back cover it too
             with self._stage(stats, "solids"):
-                surface, normal_depth = self._solids.add(solid, surface, normal_depth, camera)
-            prepared = replace(prepared, box=None, visible=max(prepared.visible, 1))
+                surface, normal_depth, prepared = self._solids.add(
+                    solid, surface, normal_depth, prepared, camera
+                )
         with self._stage(stats, "shade"):
             color = self._shade_surface(surface, normal_depth, camera, scene, prepared)
         with self._stage(stats, "readback"):

@@ -22,6 +22,8 @@ import numpy.typing as npt
 
 from sphrender.core.frame import ParticleFrame
 from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.geometry.occlusion import sphere_bounds
+from sphrender.server.engine.geometry.screen_box import ScreenBox, screen_box
 from sphrender.server.engine.geometry.solid_surfels import (
     MAX_CLIP_PLANES,
     SolidSurfelCache,
@@ -31,6 +33,7 @@ from sphrender.server.engine.gpu.draw import Target, float_texture
 from sphrender.server.engine.gpu.uniforms import set_if_used, write_matrix
 from sphrender.server.engine.lighting.materials import resolve_material
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
+from sphrender.server.engine.passes.prepare_stage import PreparedFrame
 from sphrender.server.engine.passes.splat import SplatOutput
 from sphrender.server.scene import Scene
 
@@ -145,12 +148,14 @@ class SolidSurfacePass:
             self._vaos[key] = vao
         return vao
 
-    def run(self, solid: SolidParticles, camera: Camera) -> moderngl.Texture:
-        """Draw the solid into its normal + eye depth target (w = 0 where there is none)."""
+    def run(self, solid: SolidParticles, camera: Camera) -> ScreenBox | None:
+        """Draw the solid into its normal + eye depth target (w = 0 where there is none);
+        returns the screen box that holds it (None: the whole image)."""
         surfels = self.cache.get(solid.positions, solid.radius)
         targets = self.targets((camera.width, camera.height))
         temperature = solid.temperatures is not None
         discs, spheres, far = _view_instances(surfels, solid, camera)
+        box = _solid_box(discs, spheres, surfels.disc_radius, camera)
         self._upload("discs", discs)
         self._upload("spheres", spheres)
         ctx = self._context.gl.ctx
@@ -175,7 +180,7 @@ class SolidSurfacePass:
                 )
         finally:
             ctx.disable(moderngl.DEPTH_TEST)
-        return targets.solid
+        return box
 
     def split(
         self, frame: ParticleFrame, scene: Scene
@@ -185,11 +190,17 @@ class SolidSurfacePass:
         return split_solid(frame, scene)
 
     def add(
-        self, solid: SolidParticles, surface: SplatOutput, normal_depth: Target, camera: Camera
-    ) -> tuple[SplatOutput, Target]:
+        self,
+        solid: SolidParticles,
+        surface: SplatOutput,
+        normal_depth: Target,
+        prepared: PreparedFrame,
+        camera: Camera,
+    ) -> tuple[SplatOutput, Target, PreparedFrame]:
         """The solid drawn and composed with the fluid by depth: the surface and the normal
-        target the temperature blur, the shading and the read-back use from here on."""
-        self.run(solid, camera)
+        target the temperature blur, the shading and the read-back use from here on, and the
+        prepared frame with its screen box grown over the solid."""
+        box = self.run(solid, camera)
         composed = self.compose(
             normal_depth.texture,
             surface.temperature,
@@ -202,7 +213,9 @@ class SolidSurfacePass:
             temperature=composed.temperature,
             coverage=composed.coverage if surface.coverage is not None else None,
         )
-        return merged, composed.normal_depth
+        if prepared.visible:
+            box = _union(prepared.box, box)
+        return merged, composed.normal_depth, replace(prepared, box=box, visible=1)
 
     def compose(
         self,
@@ -255,6 +268,32 @@ class SolidSurfacePass:
         if self._targets is not None:
             self._targets.release()
             self._targets = None
+
+
+def _solid_box(
+    discs: npt.NDArray[np.float32],
+    spheres: npt.NDArray[np.float32],
+    disc_radius: float,
+    camera: Camera,
+) -> ScreenBox | None:
+    """The pixels the discs (each inside a sphere of the disc radius) and spheres can touch."""
+    bounding = np.concatenate(
+        [
+            np.concatenate([discs[:, :3], np.full((len(discs), 1), disc_radius, np.float32)], 1),
+            spheres[:, :4],
+        ]
+    )
+    if len(bounding) == 0:
+        return (0, 0, 1, 1)
+    return screen_box(sphere_bounds(bounding, camera), camera)
+
+
+def _union(a: ScreenBox | None, b: ScreenBox | None) -> ScreenBox | None:
+    if a is None or b is None:
+        return None
+    x0, y0 = min(a[0], b[0]), min(a[1], b[1])
+    x1, y1 = max(a[0] + a[2], b[0] + b[2]), max(a[1] + a[3], b[1] + b[3])
+    return (x0, y0, x1 - x0, y1 - y0)
 
 
 def _view_instances(
