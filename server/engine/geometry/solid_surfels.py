@@ -40,6 +40,7 @@ SAME_FACE_COS = float(np.cos(np.radians(15.0)))  # votes within 15 degrees are o
 ON_PLANE_SPACINGS = 0.3  # a particle this close to a face's plane (in spacings) lies on it
 SKIN_SPACINGS = 0.15  # a face's outer layer: within this of the local top (jitter is 0.05 s)
 MAX_DIRECTIONS = 32
+MAX_NEIGHBOURS = 48  # nearest neighbours looked at (a jittered lattice has 33 within 2.1 s)
 ARC_SIN = float(np.sin(np.radians(5.0)))  # face directions looked for per solid
 MIN_FACE_VOTES = 12  # fewer votes than this: no face (curved or rough bits stay spheres)
 # Disc radius: covers the holes of a square lattice (0.71 s) and of a bevel's sheared rows
@@ -74,16 +75,16 @@ class SolidSurfels:
 
 
 def _padded_neighbours(
-    tree: cKDTree, points: F64, radius: float
+    tree: cKDTree, points: F64, radius: float, k: int = MAX_NEIGHBOURS
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
-    """Neighbour indices within `radius` as a padded (N, K) array (self included) and its mask."""
-    lists = tree.query_ball_point(points, radius, workers=-1)
-    counts = np.fromiter((len(x) for x in lists), np.int64, len(lists))
-    k = int(counts.max()) if len(counts) else 1
-    index = np.zeros((len(lists), k), np.int64)
-    mask = np.arange(k)[None, :] < counts[:, None]
-    index[mask] = np.concatenate([np.asarray(x, np.int64) for x in lists]) if len(lists) else 0
-    return index, mask
+    """The nearest `k` neighbours within `radius` as an (N, k) index array (self included;
+    padding repeats the particle itself) and the mask of the real ones."""
+    k = min(k, tree.n)
+    distance, index = tree.query(points, k=k, distance_upper_bound=radius, workers=-1)
+    distance, index = distance.reshape(len(points), k), index.reshape(len(points), k)
+    mask = np.isfinite(distance)
+    own = np.broadcast_to(np.arange(len(points))[:, None], index.shape)
+    return np.where(mask, index, own).astype(np.int64), mask
 
 
 def _spacing(tree: cKDTree, points: F64) -> float:
@@ -154,29 +155,37 @@ class _Faces:
     direction: npt.NDArray[np.int64]  # which face direction the row came from
 
 
-def _faces_along(
+def _extremal(
     points: F64,
     surface_rows: npt.NDArray[np.int64],
     neighbours: tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]],
-    direction: F64,
+    directions: F64,
     spacing: float,
-) -> tuple[npt.NDArray[np.int64], F64, npt.NDArray[np.float64]]:
-    """The surface particles extremal along `direction` (no neighbour rises above them by
-    more than the on-plane tolerance), each one's face normal (refined over its connected
-    patch) and plane offset (before growing by r, fitted over its patch's outer layer nearby)."""
+) -> npt.NDArray[np.bool_]:
+    """(surface particles, directions): no neighbour rises above the particle along the
+    direction by more than the on-plane tolerance (in row blocks, float32 offsets)."""
     index, mask = neighbours
-    tolerance = ON_PLANE_SPACINGS * spacing
-    rise = np.einsum("nki,i->nk", points[index[surface_rows]], direction)
-    rise -= (points[surface_rows] @ direction)[:, None]
-    rise = np.where(mask[surface_rows], rise, -np.inf)
-    rows = surface_rows[rise.max(axis=1) < tolerance]
+    out = np.zeros((len(surface_rows), len(directions)), np.bool_)
+    towards = directions.T.astype(np.float32)
+    for start in range(0, len(surface_rows), 8192):
+        rows = surface_rows[start : start + 8192]
+        offsets = (points[index[rows]] - points[rows][:, None, :]).astype(np.float32)
+        offsets[~mask[rows]] = 0.0  # padding: the particle itself, which rises 0
+        out[start : start + 8192] = (offsets @ towards).max(axis=1) < ON_PLANE_SPACINGS * spacing
+    return out
+
+
+def _faces_along(
+    points: F64, rows: npt.NDArray[np.int64], direction: F64, spacing: float
+) -> tuple[npt.NDArray[np.int64], F64, npt.NDArray[np.float64]]:
+    """Of the surface particles extremal along `direction` (`rows`), those on faces: each
+    one's face normal (refined over its connected patch) and plane offset (before growing by r,
+    fitted over its patch's outer layer nearby)."""
     label = _patches(points[rows], direction, spacing) if len(rows) else np.zeros(0, np.int64)
     # A patch that is a row of particles is an edge (rounded), not a face: a chamfer the votes
     # made up, or a sheet's rim.
-    lines = [
-        p for p in range(len(np.unique(label))) if _collinear(points[rows][label == p], spacing)
-    ]
-    if lines:
+    lines = np.flatnonzero(_patch_spread(points[rows], label) < (0.3 * spacing) ** 2)
+    if len(lines):
         keep = ~np.isin(label, lines)
         rows, label = rows[keep], np.unique(label[keep], return_inverse=True)[1]
     if len(rows) == 0:
@@ -186,11 +195,9 @@ def _faces_along(
         members = label == patch
         normal[members] = _refined(points[rows][members], direction, spacing)
     height = np.einsum("ni,ni->n", points[rows], normal)
-    tree = cKDTree(points[rows])
-    lists = tree.query_ball_point(points[rows], FACE_SPACINGS * spacing, workers=-1)
-    lengths = np.fromiter((len(x) for x in lists), np.int64, len(lists))
-    owner = np.repeat(np.arange(len(rows)), lengths)
-    other = np.concatenate([np.asarray(x, np.int64) for x in lists])
+    near, real = _padded_neighbours(cKDTree(points[rows]), points[rows], FACE_SPACINGS * spacing)
+    owner = np.broadcast_to(np.arange(len(rows))[:, None], near.shape)[real]
+    other = near[real]
     same = label[other] == label[owner]
     top = np.full(len(rows), -np.inf)
     np.maximum.at(top, owner[same], height[other][same])
@@ -213,13 +220,20 @@ def _patches(face_points: F64, direction: F64, spacing: float) -> npt.NDArray[np
     return connected_components(graph, directed=False)[1].astype(np.int64)
 
 
-def _collinear(face_points: F64, spacing: float) -> bool:
-    """The points spread less than 0.3 spacings across their main axis: a line, not a patch."""
-    if len(face_points) < 3:
-        return True
-    centred = face_points - face_points.mean(axis=0)
-    values = np.linalg.eigvalsh(centred.T @ centred / len(face_points))
-    return bool(values[1] < (0.3 * spacing) ** 2)
+def _patch_spread(face_points: F64, label: npt.NDArray[np.int64]) -> F64:
+    """Per patch, the variance across its main axis (0 for fewer than three points): small
+    for a row of particles, about a spacing squared or more for a face."""
+    if len(label) == 0:
+        return np.zeros(0)
+    count = np.bincount(label).astype(np.float64)
+    mean = np.stack([np.bincount(label, face_points[:, i]) for i in range(3)], 1) / count[:, None]
+    centred = face_points - mean[label]
+    second = np.zeros((len(count), 3, 3))
+    for i in range(3):
+        for j in range(3):
+            second[:, i, j] = np.bincount(label, centred[:, i] * centred[:, j]) / count
+    spread = np.linalg.eigvalsh(second)[:, 1]
+    return np.where(count >= 3, spread, 0.0)
 
 
 def _refined(face_points: F64, direction: F64, spacing: float) -> F64:
@@ -256,7 +270,11 @@ def build_surfels(points: F64, radius: float) -> SolidSurfels:
     surface, votes = _surface_and_directions(points, *neighbours, spacing)
     surface_rows = np.flatnonzero(surface)
     directions = _dominant_directions(votes, MIN_FACE_VOTES)
-    parts = [_faces_along(points, surface_rows, neighbours, d, spacing) for d in directions]
+    extremal = _extremal(points, surface_rows, neighbours, directions, spacing)
+    parts = [
+        _faces_along(points, surface_rows[extremal[:, k]], d, spacing)
+        for k, d in enumerate(directions)
+    ]
     particle = np.concatenate([p for p, _, _ in parts] + [np.zeros(0, np.int64)])
     normal = np.concatenate([n for _, n, _ in parts] + [np.zeros((0, 3))])
     offset = np.concatenate([o for _, _, o in parts] + [np.zeros(0)]) + radius
