@@ -157,6 +157,7 @@ def test_temperature_source_and_molten_pool_on_the_plate(renderer: SurfaceRender
     rendered, _ = renderer.render(frame, scene, depth=True, normals=True)
     camera = Camera.from_config(SMALL_PLATE.camera_config(), W, H)
     truth = SMALL_PLATE.truth(camera)
+    assert rendered.depth is not None
     covered = np.isfinite(rendered.depth)
     inner = truth.hit.copy()  # the silhouette's pixels less one: a centre ray there may miss
     for axis_ in (0, 1):

@@ -128,6 +128,7 @@ class SolidSurfacePass:
         vao = self._vaos.get(key)
         if vao is None:
             program = self._program("surfel" if name == "discs" else "core_sphere", temperature)
+            layout: tuple[str, ...]
             if name == "discs":
                 layout = (
                     "3f 3f 3f 4f 4f 4f 1f/i",
