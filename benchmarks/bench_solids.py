@@ -33,15 +33,18 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--frames", type=int, default=3, help="timed frames per setting")
     parser.add_argument("--out", type=Path, default=OUT, help="folder for crops/")
+    parser.add_argument("--costs-only", action="store_true", help="only the costs")
     args = parser.parse_args()
+    rows, crops = [], []
     with GLContext() as gl:
         renderer, today = SurfaceRenderer(gl), today_renderer(gl)
         try:
-            rows = run_solid_bench(renderer, width=960, height=540, frames=max(1, args.frames))
+            if not args.costs_only:
+                rows = run_solid_bench(renderer, width=960, height=540, frames=max(1, args.frames))
+                crops = write_solid_crops(renderer, args.out)
             costs = run_solid_costs(
                 renderer, today, frames=max(3, 2 * args.frames), fluid=ball_scene(90_000)
             )
-            crops = write_solid_crops(renderer, args.out)
         finally:
             today.release()
             renderer.release()

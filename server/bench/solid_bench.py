@@ -215,21 +215,16 @@ def _cost_lines(costs: SolidCosts) -> list[str]:
 
 
 def write_solid_crops(renderer: SurfaceRenderer, out: Path, folder: str = "crops") -> list[str]:
-    """Plate and joint as fluid (left) and flagged solid (right), balanced, 640x360, middle half."""
+    """Plate and joint as fluid (left) and flagged solid (right), balanced, whole 640x360
+    images (the creases run across the whole frame)."""
     from sphrender.server.output.encoders import write_png
 
     width, height = 640, 360
     files = []
     for bench in (plate_scene(), bevel_joint_scene()):
         scene = _scene(bench, "balanced", width, height)
-        y0, x0 = height // 4, width // 4
-        halves = [
-            renderer.render(_frame(bench, solid), scene)[0].rgba[
-                y0 : y0 + height // 2, x0 : x0 + width // 2
-            ]
-            for solid in (False, True)
-        ]
-        gap = np.ones((height // 2, 4, 4), np.float32)
+        halves = [renderer.render(_frame(bench, solid), scene)[0].rgba for solid in (False, True)]
+        gap = np.ones((height, 4, 4), np.float32)
         image = np.concatenate([halves[0], gap, halves[1]], axis=1)
         file = f"{folder}/crop-solid-{bench.name}.png"
         (out / folder).mkdir(parents=True, exist_ok=True)
