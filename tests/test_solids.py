@@ -56,6 +56,14 @@ def test_plate_faces_flat_and_edges_sharp(renderer: SurfaceRenderer) -> None:
     assert np.isfinite(rendered.rgba).all()
 
 
+def test_regular_lattice_plate(renderer: SurfaceRenderer) -> None:
+    """A perfectly regular lattice (no jitter: ties everywhere in the extremal tests, moiré
+    bait): the same targets."""
+    _, metrics = _metrics(renderer, plate_scene(counts=(30, 3, 30), jitter=0.0))
+    assert metrics.face_mean_deg <= 1.5 and metrics.face_p95_deg <= 4.0, metrics
+    assert metrics.edge_mean_deg <= 8.0 and metrics.edge_p95_deg <= 30.0, metrics
+
+
 def test_todays_path_rounds_the_same_plate(renderer: SurfaceRenderer) -> None:
     """The check above can fail: the fluid path on the same particles misses the edge target."""
     rendered, _ = _render(renderer, SMALL_PLATE, solid=False)

@@ -106,20 +106,24 @@ def _yaw(degrees: float) -> F64:
     return np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
 
 
-def _jitter(points: F64, radius: float, seed: int) -> F64:
+def _jitter(points: F64, radius: float, seed: int, jitter: float = JITTER) -> F64:
     rng = np.random.default_rng(seed)
-    return points + rng.uniform(-JITTER, JITTER, points.shape) * radius
+    return points + rng.uniform(-jitter, jitter, points.shape) * radius
 
 
 def plate_scene(
-    radius: float = 0.01, counts: tuple[int, int, int] = (80, 4, 80), yaw_deg: float = 30.0
+    radius: float = 0.01,
+    counts: tuple[int, int, int] = (80, 4, 80),
+    yaw_deg: float = 30.0,
+    jitter: float = JITTER,
 ) -> BenchScene:
-    """A jittered lattice plate, yawed and seen obliquely (see the module docstring)."""
+    """A jittered lattice plate (`jitter` r per axis; 0: a perfectly regular lattice), yawed
+    and seen obliquely (see the module docstring)."""
     spacing = 2.0 * radius
     axes = [(np.arange(n) - (n - 1) / 2) * spacing for n in counts]
     lattice = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     rotation = _yaw(yaw_deg)
-    positions = _jitter(lattice, radius, seed=5) @ rotation.T
+    positions = _jitter(lattice, radius, seed=5, jitter=jitter) @ rotation.T
     lower = lattice.min(axis=0) - radius
     upper = lattice.max(axis=0) + radius
     solid = _box(lower, upper, rotation)
