@@ -50,6 +50,7 @@ class SolidCosts:
     builds_after_first: int  # surfel builds over the steady frames (0: built once)
     solid_particles: int
     size: tuple[int, int]
+    split_us: float  # what a frame without solids adds: telling its solid part (none) apart
 
 
 def _frame(scene: BenchScene, solid: bool) -> ParticleFrame:
@@ -138,7 +139,15 @@ def run_solid_costs(
         renderer._solids.cache.builds - builds_first,
         len(plate.positions),
         (width, height),
+        _split_us(renderer, fluid_frame, fluid_scene),
     )
+
+
+def _split_us(renderer: SurfaceRenderer, frame: ParticleFrame, scene: Scene) -> float:
+    start = time.perf_counter()
+    for _ in range(1000):
+        renderer._solids.split(frame, scene)
+    return (time.perf_counter() - start) * 1e3
 
 
 def solid_section(
@@ -205,7 +214,9 @@ def _cost_lines(costs: SolidCosts) -> list[str]:
         f"Costs at {w}x{h}, balanced, medians of frames alternating in one run:",
         "",
         f"* a frame without solids: {costs.fluid_ms:.1f} ms against {costs.fluid_today_ms:.1f} "
-        f"ms with the solid split bypassed ({costs.fluid_ms / costs.fluid_today_ms:.3f}x).",
+        f"ms with the solid split bypassed ({costs.fluid_ms / costs.fluid_today_ms:.3f}x); the "
+        f"only code such a frame adds, telling its solid part apart, takes {costs.split_us:.1f} "
+        "µs.",
         f"* {costs.solid_particles} particles flagged solid: {costs.solid_ms:.1f} ms a frame "
         f"against {costs.solid_as_fluid_ms:.1f} ms for the same particles as fluid "
         f"({costs.solid_ms / costs.solid_as_fluid_ms:.2f}x); its first frame, which builds the "
