@@ -1,6 +1,9 @@
 #version 330 core
 // The nearer of the fluid surface and the solid per pixel: normal + eye depth, eye depth alone
-// (the temperature blur's guide), kelvin, coverage (a solid pixel is covered whole).
+// (the temperature blur's guide), kelvin, coverage. With anti-aliasing the solid's silhouette
+// gets a coverage from its 3x3 neighbourhood (the discs give no sub-pixel area): a pixel with
+// the solid at its centre 0.5 + 0.5 x (covered neighbours / 8), one without 0.5 x (solid
+// neighbours / 8), so a straight edge's two pixels still add up to about one.
 #define HAS_TEMPERATURE 0
 #define HAS_COVERAGE 0
 
@@ -33,7 +36,30 @@ void main() {
     out_temperature = 0.0;
 #endif
 #if HAS_COVERAGE
-    out_coverage = take_solid ? 1.0 : texelFetch(u_fluid_coverage, pixel, 0).r;
+    float fluid_coverage = texelFetch(u_fluid_coverage, pixel, 0).r;
+    ivec2 last = textureSize(u_fluid_normal_depth, 0) - 1;
+    float covered = 0.0;
+    float solid_near = 0.0;
+    for (int dy = -1; dy <= 1; ++dy) {
+        for (int dx = -1; dx <= 1; ++dx) {
+            if (dx == 0 && dy == 0) {
+                continue;
+            }
+            ivec2 q = clamp(pixel + ivec2(dx, dy), ivec2(0), last);
+            bool solid_q = texelFetch(u_solid_normal_depth, q, 0).w > 0.0;
+            bool fluid_q = texelFetch(u_fluid_normal_depth, q, 0).w > 0.0
+                || texelFetch(u_fluid_coverage, q, 0).r > 0.0;
+            covered += solid_q || fluid_q ? 1.0 : 0.0;
+            solid_near += solid_q ? 1.0 : 0.0;
+        }
+    }
+    if (take_solid) {
+        out_coverage = 0.5 + 0.5 * covered / 8.0;
+    } else if (fluid.w > 0.0) {
+        out_coverage = fluid_coverage;
+    } else {
+        out_coverage = max(fluid_coverage, 0.5 * solid_near / 8.0);
+    }
 #else
     out_coverage = take_solid || fluid.w > 0.0 ? 1.0 : 0.0;
 #endif
