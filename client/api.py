@@ -114,6 +114,7 @@ def _frame_arrays(frame: ParticleFrame) -> dict[str, Any]:
         "radii": frame.radii,
         "temperatures": frame.temperatures,
         "peak_temperatures": frame.peak_temperatures,
+        "solid": frame.solid,
     }
 
 
@@ -213,10 +214,12 @@ class Client:
         ids: object | None = None,
         format: ImageFormat | None = None,
         peak_temperatures: object | None = None,
+        solid: object | None = None,
     ) -> bytes:
         """Render one frame over HTTP; returns the image bytes (PNG, EXR, JPEG or raw arrays:
         `render_raw` decodes those). `velocities` (N, 3) and `ids` (N,) are validated and carried
-        with the frame; `peak_temperatures` (N,) kelvin feed the heat tint."""
+        with the frame; `peak_temperatures` (N,) kelvin feed the heat tint; `solid` (N,) flags a
+        workpiece's particles (0 / 1)."""
         arrays = dict(
             densities=densities,
             radii=radii,
@@ -224,6 +227,7 @@ class Client:
             velocities=velocities,
             ids=ids,
             peak_temperatures=peak_temperatures,
+            solid=solid,
         )
         return self._render(positions, scene, arrays, format)[1]
 
@@ -250,6 +254,7 @@ class Client:
         temperatures: object | None = None,
         velocities: object | None = None,
         ids: object | None = None,
+        solid: object | None = None,
     ) -> dict[str, np.ndarray]:
         """Render as raw arrays (the scene's ``output.raw_type``) and decode them: ``rgba``
         (H, W, 4), plus ``Z`` and ``N`` for the float types (PROTOCOL.md §4.3)."""
@@ -259,6 +264,7 @@ class Client:
             temperatures=temperatures,
             velocities=velocities,
             ids=ids,
+            solid=solid,
         )
         headers, data = self._render(positions, scene, arrays, "raw")
         return decode_raw(json.loads(headers["x-sphrender-arrays"]), data)
@@ -388,8 +394,8 @@ class StreamSession:
 
     def send(self, positions: object, *, frame_id: int | None = None, **arrays: Any) -> int:
         """Send one FRAME (does not wait); returns its id. `arrays`: densities, radii,
-        temperatures, velocities, ids, peak_temperatures (PROTOCOL.md §4.2) and ``scene``, a
-        per-frame override."""
+        temperatures, velocities, ids, peak_temperatures, solid (PROTOCOL.md §4.2) and ``scene``,
+        a per-frame override."""
         if frame_id is None:
             frame_id = self._next_id
         self._next_id = frame_id + 1

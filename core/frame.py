@@ -34,6 +34,8 @@ class ParticleFrame:
     peak_temperatures: (N,) float32 kelvin, the hottest each particle has been (the heat tint
         reads it), or None (the current temperature stands in); needs temperatures. A peak below
         the current temperature is taken as the current one (max of the two).
+    solid: (N,) bool, True where the particle belongs to a solid workpiece, or None (the scene's
+        `[solids] source` says what is solid then).
     """
 
     positions: npt.NDArray[np.float64]
@@ -43,6 +45,7 @@ class ParticleFrame:
     velocities: npt.NDArray[np.float32] | None = None
     ids: npt.NDArray[np.int64] | None = None
     peak_temperatures: npt.NDArray[np.float32] | None = None
+    solid: npt.NDArray[np.bool_] | None = None
 
     @property
     def count(self) -> int:
@@ -71,6 +74,7 @@ def make_frame(
     velocities: object | None = None,
     ids: object | None = None,
     peak_temperatures: object | None = None,
+    solid: object | None = None,
     *,
     max_particles: int = MAX_PARTICLES,
 ) -> ParticleFrame:
@@ -79,8 +83,8 @@ def make_frame(
     Raises `InputError` naming the array (and the first offending index) for: non-numeric dtypes,
     wrong shapes, mismatched lengths, more than `max_particles`, NaN/Inf anywhere, radii <= 0,
     densities <= 0, temperatures or peak_temperatures < 0, peak_temperatures without
-    temperatures, velocities not (N, 3), ids not integers, negative or repeated. Zero particles
-    is valid.
+    temperatures, velocities not (N, 3), ids not integers, negative or repeated, solid flags
+    other than 0/1 (bool or integer). Zero particles is valid.
     """
     pos = _as_float_array("positions", positions, (3,))
     n = pos.shape[0]
@@ -135,7 +139,27 @@ def make_frame(
         velocities=vel,
         ids=None if ids is None else _checked_ids(ids, n),
         peak_temperatures=optional("peak_temperatures", peak_temperatures, 0.0, inclusive=True),
+        solid=None if solid is None else _checked_solid(solid, n),
     )
+
+
+def _checked_solid(value: object, n: int) -> npt.NDArray[np.bool_]:
+    """(N,) flags: bool, or integers that are 0 or 1."""
+    array = np.asarray(value)
+    if array.dtype.kind not in "biu":
+        raise InputError(
+            "solid", f"must be a bool or integer array of 0 and 1, got dtype {array.dtype}"
+        )
+    if array.ndim != 1:
+        raise InputError("solid", f"must have shape (N,), got {show(list(array.shape))}")
+    if array.shape[0] != n:
+        raise InputError("solid", f"has {array.shape[0]} entries but positions has {n}")
+    if array.dtype.kind != "b":
+        bad = (array != 0) & (array != 1)
+        if bad.any():
+            i = _first_bad_index(bad)
+            raise InputError(f"solid[{i}]", f"must be 0 or 1, got {show(array[i])}")
+    return np.ascontiguousarray(array != 0)
 
 
 def _checked_ids(value: object, n: int) -> npt.NDArray[np.int64]:

@@ -44,8 +44,9 @@ NPZ_ARRAYS: tuple[str, ...] = (
     "velocities",
     "ids",
     "peak_temperatures",
+    "solid",
 )
-#: Default cap on entries in an archive (a frame needs at most five).
+#: Default cap on entries in an archive (a frame needs at most eight).
 DEFAULT_MAX_ENTRIES = 64
 #: Default cap on the scene entry's text, UTF-8 bytes.
 DEFAULT_MAX_SCENE_BYTES = 1 << 20
@@ -88,6 +89,7 @@ def encode_npz_frame(
     velocities: object | None = None,
     ids: object | None = None,
     peak_temperatures: object | None = None,
+    solid: object | None = None,
     scene: Mapping[str, Any] | str | None = None,
     compress: bool = False,
 ) -> bytes:
@@ -100,6 +102,7 @@ def encode_npz_frame(
         ("velocities", velocities),
         ("ids", ids),
         ("peak_temperatures", peak_temperatures),
+        ("solid", solid),
     )
     for name, value in named:
         if value is not None:
@@ -323,7 +326,8 @@ def _check_entry(entry: _Entry, max_particles: int, max_scene_bytes: int) -> Non
                 "scene", f"the scene text exceeds this server's limit of {max_scene_bytes} bytes"
             )
         return
-    if entry.dtype.kind not in "fiu":
+    kinds = "biu" if entry.name == "solid" else "fiu"
+    if entry.dtype.kind not in kinds:
         raise InputError(entry.name, f"must be a numeric array, got dtype {show(entry.dtype.str)}")
     if entry.shape and entry.shape[0] > max_particles:
         raise LimitError(

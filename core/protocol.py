@@ -51,6 +51,7 @@ __all__ = [
     "MAX_FRAME_ID",
     "PREFIX",
     "PREFIX_SIZE",
+    "SOLID_DTYPES",
     "VECTOR_ARRAYS",
     "VERSION",
     "WIRE_DTYPES",
@@ -91,6 +92,7 @@ ARRAY_NAMES: tuple[str, ...] = (
     "velocities",
     "ids",
     "peak_temperatures",
+    "solid",
 )
 #: Arrays of N rows of 3 values; the others are (N,).
 VECTOR_ARRAYS: frozenset[str] = frozenset({"positions", "velocities"})
@@ -101,6 +103,8 @@ IMAGE_FORMATS: tuple[ImageFormat, ...] = ("png", "exr", "jpeg", "raw")
 WIRE_DTYPES: dict[str, np.dtype[Any]] = {"<f4": np.dtype("<f4"), "<f8": np.dtype("<f8")}
 #: The dtypes of ``ids`` (integers; the other arrays are floats).
 ID_DTYPES: dict[str, np.dtype[Any]] = {t: np.dtype(t) for t in ("<i4", "<u4", "<i8", "<u8")}
+#: The dtypes of ``solid`` (one byte per particle, 0 or 1).
+SOLID_DTYPES: dict[str, np.dtype[Any]] = {t: np.dtype(t) for t in ("|u1", "|b1")}
 #: How deep a JSON header may nest (a scene is 3 levels deep; this leaves room and no more).
 MAX_JSON_DEPTH = 16
 #: Longest JSON integer accepted, in digits: every 64-bit integer fits (2**64 has 20 digits).
@@ -323,6 +327,8 @@ def read_message(
 
 def _wire_array(name: str, value: object, allow_f8: bool) -> np.ndarray:
     array = np.asarray(value)
+    if name == "solid" and array.dtype.kind in "biu":
+        return np.ascontiguousarray(array, dtype="|u1")  # 0 / 1 checked by the receiver
     if array.dtype.kind not in "fiu":
         raise InputError(name, f"must be a numeric array, got dtype {show(array.dtype.str)}")
     if name == "ids":
@@ -344,10 +350,12 @@ def encode_frame(
     velocities: object | None = None,
     ids: object | None = None,
     peak_temperatures: object | None = None,
+    solid: object | None = None,
     scene: Mapping[str, Any] | None = None,
 ) -> bytes:
     """A FRAME message. Positions keep float64 when given as float64 (large coordinates); ids
-    keep a 4- or 8-byte integer dtype (others become int64); the rest are sent as float32."""
+    keep a 4- or 8-byte integer dtype (others become int64); solid flags go as one byte each;
+    the rest are sent as float32."""
     arrays = {"positions": _wire_array("positions", positions, allow_f8=True)}
     named = (
         ("densities", densities),
@@ -356,6 +364,7 @@ def encode_frame(
         ("velocities", velocities),
         ("ids", ids),
         ("peak_temperatures", peak_temperatures),
+        ("solid", solid),
     )
     for name, value in named:
         if value is not None:
@@ -424,7 +433,7 @@ def plan_frame_arrays(
         if any(slot.name == name for slot in slots):
             raise InputError(f"{where}.name", f"{name} appears twice")
         wire = spec.get("dtype")
-        allowed = ID_DTYPES if name == "ids" else WIRE_DTYPES
+        allowed = {"ids": ID_DTYPES, "solid": SOLID_DTYPES}.get(name, WIRE_DTYPES)
         dtype = allowed.get(wire) if isinstance(wire, str) else None
         if dtype is None:
             raise InputError(

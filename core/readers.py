@@ -3,7 +3,7 @@
 Formats, chosen by the (case-insensitive) suffix:
 
 - ``.npz``: entries ``positions`` (N, 3), optional ``densities``, ``radii``, ``temperatures``,
-  ``peak_temperatures``, ``ids`` (N,) and ``velocities`` (N, 3);
+  ``peak_temperatures``, ``ids``, ``solid`` (N,) and ``velocities`` (N, 3);
   an optional ``scene`` entry (0-d string array with scene JSON, see `read_npz_scene_json`); any
   other entry is ignored. Never unpickles.
 - ``.npy``: an (N, 3) positions array. Never unpickles.
@@ -315,6 +315,7 @@ def _frame_from(
         velocities=prepared("velocity"),
         ids=prepared("id"),
         peak_temperatures=prepared("peak_temperature"),
+        solid=prepared("solid"),
         max_particles=max_particles,
     )
 
@@ -356,6 +357,8 @@ def _read_npz(path: str, mapped: dict[str, str], max_particles: int) -> Particle
             for canonical in _ATTRIBUTES:
                 name = _choose_name(canonical, files, mapped, _NPZ_NAMES, path)
                 arrays[canonical] = None if name is None else _load_npz_entry(npz, name, path)
+            if "solid" in files:  # a workpiece's flags (bool or 0 / 1): .npz frames only
+                arrays["solid"] = _load_npz_entry(npz, "solid", path)
     except InputError:
         raise
     except _FILE_ERRORS as exc:

@@ -202,7 +202,7 @@ def test_renderer_orchestrates_only() -> None:
     source = (REPO / "server" / "engine" / "renderer.py").read_text()
     for forbidden in (".render(", ".framebuffer(", ".vertex_array(", ".glsl", "moderngl."):
         assert forbidden not in source, forbidden
-    assert source.count("\n") < 320
+    assert source.count("\n") < 340
 
 
 # -- the service by role -------------------------------------------------------------------------

@@ -78,3 +78,41 @@ def display_rgb(frame: RenderedFrame) -> npt.NDArray[np.float32]:
 def psnr_db(image: npt.NDArray[np.float32], reference: npt.NDArray[np.float32]) -> float:
     mse = float(np.mean((image.astype(np.float64) - reference.astype(np.float64)) ** 2))
     return math.inf if mse == 0.0 else 10.0 * math.log10(1.0 / mse)
+
+
+@dataclass(frozen=True)
+class SolidMetrics:
+    """A solid scene's normal error on flat faces and within `band` of an edge (degrees), and
+    the IoU of the pixels seen through its root gap (NaN without a gap)."""
+
+    face_mean_deg: float
+    face_p95_deg: float
+    edge_mean_deg: float
+    edge_p95_deg: float
+    gap_iou: float
+
+
+def solid_metrics(
+    frame: RenderedFrame, camera: Camera, truth: Truth, radius: float, band_radii: float = 3.0
+) -> SolidMetrics:
+    """Normal errors split at `band_radii` r from the true face's nearest edge (same pixel
+    rule as `surface_metrics`), and the see-through IoU inside the truth's gap window."""
+    if frame.normals is None or frame.depth is None or truth.edge_distance is None:
+        raise ValueError("solid_metrics needs the depth and normal AOVs and an edge truth")
+    covered = np.isfinite(frame.depth)
+    facing = -np.einsum("ijk,ijk->ij", truth.normals, _directions(camera))
+    mask = truth.hit & covered & (facing >= MIN_FACING)
+    errors = angle_deg(frame.normals.astype(np.float64), truth.normals)
+    near_edge = truth.edge_distance <= band_radii * radius
+
+    def stats(where: npt.NDArray[np.bool_]) -> tuple[float, float]:
+        values = errors[where]
+        if values.size == 0:
+            return float("nan"), float("nan")
+        return float(values.mean()), float(np.percentile(values, 95))
+
+    gap = float("nan")
+    if truth.gap_window is not None:
+        window = truth.gap_window
+        gap = iou(window & ~covered, window & ~truth.hit)
+    return SolidMetrics(*stats(mask & ~near_edge), *stats(mask & near_edge), gap)

@@ -37,6 +37,14 @@ from sphrender.server.bench.scenes import (
     droplets_scene,
     slab_scene,
 )
+from sphrender.server.bench.solid_bench import (
+    run_solid_bench,
+    run_solid_costs,
+    solid_section,
+    today_renderer,
+    write_solid_crops,
+)
+from sphrender.server.bench.solid_scenes import bevel_joint_scene, plate_scene
 from sphrender.server.bench.surface_bench import (
     QUICK_SURFACE_SETTINGS,
     SURFACE_SETTINGS,
@@ -210,6 +218,8 @@ def run_bench(
                     log(f"  {scene.name} skipped: {exc}")
             results.rows += _device_prepare_rows(gl, scenes[0], width, height, frames, log)
             surface_w, surface_h, cache = _run_surfaces(gl, renderer, results, out, quick, log)
+            if not quick:
+                _run_solids(gl, renderer, results, out, frames, log)
             if studies is not None and not quick:
                 context = StudyContext(gl, renderer, results, out, surface_w, surface_h, cache, log)
                 studies(context)
@@ -234,7 +244,7 @@ def _sweep_scenes(
     if quick:
         return [ball_scene(3000), slab_scene(0.3, 3)], QUICK_SWEEP, ""
     scenes = [ball_scene(90_000), slab_scene(1.2, 4), slab_scene(1.0, 1, "sheet")]
-    scenes.append(droplets_scene(150))
+    scenes += [droplets_scene(150), plate_scene(), bevel_joint_scene()]
     dam = dambreak_frame()
     if dam is None:
         return scenes, SWEEP, "dam break skipped: ../shared/data not found"
@@ -278,6 +288,26 @@ def _run_surfaces(
     log(f"  {surfaces.dam_note}")
     write_crops(renderer, out, surfaces, cache=cache, gl=gl)
     return surface_w, surface_h, cache
+
+
+def _run_solids(
+    gl: GLContext,
+    renderer: SurfaceRenderer,
+    results: BenchResults,
+    out: Path,
+    frames: int,
+    log: Callable[[str], None],
+) -> None:
+    """The solid workpieces' section: plate and joint at 960x540, costs, crops."""
+    log("solid workpieces (plate, bevel joint), 960x540")
+    rows = run_solid_bench(renderer, width=960, height=540, frames=frames, log=log)
+    today = today_renderer(gl)
+    try:
+        costs = run_solid_costs(renderer, today, frames=max(3, frames), fluid=ball_scene(90_000))
+    finally:
+        today.release()
+    crops = write_solid_crops(renderer, out)
+    results.extra_sections += solid_section(rows, costs, (960, 540), crops)
 
 
 def _run_scaling(

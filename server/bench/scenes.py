@@ -39,6 +39,11 @@ class Truth:
     depth: F64
     normals: F64
     sphere_center: F64 | None = None
+    #: Distance (scene units) from the true hit point to the nearest edge of its face, for the
+    #: faces / edge band split of a solid (polytope) scene; None elsewhere.
+    edge_distance: F64 | None = None
+    #: Pixels where the see-through IoU is measured (a root gap's window); None elsewhere.
+    gap_window: Mask | None = None
 
 
 @dataclass(frozen=True)
@@ -49,6 +54,7 @@ class BenchScene:
     radius: float
     camera: dict[str, Any]  # a [camera] section
     truth: Callable[[Camera], Truth]  # computed on demand (per resolution)
+    solid: bool = False  # the frame flags every particle solid (a workpiece)
 
     def camera_config(self) -> CameraConfig:
         return CameraConfig(

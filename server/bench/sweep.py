@@ -29,7 +29,7 @@ from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import Scene, merge_scene_dicts, scene_from_dict
 from sphrender.server.scene.presets import preset_sections
 
-STAGES = ("sph", "prepare", "splat", "smooth", "normals", "shade", "readback")
+STAGES = ("sph", "prepare", "splat", "smooth", "normals", "solids", "shade", "readback")
 
 Overrides = Mapping[str, Mapping[str, Any]]
 
@@ -126,7 +126,8 @@ def run_sweep(
     frames: int,
     log: Any = print,
 ) -> list[SweepRow]:
-    frame = make_frame(scene.positions)
+    flags = np.ones(len(scene.positions), np.bool_) if scene.solid else None
+    frame = make_frame(scene.positions, solid=flags)
     base = bench_scene_dict(scene, width, height)
     camera = Camera.from_config(scene.camera_config(), width, height)
     truth = scene.truth(camera)

@@ -4,9 +4,9 @@
 targets and uniforms (`passes/`): sph (OpenCL, only when the scene asks) -> prepare (host or
 device, `passes/prepare_stage.py`) -> splat (+ occlusion culling, coverage) -> smooth ->
 droplets -> normals (+ field normals near rims) -> shadow (maps of the lights that cast them)
--> shade (temperature blur, PBR + IBL + emission) -> readback (+ display codes). ARCHITECTURE.md
-"Data flow of one frame" has each step. `RenderStats.host_ms` is the frame's work outside GL
-calls (`gpu/gl_clock.py`).
+-> solids (a frame's solid particles, flat faces composed by depth) -> shade (temperature blur,
+PBR + IBL + emission) -> readback (+ display codes). ARCHITECTURE.md "Data flow of one frame"
+has each step. `RenderStats.host_ms` is the frame's work outside GL calls (`gpu/gl_clock.py`).
 
 One renderer belongs to one `GLContext` and is used only on that context's owner thread. It owns
 the passes and what they share (`PassContext`: program cache, full-screen triangle) and releases
@@ -45,6 +45,7 @@ from sphrender.server.engine.passes.readback import ReadbackPass
 from sphrender.server.engine.passes.shade import ShadePass
 from sphrender.server.engine.passes.shadow import ShadowMaps, ShadowPass, shadowed
 from sphrender.server.engine.passes.smooth import SmoothPass
+from sphrender.server.engine.passes.solid_surface import SolidSurfacePass, shadow_casters
 from sphrender.server.engine.passes.splat import SplatOutput, SplatPass
 from sphrender.server.engine.passes.temperature import TemperaturePass
 from sphrender.server.engine.sph.engine import SphEngine
@@ -83,6 +84,7 @@ class SurfaceRenderer:
         self._shadow = ShadowPass(self._context)
         self._display = DisplayPass(self._context)
         self._readback = ReadbackPass(self._context)
+        self._solids = SolidSurfacePass(self._context)  # frames with solid particles only
 
     @property
     def gl(self) -> GLContext:
@@ -153,6 +155,7 @@ class SurfaceRenderer:
         camera = Camera.from_config(scene.camera, scene.image.width, scene.image.height)
         stats = RenderStats(particles_in=frame.count)
         stats.notes += [InputNote(note.field, note.message) for note in scene.notes]
+        frame, solid = self._solids.split(frame, scene)
         sph = self._run_sph(frame, scene, stats)
         with self._stage(stats, "prepare"):
             prepared = self._prepare.run(sph, camera, scene)
@@ -165,7 +168,13 @@ class SurfaceRenderer:
         shadows = None
         if shadowed(scene):
             with self._stage(stats, "shadow"):
-                shadows = self._shadow.run(sph.frame, scene, camera, prepared.reference_radius)
+                casters = shadow_casters(sph.frame, solid, scene.particles.radius)
+                shadows = self._shadow.run(casters, scene, camera, prepared.reference_radius)
+        if solid is not None:  # composed by depth; the shading and read-back cover it too
+            with self._stage(stats, "solids"):
+                surface, normal_depth, prepared = self._solids.add(
+                    solid, surface, normal_depth, prepared, camera
+                )
         with self._stage(stats, "shade"):
             color = self._shade_surface(surface, normal_depth, camera, scene, prepared, shadows)
         with self._stage(stats, "readback"):
@@ -173,7 +182,7 @@ class SurfaceRenderer:
                 color, normal_depth, scene, prepared.box, depth, normals, display
             )
         # After the read-back, so a count the device kept waits for nothing.
-        stats.particles_splatted += self._splat.splatted(bulk_splatted, prepared.visible)
+        stats.particles_splatted += self._splat.splatted(bulk_splatted, stats.particles_drawn)
         wall_ms = (time.perf_counter() - start) * 1e3
         device_ms = (self._gl.clock.seconds - in_gl) * 1e3
         stats.host_ms = max(wall_ms - device_ms - stats.stage_ms.get("sph", 0.0), 0.0)
@@ -307,13 +316,8 @@ class SurfaceRenderer:
         """Release every GPU object this renderer owns (on the owner thread)."""
         self._gl.check_owner()
         passes = (self._splat, self._smooth, self._normals, self._temperature, self._shade)
-        for gpu_pass in (
-            *passes,
-            self._peak_temperature,
-            self._shadow,
-            self._display,
-            self._readback,
-        ):
+        others = (self._peak_temperature, self._shadow, self._solids, self._display, self._readback)
+        for gpu_pass in (*passes, *others):
             gpu_pass.release()
         self._context.fullscreen.release()
         self._context.programs.release()

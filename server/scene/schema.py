@@ -28,6 +28,7 @@ from sphrender.server.scene.fields import (
 )
 from sphrender.server.scene.schema_lights import MAX_LIGHTS, LightConfig, LightType
 from sphrender.server.scene.schema_quality import FilterName, QualityConfig, SphConfig
+from sphrender.server.scene.schema_solids import SolidsConfig
 
 __all__ = [
     "MAX_IMAGE_PIXELS",
@@ -39,6 +40,7 @@ __all__ = [
     "LightType",
     "QualityConfig",
     "SceneNote",
+    "SolidsConfig",
     "SphConfig",
     "Vec3",
     "spec",
@@ -373,6 +375,7 @@ class Scene:
     lights: tuple[LightConfig, ...] = field(default=(), metadata={"max_items": MAX_LIGHTS})
     environment: EnvironmentConfig = field(default_factory=EnvironmentConfig)
     shading: ShadingConfig = field(default_factory=ShadingConfig)
+    solids: SolidsConfig = field(default_factory=SolidsConfig)
     #: What reading the scene changed (old key names, `renames.py`): reported with each frame's
     #: notes. Not a section: no file or JSON scene sets it, and it takes no part in equality.
     notes: tuple[SceneNote, ...] = field(default=(), compare=False, metadata={"section": False})

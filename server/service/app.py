@@ -162,6 +162,7 @@ class RenderService:
             velocities=arrays.get("velocities"),
             ids=arrays.get("ids"),
             peak_temperatures=arrays.get("peak_temperatures"),
+            solid=arrays.get("solid"),
             max_particles=self.config.limits.max_particles,
         )
 

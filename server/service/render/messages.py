@@ -30,7 +30,7 @@ from sphrender.server.scene import Scene
 class ArraySpec:
     """One particle buffer that follows a `FrameRequest` as raw bytes."""
 
-    name: str  # positions, densities, radii, temperatures or peak_temperatures
+    name: str  # a frame array: positions, densities, radii, temperatures, peak_temperatures, solid
     dtype: str  # numpy dtype string, e.g. "<f8"
     shape: tuple[int, ...]
 

@@ -226,6 +226,7 @@ class RenderProcess:
             radii=arrays.get("radii"),
             temperatures=arrays.get("temperatures"),
             peak_temperatures=arrays.get("peak_temperatures"),
+            solid=arrays.get("solid"),
         )
 
     def _frame_job(self, request: FrameRequest) -> None:

@@ -339,6 +339,7 @@ class RenderWorker(threading.Thread):
             ("radii", p.radii),
             ("temperatures", p.temperatures),
             ("peak_temperatures", p.peak_temperatures),
+            ("solid", p.solid),
         )
         present = [(name, value) for name, value in named if value is not None]
         specs = tuple(ArraySpec(name, value.dtype.str, value.shape) for name, value in present)

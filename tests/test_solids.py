@@ -1,0 +1,210 @@
+"""Solid workpieces against analytic truth (real EGL): flat faces, sharp edges, a root gap.
+
+The scenes are `server/bench/solid_scenes.py`'s at small sizes; the truth is the analytic solid
+grown by r, ray cast per pixel. Tolerances are the issue's targets for 960x540 where a small
+image can meet them, and derived per test otherwise (see each assert's comment).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sphrender.core.errors import InputError
+from sphrender.core.frame import make_frame
+from sphrender.server.bench.metrics import solid_metrics
+from sphrender.server.bench.scenes import BenchScene
+from sphrender.server.bench.solid_scenes import JointShape, bevel_joint_scene, plate_scene
+from sphrender.server.bench.sweep import bench_scene_dict, preset_setting, scene_for
+from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.renderer import SurfaceRenderer
+from sphrender.server.scene import Scene, scene_from_dict
+
+W, H = 256, 144
+
+
+def _scene(bench: BenchScene, **sections: object) -> Scene:
+    base = bench_scene_dict(bench, W, H)
+    base.update(sections)  # type: ignore[arg-type]
+    return scene_for(preset_setting("balanced"), base)
+
+
+def _render(renderer: SurfaceRenderer, bench: BenchScene, positions=None, solid=True, **kw):
+    positions = bench.positions if positions is None else positions
+    flags = np.ones(len(positions), np.bool_) if solid else None
+    frame = make_frame(positions, solid=flags)
+    return renderer.render(frame, _scene(bench, **kw), depth=True, normals=True)
+
+
+def _metrics(renderer: SurfaceRenderer, bench: BenchScene, **kw):
+    rendered, _ = _render(renderer, bench, **kw)
+    camera = Camera.from_config(bench.camera_config(), W, H)
+    return rendered, solid_metrics(rendered, camera, bench.truth(camera), bench.radius)
+
+
+SMALL_PLATE = plate_scene(counts=(30, 3, 30))
+
+
+def test_plate_faces_flat_and_edges_sharp(renderer: SurfaceRenderer) -> None:
+    """Targets of the issue (faces <= 1.5 / 4 deg, edge band <= 8 / 30 deg): a disc's normal is
+    its face's plane fitted over hundreds of particles, so the faces are exact to the jitter's
+    leftover (0.1 r over a face of 30 spacings: < 0.1 deg) and the band errs only at pixels
+    whose centre ray lands across the crease from where the truth's does."""
+    rendered, metrics = _metrics(renderer, SMALL_PLATE)
+    assert metrics.face_mean_deg <= 1.5 and metrics.face_p95_deg <= 4.0, metrics
+    assert metrics.edge_mean_deg <= 8.0 and metrics.edge_p95_deg <= 30.0, metrics
+    assert np.isfinite(rendered.rgba).all()
+
+
+def test_regular_lattice_plate(renderer: SurfaceRenderer) -> None:
+    """A perfectly regular lattice (no jitter: ties everywhere in the extremal tests, moiré
+    bait): the same targets."""
+    _, metrics = _metrics(renderer, plate_scene(counts=(30, 3, 30), jitter=0.0))
+    assert metrics.face_mean_deg <= 1.5 and metrics.face_p95_deg <= 4.0, metrics
+    assert metrics.edge_mean_deg <= 8.0 and metrics.edge_p95_deg <= 30.0, metrics
+
+
+def test_todays_path_rounds_the_same_plate(renderer: SurfaceRenderer) -> None:
+    """The check above can fail: the fluid path on the same particles misses the edge target."""
+    rendered, _ = _render(renderer, SMALL_PLATE, solid=False)
+    camera = Camera.from_config(SMALL_PLATE.camera_config(), W, H)
+    metrics = solid_metrics(rendered, camera, SMALL_PLATE.truth(camera), SMALL_PLATE.radius)
+    assert metrics.edge_mean_deg > 8.0, metrics
+
+
+def test_bevel_joint_planes_and_open_root_gap(renderer: SurfaceRenderer) -> None:
+    """Bevels are planes meeting the root faces and tops at creases; the gap of 4 r (3 px wide
+    at this size) is seen through where the truth is: IoU >= 0.9 as the issue asks at 960x540,
+    which at 256x144 leaves ~1 px of slack per gap side."""
+    joint = bevel_joint_scene(shape=JointShape(width=28, layers=6, length=40))
+    _, metrics = _metrics(renderer, joint)
+    assert metrics.face_mean_deg <= 1.5 and metrics.face_p95_deg <= 4.0, metrics
+    assert metrics.edge_mean_deg <= 8.0 and metrics.edge_p95_deg <= 30.0, metrics
+    assert metrics.gap_iou >= 0.9, metrics
+
+
+def test_root_gap_closes_where_the_plates_touch(renderer: SurfaceRenderer) -> None:
+    """Plates 2 r apart at the particle centres touch: no pixel of the window sees through."""
+    joint = bevel_joint_scene(shape=JointShape(width=28, layers=6, length=40, gap_radii=0.0))
+    rendered, _ = _render(renderer, joint)
+    camera = Camera.from_config(joint.camera_config(), W, H)
+    truth = joint.truth(camera)
+    assert truth.gap_window is not None
+    see_through = truth.gap_window & ~np.isfinite(rendered.depth)
+    assert not (truth.gap_window & ~truth.hit).any()
+    assert see_through.sum() == 0
+
+
+def test_sheet_one_particle_thick(renderer: SurfaceRenderer) -> None:
+    """A sheet one particle thick: both sides are faces (the rims stay round, so only faces)."""
+    sheet = plate_scene(counts=(30, 1, 30))
+    _, metrics = _metrics(renderer, sheet)
+    assert metrics.face_mean_deg <= 1.5 and metrics.face_p95_deg <= 4.0, metrics
+
+
+def test_far_from_the_origin_renders_alike(renderer: SurfaceRenderer) -> None:
+    """Coordinates of 1e5 (float64 to the eye subtraction): the same normals as at the origin,
+    to float32's rounding of the view-space planes (1e-5 relative of a 2 r disc: far below a
+    degree)."""
+    near, _ = _render(renderer, SMALL_PLATE)
+    shift = np.array([1e5, -2e5, 1e5])
+    moved = SMALL_PLATE.camera | {
+        "eye": (np.asarray(SMALL_PLATE.camera["eye"]) + shift).tolist(),
+        "target": (np.asarray(SMALL_PLATE.camera["target"]) + shift).tolist(),
+    }
+    far_bench = BenchScene(
+        "far", "", SMALL_PLATE.positions + shift, SMALL_PLATE.radius, moved, SMALL_PLATE.truth
+    )
+    far, _ = _render(renderer, far_bench)
+    both = np.isfinite(near.depth) & np.isfinite(far.depth)
+    assert both.sum() > 0.95 * np.isfinite(near.depth).sum()
+    dots = np.einsum("ij,ij->i", near.normals[both], far.normals[both])
+    assert np.degrees(np.arccos(np.clip(dots, -1, 1))).mean() < 0.5
+
+
+def test_static_solid_is_built_once(renderer: SurfaceRenderer) -> None:
+    """A session's static solid: surfels built on the first frame only, whatever the camera;
+    moving the solid builds them again."""
+    cache = renderer._solids.cache  # the renderer's own pass: its builds are what is counted
+    _render(renderer, SMALL_PLATE)
+    first = cache.builds
+    _render(renderer, SMALL_PLATE, camera={"eye": [0.2, 0.9, 0.6], "target": [0.0, 0.0, 0.0]})
+    _render(renderer, SMALL_PLATE)
+    assert cache.builds == first
+    _render(renderer, SMALL_PLATE, positions=SMALL_PLATE.positions + 0.001)
+    assert cache.builds == first + 1
+
+
+def test_no_solid_particle_changes_nothing(renderer: SurfaceRenderer) -> None:
+    """A frame whose flags are all false, or a scene with source none, renders today's bytes."""
+    ball = np.random.default_rng(2).normal(0.0, 0.05, (400, 3))
+    scene = _scene(SMALL_PLATE)
+    plain, _ = renderer.render(make_frame(ball), scene)
+    unflagged, _ = renderer.render(make_frame(ball, solid=np.zeros(400, np.uint8)), scene)
+    off = _scene(SMALL_PLATE, solids={"source": "none"})
+    flagged_off, _ = renderer.render(make_frame(ball, solid=np.ones(400, np.bool_)), off)
+    plain_off, _ = renderer.render(make_frame(ball), off)
+    assert np.array_equal(plain.rgba, unflagged.rgba)
+    assert np.array_equal(plain_off.rgba, flagged_off.rgba)
+
+
+def test_temperature_source_and_molten_pool_on_the_plate(renderer: SurfaceRenderer) -> None:
+    """Solid by temperature (below iron's solidus) with a hot pool on the plate: the plate's
+    faces stay flat around the pool, the pool covers its part of the top (no crack: every pixel
+    of the plate's silhouette is covered) and nothing is NaN."""
+    plate = SMALL_PLATE.positions
+    top = plate[:, 1].max()
+    axis = (np.arange(10) - 4.5) * 0.02
+    pool = np.stack(np.meshgrid(axis, [0.0, 0.02], axis, indexing="ij"), -1).reshape(-1, 3)
+    pool += np.random.default_rng(4).uniform(-0.002, 0.002, pool.shape)
+    pool[:, 1] += top + 0.015  # resting on the top layer, sunk a quarter radius into it
+    positions = np.concatenate([plate, pool])
+    kelvin = np.concatenate([np.full(len(plate), 600.0), np.full(len(pool), 2100.0)])
+    scene = _scene(SMALL_PLATE, solids={"source": "temperature"})
+    frame = make_frame(positions, temperatures=kelvin)
+    rendered, _ = renderer.render(frame, scene, depth=True, normals=True)
+    camera = Camera.from_config(SMALL_PLATE.camera_config(), W, H)
+    truth = SMALL_PLATE.truth(camera)
+    assert rendered.depth is not None
+    covered = np.isfinite(rendered.depth)
+    inner = truth.hit.copy()  # the silhouette's pixels less one: a centre ray there may miss
+    for axis_ in (0, 1):
+        for step in (-1, 1):
+            inner &= np.roll(truth.hit, step, axis=axis_)
+    assert covered[inner].all()
+    assert np.isfinite(rendered.rgba).all()
+    metrics = solid_metrics(rendered, camera, truth, SMALL_PLATE.radius)
+    assert metrics.edge_mean_deg <= 8.0, metrics  # the plate's edges, away from the pool
+
+
+def test_edge_on_and_near_plane_crossing(renderer: SurfaceRenderer) -> None:
+    """A plate seen edge-on, and a camera whose near plane cuts the plate: finite pixels, a
+    covered line for the edge-on plate, no error."""
+    edge_on = _scene(SMALL_PLATE, camera={"eye": [0.0, 0.0, 1.0], "target": [0.0, 0.0, 0.0]})
+    flags = np.ones(len(SMALL_PLATE.positions), np.bool_)
+    rendered, _ = renderer.render(make_frame(SMALL_PLATE.positions, solid=flags), edge_on)
+    assert np.isfinite(rendered.rgba).all() and (rendered.rgba[:, :, 3] > 0).any()
+    inside = _scene(SMALL_PLATE, camera={"eye": [0.0, 0.03, 0.25], "target": [0.0, 0.0, -1.0]})
+    rendered, _ = renderer.render(make_frame(SMALL_PLATE.positions, solid=flags), inside)
+    assert np.isfinite(rendered.rgba).all() and (rendered.rgba[:, :, 3] > 0).any()
+
+
+@pytest.mark.parametrize(
+    ("flags", "field", "words"),
+    [
+        (np.array([0, 2, 1]), "solid[1]", "must be 0 or 1"),
+        (np.array([0.0, 1.0, 1.0]), "solid", "bool or integer"),
+        (np.array([1, 0]), "solid", "has 2 entries"),
+        (np.ones((3, 1), np.uint8), "solid", "shape (N,)"),
+    ],
+)
+def test_bad_solid_flags_are_named(flags: np.ndarray, field: str, words: str) -> None:
+    with pytest.raises(InputError) as raised:
+        make_frame(np.zeros((3, 3)), solid=flags)
+    assert raised.value.field == field and words in str(raised.value)
+
+
+def test_solids_source_is_validated() -> None:
+    with pytest.raises(InputError) as raised:
+        scene_from_dict({"solids": {"source": "melted"}})
+    assert "solids.source" in str(raised.value)
