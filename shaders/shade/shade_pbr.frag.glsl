@@ -127,7 +127,7 @@ vec3 direct_light(vec3 n, vec3 v, vec3 position, float alpha, vec3 specular_ener
         if (u_light_type[i] == LIGHT_SPHERE) {
             vec3 to_sphere = u_light_vector[i] - position;
             vec3 light = sphere_light(to_sphere, u_light_radius[i], u_light_radiance[i], n, v,
-                alpha, u_f0, u_diffuse_albedo, specular_energy);
+                alpha, g_f0, g_diffuse_albedo, specular_energy);
 #if SHADOWS
             if (any(greaterThan(light, vec3(0.0)))) {
                 light *= shadow_visibility(i, position, n);
