@@ -44,6 +44,7 @@ from sphrender.server.engine.passes.readback import ReadbackPass
 from sphrender.server.engine.passes.shade import ShadePass
 from sphrender.server.engine.passes.smooth import SmoothPass
 from sphrender.server.engine.passes.splat import SplatOutput, SplatPass
+from sphrender.server.engine.passes.surface_detail import SurfaceDetailPass
 from sphrender.server.engine.passes.temperature import TemperaturePass
 from sphrender.server.engine.sph.engine import SphEngine
 from sphrender.server.engine.sph.frame import SphOutcome, SphStage
@@ -77,6 +78,7 @@ class SurfaceRenderer:
         self._normals = NormalsPass(self._context)
         self._temperature = TemperaturePass(self._context)
         self._shade = ShadePass(self._context, environment_dirs)
+        self._detail = SurfaceDetailPass(self._context)
         self._display = DisplayPass(self._context)
         self._readback = ReadbackPass(self._context)
 
@@ -228,7 +230,7 @@ class SurfaceRenderer:
         quality = scene.quality
         field = self._prepare.field_particles(prepared) if quality.field_normals else None
         support = quality.field_normals_support * prepared.reference_radius
-        return self._normals.run(
+        normal_depth = self._normals.run(
             surface.depth,
             camera,
             prepared.box,
@@ -238,6 +240,9 @@ class SurfaceRenderer:
             support,
             bulk=surface.bulk_depth,
         )
+        if scene.finish.detail == "none":
+            return normal_depth
+        return self._detail.run(scene.finish, camera, normal_depth, prepared.box)
 
     def _shade_surface(
         self,
@@ -292,7 +297,7 @@ class SurfaceRenderer:
         """Release every GPU object this renderer owns (on the owner thread)."""
         self._gl.check_owner()
         passes = (self._splat, self._smooth, self._normals, self._temperature, self._shade)
-        for gpu_pass in (*passes, self._display, self._readback):
+        for gpu_pass in (*passes, self._detail, self._display, self._readback):
             gpu_pass.release()
         self._context.fullscreen.release()
         self._context.programs.release()

@@ -26,6 +26,7 @@ from sphrender.server.scene.fields import (
     Vec3,
     spec,
 )
+from sphrender.server.scene.schema_finish import FinishConfig
 from sphrender.server.scene.schema_quality import FilterName, QualityConfig, SphConfig
 
 __all__ = [
@@ -33,6 +34,7 @@ __all__ = [
     "MAX_IMAGE_SIDE",
     "MAX_STRING_LENGTH",
     "FilterName",
+    "FinishConfig",
     "QualityConfig",
     "SceneNote",
     "SphConfig",
@@ -371,6 +373,7 @@ class Scene:
     sph: SphConfig = field(default_factory=SphConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
     material: MaterialConfig = field(default_factory=MaterialConfig)
+    finish: FinishConfig = field(default_factory=FinishConfig)
     lights: tuple[LightConfig, ...] = field(default=(), metadata={"max_items": MAX_LIGHTS})
     environment: EnvironmentConfig = field(default_factory=EnvironmentConfig)
     shading: ShadingConfig = field(default_factory=ShadingConfig)

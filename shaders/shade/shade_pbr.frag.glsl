@@ -36,12 +36,16 @@
 #define ANTIALIAS 0
 #define LIGHT_DIRECTIONAL 0
 #define LIGHT_POINT 1
+#define ANISOTROPIC 0
+#define DETAIL_ROUGHNESS 0
 
 #include "common/depth_image.glsl"
 #include "common/brdf.glsl"
 #include "common/sampling.glsl"
 #include "common/equirect.glsl"
 #include "common/sh9.glsl"
+#include "lighting/anisotropic_ggx.glsl"
+#include "detail/surface_detail.glsl"
 
 uniform sampler2D u_normal_depth;   // world normal xyz, eye depth w (0 = no surface)
 uniform vec2 u_tan_half_fov;        // (tan(fov_y / 2) * aspect, tan(fov_y / 2))
@@ -80,6 +84,13 @@ uniform sampler2D u_blackbody;      // 1 x N: rgb at luminance 1, log2(luminance
 uniform vec2 u_blackbody_range;     // kelvin at the first and last texel centres
 uniform vec3 u_emissivity;          // normal-incidence emissivity
 uniform float u_emission_scale;     // scene-linear per cd/m^2
+uniform vec3 u_brush_direction;     // ANISOTROPIC: unit world direction of the brush strokes
+uniform float u_anisotropy;
+
+#include "shade/anisotropic_ibl.glsl"
+#if ANISOTROPIC
+AnisotropicFrame g_frame;  // the pixel's brushed frame, set in main before any lighting
+#endif
 
 layout(location = 0) out vec4 out_color;
 
@@ -111,7 +122,11 @@ vec3 direct_light(vec3 n, vec3 v, vec3 position, float alpha, vec3 specular_ener
         if (nl > 0.0) {
             vec3 diffuse;
             vec3 specular;
+#if ANISOTROPIC
+            brdf_lobes_anisotropic(n, v, l, u_f0, u_diffuse_albedo, g_frame, diffuse, specular);
+#else
             brdf_lobes(n, v, l, u_f0, u_diffuse_albedo, alpha, diffuse, specular);
+#endif
             sum += (diffuse + specular * specular_energy) * irradiance * nl;
         }
     }
@@ -228,10 +243,19 @@ void main() {
     vec3 n = normalize(normal_depth.xyz);
     vec3 v = -normalize(position);
     float nv = max(dot(n, v), MIN_NV);
-    float alpha = alpha_from_roughness(u_roughness);
+    float roughness = u_roughness;
+#if DETAIL_ROUGHNESS
+    roughness = detail_roughness(roughness, position);
+#endif
+    float alpha = alpha_from_roughness(roughness);
+    float lookup_roughness = roughness;
+#if ANISOTROPIC
+    g_frame = anisotropic_frame(n, u_brush_direction, alpha, u_anisotropy);
+    lookup_roughness = anisotropic_lookup_roughness(g_frame);
+#endif
 
 #if IBL_MODE != IBL_NONE || MULTIPLE_SCATTERING
-    vec2 scale_bias = texture(u_brdf_lut, vec2(nv, u_roughness)).rg;
+    vec2 scale_bias = texture(u_brdf_lut, vec2(nv, lookup_roughness)).rg;
 #endif
 #if MULTIPLE_SCATTERING
     // E_ss >= ~0.3 for GGX (alpha = 1, grazing); the floor only guards a broken table.
@@ -249,12 +273,20 @@ void main() {
     irradiance = max(sh9_irradiance(u_sh, u_world_to_env * n), 0.0) * u_env_intensity;
     diffuse_ibl = (1.0 - specular_albedo) * u_diffuse_albedo * irradiance * (1.0 / PI);
 #if IBL_MODE == IBL_PREFILTERED
+#if ANISOTROPIC
+    vec3 r = u_world_to_env * reflect(-v, anisotropic_bent_normal(g_frame, n, v, roughness));
+#else
     vec3 r = u_world_to_env * reflect(-v, n);
-    float lod = clamp(u_roughness, 0.0, 1.0) * u_prefiltered_max_lod;
+#endif
+    float lod = clamp(lookup_roughness, 0.0, 1.0) * u_prefiltered_max_lod;
     specular_ibl = textureLod(u_env_prefiltered, equirect_uv(r), lod).rgb * u_env_intensity
         * specular_albedo;
 #else
+#if ANISOTROPIC
+    specular_ibl = sampled_specular_anisotropic(n, v, nv, g_frame);
+#else
     specular_ibl = sampled_specular(n, v, nv, alpha);
+#endif
 #endif
     specular_ibl *= specular_energy;
 #endif

@@ -29,6 +29,7 @@ from sphrender.server.engine.lighting.environment import EnvironmentLibrary, rot
 from sphrender.server.engine.lighting.ibl import PREFILTER_LEVELS, EnvironmentTextures, IblCache
 from sphrender.server.engine.lighting.materials import resolve_material
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
+from sphrender.server.engine.passes.surface_detail import detail_uniforms, pattern_basis
 from sphrender.server.scene import MAX_LIGHTS, Scene
 
 SHADER = "shade/shade_pbr.frag.glsl"
@@ -43,6 +44,24 @@ _VIEW_DEFINES = {
     "irradiance": 5,
 }
 _G_TERM_DEFINES = {"smith_height_correlated": 0, "cook_torrance": 1}
+
+
+def _detail_roughness(scene: Scene) -> bool:
+    return scene.finish.detail != "none" and scene.finish.detail_roughness_strength > 0.0
+
+
+def _finish_uniforms(program: moderngl.Program, scene: Scene, camera: Camera) -> dict[str, object]:
+    """The brushed lobe's and the roughness detail's uniforms (none when the scene has neither)."""
+    finish = scene.finish
+    values: dict[str, object] = {}
+    if finish.anisotropy != 0.0:
+        brush = np.asarray(finish.brush_direction, dtype=np.float64)
+        values["u_brush_direction"] = tuple(float(c) for c in brush / np.linalg.norm(brush))
+        values["u_anisotropy"] = finish.anisotropy
+    if _detail_roughness(scene):
+        values.update(detail_uniforms(finish, camera.eye))
+        write_matrix(program, "u_detail_basis", lambda: pattern_basis(finish), finish)
+    return values
 
 
 class ShadePass:
@@ -70,6 +89,8 @@ class ShadePass:
                 "G_TERM": _G_TERM_DEFINES[shading.g_term],
                 "MAX_LIGHTS": MAX_LIGHTS,
                 "ANTIALIAS": antialias,
+                "ANISOTROPIC": scene.finish.anisotropy != 0.0,
+                "DETAIL_ROUGHNESS": _detail_roughness(scene),
             },
         )
 
@@ -176,6 +197,7 @@ class ShadePass:
             "u_emission_scale": shading.emission_scale,
         }
         write_matrix(program, "u_view_to_world", lambda: camera.rotation.T, camera)
+        values.update(_finish_uniforms(program, scene, camera))
         if entry is not None:
             rotation = scene.environment.rotation_deg
             write_matrix(program, "u_world_to_env", lambda: rotation_about_y(rotation), rotation)
