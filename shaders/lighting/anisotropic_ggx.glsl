@@ -83,22 +83,9 @@ vec3 sample_ggx_anisotropic_tangent(vec2 xi, AnisotropicFrame f) {
 }
 
 // The perceptual roughness whose isotropic lobe stands in for the anisotropic one in the
-// split-sum lookups (prefiltered level, BRDF table): alpha = sqrt((at^2 + ab^2) / 2), the
-// lobe's RMS slope.
+// split-sum lookups (prefiltered level along the plain reflection, BRDF table): alpha =
+// sqrt((at^2 + ab^2) / 2), the lobe's RMS slope (the closest of the simple rules to the
+// anisotropic albedo, and than Filament's bent reflection normal: benchmarks/STUDIES.md).
 float anisotropic_lookup_roughness(AnisotropicFrame f) {
     return sqrt(sqrt(0.5 * (f.alpha_t * f.alpha_t + f.alpha_b * f.alpha_b)));
-}
-
-// Filament's bent reflection normal for the prefiltered chain: the normal turned towards v
-// seen across the smooth axis, by (|anisotropy| min(5 roughness, 1))^BEND_POWER, so the lookup
-// moves along the streak as the lobe does (the power as in Filament's current shader).
-const float BEND_POWER = 4.0;
-vec3 anisotropic_bent_normal(AnisotropicFrame f, vec3 n, vec3 v, float roughness) {
-    vec3 smooth_axis = f.strength >= 0.0 ? f.t : f.b;
-    vec3 aniso_tangent = cross(smooth_axis, v);
-    vec3 aniso_normal = cross(aniso_tangent, smooth_axis);
-    float bend = pow(abs(f.strength) * clamp(5.0 * roughness, 0.0, 1.0), BEND_POWER);
-    vec3 bent = mix(n, aniso_normal, bend);
-    float len2 = dot(bent, bent);
-    return len2 > 1e-12 ? bent * inversesqrt(len2) : n;
 }

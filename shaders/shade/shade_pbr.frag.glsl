@@ -245,7 +245,7 @@ void main() {
     float nv = max(dot(n, v), MIN_NV);
     float roughness = u_roughness;
 #if DETAIL_ROUGHNESS
-    roughness = detail_roughness(roughness, position);
+    roughness = detail_roughness(roughness, n, position);
 #endif
     float alpha = alpha_from_roughness(roughness);
     float lookup_roughness = roughness;
@@ -273,11 +273,7 @@ void main() {
     irradiance = max(sh9_irradiance(u_sh, u_world_to_env * n), 0.0) * u_env_intensity;
     diffuse_ibl = (1.0 - specular_albedo) * u_diffuse_albedo * irradiance * (1.0 / PI);
 #if IBL_MODE == IBL_PREFILTERED
-#if ANISOTROPIC
-    vec3 r = u_world_to_env * reflect(-v, anisotropic_bent_normal(g_frame, n, v, roughness));
-#else
     vec3 r = u_world_to_env * reflect(-v, n);
-#endif
     float lod = clamp(lookup_roughness, 0.0, 1.0) * u_prefiltered_max_lod;
     specular_ibl = textureLod(u_env_prefiltered, equirect_uv(r), lod).rgb * u_env_intensity
         * specular_albedo;

@@ -29,7 +29,7 @@ from sphrender.server.engine.lighting.environment import EnvironmentLibrary, rot
 from sphrender.server.engine.lighting.ibl import PREFILTER_LEVELS, EnvironmentTextures, IblCache
 from sphrender.server.engine.lighting.materials import resolve_material
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
-from sphrender.server.engine.passes.surface_detail import detail_uniforms, pattern_basis
+from sphrender.server.engine.passes.surface_detail import detail_uniforms, write_planes
 from sphrender.server.scene import MAX_LIGHTS, Scene
 
 SHADER = "shade/shade_pbr.frag.glsl"
@@ -59,8 +59,8 @@ def _finish_uniforms(program: moderngl.Program, scene: Scene, camera: Camera) ->
         values["u_brush_direction"] = tuple(float(c) for c in brush / np.linalg.norm(brush))
         values["u_anisotropy"] = finish.anisotropy
     if _detail_roughness(scene):
-        values.update(detail_uniforms(finish, camera.eye))
-        write_matrix(program, "u_detail_basis", lambda: pattern_basis(finish), finish)
+        values.update(detail_uniforms(finish))
+        write_planes(program, finish, camera.eye)
     return values
 
 

@@ -3,57 +3,75 @@ space (`shaders/detail/detail_normals.frag.glsl`, pattern in `detail/surface_det
 scenes whose ``[finish] detail`` is not ``none``; the shade pass and the N AOV read its output,
 and the shade pass evaluates the same pattern for the roughness detail (`detail_uniforms`).
 
-The pattern lives in coordinates q = B p + o: B's rows are the two directions across the brush
-over the groove width s and the brush direction over 40 s, o the eye's q modulo the pattern's
-period, taken here in float64 so that a workpiece at 1e5 scene units keeps its grooves. Owns its
+The pattern is projected triplanar: on each axis plane, coordinates across and along the brush
+direction projected into it; the eye's coordinates modulo the pattern's period are taken here
+in float64 so that a workpiece at 1e5 scene units keeps its grooves. Owns its
 program (through the `ProgramCache`) and its RGBA32F target.
 """
 
 from __future__ import annotations
 
+import moderngl
 import numpy as np
 import numpy.typing as npt
 
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.screen_box import ScreenBox
 from sphrender.server.engine.gpu.draw import PerSize, Target, clear_and_scissor, set_scissor
-from sphrender.server.engine.gpu.uniforms import set_group, set_if_used, write_matrix
+from sphrender.server.engine.gpu.uniforms import set_group, set_if_used, uses, write_matrix
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 from sphrender.server.scene import FinishConfig
 
 SHADER = "detail/detail_normals.frag.glsl"
 #: The pattern's hash repeats every this many cells (surface_detail.glsl's DETAIL_PERIOD).
 DETAIL_PERIOD = 256.0
-#: Groove length over groove width (the third row of B).
+#: Groove length over groove width (surface_detail.glsl's DETAIL_GROOVE_LENGTH).
 GROOVE_LENGTH = 40.0
+#: The widest octave over the finest: the offset repeats after DETAIL_PERIOD of its cells.
+COARSEST_WIDTH = 4.0
 
 
-def brush_axes(brush_direction: tuple[float, float, float]) -> npt.NDArray[np.float64]:
-    """Rows: the unit brush direction b and two unit directions across it, e1 and e2."""
-    b = np.asarray(brush_direction, dtype=np.float64)
-    b = b / np.linalg.norm(b)
-    helper = np.array([0.0, 1.0, 0.0]) if abs(b[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    e1 = np.cross(b, helper)
-    e1 /= np.linalg.norm(e1)
-    return np.stack([b, e1, np.cross(b, e1)])
+def detail_planes(finish: FinishConfig, eye: npt.NDArray[np.float64]) -> npt.NDArray[np.float32]:
+    """Per axis plane k (coordinates k+1, k+2): the brush direction projected into the plane
+    (unit; the plane's first axis where the brush is normal to the plane) and the eye's
+    (across, along) pattern coordinates modulo the period, in float64 before rounding."""
+    brush = np.asarray(finish.brush_direction, dtype=np.float64)
+    eye = np.asarray(eye, dtype=np.float64)
+    planes = np.zeros((3, 4), dtype=np.float64)
+    for k in range(3):
+        axes = [(k + 1) % 3, (k + 2) % 3]
+        along = brush[axes]
+        length = float(np.hypot(*along))
+        along = along / length if length > 1e-9 * np.linalg.norm(brush) else np.array([1.0, 0.0])
+        across = np.array([-along[1], along[0]])
+        p = eye[axes] / finish.detail_scale
+        q = np.array([p @ across, p @ along / GROOVE_LENGTH])
+        planes[k] = (*along, *np.mod(q, DETAIL_PERIOD * COARSEST_WIDTH))
+    return planes.astype(np.float32)
 
 
-def pattern_basis(finish: FinishConfig) -> npt.NDArray[np.float64]:
-    """B: world -> pattern coordinates (rows e1 / s, e2 / s, b / (40 s))."""
-    b, e1, e2 = brush_axes(finish.brush_direction)
-    s = finish.detail_scale
-    return np.stack([e1 / s, e2 / s, b / (GROOVE_LENGTH * s)])
-
-
-def detail_uniforms(finish: FinishConfig, eye: npt.NDArray[np.float64]) -> dict[str, object]:
-    """The pattern's scalar and vector uniforms for a camera at `eye` (B is `pattern_basis`)."""
-    offset = np.mod(pattern_basis(finish) @ np.asarray(eye, dtype=np.float64), DETAIL_PERIOD)
+def detail_uniforms(finish: FinishConfig) -> dict[str, object]:
+    """The pattern's scalar uniforms (the planes are written with `write_planes`)."""
     return {
-        "u_detail_offset": tuple(float(c) for c in offset),
         "u_detail_scale": finish.detail_scale,
         "u_detail_normal_strength": finish.detail_normal_strength,
         "u_detail_roughness_strength": finish.detail_roughness_strength,
     }
+
+
+def write_planes(
+    program: moderngl.Program, finish: FinishConfig, eye: npt.NDArray[np.float64]
+) -> None:
+    """Upload `detail_planes` when the variant uses them."""
+    if uses(program, "u_detail_plane"):
+        program["u_detail_plane"].write(detail_planes(finish, eye).tobytes())  # type: ignore[union-attr]
+
+
+def _planes_written(
+    program: moderngl.Program, finish: FinishConfig, camera: Camera
+) -> dict[str, object]:
+    write_planes(program, finish, camera.eye)
+    return detail_uniforms(finish)
 
 
 class SurfaceDetailPass:
@@ -76,11 +94,10 @@ class SurfaceDetailPass:
             "scene",
             (finish, camera),
             lambda: {
-                **detail_uniforms(finish, camera.eye),
+                **_planes_written(program, finish, camera),
                 "u_tan_half_fov": (camera.tan_half_fov_y * camera.aspect, camera.tan_half_fov_y),
             },
         )
-        write_matrix(program, "u_detail_basis", lambda: pattern_basis(finish), finish)
         write_matrix(program, "u_view_to_world", lambda: camera.rotation.T, camera)
         normal_depth.texture.use(0)
         set_if_used(program, "u_normal_depth", 0)
