@@ -301,3 +301,13 @@ def test_detail_normals_stay_put_when_the_camera_moves(renderer: SurfaceRenderer
     )
     assert tilt.mean() > 3.0  # the detail is there, and a screen-fixed one would differ this much
     assert angle.max() < 1.0
+
+
+def test_brushed_plate_example_is_a_valid_scene() -> None:
+    from pathlib import Path
+
+    from sphrender.server.scene import read_scene_toml
+
+    path = Path(__file__).resolve().parents[1] / "examples" / "brushed_plate.toml"
+    scene = scene_from_dict(read_scene_toml(path))
+    assert scene.finish.anisotropy > 0 and scene.finish.detail == "brushed"

@@ -11,6 +11,7 @@ uniform vec4 u_detail_plane[3];  // offsets modulo DETAIL_PERIOD x the widest oc
 uniform float u_detail_scale;       // s, scene units
 uniform float u_detail_normal_strength;
 uniform float u_detail_roughness_strength;
+uniform float u_detail_pixel_angle;  // 2 tan(fov_y / 2) / height: a pixel's width per unit distance
 
 const float DETAIL_PERIOD = 256.0;
 const float DETAIL_GROOVE_LENGTH = 40.0;
@@ -46,9 +47,18 @@ vec3 detail_noise(vec2 x, int plane) {
     return vec3(du * vec2(k1 + k4 * u.y, k2 + k4 * u.x), value);
 }
 
+// A pixel's footprint on the surface in units of s (widened where the surface is seen edge-on).
+float detail_footprint(vec3 n, vec3 position) {
+    float distance = length(position);
+    float nv = max(abs(dot(n, position)) / max(distance, 1e-30), 0.25);
+    return distance * u_detail_pixel_angle / (nv * u_detail_scale);
+}
+
 // Height H (z, in units of s) and its gradient per unit of plane coordinate / s (xy, along the
-// plane's two world axes) on axis plane `k`, at eye-relative world position `position`.
-vec3 detail_plane_height(int k, vec3 position) {
+// plane's two world axes) on axis plane `k`, at eye-relative world position `position`. An
+// octave fades out as its cells shrink from 2 to 1 pixel (`footprint`), so grooves finer than
+// the pixels do not alias into moire.
+vec3 detail_plane_height(int k, vec3 position, float footprint) {
     vec4 plane = u_detail_plane[k];
     vec2 p = vec2(position[(k + 1) % 3], position[(k + 2) % 3]) / u_detail_scale;
     vec2 across_axis = vec2(-plane.y, plane.x);
@@ -59,7 +69,8 @@ vec3 detail_plane_height(int k, vec3 position) {
     for (int octave = 0; octave < 3; ++octave) {
         vec3 noise = detail_noise(q / width, k);
         // Height scales with the octave's width, so each octave's slope is its weight alone.
-        sum += DETAIL_WEIGHTS[octave] * vec3(noise.xy, noise.z * width);
+        float fade = clamp(width / footprint - 1.0, 0.0, 1.0);
+        sum += fade * DETAIL_WEIGHTS[octave] * vec3(noise.xy, noise.z * width);
         width *= 2.0;
     }
     vec2 gradient = sum.x * across_axis + sum.y * plane.xy / DETAIL_GROOVE_LENGTH;
@@ -75,9 +86,10 @@ vec3 detail_plane_weights(vec3 n) {
 // Unit normal `n` tilted by the grooves' slope at `position`.
 vec3 detail_normal(vec3 n, vec3 position) {
     vec3 weights = detail_plane_weights(n);
+    float footprint = detail_footprint(n, position);
     vec3 slope = vec3(0.0);
     for (int k = 0; k < 3; ++k) {
-        vec2 g = detail_plane_height(k, position).xy * weights[k];
+        vec2 g = detail_plane_height(k, position, footprint).xy * weights[k];
         slope[(k + 1) % 3] += g.x;
         slope[(k + 2) % 3] += g.y;
     }
@@ -88,9 +100,10 @@ vec3 detail_normal(vec3 n, vec3 position) {
 // Roughness raised in the troughs and lowered on the crests of the grooves.
 float detail_roughness(float roughness, vec3 n, vec3 position) {
     vec3 weights = detail_plane_weights(n);
+    float footprint = detail_footprint(n, position);
     float h = 0.0;
     for (int k = 0; k < 3; ++k) {
-        h += weights[k] * detail_plane_height(k, position).z;
+        h += weights[k] * detail_plane_height(k, position, footprint).z;
     }
     h /= dot(DETAIL_WEIGHTS, vec3(1.0, 2.0, 4.0));
     return clamp(roughness + u_detail_roughness_strength * (1.0 - 2.0 * h), 0.0, 1.0);

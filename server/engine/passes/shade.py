@@ -59,7 +59,7 @@ def _finish_uniforms(program: moderngl.Program, scene: Scene, camera: Camera) ->
         values["u_brush_direction"] = tuple(float(c) for c in brush / np.linalg.norm(brush))
         values["u_anisotropy"] = finish.anisotropy
     if _detail_roughness(scene):
-        values.update(detail_uniforms(finish))
+        values.update(detail_uniforms(finish, camera))
         write_planes(program, finish, camera.eye)
     return values
 

@@ -50,9 +50,10 @@ def detail_planes(finish: FinishConfig, eye: npt.NDArray[np.float64]) -> npt.NDA
     return planes.astype(np.float32)
 
 
-def detail_uniforms(finish: FinishConfig) -> dict[str, object]:
+def detail_uniforms(finish: FinishConfig, camera: Camera) -> dict[str, object]:
     """The pattern's scalar uniforms (the planes are written with `write_planes`)."""
     return {
+        "u_detail_pixel_angle": 2.0 * camera.tan_half_fov_y / camera.height,
         "u_detail_scale": finish.detail_scale,
         "u_detail_normal_strength": finish.detail_normal_strength,
         "u_detail_roughness_strength": finish.detail_roughness_strength,
@@ -71,7 +72,7 @@ def _planes_written(
     program: moderngl.Program, finish: FinishConfig, camera: Camera
 ) -> dict[str, object]:
     write_planes(program, finish, camera.eye)
-    return detail_uniforms(finish)
+    return detail_uniforms(finish, camera)
 
 
 class SurfaceDetailPass:
