@@ -44,7 +44,6 @@ from sphrender.server.engine.passes.readback import ReadbackPass
 from sphrender.server.engine.passes.shade import ShadePass
 from sphrender.server.engine.passes.smooth import SmoothPass
 from sphrender.server.engine.passes.splat import SplatOutput, SplatPass
-from sphrender.server.engine.passes.surface_detail import SurfaceDetailPass
 from sphrender.server.engine.passes.temperature import TemperaturePass
 from sphrender.server.engine.sph.engine import SphEngine
 from sphrender.server.engine.sph.frame import SphOutcome, SphStage
@@ -78,7 +77,6 @@ class SurfaceRenderer:
         self._normals = NormalsPass(self._context)
         self._temperature = TemperaturePass(self._context)
         self._shade = ShadePass(self._context, environment_dirs)
-        self._detail = SurfaceDetailPass(self._context)
         self._display = DisplayPass(self._context)
         self._readback = ReadbackPass(self._context)
 
@@ -225,8 +223,7 @@ class SurfaceRenderer:
     def _surface_normals(
         self, surface: SplatOutput, prepared: PreparedFrame, camera: Camera, scene: Scene
     ) -> Target:
-        """World normals + eye depth of the surface's eye depth (field normals near rims from
-        the prepared particles when the scene asks for them)."""
+        """World normals + eye depth of the surface (field normals near rims, [finish] detail)."""
         quality = scene.quality
         field = self._prepare.field_particles(prepared) if quality.field_normals else None
         support = quality.field_normals_support * prepared.reference_radius
@@ -240,9 +237,7 @@ class SurfaceRenderer:
             support,
             bulk=surface.bulk_depth,
         )
-        if scene.finish.detail == "none":
-            return normal_depth
-        return self._detail.run(scene.finish, camera, normal_depth, prepared.box)
+        return self._shade.detail.run(scene.finish, camera, normal_depth, prepared.box)
 
     def _shade_surface(
         self,
@@ -297,7 +292,7 @@ class SurfaceRenderer:
         """Release every GPU object this renderer owns (on the owner thread)."""
         self._gl.check_owner()
         passes = (self._splat, self._smooth, self._normals, self._temperature, self._shade)
-        for gpu_pass in (*passes, self._detail, self._display, self._readback):
+        for gpu_pass in (*passes, self._display, self._readback):
             gpu_pass.release()
         self._context.fullscreen.release()
         self._context.programs.release()

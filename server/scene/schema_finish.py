@@ -30,9 +30,11 @@ class FinishConfig:
     )
     brush_direction: Vec3 = spec(
         (1.0, 0.0, 0.0),
-        "world direction of the brush strokes (any length but zero), projected onto each "
-        "surface point's tangent plane; along the normal the lobe turns isotropic. No preset "
-        "sets it",
+        "world direction of the brush strokes (components in [-1, 1], not all 0), projected "
+        "onto each surface point's tangent plane; along the normal the lobe turns isotropic. "
+        "No preset sets it",
+        low=-1.0,
+        high=1.0,
     )
     detail: DetailPattern = spec(
         "none",
@@ -66,5 +68,5 @@ class FinishConfig:
 def check_finish(finish: FinishConfig) -> None:
     """The rules across the section's fields: a brush direction must have a length."""
     length = math.sqrt(sum(c * c for c in finish.brush_direction))
-    if not length > 0.0 or not math.isfinite(length):
-        raise InputError("finish.brush_direction", "must be a non-zero finite vector")
+    if not length > 0.0:
+        raise InputError("finish.brush_direction", "must not be the zero vector")

@@ -9,7 +9,8 @@ prefiltered chain, BRDF table, blackbody table, programs) is built on first use 
 Only what the scene needs is built: no IBL resources with ``ibl_mode = "none"`` (unless the
 background shows the environment), no prefiltered chain in sampled mode, no temperature target
 or blackbody table without temperatures. Owns: the colour target, the blackbody table, the
-`IblCache` and the `EnvironmentLibrary`.
+`IblCache`, the `EnvironmentLibrary` and the surface-detail pass (`detail`; the renderer runs it
+after the normals, so the N AOV has the detail too).
 """
 
 from __future__ import annotations
@@ -29,7 +30,11 @@ from sphrender.server.engine.lighting.environment import EnvironmentLibrary, rot
 from sphrender.server.engine.lighting.ibl import PREFILTER_LEVELS, EnvironmentTextures, IblCache
 from sphrender.server.engine.lighting.materials import resolve_material
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
-from sphrender.server.engine.passes.surface_detail import detail_uniforms, write_planes
+from sphrender.server.engine.passes.surface_detail import (
+    SurfaceDetailPass,
+    detail_uniforms,
+    write_planes,
+)
 from sphrender.server.scene import MAX_LIGHTS, Scene
 
 SHADER = "shade/shade_pbr.frag.glsl"
@@ -71,6 +76,8 @@ class ShadePass:
         self.ibl = IblCache(context.gl, context.programs)
         self._blackbody: moderngl.Texture | None = None
         self._target = PerSize(lambda size: Target.float(context.gl.ctx, size, 4))
+        #: The world-fixed surface detail on the normals, which this pass and the N AOV read.
+        self.detail = SurfaceDetailPass(context)
 
     def program_for(
         self, scene: Scene, has_temperature: bool, antialias: bool = False
@@ -236,6 +243,7 @@ class ShadePass:
 
     def release(self) -> None:
         self._target.release()
+        self.detail.release()
         self.ibl.release()
         if self._blackbody is not None:
             self._blackbody.release()

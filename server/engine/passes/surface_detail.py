@@ -88,7 +88,10 @@ class SurfaceDetailPass:
         box: ScreenBox | None,
     ) -> Target:
         """`normal_depth` (world normal xyz, eye depth w) with the detail on its normals, in
-        this pass's own target; only `box` holds surface (outside it stays empty)."""
+        this pass's own target; only `box` holds surface (outside it stays empty). Without
+        detail, `normal_depth` itself."""
+        if finish.detail == "none":
+            return normal_depth
         program = self._context.programs.get(FULLSCREEN_VERT, SHADER)
         set_group(
             program,
