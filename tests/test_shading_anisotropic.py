@@ -24,6 +24,7 @@ Tolerances:
 
 from __future__ import annotations
 
+import functools
 import math
 
 import mitsuba as mi  # the test extra: a missing reference renderer fails, never skips
@@ -49,6 +50,7 @@ ALPHA_B = ROUGHNESS**2 * (1 + ANISOTROPY)
 BRUSH = np.array([1.0, 0.0, 0.0])
 MUS = (0.9, 0.5, 0.2)
 F0S = {"white": (1.0, 1.0, 1.0), "copper": METAL_F0["copper"]}
+ONE = np.ones(3)
 
 
 def brushed_scene(f0: tuple[float, float, float], **shading: object) -> Scene:
@@ -117,18 +119,42 @@ def test_directional_light_matches_numpy(
     assert np.all(got[~lit] < 2e-3 * want.max())
 
 
+#: The quadrature's cells: n = 150 differs from n = 800 by < 1e-4 relative on this lobe.
+QUADRATURE_N = 150
+
+
+@functools.cache
+def reference_albedos(mu: float) -> np.ndarray:
+    """(3, 4, 6): numpy albedo per pixel of `shade`'s image at n.v = mu, white F0 in the first
+    three channels and copper's in the last three."""
+    scene = brushed_scene(F0S["white"], ibl_mode="none")
+    camera = Camera.from_config(scene.camera, scene.image.width, scene.image.height)
+    view = ref.view_vectors(camera)
+    azimuth = np.linspace(0.3, 0.3 + 2 * np.pi, view[..., 0].size, endpoint=False)
+    normals = ref.directions_with_nv(view, np.full(view.shape[:2], mu), azimuth.reshape(3, 4))
+    normals = normals.astype(np.float32).astype(np.float64)
+    t, b, _, _ = ra.brushed_frame(normals, BRUSH, ROUGHNESS**2, ANISOTROPY)
+    local = ra.to_local(view, t, b, normals)
+    f0 = np.concatenate([F0S["white"], F0S["copper"]])
+    return np.stack(
+        [
+            [ra.albedo(local[i, j], ALPHA_T, ALPHA_B, f0, n=QUADRATURE_N) for j in range(4)]
+            for i in range(3)
+        ]
+    )
+
+
 @pytest.mark.parametrize("f0_name", list(F0S))
 def test_uniform_environment_sampled_matches_numpy_albedo(
     renderer: SurfaceRenderer, f0_name: str
 ) -> None:
-    f0 = np.asarray(F0S[f0_name])
+    channels = slice(0, 3) if f0_name == "white" else slice(3, 6)
     worst = 0.0
     for mu in MUS:
         scene = brushed_scene(F0S[f0_name], ibl_mode="sampled", ibl_samples=4096)
-        got, view_local = shade(renderer, scene, mu)
-        for pixel in np.ndindex(got.shape[:2]):
-            want = ra.albedo(view_local[pixel], ALPHA_T, ALPHA_B, f0, n=300)
-            worst = max(worst, float(np.max(np.abs(got[pixel] - want) / want)))
+        got, _ = shade(renderer, scene, mu)
+        want = reference_albedos(mu)[..., channels]
+        worst = max(worst, float(np.max(np.abs(got - want) / want)))
     print(f"sampled {f0_name}: worst relative error {worst:.4f}")
     assert worst < 0.02
 
@@ -144,12 +170,11 @@ def test_uniform_environment_prefiltered_is_the_split_sum_at_the_rms_roughness(
     worst_rule = 0.0
     for mu in MUS:
         scene = brushed_scene(F0S["white"], ibl_mode="prefiltered")
-        got, view_local = shade(renderer, scene, mu)
+        got, _ = shade(renderer, scene, mu)
+        want = reference_albedos(mu)[..., 0]
         rule = ref.albedo_quadrature("smith_height_correlated", mu, alpha_rms)
-        for pixel in np.ndindex(got.shape[:2]):
-            want = ra.albedo(view_local[pixel], ALPHA_T, ALPHA_B, np.ones(3), n=300)[0]
-            worst_rule = max(worst_rule, abs(rule - want) / want)
-            assert abs(got[pixel][0] - want) <= abs(rule - want) + 0.006 * want
+        worst_rule = max(worst_rule, float(np.max(np.abs(rule - want) / want)))
+        assert np.all(np.abs(got[..., 0] - want) <= np.abs(rule - want) + 0.006 * want)
     print(f"prefiltered: the rule's worst relative error {worst_rule:.4f}")
 
 
@@ -212,8 +237,8 @@ def test_mitsuba_rough_conductor_agrees_pointwise_and_in_the_furnace(
         for pixel in [(0, 0), (1, 2), (2, 1)]:
             v = view_local[pixel]
             ratio = (
-                ra.albedo(v, ALPHA_T, ALPHA_B, np.ones(3), separable=True, n=300)[0]
-                / ra.albedo(v, ALPHA_T, ALPHA_B, np.ones(3), n=300)[0]
+                ra.albedo(v, ALPHA_T, ALPHA_B, ONE, separable=True, n=QUADRATURE_N)[0]
+                / ra.albedo(v, ALPHA_T, ALPHA_B, ONE, n=QUADRATURE_N)[0]
             )
             theirs = mitsuba_albedo(v)
             assert abs(got[pixel][0] * ratio - theirs) < 0.02 * theirs, (mu, pixel)
