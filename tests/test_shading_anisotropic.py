@@ -232,6 +232,7 @@ def test_mitsuba_rough_conductor_agrees_pointwise_and_in_the_furnace(
         assert abs(theirs - ours) <= 1e-4 * ours + 1e-7
     # The shader's furnace (height-correlated G), with the G form divided out, against Mitsuba's.
     scene = brushed_scene(F0S["white"], ibl_mode="sampled", ibl_samples=4096)
+    worst = 0.0
     for mu in MUS:
         got, view_local = shade(renderer, scene, mu)
         for pixel in [(0, 0), (1, 2), (2, 1)]:
@@ -241,7 +242,9 @@ def test_mitsuba_rough_conductor_agrees_pointwise_and_in_the_furnace(
                 / ra.albedo(v, ALPHA_T, ALPHA_B, ONE, n=QUADRATURE_N)[0]
             )
             theirs = mitsuba_albedo(v)
-            assert abs(got[pixel][0] * ratio - theirs) < 0.02 * theirs, (mu, pixel)
+            worst = max(worst, abs(got[pixel][0] * ratio - theirs) / theirs)
+    print(f"Mitsuba furnace: worst relative difference {worst:.4f}")
+    assert worst < 0.02
 
 
 def test_brush_along_the_normal_falls_back_to_isotropic(renderer: SurfaceRenderer) -> None:
