@@ -296,7 +296,8 @@ def top_face_slopes(
     camera = Camera.from_config(scene.camera, scene.image.width, scene.image.height)
     out, _ = renderer.render(frame, scene, depth=True, normals=True)
     plain, _ = renderer.render(frame, plate_scene(eye, "none"), depth=True, normals=True)
-    assert out.depth is not None and out.normals is not None and plain.normals is not None
+    assert out.depth is not None and out.normals is not None
+    assert plain.depth is not None and plain.normals is not None
     assert np.all(np.isfinite(out.rgba)) and np.array_equal(out.depth, plain.depth)
     rays = ref.pixel_rays(camera)
     world = camera.eye + rays.directions * (out.depth.astype(np.float64) / rays.view_z)[..., None]
