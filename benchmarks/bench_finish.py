@@ -21,7 +21,9 @@ OUT = Path(__file__).resolve().parent
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    parser.add_argument("--frames", type=int, default=9, help="timed frames per setting (the fastest counts)")
+    parser.add_argument(
+        "--frames", type=int, default=9, help="timed frames per setting (the fastest counts)"
+    )
     args = parser.parse_args()
     with GLContext() as gl:
         renderer = SurfaceRenderer(gl)
