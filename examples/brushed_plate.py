@@ -1,5 +1,5 @@
 """Writes the particles of examples/brushed_plate.toml: a flat plate of lattice particles
-(1.6 x 1.0, three layers 2 r apart, r = 0.01; about 48k particles) as an .npz file.
+(1.6 x 1.0, three layers 2 r apart, r = 0.01; 12393 particles) as an .npz file.
 
     python examples/brushed_plate.py plate.npz
 """

@@ -1,5 +1,5 @@
 """The brushed plate: what the `[finish]` section costs and how it looks (the repository's
-REPORT.md). A flat plate of lattice particles (three layers, 48k particles) under the workshop
+REPORT.md). A flat plate of lattice particles (three layers, 12k particles) under the workshop
 environment and one point light, seen obliquely at 960x540 with the balanced preset; frame
 times for the finish off, the anisotropic lobe, the surface detail, and both (and sampled IBL,
 which pays the anisotropic lobe per sample), measured interleaved in one run, with their ratio
@@ -80,7 +80,7 @@ def section(rows: list[tuple[str, float, float]]) -> list[str]:
     lines = [
         "### Brushed plate: what the finish costs",
         "",
-        "A flat plate of lattice particles (3 layers, 48k particles, r = 0.01) under the workshop "
+        "A flat plate of lattice particles (3 layers, 12k particles, r = 0.01) under the workshop "
         "environment and a point light, 960x540, seen obliquely ([examples/brushed_plate.toml]"
         "(../examples/brushed_plate.toml)). Anisotropic: `finish.anisotropy` 0.8; detail: "
         "`finish.detail` brushed (normal and roughness); balanced preset, IBL prefiltered or "
