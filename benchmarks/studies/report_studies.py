@@ -1,12 +1,16 @@
 """The studies this repository's REPORT.md adds to `sphrender bench` (`run_bench(studies=...)`,
 run by benchmarks/bench_report.py): the dam break on every frame of the data set, the flicker
-under both readings of the jitter, shadows (cost per light, error; needs nothing), and the crops
-of what field normals, `last_pass_sigma` and `destreak` change. The others need ../shared/data
-(and pysplashsurf, or the reference cache) and are skipped without it.
+under both readings of the jitter, and the crops of what field normals, `last_pass_sigma` and
+`destreak` change: each needs ../shared/data (and pysplashsurf, or the reference cache) and is
+skipped without it. Shadows (cost per light, error) and the brushed plate's finish costs and
+crop need nothing outside.
 """
 
 from __future__ import annotations
 
+from benchmarks.studies.brushed_plate import measure as measure_brushed_plate
+from benchmarks.studies.brushed_plate import section as brushed_plate_section
+from benchmarks.studies.brushed_plate import write_crop as write_brushed_plate_crop
 from benchmarks.studies.closeup_crop import BALANCED_DESTREAK, EQUAL_PASSES, write_closeup_crop
 from benchmarks.studies.dam_frames import (
     dam_frame_counts,
@@ -53,6 +57,9 @@ def run_studies(ctx: StudyContext) -> None:
         results.extra_sections += [*jitter_readings_section(readings), ""]
     log("shadows: cost per light and error against the truth")
     results.extra_sections += shadows_section(ctx.renderer, log=log)
+    log("brushed plate: what the finish costs")
+    results.extra_sections += brushed_plate_section(measure_brushed_plate(ctx.renderer, log=log))
+    write_brushed_plate_crop(ctx.renderer, ctx.out)
     surfaces = results.surfaces
     if surfaces is None:
         return

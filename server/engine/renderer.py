@@ -240,12 +240,11 @@ class SurfaceRenderer:
     def _surface_normals(
         self, surface: SplatOutput, prepared: PreparedFrame, camera: Camera, scene: Scene
     ) -> Target:
-        """World normals + eye depth of the surface's eye depth (field normals near rims from
-        the prepared particles when the scene asks for them)."""
+        """World normals + eye depth of the surface (field normals near rims, [finish] detail)."""
         quality = scene.quality
         field = self._prepare.field_particles(prepared) if quality.field_normals else None
         support = quality.field_normals_support * prepared.reference_radius
-        return self._normals.run(
+        normal_depth = self._normals.run(
             surface.depth,
             camera,
             prepared.box,
@@ -255,6 +254,7 @@ class SurfaceRenderer:
             support,
             bulk=surface.bulk_depth,
         )
+        return self._shade.detail.run(scene.finish, camera, normal_depth, prepared.box)
 
     def _shade_surface(
         self,

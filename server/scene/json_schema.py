@@ -47,6 +47,7 @@ CROSS_FIELD_RULES: tuple[tuple[str, str], ...] = (
     ("camera.far", "camera.far, when given, must be greater than camera.near"),
     ("camera.target", "camera.target must differ from camera.eye (a view direction exists)"),
     ("camera.up", "camera.up must not be parallel to camera.target - camera.eye"),
+    ("finish.brush_direction", "finish.brush_direction must not be the zero vector"),
     ("image", f"image.width * image.height must be at most {MAX_IMAGE_PIXELS} pixels"),
 )
 

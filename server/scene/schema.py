@@ -27,6 +27,7 @@ from sphrender.server.scene.fields import (
     spec,
 )
 from sphrender.server.scene.schema_lights import MAX_LIGHTS, LightConfig, LightType
+from sphrender.server.scene.schema_finish import FinishConfig
 from sphrender.server.scene.schema_quality import FilterName, QualityConfig, SphConfig
 from sphrender.server.scene.schema_solids import SolidsConfig
 
@@ -38,6 +39,7 @@ __all__ = [
     "FilterName",
     "LightConfig",
     "LightType",
+    "FinishConfig",
     "QualityConfig",
     "SceneNote",
     "SolidsConfig",
@@ -372,6 +374,7 @@ class Scene:
     sph: SphConfig = field(default_factory=SphConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
     material: MaterialConfig = field(default_factory=MaterialConfig)
+    finish: FinishConfig = field(default_factory=FinishConfig)
     lights: tuple[LightConfig, ...] = field(default=(), metadata={"max_items": MAX_LIGHTS})
     environment: EnvironmentConfig = field(default_factory=EnvironmentConfig)
     shading: ShadingConfig = field(default_factory=ShadingConfig)

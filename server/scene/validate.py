@@ -27,6 +27,7 @@ from sphrender.server.scene.schema import (
     Vec3,
     scene_sections,
 )
+from sphrender.server.scene.schema_finish import check_finish
 
 T = TypeVar("T")
 
@@ -223,6 +224,7 @@ def _check_cross_field(scene: Scene) -> None:
     if cos > 1.0 - 1e-9:
         raise InputError("camera.up", "must not be parallel to the view direction (target - eye)")
     _check_lights(scene.lights)
+    check_finish(scene.finish)
     env = scene.environment
     given = [k for k in ("preset", "uniform", "file") if getattr(env, k) is not None]
     if len(given) > 1:

@@ -11,6 +11,8 @@
 //            compensation), so rough metal keeps the energy GGX's single bounce loses
 //   combine  direct + indirect (default) or weighted (eq 55): w direct + (1 - w) indirect
 //   emission (1 - F(n.v)) B(T) for hot metal, from the splatted temperature (added after)
+//   finish   (options) ANISOTROPIC: the brushed GGX lobe of lighting/anisotropic_ggx.glsl in
+//            place of the isotropic one; DETAIL_ROUGHNESS: roughness from detail/surface_detail.glsl
 // Output: straight scene-linear RGB, alpha = coverage (1 over the environment background).
 // ANTIALIAS: coverage is the splat's sub-pixel coverage (splat/splat_coverage.frag.glsl); a
 // pixel just outside a silhouette (coverage > 0, no surface at its centre) shows the nearest of
@@ -43,6 +45,8 @@
 #define LIGHT_SPHERE 2
 #define SPHERE_LIGHTS 0
 #define SHADOWS 0
+#define ANISOTROPIC 0
+#define DETAIL_ROUGHNESS 0
 
 #include "common/depth_image.glsl"
 #if HEAT_TINT
@@ -53,6 +57,8 @@ vec3 heat_fresnel(vec3 f0, float cos_theta);  // lighting/thin_film.glsl
 #include "common/sampling.glsl"
 #include "common/equirect.glsl"
 #include "common/sh9.glsl"
+#include "lighting/anisotropic_ggx.glsl"
+#include "detail/surface_detail.glsl"
 
 uniform sampler2D u_normal_depth;   // world normal xyz, eye depth w (0 = no surface)
 uniform vec2 u_tan_half_fov;        // (tan(fov_y / 2) * aspect, tan(fov_y / 2))
@@ -92,6 +98,8 @@ uniform sampler2D u_blackbody;      // 1 x N: rgb at luminance 1, log2(luminance
 uniform vec2 u_blackbody_range;     // kelvin at the first and last texel centres
 uniform vec3 u_emissivity;          // normal-incidence emissivity
 uniform float u_emission_scale;     // scene-linear per cd/m^2
+uniform vec3 u_brush_direction;     // ANISOTROPIC: unit world direction of the brush strokes
+uniform float u_anisotropy;
 
 // This pixel's F0, diffuse albedo and roughness: the uniforms', or with HEAT_TINT / MOLTEN
 // the hot metal's (lighting/thin_film.glsl).
@@ -100,6 +108,11 @@ vec3 g_diffuse_albedo;
 float g_roughness;
 #if HAS_TEMPERATURE && (HEAT_TINT || MOLTEN)
 #include "lighting/thin_film.glsl"
+#endif
+
+#include "shade/anisotropic_ibl.glsl"
+#if ANISOTROPIC
+AnisotropicFrame g_frame;  // the pixel's brushed frame, set in main before any lighting
 #endif
 
 layout(location = 0) out vec4 out_color;
@@ -156,7 +169,11 @@ vec3 direct_light(vec3 n, vec3 v, vec3 position, float alpha, vec3 specular_ener
 #endif
             vec3 diffuse;
             vec3 specular;
+#if ANISOTROPIC
+            brdf_lobes_anisotropic(n, v, l, g_f0, g_diffuse_albedo, g_frame, diffuse, specular);
+#else
             brdf_lobes(n, v, l, g_f0, g_diffuse_albedo, alpha, diffuse, specular);
+#endif
             sum += (diffuse + specular * specular_energy) * irradiance * nl;
         }
     }
@@ -276,13 +293,21 @@ void main() {
     g_f0 = u_f0;
     g_diffuse_albedo = u_diffuse_albedo;
     g_roughness = u_roughness;
+#if DETAIL_ROUGHNESS
+    g_roughness = detail_roughness(g_roughness, n, position);
+#endif
 #if HAS_TEMPERATURE && (HEAT_TINT || MOLTEN)
     hot_metal(source);
 #endif
     float alpha = alpha_from_roughness(g_roughness);
+    float lookup_roughness = g_roughness;
+#if ANISOTROPIC
+    g_frame = anisotropic_frame(n, u_brush_direction, alpha, u_anisotropy);
+    lookup_roughness = anisotropic_lookup_roughness(g_frame);
+#endif
 
 #if IBL_MODE != IBL_NONE || MULTIPLE_SCATTERING
-    vec2 scale_bias = texture(u_brdf_lut, vec2(nv, g_roughness)).rg;
+    vec2 scale_bias = texture(u_brdf_lut, vec2(nv, lookup_roughness)).rg;
 #endif
 #if MULTIPLE_SCATTERING
     // E_ss >= ~0.3 for GGX (alpha = 1, grazing); the floor only guards a broken table.
@@ -304,11 +329,15 @@ void main() {
     diffuse_ibl = (1.0 - specular_albedo) * g_diffuse_albedo * irradiance * (1.0 / PI);
 #if IBL_MODE == IBL_PREFILTERED
     vec3 r = u_world_to_env * reflect(-v, n);
-    float lod = clamp(g_roughness, 0.0, 1.0) * u_prefiltered_max_lod;
+    float lod = clamp(lookup_roughness, 0.0, 1.0) * u_prefiltered_max_lod;
     specular_ibl = textureLod(u_env_prefiltered, equirect_uv(r), lod).rgb * u_env_intensity
         * specular_albedo;
 #else
+#if ANISOTROPIC
+    specular_ibl = sampled_specular_anisotropic(n, v, nv, g_frame);
+#else
     specular_ibl = sampled_specular(n, v, nv, alpha);
+#endif
 #endif
     specular_ibl *= specular_energy;
 #endif

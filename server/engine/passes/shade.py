@@ -9,7 +9,8 @@ prefiltered chain, BRDF table, blackbody table, programs) is built on first use 
 Only what the scene needs is built: no IBL resources with ``ibl_mode = "none"`` (unless the
 background shows the environment), no prefiltered chain in sampled mode, no temperature target
 or blackbody table without temperatures. Owns: the colour target, the blackbody table, the
-`IblCache` and the `EnvironmentLibrary`.
+`IblCache`, the `EnvironmentLibrary` and the surface-detail pass (`detail`; the renderer runs it
+after the normals, so the N AOV has the detail too).
 """
 
 from __future__ import annotations
@@ -32,6 +33,11 @@ from sphrender.server.engine.lighting.materials import resolve_material
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
 from sphrender.server.engine.passes.shade_heat import FilmTables, heat_defines, heat_uniforms
 from sphrender.server.engine.passes.shadow import ShadowMaps
+from sphrender.server.engine.passes.surface_detail import (
+    SurfaceDetailPass,
+    detail_uniforms,
+    write_planes,
+)
 from sphrender.server.scene import MAX_LIGHTS, Scene
 
 SHADER = "shade/shade_pbr.frag.glsl"
@@ -48,6 +54,24 @@ _VIEW_DEFINES = {
 _G_TERM_DEFINES = {"smith_height_correlated": 0, "cook_torrance": 1}
 
 
+def _detail_roughness(scene: Scene) -> bool:
+    return scene.finish.detail != "none" and scene.finish.detail_roughness_strength > 0.0
+
+
+def _finish_uniforms(program: moderngl.Program, scene: Scene, camera: Camera) -> dict[str, object]:
+    """The brushed lobe's and the roughness detail's uniforms (none when the scene has neither)."""
+    finish = scene.finish
+    values: dict[str, object] = {}
+    if finish.anisotropy != 0.0:
+        brush = np.asarray(finish.brush_direction, dtype=np.float64)
+        values["u_brush_direction"] = tuple(float(c) for c in brush / np.linalg.norm(brush))
+        values["u_anisotropy"] = finish.anisotropy
+    if _detail_roughness(scene):
+        values.update(detail_uniforms(finish, camera))
+        write_planes(program, finish, camera.eye)
+    return values
+
+
 class ShadePass:
     def __init__(self, context: PassContext, environment_dirs: Sequence[str | Path] = ()) -> None:
         self._context = context
@@ -56,6 +80,8 @@ class ShadePass:
         self._blackbody: moderngl.Texture | None = None
         self._film = FilmTables(context)
         self._target = PerSize(lambda size: Target.float(context.gl.ctx, size, 4))
+        #: The world-fixed surface detail on the normals, which this pass and the N AOV read.
+        self.detail = SurfaceDetailPass(context)
 
     def program_for(
         self, scene: Scene, has_temperature: bool, antialias: bool = False, shadows: bool = False
@@ -77,6 +103,8 @@ class ShadePass:
                 **heat_defines(scene.material, has_temperature),
                 "SPHERE_LIGHTS": any(light_kind(light) == SPHERE for light in scene.lights),
                 "SHADOWS": shadows,
+                "ANISOTROPIC": scene.finish.anisotropy != 0.0,
+                "DETAIL_ROUGHNESS": _detail_roughness(scene),
             },
         )
 
@@ -198,6 +226,7 @@ class ShadePass:
             **heat_uniforms(material),
         }
         write_matrix(program, "u_view_to_world", lambda: camera.rotation.T, camera)
+        values.update(_finish_uniforms(program, scene, camera))
         if entry is not None:
             rotation = scene.environment.rotation_deg
             write_matrix(program, "u_world_to_env", lambda: rotation_about_y(rotation), rotation)
@@ -240,6 +269,7 @@ class ShadePass:
 
     def release(self) -> None:
         self._target.release()
+        self.detail.release()
         self.ibl.release()
         self._film.release()
         if self._blackbody is not None:

@@ -1,0 +1,72 @@
+"""The scene's `[finish]` section: how the workpiece's surface was worked. An anisotropic GGX
+lobe (brushed metal: smooth along the brush strokes, rough across them) and a procedural
+surface detail fixed in world space (grinding grooves along the same brush direction). Part of
+the scene schema (`schema.py` re-exports it); both are off by default and cost nothing then.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+from sphrender.core.errors import InputError
+from sphrender.server.scene.fields import Vec3, spec
+
+DetailPattern = Literal["none", "brushed"]
+
+
+@dataclass(frozen=True)
+class FinishConfig:
+    """Brushed finish and world-space surface detail of the material."""
+
+    anisotropy: float = spec(
+        0.0,
+        "brushed lobe: GGX alpha along the brush = alpha (1 - a), across = alpha (1 + a), both "
+        "clamped to [0.002, 1]; 0 = isotropic, < 0 swaps the axes. No preset sets it; for "
+        "brushed or ground metal",
+        low=-1.0,
+        high=1.0,
+    )
+    brush_direction: Vec3 = spec(
+        (1.0, 0.0, 0.0),
+        "world direction of the brush strokes (components in [-1, 1], not all 0), projected "
+        "onto each surface point's tangent plane; along the normal the lobe turns isotropic. "
+        "No preset sets it",
+        low=-1.0,
+        high=1.0,
+    )
+    detail: DetailPattern = spec(
+        "none",
+        "surface detail fixed in world space: none, or brushed (grooves along brush_direction "
+        "tilting the normal and varying the roughness). No preset sets it; for worked plates",
+    )
+    detail_scale: float = spec(
+        0.01,
+        "width of the finest grooves; coarser octaves are 2x and 4x that, and grooves run about "
+        "40x their width along the brush. No preset sets it; match the workpiece's scale",
+        low=0.0,
+        low_open=True,
+        unit="scene units",
+    )
+    detail_normal_strength: float = spec(
+        0.15,
+        "typical slope of the grooves (tangent of the normal's tilt); 0 leaves normals alone. "
+        "No preset sets it; raise for coarse grinding, lower for fine brushing",
+        low=0.0,
+        high=1.0,
+    )
+    detail_roughness_strength: float = spec(
+        0.0,
+        "how far the grooves move roughness, up in their troughs and down on their crests "
+        "(roughness units, clamped to [0, 1]). No preset sets it; for a patchy satin look",
+        low=0.0,
+        high=1.0,
+    )
+
+
+def check_finish(finish: FinishConfig) -> None:
+    """The rules across the section's fields: a brush direction must have a length."""
+    length = math.sqrt(sum(c * c for c in finish.brush_direction))
+    if not length > 0.0:
+        raise InputError("finish.brush_direction", "must not be the zero vector")
