@@ -26,8 +26,8 @@ from sphrender.server.scene.fields import (
     Vec3,
     spec,
 )
-from sphrender.server.scene.schema_lights import MAX_LIGHTS, LightConfig, LightType
 from sphrender.server.scene.schema_finish import FinishConfig
+from sphrender.server.scene.schema_lights import MAX_LIGHTS, LightConfig, LightType
 from sphrender.server.scene.schema_quality import FilterName, QualityConfig, SphConfig
 from sphrender.server.scene.schema_solids import SolidsConfig
 
@@ -37,9 +37,9 @@ __all__ = [
     "MAX_LIGHTS",
     "MAX_STRING_LENGTH",
     "FilterName",
+    "FinishConfig",
     "LightConfig",
     "LightType",
-    "FinishConfig",
     "QualityConfig",
     "SceneNote",
     "SolidsConfig",
