@@ -270,3 +270,30 @@ def test_sphere_light_diffuse_is_the_point_lights_above_the_horizon(
     ratio = total(dict(point, type="sphere", radius=0.5)) / total(point)
     print(f"sphere / point light, diffuse plate: {ratio:.4f}")
     assert abs(ratio - 1.0) <= 0.02
+
+
+def test_frames_after_a_shadowed_frame_render_as_before(renderer: SurfaceRenderer) -> None:
+    """The shadow pass binds its spheres to a storage-buffer binding point the splat's peak
+    temperatures also use: a frame drawn after a shadowed one is byte-identical to the same frame
+    drawn before it (binding points are shared context state, claimed by whoever binds)."""
+    positions = lattice_slab(0.6, 0.6, layers=2, particle_radius=0.015, top_y=0.0)
+    peaks = np.where(positions[:, 0] > 0.0, 573.15, 293.15)
+    frame = ParticleFrame(
+        positions=positions,
+        temperatures=np.full(len(positions), 293.15, np.float32),
+        peak_temperatures=peaks.astype(np.float32),
+    )
+    scene = scene_from_dict(
+        {
+            "image": {"width": 64, "height": 32},
+            "camera": {"eye": [0.0, 1.0, 0.8], "target": [0.0, 0.0, 0.0]},
+            "particles": {"radius": 0.015},
+            "material": {"preset": "iron", "heat_tint": True},
+            "lights": [{"direction": [0.0, -1.0, -0.3], "intensity": 3.0}],
+            "shading": {"ibl_mode": "none"},
+        }
+    )
+    before, _ = renderer.render(frame, scene)
+    render_both(renderer, dict(POINT), SETUP)
+    after, _ = renderer.render(frame, scene)
+    assert np.array_equal(before.rgba, after.rgba)

@@ -179,6 +179,8 @@ class ShadowPass:
         fbo.viewport = viewport
         fbo.use()
         ctx = self._context.gl.ctx
+        # Binding points are shared context state: claiming tells the other users to rebind.
+        self._context.gl.claim_storage_bindings(self)
         self._spheres.bind_to_storage_buffer(SPHERES_BINDING)
         ctx.enable(moderngl.BLEND)
         ctx.blend_func = moderngl.ONE, moderngl.ONE
