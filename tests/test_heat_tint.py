@@ -135,6 +135,48 @@ def test_bare_metal_row_is_close_to_the_presets_f0() -> None:
         assert np.abs(table[-1, 0, :3] - np.array(METAL_F0[preset])).max() < 0.02
 
 
+def cielab(rgb: np.ndarray) -> np.ndarray:
+    """CIELAB of linear Rec.709 reflectances (a perfect reflector = 1), white = the perfect
+    reflector under the equal-energy light the table assumes: a flat spectrum has C* = 0."""
+    table = np.asarray(CIE_1931_2DEG_5NM, dtype=np.float64)
+    white_xyz = table[(table[:, 0] >= 380) & (table[:, 0] <= 780), 1:].sum(axis=0)
+    xyz = (rgb * (XYZ_TO_REC709 @ white_xyz)) @ np.linalg.inv(XYZ_TO_REC709).T / white_xyz
+    f = np.where(
+        xyz > (6 / 29) ** 3, np.cbrt(np.maximum(xyz, 0.0)), xyz / (3 * (6 / 29) ** 2) + 4 / 29
+    )
+    return np.stack(
+        [116 * f[..., 1] - 16, 500 * (f[..., 0] - f[..., 1]), 200 * (f[..., 1] - f[..., 2])], -1
+    )
+
+
+#: Scale thickness (nm): ~3x the charts' thickest colour (carbon steel's light blue, 72 nm).
+THICK_NM = 200.0
+
+
+@pytest.mark.parametrize("preset", ["iron", "stainless_steel"])
+def test_thick_scale_is_a_dark_low_chroma_grey(preset: str) -> None:
+    """Past THICK_NM the table's normal-incidence colour has CIELAB chroma below D * C_uniform:
+    the spread multiplies the interference term by its characteristic function
+    D = exp(-(4 pi n sigma_d / lambda)^2 / 2) (sigma_d = spread * d, the small-spread form of
+    the lognormal), weakest at d = THICK_NM and lambda = 650 nm (the red end of the CMFs), and
+    chroma grows about linearly with the fringe amplitude; C_uniform is the most chroma uniform
+    films reach over the same thicknesses (the spectral reference), which is above the bound, so
+    the check tells them apart. The film absorbs (k > 0): the scale is darker than bare metal."""
+    spec = film_spec(preset, METAL_F0[preset])
+    table = film_table(spec)[-1, :, :3].astype(np.float64)
+    thickness = np.linspace(0.0, FILM_MAX_NM, FILM_SAMPLES)
+    lab = cielab(table)
+    chroma = np.hypot(lab[thickness >= THICK_NM, 1], lab[thickness >= THICK_NM, 2])
+    uniform = cielab(
+        np.array([reference_rgb(d, 1.0, preset, 0.0) for d in np.arange(THICK_NM, 301.0, 5.0)])
+    )
+    uniform_chroma = float(np.hypot(uniform[:, 1], uniform[:, 2]).max())
+    sigma = THICKNESS_SPREAD * THICK_NM
+    damping = np.exp(-0.5 * (4 * np.pi * spec.film_index.real * sigma / 650.0) ** 2)
+    assert chroma.max() < damping * uniform_chroma < uniform_chroma, (chroma.max(), damping)
+    assert lab[-1, 0] < lab[0, 0] - 20.0, (lab[-1, 0], lab[0, 0])
+
+
 def _flat_patch(width: int, height: int, preset: str, **material: object) -> dict[str, object]:
     return {
         "image": {"width": width, "height": height},
