@@ -9,24 +9,26 @@ converted to linear Rec.709, normalised so that a perfect reflector is (1, 1, 1)
 RGB over (film thickness 0..FILM_MAX_NM, cos theta 0..1); the shader reads it with bilinear
 filtering (`shaders/lighting/thin_film.glsl`). A spectral table rather than Belcour & Barla's
 analytic RGB approximation: the table is exact to interpolation (< 1e-3 at these sizes), costs
-two texture reads a light, and is built once per material in ~0.1 s; the analytic form trades
+two texture reads a light, and is built once per material in ~0.5 s of CPU; the analytic form trades
 accuracy (a few 1e-2 near the first-order colours, where temper colours live) for no table.
 
 Thickness spread. A real film is not uniform: the oxidation rate differs from grain to grain
 with crystal orientation (the basis of colour (heat-tint) etching, where neighbouring grains of
-one specimen show different temper colours) and the oxide/metal interface roughens as the film
+one specimen show different temper colours), the oxide/metal interface roughens as the film
 grows, and a pixel's footprint spans many grains. Its reflectance is the intensity average over
 the thickness distribution (incoherent across grains). The rate varies multiplicatively, so ln d
-is normal about the calibrated median d with sigma = THICKNESS_SPREAD = 0.2 (sigma_d / d ~ 0.2:
-a chosen value; of 0.15, 0.2 and 0.25 the largest that keeps both charts' colour families). The
-interference term is multiplied by ~exp(-(4 pi n sigma_d cos / lambda)^2 / 2): at the charts'
-thicknesses (<= 72 nm) the first-order colours keep most of their chroma, while past ~150 nm
-the higher orders average out to the incoherent sum, a low-chroma grey (CIELAB C* 3.6 carbon
-steel, 8.0 for 304; uniform films there reach C* 27 and 77). The film's k keeps that grey dark: past ~300 nm
-(carbon steel; 304's k = 0.1 lets more through) the film is opaque and reflects the oxide's own
-|(n - 1) / (n + 1)|^2 ~ 0.20 against the bare metal's ~0.5 (carbon steel: CIELAB L* 52 against 77),
-consistent with oxidised steel's emissivity ~0.8. The spread is baked into the table: no cost
-in the shader.
+is normal about the calibrated median d with sigma THICKNESS_SPREAD = 0.2 (sigma_d / d ~ 0.2).
+A chosen value, not a measured one: 0.15 leaves 304's films past 150 nm at CIELAB C* 16, 0.25
+pulls carbon steel's purple towards blue (hue 287 deg, uniform 316); the calibration below,
+fitted without the spread, still puts every chart colour in its family at 0.2. The spread
+multiplies the interference term by ~exp(-(4 pi n sigma_d cos / lambda)^2 / 2): the charts'
+films (<= 72 nm) keep most of their chroma, while past ~150 nm the higher orders average out to
+the incoherent sum, a low-chroma grey (C* 3.6 carbon steel, 8.0 for 304; uniform films there
+reach 27 and 77). The film's k keeps that grey dark: past ~300 nm (carbon steel; 304's
+k = 0.1 lets more through) the film is opaque and reflects the oxide's own
+|(n - 1) / (n + 1)|^2 ~ 0.20 against the bare metal's ~0.5 (carbon steel: L* 52 against 77),
+consistent with oxidised steel's emissivity ~0.8. The spread is baked into the table (a few
+times the build time of the uniform table); the shader does not change.
 
 Substrate. The renderer describes a metal by its measured RGB F0; the substrate's spectral n, k
 come from it by Gulbrandsen's (2014, JCGT 3(4)) inversion with edge tint = F0 at 650, 550 and
