@@ -205,7 +205,7 @@ def spread_rgb(spec: FilmSpec, thickness_nm: F64, cos_theta: F64) -> F64:
     weights /= weights.sum()
     step = FILM_MAX_NM / (FILM_SAMPLES - 1)
     at = np.asarray(thickness_nm, dtype=np.float64)[:, None] * np.exp(THICKNESS_SPREAD * z) / step
-    fine = np.arange(int(at.max()) + 2) * step
+    fine: F64 = np.arange(int(at.max()) + 2, dtype=np.float64) * step
     lower = np.minimum(at.astype(np.intp), len(fine) - 2)
     frac = (at - lower)[..., None]
     cos = np.asarray(cos_theta, dtype=np.float64)
