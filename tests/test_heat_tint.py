@@ -28,6 +28,7 @@ from sphrender.server.engine.lighting.thin_film import (
     COS_SAMPLES,
     FILM_MAX_NM,
     FILM_SAMPLES,
+    THICKNESS_SPREAD,
     film_spec,
     film_table,
     oxide_thickness_nm,
@@ -38,7 +39,7 @@ from sphrender.server.scene import scene_from_dict
 
 
 def airy_series_reflectance(
-    d_nm: float, cos0: float, wavelengths: np.ndarray, film: complex, metal: np.ndarray
+    d_nm: np.ndarray, cos0: float, wavelengths: np.ndarray, film: complex, metal: np.ndarray
 ) -> np.ndarray:
     """R(lambda) of air / film / metal by summing the bounces one by one (the Airy series
     r01 + t01 t10 r12 e^{2i delta} sum_m (r10 r12 e^{2i delta})^m), s and p averaged; written
@@ -47,7 +48,7 @@ def airy_series_reflectance(
     cos1 = np.sqrt(1.0 - sin2 / film**2 + 0j)
     cos2 = np.sqrt(1.0 - sin2 / metal**2 + 0j)
     phase = np.exp(4j * np.pi * film * d_nm * cos1 / wavelengths)
-    total = np.zeros(wavelengths.shape)
+    total = np.zeros(phase.shape)
     for s_pol in (True, False):
         if s_pol:
             r01 = (cos0 - film * cos1) / (cos0 + film * cos1)
@@ -62,19 +63,38 @@ def airy_series_reflectance(
         for _ in range(400):  # |r10 r12 e^{2i delta}| < 0.99 at these films: < 1e-6 left
             amplitude = amplitude + bounce
             bounce = bounce * r10 * r12 * phase
+            if np.abs(bounce).max() < 1e-9:
+                break
         total += 0.5 * np.abs(amplitude) ** 2
     return total
 
 
-def reference_rgb(d_nm: float, cos0: float, preset: str) -> np.ndarray:
-    """CIE 1931 (equal-energy light, 380-780 nm) -> linear Rec.709, a perfect reflector = 1."""
+def spread_samples(d_nm: float, spread: float) -> tuple[np.ndarray, np.ndarray]:
+    """Thicknesses and weights of the lognormal spread about median d_nm (thin_film.py): a
+    dense uniform grid in d itself (not in ln d, as the module steps), 240 points over
+    +-5 sigma, each weighted by the lognormal density; steps <= 3.5 nm against an ~75 nm
+    fringe period on an integrand that vanishes at both ends (the trapezoid's error there is
+    spectrally small)."""
+    if d_nm == 0.0 or spread == 0.0:
+        return np.array([d_nm]), np.array([1.0])
+    d = np.linspace(d_nm * np.exp(-5 * spread), d_nm * np.exp(5 * spread), 240)
+    density = np.exp(-0.5 * (np.log(d / d_nm) / spread) ** 2) / d
+    return d, density / density.sum()
+
+
+def reference_rgb(
+    d_nm: float, cos0: float, preset: str, spread: float = THICKNESS_SPREAD
+) -> np.ndarray:
+    """The film's reflectance averaged over its thickness spread, CIE 1931 (equal-energy light,
+    380-780 nm) -> linear Rec.709, a perfect reflector = 1."""
     table = np.asarray(CIE_1931_2DEG_5NM, dtype=np.float64)
     table = table[(table[:, 0] >= 380) & (table[:, 0] <= 780)]
     wavelengths, cmf = table[:, 0], table[:, 1:]
     spec = film_spec(preset, METAL_F0[preset])
     metal = substrate_index(spec.f0, wavelengths)
-    spectrum = airy_series_reflectance(d_nm, cos0, wavelengths, spec.film_index, metal)
-    rgb = XYZ_TO_REC709 @ (spectrum @ cmf)
+    d, weights = spread_samples(d_nm, spread)
+    spectra = airy_series_reflectance(d[:, None], cos0, wavelengths, spec.film_index, metal)
+    rgb = XYZ_TO_REC709 @ ((weights @ spectra) @ cmf)
     white = XYZ_TO_REC709 @ cmf.sum(axis=0)
     return np.asarray(rgb / white)
 
@@ -94,7 +114,8 @@ def bilinear(table: np.ndarray, d_nm: float, cos0: float) -> np.ndarray:
 @pytest.mark.parametrize("preset", ["iron", "stainless_steel"])
 def test_film_table_matches_the_spectral_airy_sum(preset: str) -> None:
     """Off the table's nodes (thicknesses and angles between samples, where interpolation errs
-    most) the bilinear read is within 1e-3 of the bounce-by-bounce spectral reference:
+    most) the bilinear read is within 1e-3 of the bounce-by-bounce spectral reference averaged
+    over the thickness spread by dense sampling in d:
     0.59 nm steps against a ~80 nm interference period bound the interpolation at
     (pi * 0.59 / 80)^2 / 2 * amplitude ~ 3e-4; fp32 storage adds ~1e-7."""
     table = film_table(film_spec(preset, METAL_F0[preset]))
@@ -112,6 +133,48 @@ def test_bare_metal_row_is_close_to_the_presets_f0() -> None:
     for preset in ("iron", "stainless_steel"):
         table = film_table(film_spec(preset, METAL_F0[preset]))
         assert np.abs(table[-1, 0, :3] - np.array(METAL_F0[preset])).max() < 0.02
+
+
+def cielab(rgb: np.ndarray) -> np.ndarray:
+    """CIELAB of linear Rec.709 reflectances (a perfect reflector = 1), white = the perfect
+    reflector under the equal-energy light the table assumes: a flat spectrum has C* = 0."""
+    table = np.asarray(CIE_1931_2DEG_5NM, dtype=np.float64)
+    white_xyz = table[(table[:, 0] >= 380) & (table[:, 0] <= 780), 1:].sum(axis=0)
+    xyz = (rgb * (XYZ_TO_REC709 @ white_xyz)) @ np.linalg.inv(XYZ_TO_REC709).T / white_xyz
+    f = np.where(
+        xyz > (6 / 29) ** 3, np.cbrt(np.maximum(xyz, 0.0)), xyz / (3 * (6 / 29) ** 2) + 4 / 29
+    )
+    return np.stack(
+        [116 * f[..., 1] - 16, 500 * (f[..., 0] - f[..., 1]), 200 * (f[..., 1] - f[..., 2])], -1
+    )
+
+
+#: Scale thickness (nm): ~3x the charts' thickest colour (carbon steel's light blue, 72 nm).
+THICK_NM = 200.0
+
+
+@pytest.mark.parametrize("preset", ["iron", "stainless_steel"])
+def test_thick_scale_is_a_dark_low_chroma_grey(preset: str) -> None:
+    """Past THICK_NM the table's normal-incidence colour has CIELAB chroma below D * C_uniform:
+    the spread multiplies the interference term by its characteristic function
+    D = exp(-(4 pi n sigma_d / lambda)^2 / 2) (sigma_d = spread * d, the small-spread form of
+    the lognormal), weakest at d = THICK_NM and lambda = 650 nm (the red end of the CMFs), and
+    chroma grows about linearly with the fringe amplitude; C_uniform is the most chroma uniform
+    films reach over the same thicknesses (the spectral reference), which is above the bound, so
+    the check tells them apart. The film absorbs (k > 0): the scale is darker than bare metal."""
+    spec = film_spec(preset, METAL_F0[preset])
+    table = film_table(spec)[-1, :, :3].astype(np.float64)
+    thickness = np.linspace(0.0, FILM_MAX_NM, FILM_SAMPLES)
+    lab = cielab(table)
+    chroma = np.hypot(lab[thickness >= THICK_NM, 1], lab[thickness >= THICK_NM, 2])
+    uniform = cielab(
+        np.array([reference_rgb(d, 1.0, preset, 0.0) for d in np.arange(THICK_NM, 301.0, 5.0)])
+    )
+    uniform_chroma = float(np.hypot(uniform[:, 1], uniform[:, 2]).max())
+    sigma = THICKNESS_SPREAD * THICK_NM
+    damping = np.exp(-0.5 * (4 * np.pi * spec.film_index.real * sigma / 650.0) ** 2)
+    assert chroma.max() < damping * uniform_chroma < uniform_chroma, (chroma.max(), damping)
+    assert lab[-1, 0] < lab[0, 0] - 20.0, (lab[-1, 0], lab[0, 0])
 
 
 def _flat_patch(width: int, height: int, preset: str, **material: object) -> dict[str, object]:

@@ -9,8 +9,26 @@ converted to linear Rec.709, normalised so that a perfect reflector is (1, 1, 1)
 RGB over (film thickness 0..FILM_MAX_NM, cos theta 0..1); the shader reads it with bilinear
 filtering (`shaders/lighting/thin_film.glsl`). A spectral table rather than Belcour & Barla's
 analytic RGB approximation: the table is exact to interpolation (< 1e-3 at these sizes), costs
-two texture reads a light, and is built once per material in ~0.1 s; the analytic form trades
+two texture reads a light, and is built once per material in ~0.5 s of CPU; the analytic form trades
 accuracy (a few 1e-2 near the first-order colours, where temper colours live) for no table.
+
+Thickness spread. A real film is not uniform: the oxidation rate differs from grain to grain
+with crystal orientation (the basis of colour (heat-tint) etching, where neighbouring grains of
+one specimen show different temper colours), the oxide/metal interface roughens as the film
+grows, and a pixel's footprint spans many grains. Its reflectance is the intensity average over
+the thickness distribution (incoherent across grains). The rate varies multiplicatively, so ln d
+is normal about the calibrated median d with sigma THICKNESS_SPREAD = 0.2 (sigma_d / d ~ 0.2).
+A chosen value, not a measured one: 0.15 leaves 304's films past 150 nm at CIELAB C* 16, 0.25
+pulls carbon steel's purple towards blue (hue 287 deg, uniform 316); the calibration below,
+fitted without the spread, still puts every chart colour in its family at 0.2. The spread
+multiplies the interference term by ~exp(-(4 pi n sigma_d cos / lambda)^2 / 2): the charts'
+films (<= 72 nm) keep most of their chroma, while past ~150 nm the higher orders average out to
+the incoherent sum, a low-chroma grey (C* 3.6 carbon steel, 8.0 for 304; uniform films there
+reach 27 and 77). The film's k keeps that grey dark: past ~300 nm (carbon steel; 304's
+k = 0.1 lets more through) the film is opaque and reflects the oxide's own
+|(n - 1) / (n + 1)|^2 ~ 0.20 against the bare metal's ~0.5 (carbon steel: L* 52 against 77),
+consistent with oxidised steel's emissivity ~0.8. The spread is baked into the table (a few
+times the build time of the uniform table); the shader does not change.
 
 Substrate. The renderer describes a metal by its measured RGB F0; the substrate's spectral n, k
 come from it by Gulbrandsen's (2014, JCGT 3(4)) inversion with edge tint = F0 at 650, 550 and
@@ -31,8 +49,8 @@ blue) against its temperature (carbon steel: light straw 205 C, straw 230, brown
 blue 600 C). Chart colour -> thickness through this table at normal incidence (nm): carbon
 steel 16, 22, 30, 37, 48, 72 (least squares in ln d over 1/T: T_ref 578 K, E 3240 K); 304 22,
 33, 40, 50, 57 (fitted to magenta and blue, the narrowest windows: T_ref 813 K, E 1500 K).
-Films past FILM_MAX_NM read the table's last column: absorption has damped the interference
-there and the film reads as a dark grey scale. The scene may override both
+Films past FILM_MAX_NM read the table's last column: the spread and absorption have damped
+the interference there and the film reads as a dark grey scale. The scene may override both
 (`material.oxide_reference_k`, `oxide_activation_k`).
 """
 
@@ -56,6 +74,13 @@ C128 = npt.NDArray[np.complex128]
 FILM_MAX_NM = 300.0
 FILM_SAMPLES = 512
 COS_SAMPLES = 64
+
+#: Relative spread of the film thickness within a pixel: ln d is normal with this standard
+#: deviation about the calibrated (median) thickness (module docstring); the average runs over
+#: +-SPREAD_Z deviations (5.7e-7 of the mass outside) in SPREAD_NODES steps.
+THICKNESS_SPREAD = 0.2
+SPREAD_Z = 5.0
+SPREAD_NODES = 51
 
 #: Film thickness (nm) at the calibration's reference temperature.
 OXIDE_REFERENCE_NM = 50.0
@@ -171,13 +196,35 @@ def film_rgb(spec: FilmSpec, thickness_nm: F64, cos_theta: F64) -> F64:
     return spectrum_to_rgb(spectrum)
 
 
+def spread_rgb(spec: FilmSpec, thickness_nm: F64, cos_theta: F64) -> F64:
+    """(cos, thickness, 3): film_rgb averaged over the lognormal thickness spread about each
+    median thickness (module docstring): trapezoid in z = ln(d' / d) / THICKNESS_SPREAD over
+    +-SPREAD_Z, the nodes read linearly from a uniform grid at the table's step."""
+    z = np.linspace(-SPREAD_Z, SPREAD_Z, SPREAD_NODES)
+    weights = np.exp(-0.5 * z * z)
+    weights /= weights.sum()
+    step = FILM_MAX_NM / (FILM_SAMPLES - 1)
+    at = np.asarray(thickness_nm, dtype=np.float64)[:, None] * np.exp(THICKNESS_SPREAD * z) / step
+    fine: F64 = np.arange(int(at.max()) + 2, dtype=np.float64) * step
+    lower = np.minimum(at.astype(np.intp), len(fine) - 2)
+    frac = (at - lower)[..., None]
+    cos = np.asarray(cos_theta, dtype=np.float64)
+    out = np.empty((len(cos), len(at), 3))
+    for rows in np.array_split(np.arange(len(cos)), max(1, len(cos) // 8)):
+        rgb = film_rgb(spec, fine[None, :], cos[rows, None])
+        nodes = rgb[:, lower] * (1.0 - frac) + rgb[:, lower + 1] * frac  # (rows, d, z, 3)
+        out[rows] = np.einsum("rdzc,z->rdc", nodes, weights)
+    return out
+
+
 @functools.lru_cache(maxsize=8)
 def film_table(spec: FilmSpec) -> npt.NDArray[np.float32]:
-    """(COS_SAMPLES, FILM_SAMPLES, 4) float32: RGB reflectance, texel centres at thickness
-    i / (FILM_SAMPLES - 1) * FILM_MAX_NM (x) and cos theta j / (COS_SAMPLES - 1) (y)."""
+    """(COS_SAMPLES, FILM_SAMPLES, 4) float32: RGB reflectance averaged over the thickness
+    spread, texel centres at median thickness i / (FILM_SAMPLES - 1) * FILM_MAX_NM (x) and
+    cos theta j / (COS_SAMPLES - 1) (y)."""
     d = np.linspace(0.0, FILM_MAX_NM, FILM_SAMPLES)
     c = np.linspace(0.0, 1.0, COS_SAMPLES)
-    rgb = film_rgb(spec, d[None, :], c[:, None])
+    rgb = spread_rgb(spec, d, c)
     table = np.zeros((COS_SAMPLES, FILM_SAMPLES, 4), np.float32)
     table[..., :3] = rgb
     table[..., 3] = 1.0
