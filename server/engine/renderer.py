@@ -29,6 +29,7 @@ from sphrender.server.engine.frame_output import (
     RenderStats,
 )
 from sphrender.server.engine.geometry.camera import Camera
+from sphrender.server.engine.geometry.motion import plan_motion
 from sphrender.server.engine.geometry.screen_box import ScreenBox
 from sphrender.server.engine.gpu.cl_context import CLDeviceInfo
 from sphrender.server.engine.gpu.draw import FullscreenTriangle, Target
@@ -36,8 +37,10 @@ from sphrender.server.engine.gpu.gl_clock import StageTimer
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.programs import ProgramCache
 from sphrender.server.engine.input_notes import InputNotes
+from sphrender.server.engine.passes.accumulate import AccumulatePass
 from sphrender.server.engine.passes.context import PassContext
 from sphrender.server.engine.passes.display import DisplayPass
+from sphrender.server.engine.passes.glare import GlarePass
 from sphrender.server.engine.passes.normals import NormalsPass
 from sphrender.server.engine.passes.prepare_stage import PreparedFrame, PrepareMode, PrepareStage
 from sphrender.server.engine.passes.readback import ReadbackPass
@@ -79,6 +82,8 @@ class SurfaceRenderer:
         self._shade = ShadePass(self._context, environment_dirs)
         self._display = DisplayPass(self._context)
         self._readback = ReadbackPass(self._context)
+        self._glare = GlarePass(self._context)
+        self._accumulate = AccumulatePass(self._context)
 
     @property
     def gl(self) -> GLContext:
@@ -140,15 +145,56 @@ class SurfaceRenderer:
         depth: bool = False,
         normals: bool = False,
         display: DisplayRequest | None = None,
+        linear: bool = False,
     ) -> tuple[RenderedFrame, RenderStats]:
         """Render one frame; `depth` / `normals` ask for those AOVs to be read back, `display`
-        for the 8-bit display codes an encoder would compute (passes/display.py)."""
+        for the 8-bit display codes an encoder would compute (passes/display.py); `linear`: the
+        colour read back feeds a scene-linear output (EXR, raw float), glared only when
+        `[glare] exr` says so."""
         self._gl.check_owner()
         start, in_gl = time.perf_counter(), self._gl.clock.seconds
         self.check_image_size(scene)
         camera = Camera.from_config(scene.camera, scene.image.width, scene.image.height)
         stats = RenderStats(particles_in=frame.count)
         stats.notes += [InputNote(note.field, note.message) for note in scene.notes]
+        motion = plan_motion(frame, camera, scene.camera.shutter)
+        if motion is None:
+            color, normal_depth, prepared, splatted = self._render_color(
+                frame, scene, camera, stats
+            )
+            box = prepared.box
+        else:  # sub-frames averaged; the last, nearest the shutter's middle, gives Z and N
+            for index, offset in enumerate(motion.times):
+                sub = motion.subframe(frame, offset)
+                color, normal_depth, prepared, splatted = self._render_color(
+                    sub, scene, camera, stats
+                )
+                with self._stage(stats, "motion"):
+                    average = self._accumulate.add(color, index, len(motion.times))
+            assert average is not None
+            color, box = average, None
+        glared = color
+        if scene.glare.enabled:
+            with self._stage(stats, "glare"):
+                glared = self._glare.run(color, camera, scene.glare, scene.output.exposure)
+            box = None
+        with self._stage(stats, "readback"):
+            linear_color = color if linear and not scene.glare.exr else glared
+            rendered = self._read_back(linear_color, normal_depth, scene, box, depth, normals)
+            if display is not None:
+                rendered = self._display_codes(rendered, glared, scene, box, display)
+        # After the read-back, so a count the device kept waits for nothing.
+        stats.particles_splatted += self._splat.splatted(splatted, prepared.visible)
+        wall_ms = (time.perf_counter() - start) * 1e3
+        device_ms = (self._gl.clock.seconds - in_gl) * 1e3
+        stats.host_ms = max(wall_ms - device_ms - stats.stage_ms.get("sph", 0.0), 0.0)
+        return rendered, stats
+
+    def _render_color(
+        self, frame: ParticleFrame, scene: Scene, camera: Camera, stats: RenderStats
+    ) -> tuple[Target, Target, PreparedFrame, int]:
+        """SPH to shade for one (sub-)frame: the colour and normal + depth targets, the
+        prepared frame and the bulk's splat count (-1: counted on the device)."""
         sph = self._run_sph(frame, scene, stats)
         with self._stage(stats, "prepare"):
             prepared = self._prepare.run(sph, camera, scene)
@@ -160,16 +206,7 @@ class SurfaceRenderer:
             normal_depth = self._surface_normals(surface, prepared, camera, scene)
         with self._stage(stats, "shade"):
             color = self._shade_surface(surface, normal_depth, camera, scene, prepared)
-        with self._stage(stats, "readback"):
-            rendered = self._read_back(
-                color, normal_depth, scene, prepared.box, depth, normals, display
-            )
-        # After the read-back, so a count the device kept waits for nothing.
-        stats.particles_splatted += self._splat.splatted(bulk_splatted, prepared.visible)
-        wall_ms = (time.perf_counter() - start) * 1e3
-        device_ms = (self._gl.clock.seconds - in_gl) * 1e3
-        stats.host_ms = max(wall_ms - device_ms - stats.stage_ms.get("sph", 0.0), 0.0)
-        return rendered, stats
+        return color, normal_depth, prepared, bulk_splatted
 
     # -- the stages of `render` ------------------------------------------------------------
 
@@ -268,14 +305,13 @@ class SurfaceRenderer:
         box: ScreenBox | None,
         depth: bool,
         normals: bool,
-        display: DisplayRequest | None,
     ) -> RenderedFrame:
-        """The frame's images on the host: colour, the AOVs asked for, the display codes."""
+        """The frame's images on the host: colour and the AOVs asked for."""
         transparent = scene.shading.background == "transparent"
         # Device prepare (a GPU): the driver copies whole images, the host zeroes nothing;
         # host prepare (llvmpipe): only the box's rows are read, the rest memset to 0.
         read_box = None if self._prepare.mode == "device" else box
-        rendered = self._readback.run(
+        return self._readback.run(
             color,
             normal_depth,
             want_depth=depth,
@@ -283,8 +319,17 @@ class SurfaceRenderer:
             color_box=read_box if transparent else None,
             surface_box=read_box,
         )
-        if display is None:
-            return rendered
+
+    def _display_codes(
+        self,
+        rendered: RenderedFrame,
+        color: Target,
+        scene: Scene,
+        box: ScreenBox | None,
+        display: DisplayRequest,
+    ) -> RenderedFrame:
+        """`rendered` with the 8-bit display codes of `color` (passes/display.py)."""
+        transparent = scene.shading.background == "transparent"
         codes = self._display.run(color.texture, display, box if transparent else None)
         return replace(rendered, display=DisplayCodes(codes, display))
 
@@ -292,7 +337,7 @@ class SurfaceRenderer:
         """Release every GPU object this renderer owns (on the owner thread)."""
         self._gl.check_owner()
         passes = (self._splat, self._smooth, self._normals, self._temperature, self._shade)
-        for gpu_pass in (*passes, self._display, self._readback):
+        for gpu_pass in (*passes, self._display, self._readback, self._glare, self._accumulate):
             gpu_pass.release()
         self._context.fullscreen.release()
         self._context.programs.release()

@@ -26,6 +26,7 @@ from sphrender.server.scene.fields import (
     Vec3,
     spec,
 )
+from sphrender.server.scene.schema_post import GlareConfig
 from sphrender.server.scene.schema_quality import FilterName, QualityConfig, SphConfig
 
 __all__ = [
@@ -33,6 +34,7 @@ __all__ = [
     "MAX_IMAGE_SIDE",
     "MAX_STRING_LENGTH",
     "FilterName",
+    "GlareConfig",
     "QualityConfig",
     "SceneNote",
     "SphConfig",
@@ -80,6 +82,14 @@ class CameraConfig:
         low=0.0,
         low_open=True,
         unit="scene units",
+    )
+    shutter: float = spec(
+        0.0,
+        "exposure time: particles of a frame with velocities blur over [-shutter/2, +shutter/2] "
+        "around the frame's time; 0 = a still. No preset sets it; for streaks of fast spatter",
+        low=0.0,
+        high=1.0,
+        unit="seconds",
     )
 
 
@@ -370,6 +380,7 @@ class Scene:
     quality: QualityConfig = field(default_factory=QualityConfig)
     sph: SphConfig = field(default_factory=SphConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
+    glare: GlareConfig = field(default_factory=GlareConfig)
     material: MaterialConfig = field(default_factory=MaterialConfig)
     lights: tuple[LightConfig, ...] = field(default=(), metadata={"max_items": MAX_LIGHTS})
     environment: EnvironmentConfig = field(default_factory=EnvironmentConfig)
