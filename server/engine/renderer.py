@@ -22,7 +22,6 @@ from pathlib import Path
 from sphrender.core.errors import InputError
 from sphrender.core.frame import ParticleFrame
 from sphrender.server.engine.frame_output import (
-    DisplayCodes,
     DisplayRequest,
     InputNote,
     RenderedFrame,
@@ -30,7 +29,6 @@ from sphrender.server.engine.frame_output import (
 )
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.motion import plan_motion
-from sphrender.server.engine.geometry.screen_box import ScreenBox
 from sphrender.server.engine.gpu.cl_context import CLDeviceInfo
 from sphrender.server.engine.gpu.draw import FullscreenTriangle, Target
 from sphrender.server.engine.gpu.gl_clock import StageTimer
@@ -39,11 +37,9 @@ from sphrender.server.engine.gpu.programs import ProgramCache
 from sphrender.server.engine.input_notes import InputNotes
 from sphrender.server.engine.passes.accumulate import AccumulatePass
 from sphrender.server.engine.passes.context import PassContext
-from sphrender.server.engine.passes.display import DisplayPass
-from sphrender.server.engine.passes.glare import GlarePass
 from sphrender.server.engine.passes.normals import NormalsPass
+from sphrender.server.engine.passes.output_stage import OutputStage
 from sphrender.server.engine.passes.prepare_stage import PreparedFrame, PrepareMode, PrepareStage
-from sphrender.server.engine.passes.readback import ReadbackPass
 from sphrender.server.engine.passes.shade import ShadePass
 from sphrender.server.engine.passes.smooth import SmoothPass
 from sphrender.server.engine.passes.splat import SplatOutput, SplatPass
@@ -80,9 +76,7 @@ class SurfaceRenderer:
         self._normals = NormalsPass(self._context)
         self._temperature = TemperaturePass(self._context)
         self._shade = ShadePass(self._context, environment_dirs)
-        self._display = DisplayPass(self._context)
-        self._readback = ReadbackPass(self._context)
-        self._glare = GlarePass(self._context)
+        self._output = OutputStage(self._context)
         self._accumulate = AccumulatePass(self._context)
 
     @property
@@ -159,32 +153,28 @@ class SurfaceRenderer:
         stats.notes += [InputNote(note.field, note.message) for note in scene.notes]
         motion = plan_motion(frame, camera, scene.camera.shutter)
         if motion is None:
-            color, normal_depth, prepared, splatted = self._render_color(
-                frame, scene, camera, stats
-            )
+            color, normal_depth, prepared, count = self._render_color(frame, scene, camera, stats)
             box = prepared.box
         else:  # sub-frames averaged; the last, nearest the shutter's middle, gives Z and N
             for index, offset in enumerate(motion.times):
                 sub = motion.subframe(frame, offset)
-                color, normal_depth, prepared, splatted = self._render_color(
-                    sub, scene, camera, stats
-                )
+                color, normal_depth, prepared, count = self._render_color(sub, scene, camera, stats)
                 with self._stage(stats, "motion"):
                     average = self._accumulate.add(color, index, len(motion.times))
             assert average is not None
             color, box = average, None
         glared = color
-        if scene.glare.enabled:
+        if scene.glare.enabled:  # the halo reaches past the surface: no box
             with self._stage(stats, "glare"):
-                glared = self._glare.run(color, camera, scene.glare, scene.output.exposure)
-            box = None
+                glared, box = self._output.glare(color, camera, scene), None
         with self._stage(stats, "readback"):
-            linear_color = color if linear and not scene.glare.exr else glared
-            rendered = self._read_back(linear_color, normal_depth, scene, box, depth, normals)
-            if display is not None:
-                rendered = self._display_codes(rendered, glared, scene, box, display)
+            whole = self._prepare.mode == "device"  # a GPU copies whole images faster
+            rendered = self._output.read(
+                color, glared, normal_depth, scene, box, whole=whole, depth=depth,
+                normals=normals, display=display, linear=linear,
+            )  # fmt: skip
         # After the read-back, so a count the device kept waits for nothing.
-        stats.particles_splatted += self._splat.splatted(splatted, prepared.visible)
+        stats.particles_splatted += self._splat.splatted(count, prepared.visible)
         wall_ms = (time.perf_counter() - start) * 1e3
         device_ms = (self._gl.clock.seconds - in_gl) * 1e3
         stats.host_ms = max(wall_ms - device_ms - stats.stage_ms.get("sph", 0.0), 0.0)
@@ -297,47 +287,11 @@ class SurfaceRenderer:
             scene, camera, normal_depth.texture, temperature, prepared.box, surface.coverage
         )
 
-    def _read_back(
-        self,
-        color: Target,
-        normal_depth: Target,
-        scene: Scene,
-        box: ScreenBox | None,
-        depth: bool,
-        normals: bool,
-    ) -> RenderedFrame:
-        """The frame's images on the host: colour and the AOVs asked for."""
-        transparent = scene.shading.background == "transparent"
-        # Device prepare (a GPU): the driver copies whole images, the host zeroes nothing;
-        # host prepare (llvmpipe): only the box's rows are read, the rest memset to 0.
-        read_box = None if self._prepare.mode == "device" else box
-        return self._readback.run(
-            color,
-            normal_depth,
-            want_depth=depth,
-            want_normals=normals,
-            color_box=read_box if transparent else None,
-            surface_box=read_box,
-        )
-
-    def _display_codes(
-        self,
-        rendered: RenderedFrame,
-        color: Target,
-        scene: Scene,
-        box: ScreenBox | None,
-        display: DisplayRequest,
-    ) -> RenderedFrame:
-        """`rendered` with the 8-bit display codes of `color` (passes/display.py)."""
-        transparent = scene.shading.background == "transparent"
-        codes = self._display.run(color.texture, display, box if transparent else None)
-        return replace(rendered, display=DisplayCodes(codes, display))
-
     def release(self) -> None:
         """Release every GPU object this renderer owns (on the owner thread)."""
         self._gl.check_owner()
         passes = (self._splat, self._smooth, self._normals, self._temperature, self._shade)
-        for gpu_pass in (*passes, self._display, self._readback, self._glare, self._accumulate):
+        for gpu_pass in (*passes, self._output, self._accumulate):
             gpu_pass.release()
         self._context.fullscreen.release()
         self._context.programs.release()

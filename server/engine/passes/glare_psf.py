@@ -21,7 +21,6 @@ from functools import lru_cache
 
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import nnls
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -171,7 +170,7 @@ def fit_pyramid(deg_per_px: float, levels: int) -> PyramidFit:
     penalty = 10.0 * np.abs(b).max()
     a = np.vstack([a, np.full((1, a.shape[1]), penalty)])
     b = np.append(b, penalty)
-    solution, _ = nnls(a, b, maxiter=2000)
+    solution = _nonnegative_lstsq(a, b)
     solution = solution / solution.sum()
     model = sum(w * c for w, c in zip(solution, columns, strict=True))
     return PyramidFit(
@@ -180,6 +179,20 @@ def fit_pyramid(deg_per_px: float, levels: int) -> PyramidFit:
         l1_error=float(np.abs(model - target).sum()),
         l1_spread=float(sum(w * s for w, s in zip(solution[1:], spreads, strict=True))),
     )
+
+
+def _nonnegative_lstsq(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Least squares over non-negative x for a few columns: solve on the columns kept, drop
+    those that come out negative, repeat (the bound is computed from whatever this returns)."""
+    keep = np.ones(a.shape[1], bool)
+    x = np.zeros(a.shape[1])
+    while keep.any():
+        x[:] = 0.0
+        x[keep] = np.linalg.lstsq(a[:, keep], b, rcond=None)[0]
+        if (x >= 0.0).all():
+            break
+        keep &= x > 0.0
+    return np.maximum(x, 0.0)
 
 
 def degrees_per_pixel(fov_y_deg: float, height: int) -> float:
