@@ -72,7 +72,7 @@ def glare_row(renderer: SurfaceRenderer, width: int, height: int, frames: int) -
     on = _median_ms(lambda: render_for_output(renderer, frame, glare, "png"), frames)
     before = _premultiplied(render_for_output(renderer, frame, plain, "exr")[0].rgba)[..., :3]
     after = _premultiplied(render_for_output(renderer, frame, glare, "exr")[0].rgba)[..., :3]
-    scale = 2.0 ** plain.output.exposure
+    scale = 2.0**plain.output.exposure
     y = before @ LUMINANCE
     threshold = glare.glare.threshold / scale
     kept = np.where(y > threshold, threshold / np.maximum(y, 1e-300), 1.0)
