@@ -53,8 +53,11 @@ def premultiplied(rgba: np.ndarray) -> np.ndarray:
 def test_blur_matches_the_average_of_64_subframes(renderer: SurfaceRenderer) -> None:
     positions, velocities, temperatures = spatter()
     frame = make_frame(positions, temperatures=temperatures, velocities=velocities)
-    blurred, _ = renderer.render(frame, spatter_scene(SHUTTER))
+    blurred, stats = renderer.render(frame, spatter_scene(SHUTTER))
     still = spatter_scene(0.0)
+    _, still_stats = renderer.render(frame, still)
+    assert stats.notes  # the radius note: once, as for a still, not once per sub-frame
+    assert [n.field for n in stats.notes] == [n.field for n in still_stats.notes]
     subframes = []
     for i in range(64):
         t = ((i + 0.5) / 64 - 0.5) * SHUTTER

@@ -155,8 +155,11 @@ class SurfaceRenderer:
         if motion is None:
             color, normal_depth, prepared, count = self._render_color(frame, scene, camera, stats)
             box = prepared.box
-        else:  # sub-frames averaged; the last, nearest the shutter's middle, gives Z and N
+        else:  # sub-frames averaged; the last, nearest the shutter's middle, gives Z, N, notes
+            notes = len(stats.notes)
             for index, offset in enumerate(motion.times):
+                del stats.notes[notes:]
+                stats.particles_splatted = 0
                 sub = motion.subframe(frame, offset)
                 color, normal_depth, prepared, count = self._render_color(sub, scene, camera, stats)
                 with self._stage(stats, "motion"):
@@ -168,10 +171,9 @@ class SurfaceRenderer:
             with self._stage(stats, "glare"):
                 glared, box = self._output.glare(color, camera, scene), None
         with self._stage(stats, "readback"):
-            whole = self._prepare.mode == "device"  # a GPU copies whole images faster
-            rendered = self._output.read(
-                color, glared, normal_depth, scene, box, whole=whole, depth=depth,
-                normals=normals, display=display, linear=linear,
+            rendered = self._output.read(  # a GPU (device prepare) copies whole images faster
+                color, glared, normal_depth, scene, box, whole=self._prepare.mode == "device",
+                depth=depth, normals=normals, display=display, linear=linear,
             )  # fmt: skip
         # After the read-back, so a count the device kept waits for nothing.
         stats.particles_splatted += self._splat.splatted(count, prepared.visible)
@@ -183,8 +185,7 @@ class SurfaceRenderer:
     def _render_color(
         self, frame: ParticleFrame, scene: Scene, camera: Camera, stats: RenderStats
     ) -> tuple[Target, Target, PreparedFrame, int]:
-        """SPH to shade for one (sub-)frame: the colour and normal + depth targets, the
-        prepared frame and the bulk's splat count (-1: counted on the device)."""
+        """SPH to shade of one (sub-)frame: colour, normal + depth, prepared frame, splat count."""
         sph = self._run_sph(frame, scene, stats)
         with self._stage(stats, "prepare"):
             prepared = self._prepare.run(sph, camera, scene)
