@@ -1,9 +1,8 @@
 """The studies this repository's REPORT.md adds to `sphrender bench` (`run_bench(studies=...)`,
 run by benchmarks/bench_report.py): the dam break on every frame of the data set, the flicker
 under both readings of the jitter, and the crops of what field normals, `last_pass_sigma` and
-`destreak` change. Each needs ../shared/data (and pysplashsurf, or the reference cache) and is
-skipped without it.
-"""
+`destreak` change, each needing ../shared/data (and pysplashsurf, or the reference cache) and
+skipped without it; and the cost and error of glare and motion blur (built-in scenes)."""
 
 from __future__ import annotations
 
@@ -16,6 +15,7 @@ from benchmarks.studies.dam_frames import (
     surface_notes,
 )
 from benchmarks.studies.jitter_readings import jitter_readings_section, run_jitter_readings
+from benchmarks.studies.post_effects import run_post_effects
 from sphrender.server.bench.run import StudyContext
 from sphrender.server.bench.surface_bench import (
     NO_FIELD_NORMALS,
@@ -50,6 +50,8 @@ def run_studies(ctx: StudyContext) -> None:
     )
     if readings:
         results.extra_sections += [*jitter_readings_section(readings), ""]
+    log("glare and motion blur: cost and error")
+    results.extra_sections += [*run_post_effects(ctx.renderer, ctx.width, ctx.height), ""]
     surfaces = results.surfaces
     if surfaces is None:
         return

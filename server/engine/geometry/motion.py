@@ -2,9 +2,9 @@
 camera's shutter is open, the renderer draws sub-frames at positions + v t over the shutter
 [-shutter/2, +shutter/2] and averages them (passes/accumulate.py).
 
-* Sub-frame times: the midpoints of N equal slices of the shutter, N = the longest streak in
-  pixels (rounded up; at least 1, at most `MAX_SUBFRAMES`), so consecutive sub-frames of the
-  fastest particle lie about a pixel apart.
+* Sub-frame times: the midpoints of N equal slices of the shutter, N = the longest streak over
+  `SUBFRAME_SPACING_PX` (rounded up; at least 1, at most `MAX_SUBFRAMES`), so consecutive
+  sub-frames of the fastest particle lie about a pixel apart.
 * A streak (a particle's screen motion over the shutter, to first order at its depth) longer than
   `MAX_STREAK_FRACTION` of the image's larger side is shortened to it by scaling that particle's
   velocity; particles not in front of the camera at the frame's time are not moved.
@@ -23,6 +23,8 @@ from sphrender.server.engine.geometry.camera import Camera
 
 #: Most sub-frames one frame is drawn with.
 MAX_SUBFRAMES = 64
+#: Screen distance between consecutive sub-frames of the fastest particle (px).
+SUBFRAME_SPACING_PX = 1.0
 #: Longest streak, as a fraction of the image's larger side.
 MAX_STREAK_FRACTION = 0.25
 
@@ -68,7 +70,7 @@ def plan_motion(frame: ParticleFrame, camera: Camera, shutter: float) -> MotionP
     scale = np.where(ahead, scale, 0.0)
     velocities = np.asarray(frame.velocities, np.float64) * scale[:, None]
     longest = float(np.minimum(lengths, limit).max())
-    count = min(max(math.ceil(longest), 1), MAX_SUBFRAMES)
+    count = min(max(math.ceil(longest / SUBFRAME_SPACING_PX), 1), MAX_SUBFRAMES)
     times = [((i + 0.5) / count - 0.5) * shutter for i in range(count)]
     times.sort(key=lambda t: -abs(t))
     return MotionPlan(tuple(times), velocities, longest)
