@@ -31,8 +31,8 @@ BLUR_SIGMA = 1.0
 BLUR_RADIUS = 3
 #: Most pyramid levels the pass builds (level 0 is the full image).
 MAX_LEVELS = 10
-#: Largest kernel radius the fit samples (px); a wider halo is fitted on a coarser grid.
-_FIT_RADIUS = 128
+#: Rows of the fit weighted by distance^this: 1 weighs each ring by its area, as an L1 error does.
+_RING_POWER = 1.0
 
 
 def spencer_photopic(theta_deg: FloatArray) -> FloatArray:
@@ -146,11 +146,7 @@ def level_count(deg_per_px: float, width: int, height: int) -> int:
 def fit_pyramid(deg_per_px: float, levels: int) -> PyramidFit:
     """c0 and w_l minimising the squared difference to `psf_kernel` (weighted by ring area so
     the halo's far pixels count), with Σ = 1; cached per camera scale."""
-    scale = 1
-    radius = kernel_radius_px(deg_per_px)
-    while radius // scale > _FIT_RADIUS:  # a very wide halo: fit on a coarser pixel grid
-        scale *= 2
-    radius = max(radius, 2 ** (levels - 1) * 4)
+    radius = max(kernel_radius_px(deg_per_px), 2 ** (levels - 1) * 4)
     target = psf_kernel(deg_per_px, radius)
     n = 2 * radius + 1
     columns = [np.zeros((n, n))]
@@ -162,11 +158,13 @@ def fit_pyramid(deg_per_px: float, levels: int) -> PyramidFit:
         columns.append(np.outer(mean, mean))
         # ||k x k - m x m||_1 <= ||k - m||_1 (||k||_1 + ||m||_1) = 2 ||k - m||_1
         spreads.append(2.0 * float(np.abs(per_phase - mean).sum(axis=1).max()))
-    sel = (slice(None, None, scale), slice(None, None, scale))
-    ys, xs = np.mgrid[-radius : radius + 1, -radius : radius + 1][:, sel[0], sel[1]]
-    ring = np.sqrt(np.maximum(np.hypot(xs, ys), 0.5)).ravel()
-    a = np.stack([c[sel].ravel() * ring for c in columns], axis=1)
-    b = target[sel].ravel() * ring
+    # One quadrant, rows weighted by how many pixels they stand for and by distance^_RING_POWER.
+    quadrant = (slice(radius, None), slice(radius, None))
+    ys, xs = np.mgrid[0 : radius + 1, 0 : radius + 1]
+    copies = np.where(xs > 0, 2.0, 1.0) * np.where(ys > 0, 2.0, 1.0)
+    weight = (np.sqrt(copies) * np.maximum(np.hypot(xs, ys), 0.5) ** _RING_POWER).ravel()
+    a = np.stack([c[quadrant].ravel() * weight for c in columns], axis=1)
+    b = target[quadrant].ravel() * weight
     penalty = 10.0 * np.abs(b).max()
     a = np.vstack([a, np.full((1, a.shape[1]), penalty)])
     b = np.append(b, penalty)
