@@ -30,7 +30,7 @@ from sphrender.server.scene import Scene
 class ArraySpec:
     """One particle buffer that follows a `FrameRequest` as raw bytes."""
 
-    name: str  # positions, densities, radii or temperatures
+    name: str  # positions, densities, radii, temperatures or velocities (shutter open)
     dtype: str  # numpy dtype string, e.g. "<f8"
     shape: tuple[int, ...]
 

@@ -231,6 +231,7 @@ class RenderProcess:
             densities=arrays.get("densities"),
             radii=arrays.get("radii"),
             temperatures=arrays.get("temperatures"),
+            velocities=arrays.get("velocities"),
         )
 
     def _frame_job(self, request: FrameRequest) -> None:

@@ -338,6 +338,7 @@ class RenderWorker(threading.Thread):
             ("densities", p.densities),
             ("radii", p.radii),
             ("temperatures", p.temperatures),
+            ("velocities", p.velocities if job.scene.camera.shutter > 0 else None),  # motion blur
         )
         present = [(name, value) for name, value in named if value is not None]
         specs = tuple(ArraySpec(name, value.dtype.str, value.shape) for name, value in present)
