@@ -194,4 +194,3 @@ def test_a_frame_opens_the_shutter_over_stream_and_http(service: ServerProcess) 
     open_scene = {**SMALL_SCENE, "camera": {**SMALL_SCENE["camera"], "shutter": 0.1}}
     over_http = client.render(positions, open_scene, velocities=velocities, format="raw")
     assert over_http == blurred.data
-
