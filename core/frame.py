@@ -28,7 +28,8 @@ class ParticleFrame:
     densities: (N,) float32 kg/m^3, or None (the SPH pass computes them when a feature needs them).
     radii: (N,) float32 per-particle radii in scene units, or None (the scene's radius is used).
     temperatures: (N,) float32 kelvin, or None.
-    velocities: (N, 3) float32 scene units per second, or None (carried; the renderer ignores it).
+    velocities: (N, 3) float32 scene units per second, or None (motion blur when the camera's
+        shutter is open).
     ids: (N,) int64 unique non-negative particle ids, or None (carried; the renderer ignores it;
         the service keeps each id's peak temperature when `peak_temperatures` is absent).
     peak_temperatures: (N,) float32 kelvin, the hottest each particle has been (the heat tint

@@ -1,5 +1,6 @@
 """Velocities and ids: validated on every input path, carried on `ParticleFrame`, ignored by the
-renderer (an image with them equals the image without), counted by the memory estimate."""
+renderer while the camera's shutter is closed (an image with them equals the image without),
+counted by the memory estimate; a frame's scene may open the shutter (motion blur)."""
 
 from __future__ import annotations
 
@@ -175,3 +176,21 @@ def test_velocities_and_ids_over_http_and_stream(service: ServerProcess) -> None
     assert bad_shape.kind == "error" and bad_shape.header["field"] == "arrays[1].shape"
     assert "[N, 3]" in bad_shape.header["error"]
     assert bad_ids.kind == "error" and bad_ids.header["field"] == "ids[9]"
+
+
+def test_a_frame_opens_the_shutter_over_stream_and_http(service: ServerProcess) -> None:
+    """The shutter is a camera key, so a frame's partial scene sets it like any other; the
+    service's blurred image equals the in-process renderer's (HTTP and stream alike)."""
+    positions = ball(600, seed=4)
+    velocities = np.random.default_rng(2).normal(size=(600, 3)).astype(np.float32)
+    client = Client(f"http://127.0.0.1:{service.http_port}")
+    raw = {"output": {"format": "raw"}}
+    with client.stream(SMALL_SCENE) as session:
+        session.send(positions, velocities=velocities, scene=raw)
+        session.send(positions, velocities=velocities, scene={**raw, "camera": {"shutter": 0.1}})
+        still, blurred = session.receive(), session.receive()
+    assert still.kind == "image" and blurred.kind == "image"
+    assert blurred.data != still.data
+    open_scene = {**SMALL_SCENE, "camera": {**SMALL_SCENE["camera"], "shutter": 0.1}}
+    over_http = client.render(positions, open_scene, velocities=velocities, format="raw")
+    assert over_http == blurred.data

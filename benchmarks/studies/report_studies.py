@@ -2,8 +2,8 @@
 run by benchmarks/bench_report.py): the dam break on every frame of the data set, the flicker
 under both readings of the jitter, and the crops of what field normals, `last_pass_sigma` and
 `destreak` change: each needs ../shared/data (and pysplashsurf, or the reference cache) and is
-skipped without it. Shadows (cost per light, error) and the brushed plate's finish costs and
-crop need nothing outside.
+skipped without it. Shadows (cost per light, error), the brushed plate's finish costs and crop,
+and the cost and error of glare and motion blur (built-in scenes) need nothing outside.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from benchmarks.studies.dam_frames import (
     surface_notes,
 )
 from benchmarks.studies.jitter_readings import jitter_readings_section, run_jitter_readings
+from benchmarks.studies.post_effects import run_post_effects
 from benchmarks.studies.shadows import shadows_section
 from sphrender.server.bench.run import StudyContext
 from sphrender.server.bench.surface_bench import (
@@ -60,6 +61,8 @@ def run_studies(ctx: StudyContext) -> None:
     log("brushed plate: what the finish costs")
     results.extra_sections += brushed_plate_section(measure_brushed_plate(ctx.renderer, log=log))
     write_brushed_plate_crop(ctx.renderer, ctx.out)
+    log("glare and motion blur: cost and error")
+    results.extra_sections += [*run_post_effects(ctx.renderer, ctx.width, ctx.height), ""]
     surfaces = results.surfaces
     if surfaces is None:
         return

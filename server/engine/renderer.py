@@ -5,8 +5,9 @@ targets and uniforms (`passes/`): sph (OpenCL, only when the scene asks) -> prep
 device, `passes/prepare_stage.py`) -> splat (+ occlusion culling, coverage) -> smooth ->
 droplets -> normals (+ field normals near rims) -> shadow (maps of the lights that cast them)
 -> solids (a frame's solid particles, flat faces composed by depth) -> shade (temperature blur,
-PBR + IBL + emission) -> readback (+ display codes). ARCHITECTURE.md "Data flow of one frame"
-has each step. `RenderStats.host_ms` is the frame's work outside GL calls (`gpu/gl_clock.py`).
+PBR + IBL + emission) [-> sub-frames averaged, with a shutter open] [-> glare] -> readback (+
+display codes). ARCHITECTURE.md "Data flow of one frame" has each step. `RenderStats.host_ms`
+is the frame's work outside GL calls (`gpu/gl_clock.py`).
 
 One renderer belongs to one `GLContext` and is used only on that context's owner thread. It owns
 the passes and what they share (`PassContext`: program cache, full-screen triangle) and releases
@@ -23,29 +24,32 @@ from pathlib import Path
 from sphrender.core.errors import InputError
 from sphrender.core.frame import ParticleFrame
 from sphrender.server.engine.frame_output import (
-    DisplayCodes,
     DisplayRequest,
     InputNote,
     RenderedFrame,
     RenderStats,
 )
 from sphrender.server.engine.geometry.camera import Camera
-from sphrender.server.engine.geometry.screen_box import ScreenBox
+from sphrender.server.engine.geometry.motion import plan_motion
 from sphrender.server.engine.gpu.cl_context import CLDeviceInfo
 from sphrender.server.engine.gpu.draw import FullscreenTriangle, Target
 from sphrender.server.engine.gpu.gl_clock import StageTimer
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.gpu.programs import ProgramCache
 from sphrender.server.engine.input_notes import InputNotes
+from sphrender.server.engine.passes.accumulate import AccumulatePass
 from sphrender.server.engine.passes.context import PassContext
-from sphrender.server.engine.passes.display import DisplayPass
 from sphrender.server.engine.passes.normals import NormalsPass
+from sphrender.server.engine.passes.output_stage import OutputStage
 from sphrender.server.engine.passes.prepare_stage import PreparedFrame, PrepareMode, PrepareStage
-from sphrender.server.engine.passes.readback import ReadbackPass
 from sphrender.server.engine.passes.shade import ShadePass
 from sphrender.server.engine.passes.shadow import ShadowMaps, ShadowPass, shadowed
 from sphrender.server.engine.passes.smooth import SmoothPass
-from sphrender.server.engine.passes.solid_surface import SolidSurfacePass, shadow_casters
+from sphrender.server.engine.passes.solid_surface import (
+    SolidParticles,
+    SolidSurfacePass,
+    shadow_casters,
+)
 from sphrender.server.engine.passes.splat import SplatOutput, SplatPass
 from sphrender.server.engine.passes.temperature import TemperaturePass
 from sphrender.server.engine.sph.engine import SphEngine
@@ -82,9 +86,9 @@ class SurfaceRenderer:
         self._peak_temperature = TemperaturePass(self._context, channel=1)
         self._shade = ShadePass(self._context, environment_dirs)
         self._shadow = ShadowPass(self._context)
-        self._display = DisplayPass(self._context)
-        self._readback = ReadbackPass(self._context)
         self._solids = SolidSurfacePass(self._context)  # frames with solid particles only
+        self._output = OutputStage(self._context)
+        self._accumulate = AccumulatePass(self._context)
 
     @property
     def gl(self) -> GLContext:
@@ -146,9 +150,12 @@ class SurfaceRenderer:
         depth: bool = False,
         normals: bool = False,
         display: DisplayRequest | None = None,
+        linear: bool = False,
     ) -> tuple[RenderedFrame, RenderStats]:
         """Render one frame; `depth` / `normals` ask for those AOVs to be read back, `display`
-        for the 8-bit display codes an encoder would compute (passes/display.py)."""
+        for the 8-bit display codes an encoder would compute (passes/display.py); `linear`: the
+        colour read back feeds a scene-linear output (EXR, raw float), glared only when
+        `[glare] exr` says so."""
         self._gl.check_owner()
         start, in_gl = time.perf_counter(), self._gl.clock.seconds
         self.check_image_size(scene)
@@ -156,6 +163,51 @@ class SurfaceRenderer:
         stats = RenderStats(particles_in=frame.count)
         stats.notes += [InputNote(note.field, note.message) for note in scene.notes]
         frame, solid = self._solids.split(frame, scene)
+        motion = plan_motion(frame, camera, scene.camera.shutter)
+        if motion is None:
+            color, normal_depth, prepared, count = self._render_color(
+                frame, solid, scene, camera, stats
+            )
+            box = prepared.box
+        else:  # sub-frames averaged; the last, nearest the shutter's middle, gives Z, N, notes
+            notes = len(stats.notes)
+            for index, offset in enumerate(motion.times):
+                del stats.notes[notes:]
+                stats.particles_splatted = 0
+                sub = motion.subframe(frame, offset)
+                color, normal_depth, prepared, count = self._render_color(
+                    sub, solid, scene, camera, stats
+                )
+                with self._stage(stats, "motion"):
+                    average = self._accumulate.add(color, index, len(motion.times))
+            assert average is not None
+            color, box = average, None
+        glared = color
+        if scene.glare.enabled:  # the halo reaches past the surface: no box
+            with self._stage(stats, "glare"):
+                glared, box = self._output.glare(color, camera, scene), None
+        with self._stage(stats, "readback"):
+            rendered = self._output.read(  # a GPU (device prepare) copies whole images faster
+                color, glared, normal_depth, scene, box, whole=self._prepare.mode == "device",
+                depth=depth, normals=normals, display=display, linear=linear,
+            )  # fmt: skip
+        # After the read-back, so a count the device kept waits for nothing.
+        stats.particles_splatted += self._splat.splatted(count, prepared.visible)
+        wall_ms = (time.perf_counter() - start) * 1e3
+        device_ms = (self._gl.clock.seconds - in_gl) * 1e3
+        stats.host_ms = max(wall_ms - device_ms - stats.stage_ms.get("sph", 0.0), 0.0)
+        return rendered, stats
+
+    def _render_color(
+        self,
+        frame: ParticleFrame,
+        solid: SolidParticles | None,
+        scene: Scene,
+        camera: Camera,
+        stats: RenderStats,
+    ) -> tuple[Target, Target, PreparedFrame, int]:
+        """SPH to shade of one (sub-)frame, with the frame's solid part (it does not move):
+        colour, normal + depth, prepared frame, splat count."""
         sph = self._run_sph(frame, scene, stats)
         with self._stage(stats, "prepare"):
             prepared = self._prepare.run(sph, camera, scene)
@@ -177,16 +229,7 @@ class SurfaceRenderer:
                 )
         with self._stage(stats, "shade"):
             color = self._shade_surface(surface, normal_depth, camera, scene, prepared, shadows)
-        with self._stage(stats, "readback"):
-            rendered = self._read_back(
-                color, normal_depth, scene, prepared.box, depth, normals, display
-            )
-        # After the read-back, so a count the device kept waits for nothing.
-        stats.particles_splatted += self._splat.splatted(bulk_splatted, stats.particles_drawn)
-        wall_ms = (time.perf_counter() - start) * 1e3
-        device_ms = (self._gl.clock.seconds - in_gl) * 1e3
-        stats.host_ms = max(wall_ms - device_ms - stats.stage_ms.get("sph", 0.0), 0.0)
-        return rendered, stats
+        return color, normal_depth, prepared, bulk_splatted
 
     # -- the stages of `render` ------------------------------------------------------------
 
@@ -284,40 +327,12 @@ class SurfaceRenderer:
             maps,
         )
 
-    def _read_back(
-        self,
-        color: Target,
-        normal_depth: Target,
-        scene: Scene,
-        box: ScreenBox | None,
-        depth: bool,
-        normals: bool,
-        display: DisplayRequest | None,
-    ) -> RenderedFrame:
-        """The frame's images on the host: colour, the AOVs asked for, the display codes."""
-        transparent = scene.shading.background == "transparent"
-        # Device prepare (a GPU): the driver copies whole images, the host zeroes nothing;
-        # host prepare (llvmpipe): only the box's rows are read, the rest memset to 0.
-        read_box = None if self._prepare.mode == "device" else box
-        rendered = self._readback.run(
-            color,
-            normal_depth,
-            want_depth=depth,
-            want_normals=normals,
-            color_box=read_box if transparent else None,
-            surface_box=read_box,
-        )
-        if display is None:
-            return rendered
-        codes = self._display.run(color.texture, display, box if transparent else None)
-        return replace(rendered, display=DisplayCodes(codes, display))
-
     def release(self) -> None:
         """Release every GPU object this renderer owns (on the owner thread)."""
         self._gl.check_owner()
         passes = (self._splat, self._smooth, self._normals, self._temperature, self._shade)
-        others = (self._peak_temperature, self._shadow, self._solids, self._display, self._readback)
-        for gpu_pass in (*passes, *others):
+        others = (self._peak_temperature, self._shadow, self._solids)
+        for gpu_pass in (*passes, *others, self._output, self._accumulate):
             gpu_pass.release()
         self._context.fullscreen.release()
         self._context.programs.release()

@@ -66,6 +66,7 @@ def render_for_output(
         depth="Z" in aovs,
         normals="N" in aovs,
         display=display_request(scene, fmt),
+        linear=fmt == "exr" or (fmt == "raw" and scene.output.raw_type != "rgba8"),
     )
 
 

@@ -28,6 +28,7 @@ from sphrender.server.scene.fields import (
 )
 from sphrender.server.scene.schema_finish import FinishConfig
 from sphrender.server.scene.schema_lights import MAX_LIGHTS, LightConfig, LightType
+from sphrender.server.scene.schema_post import GlareConfig
 from sphrender.server.scene.schema_quality import FilterName, QualityConfig, SphConfig
 from sphrender.server.scene.schema_solids import SolidsConfig
 
@@ -38,6 +39,7 @@ __all__ = [
     "MAX_STRING_LENGTH",
     "FilterName",
     "FinishConfig",
+    "GlareConfig",
     "LightConfig",
     "LightType",
     "QualityConfig",
@@ -88,6 +90,14 @@ class CameraConfig:
         low=0.0,
         low_open=True,
         unit="scene units",
+    )
+    shutter: float = spec(
+        0.0,
+        "exposure time: particles of a frame with velocities blur over [-shutter/2, +shutter/2] "
+        "around the frame's time; 0 = a still. No preset sets it; for streaks of fast spatter",
+        low=0.0,
+        high=1.0,
+        unit="seconds",
     )
 
 
@@ -373,6 +383,7 @@ class Scene:
     quality: QualityConfig = field(default_factory=QualityConfig)
     sph: SphConfig = field(default_factory=SphConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
+    glare: GlareConfig = field(default_factory=GlareConfig)
     material: MaterialConfig = field(default_factory=MaterialConfig)
     finish: FinishConfig = field(default_factory=FinishConfig)
     lights: tuple[LightConfig, ...] = field(default=(), metadata={"max_items": MAX_LIGHTS})

@@ -101,4 +101,5 @@ class StageTimer:
         if self._finish is not None:
             with self._clock:
                 self._finish()
-        self._into[self._name] = (time.perf_counter() - self._start) * 1e3
+        elapsed = (time.perf_counter() - self._start) * 1e3  # sub-frames add up
+        self._into[self._name] = self._into.get(self._name, 0.0) + elapsed

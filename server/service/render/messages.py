@@ -30,7 +30,8 @@ from sphrender.server.scene import Scene
 class ArraySpec:
     """One particle buffer that follows a `FrameRequest` as raw bytes."""
 
-    name: str  # a frame array: positions, densities, radii, temperatures, peak_temperatures, solid
+    name: str  # a frame array: positions, densities, radii, temperatures, peak_temperatures,
+    # solid, or velocities (shutter open)
     dtype: str  # numpy dtype string, e.g. "<f8"
     shape: tuple[int, ...]
 

@@ -227,6 +227,7 @@ class RenderProcess:
             temperatures=arrays.get("temperatures"),
             peak_temperatures=arrays.get("peak_temperatures"),
             solid=arrays.get("solid"),
+            velocities=arrays.get("velocities"),
         )
 
     def _frame_job(self, request: FrameRequest) -> None:

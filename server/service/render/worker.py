@@ -340,6 +340,7 @@ class RenderWorker(threading.Thread):
             ("temperatures", p.temperatures),
             ("peak_temperatures", p.peak_temperatures),
             ("solid", p.solid),
+            ("velocities", p.velocities if job.scene.camera.shutter > 0 else None),  # motion blur
         )
         present = [(name, value) for name, value in named if value is not None]
         specs = tuple(ArraySpec(name, value.dtype.str, value.shape) for name, value in present)
