@@ -1,0 +1,552 @@
+"""The compact frame encoding (PROTOCOL.md §4.7): error-bounded quantisation + byte planes + zstd.
+
+A FRAME whose header says ``"encoding": "compact"`` carries, per array, one zstd frame instead of
+the array's raw bytes. Each array's descriptor adds to ``name``/``dtype``/``shape`` (the array as
+decoded) how it was stored:
+
+* ``coding`` ``"quantized"`` (float arrays): integers ``q = round((x - lo) / step)`` per
+  component, decoded as ``lo + q * step`` in float64 then cast to ``dtype``. ``bounds`` is
+  ``[lo, hi]`` (float64 per component), ``step`` the quantum; the encoder guarantees
+  ``|decoded - x| <= error`` for the error it was given (``step = 2 * error``, with a per-value
+  fix-up for float rounding). ``predict``: ``none`` (store q), ``particle`` (q minus the previous
+  particle's q) or ``frame`` (q minus the same array's q in the frame named by the header's
+  ``base``); residuals are zigzag-mapped to unsigned. ``width``: bytes per stored value.
+* ``coding`` ``"raw"``: the array's own little-endian bytes, lossless (ids, flags, radii and any
+  array without a precision in `DEFAULT_ERRORS`).
+
+Stored values are split into byte planes (byte 0 of every value, then byte 1, ...; quantised
+arrays component by component) and compressed with zstd. Byte planes put the slowly varying high
+bytes together, which is what lets zstd find the runs; zstd was chosen over blosc2 by measurement
+(benchmarks/REPORT.md, "Wire").
+
+Decoding checks every declared size before inflating anything: the decompressed size of each
+section follows from the header (``N x components x width``), the zstd frame must declare that
+same size, and decompression is bounded by it. Errors are `InputError` naming the field.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import zstandard
+
+from sphrender.core.errors import InputError, show
+from sphrender.core.protocol import plan_frame_arrays
+
+__all__ = [
+    "DEFAULT_ERRORS",
+    "ENCODING",
+    "POSITION_ERROR_FRACTION",
+    "CompactDecoder",
+    "CompactEncoder",
+    "CompactSlot",
+    "decode_compact_arrays",
+    "plan_compact_arrays",
+]
+
+#: The value of a FRAME header's ``encoding`` key for this encoding.
+ENCODING = "compact"
+#: Default position error bound, as a fraction of the particle radius.
+POSITION_ERROR_FRACTION = 0.01
+#: Default absolute error per array (its unit); None = lossless. Arrays not listed are lossless.
+DEFAULT_ERRORS: dict[str, float | None] = {
+    "densities": 0.05,  # kg/m^3 (rest density 1000)
+    "temperatures": 0.05,  # K
+    "peak_temperatures": 0.05,  # K
+    "velocities": 1e-3,  # scene units per second
+    "radii": None,
+    "ids": None,
+    "solid": None,
+}
+CODINGS = ("quantized", "raw")
+PREDICTORS = ("none", "particle", "frame")
+WIDTHS = (1, 2, 4, 8)
+#: Largest quantised integer: decoded values stay exact in float64 arithmetic.
+MAX_Q = 2**52
+_COMPACT_KEYS = ("coding", "step", "bounds", "predict", "width", "bytes")
+_ZSTD_LEVEL = 3
+
+
+@dataclass(frozen=True)
+class CompactSlot:
+    """One array of a compact FRAME, as its header declares it."""
+
+    name: str
+    dtype: np.dtype[Any]
+    shape: tuple[int, ...]
+    coding: str
+    predict: str
+    width: int
+    offset: int
+    nbytes: int
+    step: float = 0.0
+    lo: tuple[float, ...] = ()
+    hi: tuple[float, ...] = ()
+
+    @property
+    def components(self) -> int:
+        return self.shape[1] if len(self.shape) == 2 else 1
+
+    @property
+    def raw_size(self) -> int:
+        return math.prod(self.shape) * self.width
+
+
+# --------------------------------------------------------------------------------------------
+# Header
+
+
+def _int_key(where: str, spec: Mapping[str, Any], key: str) -> int:
+    value = spec.get(key)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise InputError(f"{where}.{key}", f"must be an integer >= 0, got {show(value)}")
+    return value
+
+
+def _finite(where: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise InputError(where, f"must be a finite number, got {show(value)}")
+    return float(value)
+
+
+def _quantized(where: str, spec: Mapping[str, Any], components: int) -> tuple[float, list, list]:
+    step = spec.get("step")
+    if (
+        isinstance(step, bool)
+        or not isinstance(step, int | float)
+        or not math.isfinite(step)
+        or step <= 0
+    ):
+        raise InputError(
+            f"{where}.step", f"must be a finite number > 0 (twice the error bound), got {show(step)}"
+        )
+    bounds = spec.get("bounds")
+    if (
+        not isinstance(bounds, list)
+        or len(bounds) != 2
+        or not all(isinstance(b, list) and len(b) == components for b in bounds)
+    ):
+        raise InputError(
+            f"{where}.bounds",
+            f"must be [lo, hi], each a list of {components} numbers, got {show(bounds)}",
+        )
+    lo = [_finite(f"{where}.bounds[0][{c}]", v) for c, v in enumerate(bounds[0])]
+    hi = [_finite(f"{where}.bounds[1][{c}]", v) for c, v in enumerate(bounds[1])]
+    for c in range(components):
+        if hi[c] < lo[c]:
+            raise InputError(f"{where}.bounds[1][{c}]", f"is {hi[c]!r}, below lo {lo[c]!r}")
+        if (hi[c] - lo[c]) / step >= MAX_Q:
+            raise InputError(
+                f"{where}.step",
+                f"{step!r} is too fine for bounds {lo[c]!r}..{hi[c]!r}: at most 2^52 steps",
+            )
+    return float(step), lo, hi
+
+
+def plan_compact_arrays(
+    header: Mapping[str, Any], payload_length: int, *, max_particles: int
+) -> tuple[list[CompactSlot], int]:
+    """Check a compact FRAME header against `payload_length` and `max_particles` before any of
+    the payload is read; returns the arrays' slots and the particle count."""
+    specs = header.get("arrays")
+    if not isinstance(specs, list) or not specs:
+        raise InputError("arrays", "must be a non-empty array of array descriptors")
+    plain = []
+    for index, spec in enumerate(specs):
+        if not isinstance(spec, dict):
+            raise InputError(f"arrays[{index}]", "must be an object (an array descriptor)")
+        plain.append({k: v for k, v in spec.items() if k not in _COMPACT_KEYS})
+    decoded_size = sum(_declared_size(spec) for spec in plain)
+    base_slots, count = plan_frame_arrays(plain, decoded_size, max_particles=max_particles)
+    slots: list[CompactSlot] = []
+    offset = 0
+    for index, (spec, base) in enumerate(zip(specs, base_slots, strict=True)):
+        where = f"arrays[{index}]"
+        coding = spec.get("coding")
+        if coding not in CODINGS:
+            raise InputError(f"{where}.coding", f"must be one of {', '.join(CODINGS)}")
+        nbytes = _int_key(where, spec, "bytes")
+        if offset + nbytes > payload_length:
+            raise InputError(
+                f"{where}.bytes",
+                f"declares {nbytes} bytes at offset {offset} but the payload has {payload_length}",
+            )
+        if coding == "raw":
+            extra = set(spec) & {"step", "bounds", "width"}
+            if extra or spec.get("predict", "none") != "none":
+                key = sorted(extra)[0] if extra else "predict"
+                raise InputError(f"{where}.{key}", "is only for quantized arrays")
+            slots.append(
+                CompactSlot(base.name, base.dtype, base.shape, coding, "none",
+                            base.dtype.itemsize, offset, nbytes)  # fmt: skip
+            )
+        else:
+            if base.dtype.kind != "f":
+                raise InputError(f"{where}.coding", f"quantized needs a float dtype for {base.name}")
+            predict = spec.get("predict", "none")
+            if predict not in PREDICTORS:
+                raise InputError(f"{where}.predict", f"must be one of {', '.join(PREDICTORS)}")
+            width = spec.get("width")
+            if width not in WIDTHS or isinstance(width, bool):
+                raise InputError(f"{where}.width", f"must be 1, 2, 4 or 8, got {show(width)}")
+            components = base.shape[1] if len(base.shape) == 2 else 1
+            step, lo, hi = _quantized(where, spec, components)
+            slot = CompactSlot(base.name, base.dtype, base.shape, coding, predict, width,
+                               offset, nbytes, step, tuple(lo), tuple(hi))  # fmt: skip
+            slots.append(slot)
+        offset += nbytes
+    if offset != payload_length:
+        raise InputError(
+            "payload_length", f"is {payload_length} bytes but the arrays declare {offset} bytes"
+        )
+    return slots, count
+
+
+def _declared_size(spec: Mapping[str, Any]) -> int:
+    """The raw size a descriptor declares, or 0 when it is malformed (plan_frame_arrays names
+    the problem)."""
+    shape, dtype = spec.get("shape"), spec.get("dtype")
+    if not isinstance(shape, list) or not all(
+        isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in shape
+    ):
+        return 0
+    try:
+        itemsize = np.dtype(dtype).itemsize if isinstance(dtype, str) and len(dtype) < 8 else 0
+    except TypeError:
+        itemsize = 0
+    return math.prod(shape) * itemsize
+
+
+# --------------------------------------------------------------------------------------------
+# Byte planes and integers
+
+
+def _planes(values: np.ndarray, width: int) -> bytes:
+    """uint64 values (any shape, C order) -> byte planes of their low `width` bytes."""
+    raw = np.ascontiguousarray(values, dtype="<u8").reshape(-1).view(np.uint8).reshape(-1, 8)
+    return np.ascontiguousarray(raw[:, :width].T).tobytes()
+
+
+def _unplanes(data: bytes, count: int, width: int) -> np.ndarray:
+    """Byte planes -> values as unsigned integers `width` bytes wide."""
+    planes = np.frombuffer(data, np.uint8).reshape(width, count)
+    if width == 1:
+        return planes.reshape(count)
+    return np.ascontiguousarray(planes.T).view(f"<u{width}").reshape(count)
+
+
+def _zigzag(r: np.ndarray) -> np.ndarray:
+    return ((r << 1) ^ (r >> 63)).view(np.uint64)
+
+
+def _unzigzag(z: np.ndarray) -> np.ndarray:
+    """Zigzag back to signed, in the stored width (cheap); callers widen when summing."""
+    one = z.dtype.type(1)
+    signed = np.dtype(f"<i{z.dtype.itemsize}")
+    return (z >> one).view(signed) ^ -(z & one).view(signed)
+
+
+def _width_for(top: int) -> int:
+    return next(w for w in WIDTHS if top < 1 << (8 * w))
+
+
+# --------------------------------------------------------------------------------------------
+# Decoding
+
+
+@dataclass
+class CompactDecoder:
+    """Decodes compact FRAMEs of one session, holding the last frame's quantised integers for
+    ``predict: frame`` (transport threads only; one decoder per session)."""
+
+    base_id: int | None = None
+    base_q: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def decode(
+        self, header: Mapping[str, Any], payload: bytes | bytearray | memoryview, *,
+        max_particles: int,
+    ) -> dict[str, np.ndarray]:  # fmt: skip
+        """The frame's arrays; on any error the held base is dropped (the client resends full)."""
+        held_id, held_q = self.base_id, self.base_q
+        self.base_id, self.base_q = None, {}
+        slots, _count = plan_compact_arrays(
+            header, memoryview(payload).nbytes, max_particles=max_particles
+        )
+        if any(slot.predict == "frame" for slot in slots):
+            _check_base(header.get("base"), held_id)
+        elif "base" in header:
+            raise InputError("base", "is only for frames with an array predicted from a frame")
+        arrays, quantised = decode_compact_arrays(slots, payload, held_q)
+        frame_id = header.get("id")
+        self.base_id = frame_id if isinstance(frame_id, int) else None
+        self.base_q = quantised
+        return arrays
+
+
+def _check_base(base: Any, held: int | None) -> None:
+    if isinstance(base, bool) or not isinstance(base, int):
+        raise InputError("base", f"must be the integer id of the frame predicted from, got {show(base)}")
+    if held is None:
+        raise InputError(
+            "base",
+            f"frame {base} is not held: the server keeps only the last frame this session decoded "
+            "without error, and has none; send this frame in full",
+        )
+    if base != held:
+        raise InputError(
+            "base",
+            f"frame {base} is not held: the server keeps only this session's last decoded frame, "
+            f"frame {held}; send this frame in full",
+        )
+
+
+def _inflate(slot: CompactSlot, index: int, data: memoryview) -> bytes:
+    where = f"arrays[{index}].bytes"
+    expected = slot.raw_size
+    try:
+        params = zstandard.get_frame_parameters(data)
+    except zstandard.ZstdError:
+        raise InputError(where, "is not a zstd frame (damaged or truncated)") from None
+    if params.content_size != expected:
+        declared = "no size" if params.content_size < 0 else f"{params.content_size} bytes"
+        raise InputError(
+            where, f"zstd frame declares {declared}; the header's shape and width need {expected}"
+        )
+    try:
+        out = zstandard.ZstdDecompressor().decompress(bytes(data), max_output_size=expected)
+    except zstandard.ZstdError:
+        raise InputError(where, "compressed data is damaged or truncated (zstd refused it)") from None
+    if len(out) != expected:
+        raise InputError(where, f"inflates to {len(out)} bytes, the header needs {expected}")
+    return out
+
+
+def decode_compact_arrays(
+    slots: list[CompactSlot],
+    payload: bytes | bytearray | memoryview,
+    base_q: Mapping[str, np.ndarray] | None = None,
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Decode planned slots: (arrays in their native dtypes, quantised integers by name)."""
+    view = memoryview(payload).cast("B")
+    arrays: dict[str, np.ndarray] = {}
+    quantised: dict[str, np.ndarray] = {}
+    for index, slot in enumerate(slots):
+        raw = _inflate(slot, index, view[slot.offset : slot.offset + slot.nbytes])
+        count = math.prod(slot.shape)
+        if slot.coding == "raw":
+            planes = np.frombuffer(raw, np.uint8).reshape(slot.width, count)
+            array = np.ascontiguousarray(planes.T).view(slot.dtype).reshape(slot.shape)
+            arrays[slot.name] = array.astype(slot.dtype.newbyteorder("="), copy=False)
+            continue
+        n, c = slot.shape[0], slot.components
+        stored = _unplanes(raw, count, slot.width).reshape(c, n)
+        q = _predicted(slot, index, stored, base_q or {})
+        _check_range(slot, index, q)
+        decoded = np.empty((n, c), slot.dtype.newbyteorder("="))
+        for k in range(c):  # lo + q * step in float64, then the array's dtype
+            column = q[k].astype(np.float64)
+            column *= slot.step
+            column += slot.lo[k]
+            decoded[:, k] = column
+        arrays[slot.name] = decoded.reshape(slot.shape)
+        quantised[slot.name] = q
+    return arrays, quantised
+
+
+def _predicted(
+    slot: CompactSlot, index: int, stored: np.ndarray, base_q: Mapping[str, np.ndarray]
+) -> np.ndarray:
+    if slot.predict == "none":
+        if stored.size and int(stored.max()) >= MAX_Q:
+            raise InputError(f"arrays[{index}]", "holds a value beyond 2^52")
+        return stored.astype(np.int64)
+    residual = _unzigzag(stored)
+    if slot.predict == "particle":
+        return np.cumsum(residual, axis=1, dtype=np.int64)
+    base = base_q.get(slot.name)
+    if base is None or base.shape != residual.shape:
+        have = "none" if base is None else f"{base.shape[1]} particles"
+        raise InputError(
+            f"arrays[{index}].predict",
+            f"frame prediction needs {slot.name} with {residual.shape[1]} particles in the base "
+            f"frame; it has {have}; send this frame in full",
+        )
+    return base + residual.astype(np.int64)
+
+
+def _check_range(slot: CompactSlot, index: int, q: np.ndarray) -> None:
+    """Every decoded value must lie within the declared bounds, widened by step / 2."""
+    if not q.size:
+        return
+    for c in range(slot.components):
+        top = math.floor((slot.hi[c] - slot.lo[c]) / slot.step) + 1
+        row = q[c]
+        if int(row.min()) >= 0 and int(row.max()) <= top:
+            continue
+        bad = (row < 0) | (row > top)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            value = slot.lo[c] + float(row[i]) * slot.step
+            raise InputError(
+                f"{slot.name}[{i}]",
+                f"decodes to {value!r}, outside arrays[{index}].bounds "
+                f"{slot.lo[c]!r}..{slot.hi[c]!r} (component {c})",
+            )
+
+
+# --------------------------------------------------------------------------------------------
+# Encoding
+
+
+def _check_error(name: str, error: float) -> float:
+    if isinstance(error, bool) or not isinstance(error, int | float):
+        raise InputError(f"errors.{name}", f"must be a number > 0, got {show(error)}")
+    if not math.isfinite(error) or error <= 0:
+        raise InputError(
+            f"errors.{name}",
+            f"must be a finite error bound > 0 in the array's unit, got {show(float(error))}",
+        )
+    return float(error)
+
+
+def _quantise(
+    name: str, values: np.ndarray, error: float, dtype: np.dtype[Any],
+    bounds: tuple[np.ndarray, np.ndarray] | None,
+) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:  # fmt: skip
+    """(q as (C, N) int64, step, lo, hi) with |decoded - values| <= error, decoded as the
+    decoder does it (float64 lo + q * step, then cast to `dtype`)."""
+    x = np.asarray(values, np.float64).reshape(values.shape[0], -1).T
+    finite = np.isfinite(x).all(axis=0)
+    if not finite.all():
+        i = int(np.flatnonzero(~finite)[0])
+        raise InputError(f"{name}[{i}]", "must be finite (found NaN or Infinity)")
+    if bounds is None:
+        lo = x.min(axis=1) if x.size else np.zeros(x.shape[0])
+        hi = x.max(axis=1) if x.size else np.zeros(x.shape[0])
+    else:
+        lo, hi = (np.asarray(b, np.float64).reshape(-1) for b in bounds)
+        outside = ((x < lo[:, None]) | (x > hi[:, None])).any(axis=0)
+        if outside.any():
+            i = int(np.flatnonzero(outside)[0])
+            raise InputError(f"{name}[{i}]", f"lies outside the bounds given, {show(lo.tolist())} to {show(hi.tolist())}")  # noqa: E501
+    # Leave room for the decoder's float rounding (and the cast to `dtype`): one ulp at the
+    # largest magnitude; a bound that leaves no room is refused.
+    top_value = float(np.abs(x).max()) if x.size else 0.0
+    margin = 2.0 * top_value * float(np.finfo(dtype).eps) + 4.0 * top_value * 2.0**-52
+    if margin >= error / 2:
+        raise InputError(
+            f"errors.{name}",
+            f"{error!r} is finer than {dtype.name} resolves at {top_value!r}; use a larger bound",
+        )
+    step = 2.0 * (error - margin)
+    if x.size and float(((hi - lo) / step).max()) >= MAX_Q / 2:
+        raise InputError(f"errors.{name}", f"{error!r} is too fine for {name}'s extent (at most 2^51 steps)")  # noqa: E501
+    q = np.rint((x - lo[:, None]) / step)
+    top = np.floor((hi - lo) / step)[:, None] + 1
+    for _ in range(2):  # float rounding can leave a value one ulp past the bound: nudge it
+        decoded = (lo[:, None] + q * step).astype(dtype).astype(np.float64)
+        miss = decoded - x
+        bad = np.abs(miss) > error
+        if not bad.any():
+            break
+        q = np.where(bad, np.clip(q - np.sign(miss), 0, top), q)
+    else:
+        decoded = (lo[:, None] + q * step).astype(dtype).astype(np.float64)
+        bad = (np.abs(decoded - x) > error).any(axis=0)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise InputError(
+                f"errors.{name}",
+                f"{error!r} is finer than {dtype.name} resolves at {name}[{i}]; use a larger bound",
+            )
+    return q.astype(np.int64), step, lo, hi
+
+
+@dataclass
+class CompactEncoder:
+    """Encodes one session's frames (client side): per-array error bounds (`errors`, None =
+    lossless; arrays not named use `DEFAULT_ERRORS`), and ``predict: frame`` against the
+    previous frame when its arrays have the same shapes and steps (`delta`)."""
+
+    position_error: float
+    errors: dict[str, float | None] = field(default_factory=dict)
+    delta: bool = True
+    level: int = _ZSTD_LEVEL
+    bounds: tuple[np.ndarray, np.ndarray] | None = None
+    _base_id: int | None = None
+    _base: dict[str, tuple[float, np.ndarray]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.position_error = _check_error("positions", self.position_error)
+        for name, error in self.errors.items():
+            if error is not None:
+                _check_error(name, error)
+        self._compressor = zstandard.ZstdCompressor(level=self.level, write_content_size=True)
+
+    def reset(self) -> None:
+        """Forget the previous frame: the next frame is sent in full."""
+        self._base_id, self._base = None, {}
+
+    def error_for(self, name: str) -> float | None:
+        if name == "positions":
+            return self.position_error
+        return self.errors[name] if name in self.errors else DEFAULT_ERRORS.get(name)
+
+    def encode(
+        self, frame_id: int, arrays: Mapping[str, np.ndarray]
+    ) -> tuple[dict[str, Any], bytes]:
+        """(FRAME header without ``scene``, payload) for `arrays` (already wire dtypes)."""
+        descriptors: list[dict[str, Any]] = []
+        sections: list[bytes] = []
+        state: dict[str, tuple[float, np.ndarray]] = {}
+        uses_base = False
+        for name, array in arrays.items():
+            error = self.error_for(name)
+            if error is None or array.dtype.kind != "f":
+                spec, data = self._raw(array)
+            else:
+                spec, data, q, step, by_frame = self._lossy(name, array, error)
+                state[name] = (step, q)
+                uses_base |= by_frame
+            sections.append(self._compressor.compress(data))
+            desc = {"name": name, "dtype": array.dtype.str, "shape": list(array.shape)}
+            descriptors.append({**desc, **spec, "bytes": len(sections[-1])})
+        header: dict[str, Any] = {"id": int(frame_id), "encoding": ENCODING, "arrays": descriptors}
+        if uses_base:
+            header["base"] = self._base_id
+        self._base_id, self._base = int(frame_id), state
+        return header, b"".join(sections)
+
+    @staticmethod
+    def _raw(array: np.ndarray) -> tuple[dict[str, Any], bytes]:
+        flat = np.ascontiguousarray(array, dtype=array.dtype.newbyteorder("<")).reshape(-1)
+        planes = flat.view(np.uint8).reshape(-1, flat.dtype.itemsize).T
+        return {"coding": "raw"}, np.ascontiguousarray(planes).tobytes()
+
+    def _lossy(
+        self, name: str, array: np.ndarray, error: float
+    ) -> tuple[dict[str, Any], bytes, np.ndarray, float, bool]:
+        bounds = self.bounds if name == "positions" else None
+        q, step, lo, hi = _quantise(name, array, error, array.dtype, bounds)
+        by_particle = np.diff(q, axis=1, prepend=0)
+        residual, predict = by_particle, "particle"
+        base = self._base.get(name) if self.delta else None
+        if base is not None and base[0] == step and base[1].shape == q.shape and q.size:
+            by_frame = q - base[1]
+            if np.abs(by_frame).mean() < np.abs(by_particle).mean():
+                residual, predict = by_frame, "frame"
+        stored = _zigzag(residual)
+        width = _width_for(int(stored.max()) if stored.size else 0)
+        spec = {
+            "coding": "quantized",
+            "step": step,
+            "bounds": [lo.tolist(), hi.tolist()],
+            "predict": predict,
+            "width": width,
+        }
+        return spec, _planes(stored, width), q, step, predict == "frame"
+
