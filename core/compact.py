@@ -122,7 +122,8 @@ def _quantized(where: str, spec: Mapping[str, Any], components: int) -> tuple[fl
         or step <= 0
     ):
         raise InputError(
-            f"{where}.step", f"must be a finite number > 0 (twice the error bound), got {show(step)}"
+            f"{where}.step",
+            f"must be a finite number > 0 (twice the error bound), got {show(step)}",
         )
     bounds = spec.get("bounds")
     if (
@@ -181,12 +182,22 @@ def plan_compact_arrays(
                 key = sorted(extra)[0] if extra else "predict"
                 raise InputError(f"{where}.{key}", "is only for quantized arrays")
             slots.append(
-                CompactSlot(base.name, base.dtype, base.shape, coding, "none",
-                            base.dtype.itemsize, offset, nbytes)  # fmt: skip
+                CompactSlot(
+                    base.name,
+                    base.dtype,
+                    base.shape,
+                    coding,
+                    "none",
+                    base.dtype.itemsize,
+                    offset,
+                    nbytes,
+                )
             )
         else:
             if base.dtype.kind != "f":
-                raise InputError(f"{where}.coding", f"quantized needs a float dtype for {base.name}")
+                raise InputError(
+                    f"{where}.coding", f"quantized needs a float dtype for {base.name}"
+                )
             predict = spec.get("predict", "none")
             if predict not in PREDICTORS:
                 raise InputError(f"{where}.predict", f"must be one of {', '.join(PREDICTORS)}")
@@ -195,8 +206,19 @@ def plan_compact_arrays(
                 raise InputError(f"{where}.width", f"must be 1, 2, 4 or 8, got {show(width)}")
             components = base.shape[1] if len(base.shape) == 2 else 1
             step, lo, hi = _quantized(where, spec, components)
-            slot = CompactSlot(base.name, base.dtype, base.shape, coding, predict, width,
-                               offset, nbytes, step, tuple(lo), tuple(hi))  # fmt: skip
+            slot = CompactSlot(
+                base.name,
+                base.dtype,
+                base.shape,
+                coding,
+                predict,
+                width,
+                offset,
+                nbytes,
+                step,
+                tuple(lo),
+                tuple(hi),
+            )
             slots.append(slot)
         offset += nbytes
     if offset != payload_length:
@@ -267,9 +289,12 @@ class CompactDecoder:
     base_q: dict[str, np.ndarray] = field(default_factory=dict)
 
     def decode(
-        self, header: Mapping[str, Any], payload: bytes | bytearray | memoryview, *,
+        self,
+        header: Mapping[str, Any],
+        payload: bytes | bytearray | memoryview,
+        *,
         max_particles: int,
-    ) -> dict[str, np.ndarray]:  # fmt: skip
+    ) -> dict[str, np.ndarray]:
         """The frame's arrays; on any error the held base is dropped (the client resends full)."""
         held_id, held_q = self.base_id, self.base_q
         self.base_id, self.base_q = None, {}
@@ -289,7 +314,9 @@ class CompactDecoder:
 
 def _check_base(base: Any, held: int | None) -> None:
     if isinstance(base, bool) or not isinstance(base, int):
-        raise InputError("base", f"must be the integer id of the frame predicted from, got {show(base)}")
+        raise InputError(
+            "base", f"must be the integer id of the frame predicted from, got {show(base)}"
+        )
     if held is None:
         raise InputError(
             "base",
@@ -319,7 +346,9 @@ def _inflate(slot: CompactSlot, index: int, data: memoryview) -> bytes:
     try:
         out = zstandard.ZstdDecompressor().decompress(bytes(data), max_output_size=expected)
     except zstandard.ZstdError:
-        raise InputError(where, "compressed data is damaged or truncated (zstd refused it)") from None
+        raise InputError(
+            where, "compressed data is damaged or truncated (zstd refused it)"
+        ) from None
     if len(out) != expected:
         raise InputError(where, f"inflates to {len(out)} bytes, the header needs {expected}")
     return out
@@ -414,9 +443,12 @@ def _check_error(name: str, error: float) -> float:
 
 
 def _quantise(
-    name: str, values: np.ndarray, error: float, dtype: np.dtype[Any],
+    name: str,
+    values: np.ndarray,
+    error: float,
+    dtype: np.dtype[Any],
     bounds: tuple[np.ndarray, np.ndarray] | None,
-) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:  # fmt: skip
+) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
     """(q as (C, N) int64, step, lo, hi) with |decoded - values| <= error, decoded as the
     decoder does it (float64 lo + q * step, then cast to `dtype`)."""
     x = np.asarray(values, np.float64).reshape(values.shape[0], -1).T
@@ -432,7 +464,10 @@ def _quantise(
         outside = ((x < lo[:, None]) | (x > hi[:, None])).any(axis=0)
         if outside.any():
             i = int(np.flatnonzero(outside)[0])
-            raise InputError(f"{name}[{i}]", f"lies outside the bounds given, {show(lo.tolist())} to {show(hi.tolist())}")  # noqa: E501
+            raise InputError(
+                f"{name}[{i}]",
+                f"lies outside the bounds given, {show(lo.tolist())} to {show(hi.tolist())}",
+            )
     # Leave room for the decoder's float rounding (and the cast to `dtype`): one ulp at the
     # largest magnitude; a bound that leaves no room is refused.
     top_value = float(np.abs(x).max()) if x.size else 0.0
@@ -444,7 +479,9 @@ def _quantise(
         )
     step = 2.0 * (error - margin)
     if x.size and float(((hi - lo) / step).max()) >= MAX_Q / 2:
-        raise InputError(f"errors.{name}", f"{error!r} is too fine for {name}'s extent (at most 2^51 steps)")  # noqa: E501
+        raise InputError(
+            f"errors.{name}", f"{error!r} is too fine for {name}'s extent (at most 2^51 steps)"
+        )
     q = np.rint((x - lo[:, None]) / step)
     top = np.floor((hi - lo) / step)[:, None] + 1
     for _ in range(2):  # float rounding can leave a value one ulp past the bound: nudge it
@@ -549,4 +586,3 @@ class CompactEncoder:
             "width": width,
         }
         return spec, _planes(stored, width), q, step, predict == "frame"
-
