@@ -69,6 +69,8 @@ WIDTHS = (1, 2, 4, 8)
 MAX_Q = 2**52
 _COMPACT_KEYS = ("coding", "step", "bounds", "predict", "width", "bytes")
 _ZSTD_LEVEL = 3
+#: Fractions of the error bound kept free for float rounding, smallest first.
+_ROOM = (2.0**-40, 2.0**-30, 2.0**-20, 2.0**-10, 2.0**-4)
 
 
 @dataclass(frozen=True)
@@ -338,8 +340,11 @@ def _inflate(slot: CompactSlot, index: int, data: memoryview) -> bytes:
         params = zstandard.get_frame_parameters(data)
     except zstandard.ZstdError:
         raise InputError(where, "is not a zstd frame (damaged or truncated)") from None
+    if not params.has_checksum:
+        raise InputError(where, "zstd frame has no checksum; the encoding requires one")
     if params.content_size != expected:
-        declared = "no size" if params.content_size < 0 else f"{params.content_size} bytes"
+        unknown = params.content_size >= 2**63  # zstd's "size unknown"
+        declared = "no size" if unknown else f"{params.content_size} bytes"
         raise InputError(
             where, f"zstd frame declares {declared}; the header's shape and width need {expected}"
         )
@@ -472,12 +477,14 @@ def _quantise(
     # largest magnitude; a bound that leaves no room is refused.
     top_value = float(np.abs(x).max()) if x.size else 0.0
     margin = 2.0 * top_value * float(np.finfo(dtype).eps) + 4.0 * top_value * 2.0**-52
-    if margin >= error / 2:
+    # From a short ladder, so that frames of similar extent share a step (frame prediction).
+    room = next((r for r in _ROOM if error * r >= margin), None)
+    if room is None:
         raise InputError(
             f"errors.{name}",
             f"{error!r} is finer than {dtype.name} resolves at {top_value!r}; use a larger bound",
         )
-    step = 2.0 * (error - margin)
+    step = 2.0 * error * (1.0 - room)
     if x.size and float(((hi - lo) / step).max()) >= MAX_Q / 2:
         raise InputError(
             f"errors.{name}", f"{error!r} is too fine for {name}'s extent (at most 2^51 steps)"
@@ -522,7 +529,9 @@ class CompactEncoder:
         for name, error in self.errors.items():
             if error is not None:
                 _check_error(name, error)
-        self._compressor = zstandard.ZstdCompressor(level=self.level, write_content_size=True)
+        self._compressor = zstandard.ZstdCompressor(
+            level=self.level, write_content_size=True, write_checksum=True
+        )
 
     def reset(self) -> None:
         """Forget the previous frame: the next frame is sent in full."""
