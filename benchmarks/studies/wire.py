@@ -1,0 +1,267 @@
+"""The compact frame encoding measured (core/compact.py): bytes a particle, encode and decode
+time, the image change against float32 input, and its peers at the same error bound.
+
+Sequences (positions float64 as a simulator writes them):
+
+* **dam break**: the real SPlisHSPlasH frames 1-15 (../shared/data, 32,768 particles, r =
+  0.015, 0.2 s apart), tiled side by side to 98,304 (3 copies) and 1,015,808 (31 copies)
+  particles, with their own densities and a synthetic temperature field (smooth in position,
+  1200-1800 K, plus 1 K noise);
+* **spatter**: a pool (lattice slab, r = 0.01) with a slow wave, and 5 % of the particles as
+  droplets thrown from its centre on ballistic paths, 30 frames a second.
+
+Each sequence is encoded as one session (frames predicted from the one before where smaller).
+Peers on the same positions: zstd and blosc2 (shuffle + zstd) on raw float32 (lossless), Draco
+(kd-tree point cloud, quantisation bits for the same bound on its bounding cube) and ZFP
+(fixed-accuracy mode, tolerance = the bound, per axis).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sphrender.core.compact import CompactDecoder, CompactEncoder
+from sphrender.core.frame import make_frame
+from sphrender.server.content.lattice import lattice_slab
+
+DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "dambreak-splishsplash" / "vtk"
+DAM_FRAMES = (1, 3, 5, 7, 9, 11, 13, 15)
+DAM_RADIUS = 0.015
+SPATTER_RADIUS = 0.01
+#: Error bounds measured, as fractions of the particle radius.
+FRACTIONS = (1 / 25, 1 / 50, 1 / 100, 1 / 200)
+
+Frame = dict[str, np.ndarray]
+
+
+@dataclass(frozen=True)
+class CodecRow:
+    sequence: str
+    particles: int
+    fraction: float
+    positions_bpp: float  # bytes a particle, frames after the first (the session's steady state)
+    frame_bpp: float  # positions + densities + temperatures
+    first_bpp: float  # the session's first frame, whole
+    encode_ms: float
+    decode_ms: float
+    max_error_r: float  # measured, in radii
+
+
+@dataclass(frozen=True)
+class PeerRow:
+    peer: str
+    fraction: float
+    positions_bpp: float
+    max_error_r: float
+    encode_ms: float
+    decode_ms: float
+
+
+def dam_sequence(copies: int) -> list[Frame] | None:
+    if not DATA.is_dir():
+        return None
+    from sphrender.core.readers import read_particles
+
+    source = [read_particles(DATA / f"ParticleData_Fluid_{n}.vtk") for n in DAM_FRAMES]
+    rng = np.random.default_rng(0)
+    # Copy k of frame i is frame i + k, mirrored by k // 8 and moved by a random millimetre:
+    # no two copies hold the same numbers, so zstd cannot match one copy against another.
+    shifts = rng.uniform(0, 1e-3, (copies, 3))
+    frames = []
+    for i in range(len(source)):
+        parts, densities = [], []
+        for k in range(copies):
+            frame = source[(i + k) % len(source)]
+            mirror = np.array([(-1) ** (k // 8 % 2), 1, (-1) ** (k // 16 % 2)])
+            offset = np.array([4.2 * (k % 8), 0.0, 1.6 * (k // 8)]) + shifts[k]
+            parts.append(frame.positions * mirror + offset)
+            assert frame.densities is not None
+            densities.append(frame.densities)
+        positions = np.concatenate(parts)
+        x, y = positions[:, 0], positions[:, 1]
+        kelvin = 1200 + 200 * (3 - y) + 20 * np.sin(5 * x) + rng.normal(0, 1, len(x))
+        frames.append(
+            {
+                "positions": positions,
+                "densities": np.concatenate(densities),
+                "temperatures": kelvin.astype(np.float32),
+            }
+        )
+    return frames
+
+
+def spatter_sequence(count: int, frames: int = 8) -> list[Frame]:
+    r = SPATTER_RADIUS
+    drops = count // 20
+    side = math.sqrt((count - drops) / 4) * 2 * r
+    pool = lattice_slab(side, side, 4, r)[: count - drops]
+    rng = np.random.default_rng(1)
+    start = rng.normal(0, 0.02, (drops, 3)) * [1, 0, 1]
+    direction = rng.normal(0, 1, (drops, 3)) * [0.5, 0, 0.5] + [0, 1, 0]
+    velocity = (
+        direction / np.linalg.norm(direction, axis=1)[:, None] * rng.uniform(1, 3, (drops, 1))
+    )
+    out = []
+    for k in range(frames):
+        t = k / 30
+        wave = pool.copy()
+        wave[:, 1] += 0.002 * np.sin(20 * pool[:, 0] + 10 * t)
+        flying = start + velocity * t + 0.5 * np.array([0, -9.81, 0]) * t * t
+        positions = np.concatenate([wave, flying])
+        kelvin = np.concatenate([1800 - 300 * np.hypot(pool[:, 0], pool[:, 2]) / side,
+                                 2600 - 900 * t + rng.normal(0, 5, drops)])  # fmt: skip
+        out.append(
+            {
+                "positions": positions,
+                "densities": (1000 + rng.normal(0, 3, len(positions))).astype(np.float32),
+                "temperatures": kelvin.astype(np.float32),
+            }
+        )
+    return out
+
+
+def _best_ms(function: Callable[[], Any], repeats: int = 3) -> tuple[float, Any]:
+    best, value = math.inf, None
+    for _ in range(repeats):
+        start = time.perf_counter()
+        value = function()
+        best = min(best, (time.perf_counter() - start) * 1e3)
+    return best, value
+
+
+def codec_rows(name: str, frames: list[Frame], radius: float, fractions: tuple[float, ...],
+               repeats: int = 3) -> Iterator[CodecRow]:  # fmt: skip
+    """The session encoding of `frames` at each bound (timings: the best of `repeats`)."""
+    n = len(frames[0]["positions"])
+    for fraction in fractions:
+        error = fraction * radius
+        encoder, decoder = CompactEncoder(position_error=error), CompactDecoder()
+        sizes, positions_sizes, enc, dec, worst = [], [], [], [], 0.0
+        for frame_id, frame in enumerate(frames):
+            state = (encoder._base_id, dict(encoder._base))
+
+            def encode(frame: Frame = frame, frame_id: int = frame_id, state: Any = state) -> Any:
+                encoder._base_id, encoder._base = state[0], dict(state[1])
+                return encoder.encode(frame_id, frame)
+
+            ms, (header, payload) = _best_ms(encode, repeats)
+            enc.append(ms)
+            held = (decoder.base_id, decoder.base_q)
+
+            def decode(header: Any = header, payload: Any = payload, held: Any = held) -> Any:
+                decoder.base_id, decoder.base_q = held
+                return decoder.decode(header, payload, max_particles=10**8)
+
+            ms, arrays = _best_ms(decode, repeats)
+            dec.append(ms)
+            worst = max(worst, float(np.abs(arrays["positions"] - frame["positions"]).max()))
+            sizes.append(len(payload))
+            positions_sizes.append(header["arrays"][0]["bytes"])
+        later = slice(1, None)
+        yield CodecRow(
+            name, n, fraction,
+            float(np.mean(positions_sizes[later])) / n, float(np.mean(sizes[later])) / n,
+            sizes[0] / n, float(np.median(enc)), float(np.median(dec)), worst / radius,
+        )  # fmt: skip
+
+
+def peer_rows(positions: np.ndarray, radius: float, fractions: tuple[float, ...]) -> list[PeerRow]:
+    """Peers on one frame's positions (float32 input for the lossless ones)."""
+    import blosc2
+    import DracoPy
+    import zfpy
+    import zstandard
+
+    n = len(positions)
+    f32 = positions.astype(np.float32)
+    rows = []
+    lossless_error = float(np.abs(f32 - positions).max()) / radius
+    compressor, decompressor = zstandard.ZstdCompressor(level=3), zstandard.ZstdDecompressor()
+    ms_e, packed = _best_ms(lambda: compressor.compress(f32.tobytes()))
+    ms_d, _ = _best_ms(lambda: decompressor.decompress(packed))
+    rows.append(PeerRow("zstd, raw float32", 0.0, len(packed) / n, lossless_error, ms_e, ms_d))
+    for label, filt in (
+        ("shuffle", blosc2.Filter.SHUFFLE),
+        ("bitshuffle", blosc2.Filter.BITSHUFFLE),
+    ):
+        cparams = {"codec": blosc2.Codec.ZSTD, "clevel": 5, "filters": [filt], "typesize": 4}
+        ms_e, packed = _best_ms(lambda cparams=cparams: blosc2.compress2(f32.tobytes(), **cparams))
+        ms_d, _ = _best_ms(lambda packed=packed: blosc2.decompress2(packed))
+        name = f"blosc2 {label} + zstd, raw float32"
+        rows.append(PeerRow(name, 0.0, len(packed) / n, lossless_error, ms_e, ms_d))
+    extent = float((positions.max(0) - positions.min(0)).max())
+    for fraction in fractions:
+        error = fraction * radius
+        bits = min(30, math.ceil(math.log2(extent / (2 * error) + 1)))
+        while True:  # the fewest bits whose measured error meets the bound
+            ms_e, blob = _best_ms(lambda bits=bits: DracoPy.encode(f32, quantization_bits=bits))
+            ms_d, mesh = _best_ms(lambda blob=blob: DracoPy.decode(blob))
+            worst = _unordered_error(np.asarray(mesh.points), positions)
+            if worst <= error or bits >= 30:
+                break
+            bits += 1
+        name = f"Draco, {bits} bits"
+        rows.append(PeerRow(name, fraction, len(blob) / n, worst / radius, ms_e, ms_d))
+        axes = [np.ascontiguousarray(positions[:, k]) for k in range(3)]
+
+        def zfp(axes: list[np.ndarray] = axes, error: float = error) -> list[bytes]:
+            return [zfpy.compress_numpy(a, tolerance=error) for a in axes]
+
+        ms_e, blobs = _best_ms(zfp)
+        ms_d, back = _best_ms(lambda blobs=blobs: [zfpy.decompress_numpy(b) for b in blobs])
+        worst = max(float(np.abs(b - a).max()) for a, b in zip(axes, back, strict=True))
+        size = sum(len(b) for b in blobs)
+        rows.append(PeerRow("ZFP, fixed accuracy", fraction, size / n, worst / radius, ms_e, ms_d))
+    return rows
+
+
+def _unordered_error(decoded: np.ndarray, original: np.ndarray) -> float:
+    """Draco reorders points: the largest distance from an original to its nearest decoded
+    point (a lower bound of Draco's true error, whose bound is half its quantum)."""
+    from scipy.spatial import cKDTree
+
+    distance, _ = cKDTree(decoded).query(original)
+    return float(np.abs(distance).max())
+
+
+def image_change(frames: list[Frame], radius: float, camera: dict[str, Any],
+                 fractions: tuple[float, ...], size: tuple[int, int] = (256, 160),
+                 ) -> list[tuple[float, float, float, float, float]]:  # fmt: skip
+    """(fraction, normal change mean°, p99°, coverage change mean, pixels whose coverage
+    changed by > 1/255) of the decoded frame against the float32 input, rendered (balanced)."""
+    from sphrender.server.bench.surface_quality import flicker_deg
+    from sphrender.server.engine.gpu.gl_context import GLContext
+    from sphrender.server.engine.renderer import SurfaceRenderer
+    from sphrender.server.scene import scene_from_dict
+
+    frame = frames[len(frames) // 2]
+    scene = scene_from_dict({
+        "image": {"width": size[0], "height": size[1]},
+        "camera": camera, "particles": {"radius": radius}, "quality": {"preset": "balanced"},
+    })  # fmt: skip
+    out = []
+    with GLContext() as gl:
+        renderer = SurfaceRenderer(gl)
+
+        def render(positions: np.ndarray) -> Any:
+            particles = make_frame(positions, densities=frame["densities"],
+                                   temperatures=frame["temperatures"])  # fmt: skip
+            return renderer.render(particles, scene, depth=True, normals=True)[0]
+
+        reference = render(frame["positions"].astype(np.float32).astype(np.float64))
+        for fraction in fractions:
+            header, payload = CompactEncoder(position_error=fraction * radius).encode(0, frame)
+            decoded = CompactDecoder().decode(header, payload, max_particles=10**8)
+            image = render(decoded["positions"])
+            mean, p99 = flicker_deg(reference, image)
+            alpha = np.abs(image.rgba[..., 3] - reference.rgba[..., 3])
+            out.append((fraction, mean, p99, float(alpha.mean()), float((alpha > 1 / 255).mean())))
+        renderer.release()
+    return out
