@@ -136,31 +136,42 @@ def _best_ms(function: Callable[[], Any], repeats: int = 3) -> tuple[float, Any]
     return best, value
 
 
+def _timed_frame(
+    encoder: CompactEncoder, decoder: CompactDecoder, frame_id: int, frame: Frame, repeats: int
+) -> tuple[float, float, dict[str, Any], bytes, Frame]:
+    """One frame of a session, encoded and decoded `repeats` times from the same state
+    (timings: the best), leaving both sides as after one pass."""
+    state = (encoder._base_id, dict(encoder._base))
+    held = (decoder.base_id, decoder.base_q)
+
+    def encode() -> tuple[dict[str, Any], bytes]:
+        encoder._base_id, encoder._base = state[0], dict(state[1])
+        return encoder.encode(frame_id, frame)
+
+    encode_ms, (header, payload) = _best_ms(encode, repeats)
+
+    def decode() -> Frame:
+        decoder.base_id, decoder.base_q = held
+        return decoder.decode(header, payload, max_particles=10**8)
+
+    decode_ms, arrays = _best_ms(decode, repeats)
+    return encode_ms, decode_ms, header, payload, arrays
+
+
 def codec_rows(name: str, frames: list[Frame], radius: float, fractions: tuple[float, ...],
                repeats: int = 3) -> Iterator[CodecRow]:  # fmt: skip
     """The session encoding of `frames` at each bound (timings: the best of `repeats`)."""
     n = len(frames[0]["positions"])
     for fraction in fractions:
-        error = fraction * radius
-        encoder, decoder = CompactEncoder(position_error=error), CompactDecoder()
+        encoder = CompactEncoder(position_error=fraction * radius)
+        decoder = CompactDecoder()
         sizes, positions_sizes, enc, dec, worst = [], [], [], [], 0.0
         for frame_id, frame in enumerate(frames):
-            state = (encoder._base_id, dict(encoder._base))
-
-            def encode(frame: Frame = frame, frame_id: int = frame_id, state: Any = state) -> Any:
-                encoder._base_id, encoder._base = state[0], dict(state[1])
-                return encoder.encode(frame_id, frame)
-
-            ms, (header, payload) = _best_ms(encode, repeats)
-            enc.append(ms)
-            held = (decoder.base_id, decoder.base_q)
-
-            def decode(header: Any = header, payload: Any = payload, held: Any = held) -> Any:
-                decoder.base_id, decoder.base_q = held
-                return decoder.decode(header, payload, max_particles=10**8)
-
-            ms, arrays = _best_ms(decode, repeats)
-            dec.append(ms)
+            ms_e, ms_d, header, payload, arrays = _timed_frame(
+                encoder, decoder, frame_id, frame, repeats
+            )
+            enc.append(ms_e)
+            dec.append(ms_d)
             worst = max(worst, float(np.abs(arrays["positions"] - frame["positions"]).max()))
             sizes.append(len(payload))
             positions_sizes.append(header["arrays"][0]["bytes"])
