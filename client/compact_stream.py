@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from sphrender.core.compact import POSITION_ERROR_FRACTION, CompactEncoder
+from sphrender.core.compact_encoder import POSITION_ERROR_FRACTION, CompactEncoder
 from sphrender.core.errors import InputError
 from sphrender.core.protocol import MessageType, encode_frame, encode_message
 

@@ -14,7 +14,8 @@ import zstandard
 from error_texts import text_faults
 from test_protocol import _doc_example
 
-from sphrender.core.compact import CompactDecoder, CompactEncoder
+from sphrender.core.compact import CompactDecoder
+from sphrender.core.compact_encoder import CompactEncoder
 from sphrender.core.errors import InputError
 from sphrender.core.protocol import (
     PREFIX_SIZE,

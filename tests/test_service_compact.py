@@ -18,7 +18,8 @@ from error_texts import text_faults
 from service_harness import SMALL_SCENE, ServerProcess, ball
 
 from sphrender.client.api import Client
-from sphrender.core.compact import CompactDecoder, CompactEncoder
+from sphrender.core.compact import CompactDecoder
+from sphrender.core.compact_encoder import CompactEncoder
 from sphrender.core.frame_message import FRAME_CONTENT_TYPE
 from sphrender.core.protocol import MessageType, encode_frame, encode_message
 

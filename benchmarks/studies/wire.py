@@ -27,7 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from sphrender.core.compact import CompactDecoder, CompactEncoder
+from sphrender.core.compact import CompactDecoder
+from sphrender.core.compact_encoder import CompactEncoder
 from sphrender.core.frame import make_frame
 from sphrender.server.content.lattice import lattice_slab
 

@@ -150,7 +150,7 @@ def _session_fps(url: str, port: int, scene: dict[str, Any], frames: list[dict[s
 
 def _wire_bytes(frames: list[dict[str, Any]], encoding: str, radius: float) -> float:
     """Mean FRAME payload bytes of the sequence in `encoding` (the compact one as a session)."""
-    from sphrender.core.compact import POSITION_ERROR_FRACTION, CompactEncoder
+    from sphrender.core.compact_encoder import POSITION_ERROR_FRACTION, CompactEncoder
 
     n = len(frames[0]["positions"])
     if encoding == "float64 raw":
