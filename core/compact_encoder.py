@@ -54,7 +54,8 @@ def _quantise(
 ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
     """(q as (C, N) int64, step, lo, hi) with |decoded - values| <= error, decoded as the
     decoder does it (float64 lo + q * step, then cast to `dtype`)."""
-    x = np.ascontiguousarray(np.asarray(values, np.float64).reshape(values.shape[0], -1).T)
+    components = values.shape[1] if values.ndim == 2 else 1
+    x = np.ascontiguousarray(np.asarray(values, np.float64).reshape(len(values), components).T)
     if not np.isfinite(x).all():
         i = int(np.flatnonzero(~np.isfinite(x).all(axis=0))[0])
         raise InputError(f"{name}[{i}]", "must be finite (found NaN or Infinity)")

@@ -77,6 +77,10 @@ class FrameDecoder:
 
     compact: CompactDecoder = field(default_factory=CompactDecoder)
 
+    def forget(self) -> None:
+        """Hold no previous frame (after a raw frame, or a frame refused from its header)."""
+        self.compact.base_id, self.compact.base_q = None, {}
+
     def decode(
         self,
         header: Mapping[str, Any],
@@ -85,6 +89,7 @@ class FrameDecoder:
         max_particles: int,
     ) -> dict[str, np.ndarray]:
         if frame_encoding(header) == "raw":
+            self.forget()
             return decode_frame_arrays(header["arrays"], payload, max_particles=max_particles)
         return self.compact.decode(header, payload, max_particles=max_particles)
 

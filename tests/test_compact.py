@@ -44,6 +44,7 @@ CASES = {
     "far from the origin, 1e5": (1e5 + np.random.default_rng(1).random((5000, 3)), 1e-6),
     "mixed signs, 1e5 span": (np.random.default_rng(2).uniform(-1e5, 1e5, (5000, 3)), 1e-3),
     "one particle": (np.array([[3.0, -2.0, 1e5]]), 1e-5),
+    "no particles": (np.zeros((0, 3)), 1e-3),
     "all equal": (np.full((100, 3), 7.25), 1e-3),
     "exact half steps": (np.arange(3000, dtype=np.float64).reshape(-1, 3) * 1e-4 + 5e-5, 1e-4),
     "denormals and zeros": (np.array([[0.0, 5e-324, -5e-324], [1e-300, 0.0, 1.0]]), 1e-9),
@@ -77,6 +78,19 @@ def test_float32_arrays_hold_their_bound_after_the_cast() -> None:
     assert max_error(decoded["densities"], densities) <= 0.05
     assert max_error(decoded["velocities"], velocities) <= 1e-3
     assert decoded["temperatures"].dtype == np.float32
+
+
+def test_an_empty_frame_round_trips_with_every_array() -> None:
+    arrays = {
+        "positions": np.zeros((0, 3)),
+        "densities": np.zeros(0, np.float32),
+        "velocities": np.zeros((0, 3), np.float32),
+        "ids": np.zeros(0, np.int64),
+    }
+    decoded = roundtrip(arrays, 1e-3)
+    assert {k: (v.shape, v.dtype) for k, v in decoded.items()} == {
+        k: (v.shape, v.dtype) for k, v in arrays.items()
+    }
 
 
 def test_lossless_arrays_are_bit_exact() -> None:

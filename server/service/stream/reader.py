@@ -196,6 +196,7 @@ class FrameReader:
             outcome = ErrorOutcome(code, exc.message, exc.field)
         self.service.record_invalid_frame("stream", outcome.code)
         self.answers.push(Slot(frame_id, outcome=outcome))
+        self.decoder.forget()
         self.channel.discard(payload_len, deadline)
         self.service.metrics.transport.bytes_in.inc("stream", amount=payload_len)
 
