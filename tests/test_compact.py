@@ -67,7 +67,7 @@ def test_float32_arrays_hold_their_bound_after_the_cast() -> None:
     temperatures[:100] = np.float32(1800.25)
     densities = (1000 + rng.normal(0, 5, 20000)).astype(np.float32)
     velocities = rng.normal(0, 2, (20000, 3)).astype(np.float32)
-    arrays = {
+    arrays: dict[str, np.ndarray] = {
         "positions": rng.random((20000, 3)),
         "temperatures": temperatures,
         "densities": densities,
@@ -81,7 +81,7 @@ def test_float32_arrays_hold_their_bound_after_the_cast() -> None:
 
 
 def test_an_empty_frame_round_trips_with_every_array() -> None:
-    arrays = {
+    arrays: dict[str, np.ndarray] = {
         "positions": np.zeros((0, 3)),
         "densities": np.zeros(0, np.float32),
         "velocities": np.zeros((0, 3), np.float32),
@@ -165,8 +165,8 @@ def test_sizes_that_lie_are_refused_before_inflating() -> None:
     lying = edited(header, 1, bytes=len(bomb))
     message = refused(lying, payload[:first] + bomb)
     assert message.startswith("arrays[1].bytes: ") and "declares 16777216 bytes" in message
-    unsized = zstandard.ZstdCompressor(write_content_size=False, write_checksum=True)
-    unsized = unsized.compress(bytes(800))
+    no_size = zstandard.ZstdCompressor(write_content_size=False, write_checksum=True)
+    unsized = no_size.compress(bytes(800))
     message = refused(edited(header, 1, bytes=len(unsized)), payload[:first] + unsized)
     assert "zstd frame declares no size" in message
     unchecked = zstandard.ZstdCompressor().compress(bytes(800))

@@ -22,6 +22,7 @@ import math
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -188,7 +189,6 @@ def peer_rows(positions: np.ndarray, radius: float, fractions: tuple[float, ...]
     """Peers on one frame's positions (float32 input for the lossless ones)."""
     import blosc2
     import DracoPy
-    import zfpy
     import zstandard
 
     n = len(positions)
@@ -204,8 +204,8 @@ def peer_rows(positions: np.ndarray, radius: float, fractions: tuple[float, ...]
         ("bitshuffle", blosc2.Filter.BITSHUFFLE),
     ):
         cparams = {"codec": blosc2.Codec.ZSTD, "clevel": 5, "filters": [filt], "typesize": 4}
-        ms_e, packed = _best_ms(lambda cparams=cparams: blosc2.compress2(f32.tobytes(), **cparams))
-        ms_d, _ = _best_ms(lambda packed=packed: blosc2.decompress2(packed))
+        ms_e, packed = _best_ms(partial(blosc2.compress2, f32.tobytes(), **cparams))
+        ms_d, _ = _best_ms(partial(blosc2.decompress2, packed))
         name = f"blosc2 {label} + zstd, raw float32"
         rows.append(PeerRow(name, 0.0, len(packed) / n, lossless_error, ms_e, ms_d))
     extent = float((positions.max(0) - positions.min(0)).max())
@@ -213,8 +213,8 @@ def peer_rows(positions: np.ndarray, radius: float, fractions: tuple[float, ...]
         error = fraction * radius
         bits = min(30, math.ceil(math.log2(extent / (2 * error) + 1)))
         while True:  # the fewest bits whose measured error meets the bound
-            ms_e, blob = _best_ms(lambda bits=bits: DracoPy.encode(f32, quantization_bits=bits))
-            ms_d, mesh = _best_ms(lambda blob=blob: DracoPy.decode(blob))
+            ms_e, blob = _best_ms(partial(DracoPy.encode, f32, quantization_bits=bits))
+            ms_d, mesh = _best_ms(partial(DracoPy.decode, blob))
             worst = _unordered_error(np.asarray(mesh.points), positions)
             if worst <= error or bits >= 30:
                 break
@@ -223,15 +223,24 @@ def peer_rows(positions: np.ndarray, radius: float, fractions: tuple[float, ...]
         rows.append(PeerRow(name, fraction, len(blob) / n, worst / radius, ms_e, ms_d))
         axes = [np.ascontiguousarray(positions[:, k]) for k in range(3)]
 
-        def zfp(axes: list[np.ndarray] = axes, error: float = error) -> list[bytes]:
-            return [zfpy.compress_numpy(a, tolerance=error) for a in axes]
-
-        ms_e, blobs = _best_ms(zfp)
-        ms_d, back = _best_ms(lambda blobs=blobs: [zfpy.decompress_numpy(b) for b in blobs])
+        ms_e, blobs = _best_ms(partial(_zfp_compress, axes, error))
+        ms_d, back = _best_ms(partial(_zfp_decompress, blobs))
         worst = max(float(np.abs(b - a).max()) for a, b in zip(axes, back, strict=True))
         size = sum(len(b) for b in blobs)
         rows.append(PeerRow("ZFP, fixed accuracy", fraction, size / n, worst / radius, ms_e, ms_d))
     return rows
+
+
+def _zfp_compress(axes: list[np.ndarray], error: float) -> list[bytes]:
+    import zfpy
+
+    return [zfpy.compress_numpy(a, tolerance=error) for a in axes]
+
+
+def _zfp_decompress(blobs: list[bytes]) -> list[np.ndarray]:
+    import zfpy
+
+    return [zfpy.decompress_numpy(b) for b in blobs]
 
 
 def _unordered_error(decoded: np.ndarray, original: np.ndarray) -> float:
