@@ -7,8 +7,8 @@ decoded) how it was stored:
 * ``coding`` ``"quantized"`` (float arrays): integers ``q = round((x - lo) / step)`` per
   component, decoded as ``lo + q * step`` in float64 then cast to ``dtype``. ``bounds`` is
   ``[lo, hi]`` (float64 per component), ``step`` the quantum; the encoder guarantees
-  ``|decoded - x| <= error`` for the error it was given (``step = 2 * error``, with a per-value
-  fix-up for float rounding). ``predict``: ``none`` (store q), ``particle`` (q minus the previous
+  ``|decoded - x| <= error`` for the error it was given (``step`` just under ``2 * error``,
+  with a per-value fix-up for float rounding). ``predict``: ``none`` (store q), ``particle`` (q minus the previous
   particle's q) or ``frame`` (q minus the same array's q in the frame named by the header's
   ``base``); residuals are zigzag-mapped to unsigned. ``width``: bytes per stored value.
 * ``coding`` ``"raw"``: the array's own little-endian bytes, lossless (ids, flags, radii and any
@@ -17,7 +17,7 @@ decoded) how it was stored:
 Stored values are split into byte planes (byte 0 of every value, then byte 1, ...; quantised
 arrays component by component) and compressed with zstd. Byte planes put the slowly varying high
 bytes together, which is what lets zstd find the runs; zstd was chosen over blosc2 by measurement
-(benchmarks/REPORT.md, "Wire").
+(benchmarks/STUDIES.md, "Compact frame encoding").
 
 Decoding checks every declared size before inflating anything: the decompressed size of each
 section follows from the header (``N x components x width``), the zstd frame must declare that
