@@ -27,9 +27,10 @@ from typing import Any, Literal
 
 import numpy as np
 
-from sphrender.client.compact_stream import CompactSender, offered
+from sphrender.client.compact_stream import CompactSender, compact_body, offered
 from sphrender.core.errors import InputError
 from sphrender.core.frame import ParticleFrame
+from sphrender.core.frame_message import FRAME_CONTENT_TYPE
 from sphrender.core.protocol import (
     IMAGE_FORMATS,
     ErrorCode,
@@ -125,6 +126,9 @@ class Client:
     timeout: float = 120.0
     retries: int = 4
     backoff_s: float = 0.5
+    #: HTTP frames in the compact encoding (PROTOCOL.md §4.7) instead of .npz; the stream uses
+    #: it whenever the server offers it (`stream(compact=...)`).
+    compact: bool = False
     _host: str = field(init=False)
     _port: int = field(init=False)
 
@@ -233,8 +237,11 @@ class Client:
     ) -> tuple[dict[str, str], bytes]:
         if format is not None and format not in IMAGE_FORMATS:
             raise InputError("format", f"must be one of {', '.join(IMAGE_FORMATS)}")
-        body = encode_npz_frame(positions, scene=scene, **arrays)
         path = "/v1/render" + (f"?format={format}" if format else "")
+        if self.compact:
+            body = compact_body(positions, scene, arrays)
+            return self.request("POST", path, body, FRAME_CONTENT_TYPE)
+        body = encode_npz_frame(positions, scene=scene, **arrays)
         return self.request("POST", path, body, "application/x-npz")
 
     def render_raw(

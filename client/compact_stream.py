@@ -22,7 +22,7 @@ from sphrender.core.compact_encoder import POSITION_ERROR_FRACTION, CompactEncod
 from sphrender.core.errors import InputError
 from sphrender.core.protocol import MessageType, encode_frame, encode_message
 
-__all__ = ["CompactSender", "offered"]
+__all__ = ["CompactSender", "compact_body", "offered"]
 
 #: The scene's particle radius when WELCOME does not say it (the schema's default).
 _DEFAULT_RADIUS = 0.015
@@ -116,3 +116,13 @@ class CompactSender:
                     array = array.astype("<i8")
                 wire[name] = np.ascontiguousarray(array, dtype=array.dtype.newbyteorder("<"))
         return wire, scene
+
+
+def compact_body(
+    positions: object, scene: Mapping[str, Any] | None, arrays: Mapping[str, Any]
+) -> bytes:
+    """An HTTP body of one compact FRAME (``application/x-sphrender-frame``), positions within
+    `POSITION_ERROR_FRACTION` x the scene's particle radius (its default when not given)."""
+    sender = CompactSender({"scene": dict(scene or {})})
+    named = {k: v for k, v in arrays.items() if v is not None}
+    return sender.message(0, positions, {**named, "scene": scene} if scene else named)

@@ -90,6 +90,15 @@ def test_compact_frame_renders_its_decoded_particles_exactly(server: ServerProce
     assert png == image1
 
 
+def test_python_http_client_sends_compact_frames_when_asked(server: ServerProcess) -> None:
+    positions = ball(1500, seed=6)
+    client = Client(f"http://127.0.0.1:{server.http_port}", compact=True)
+    image = client.render(positions, RAW)
+    truth = decoded({"positions": positions})["positions"]
+    assert 0 < np.abs(truth - positions).max() <= ERROR
+    assert image == Client(f"http://127.0.0.1:{server.http_port}").render(truth, RAW)
+
+
 def _with_scene(message: bytes, scene: dict[str, Any]) -> bytes:
     """The same FRAME message with `scene` in its header."""
     header_len, _payload_len = struct.unpack_from("<II", message, 8)

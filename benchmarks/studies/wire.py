@@ -5,8 +5,9 @@ Sequences (positions float64 as a simulator writes them):
 
 * **dam break**: the real SPlisHSPlasH frames 1-15 (../shared/data, 32,768 particles, r =
   0.015, 0.2 s apart), tiled side by side to 98,304 (3 copies) and 1,015,808 (31 copies)
-  particles, with their own densities and a synthetic temperature field (smooth in position,
-  1200-1800 K, plus 1 K noise);
+  particles (each copy turned by a little and holding another frame: no copy repeats
+  another's numbers), with their own densities and a synthetic temperature field (smooth in
+  position, 1200-1800 K, plus 1 K noise);
 * **spatter**: a pool (lattice slab, r = 0.01) with a slow wave, and 5 % of the particles as
   droplets thrown from its centre on ballistic paths, 30 frames a second.
 
@@ -73,17 +74,17 @@ def dam_sequence(copies: int) -> list[Frame] | None:
 
     source = [read_particles(DATA / f"ParticleData_Fluid_{n}.vtk") for n in DAM_FRAMES]
     rng = np.random.default_rng(0)
-    # Copy k of frame i is frame i + k, mirrored by k // 8 and moved by a random millimetre:
-    # no two copies hold the same numbers, so zstd cannot match one copy against another.
-    shifts = rng.uniform(0, 1e-3, (copies, 3))
+    # Copy k of frame i is frame i + k, turned by its own small rotation (1-4 degrees about a
+    # random axis) and moved beside the others: no two copies hold the same numbers, so zstd
+    # cannot match one copy against another.
+    turns = [_rotation(rng) for _ in range(copies)]
     frames = []
     for i in range(len(source)):
         parts, densities = [], []
         for k in range(copies):
             frame = source[(i + k) % len(source)]
-            mirror = np.array([(-1) ** (k // 8 % 2), 1, (-1) ** (k // 16 % 2)])
-            offset = np.array([4.2 * (k % 8), 0.0, 1.6 * (k // 8)]) + shifts[k]
-            parts.append(frame.positions * mirror + offset)
+            offset = np.array([4.5 * (k % 8), 0.0, 2.0 * (k // 8)])
+            parts.append(frame.positions @ turns[k].T + offset)
             assert frame.densities is not None
             densities.append(frame.densities)
         positions = np.concatenate(parts)
@@ -97,6 +98,15 @@ def dam_sequence(copies: int) -> list[Frame] | None:
             }
         )
     return frames
+
+
+def _rotation(rng: np.random.Generator) -> np.ndarray:
+    """A rotation matrix of 1-4 degrees about a random axis (Rodrigues)."""
+    axis = rng.normal(size=3)
+    x, y, z = axis / np.linalg.norm(axis)
+    k = np.array([[0, -z, y], [z, 0, -x], [-y, x, 0]])
+    angle = np.radians(rng.uniform(1, 4))
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * (k @ k)
 
 
 def spatter_sequence(count: int, frames: int = 8) -> list[Frame]:
