@@ -8,9 +8,10 @@ decoded) how it was stored:
   component, decoded as ``lo + q * step`` in float64 then cast to ``dtype``. ``bounds`` is
   ``[lo, hi]`` (float64 per component), ``step`` the quantum; the encoder guarantees
   ``|decoded - x| <= error`` for the error it was given (``step`` just under ``2 * error``,
-  with a per-value fix-up for float rounding). ``predict``: ``none`` (store q), ``particle`` (q minus the previous
-  particle's q) or ``frame`` (q minus the same array's q in the frame named by the header's
-  ``base``); residuals are zigzag-mapped to unsigned. ``width``: bytes per stored value.
+  with a per-value fix-up for float rounding). ``predict``: ``none`` (store q), ``particle``
+  (q minus the previous particle's q) or ``frame`` (q minus the same array's q in the frame
+  named by the header's ``base``); residuals are zigzag-mapped to unsigned. ``width``: bytes
+  per stored value.
 * ``coding`` ``"raw"``: the array's own little-endian bytes, lossless (ids, flags, radii and any
   array without a precision in compact_encoder.py's `DEFAULT_ERRORS`).
 

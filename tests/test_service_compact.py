@@ -122,7 +122,7 @@ def test_python_client_streams_compact_with_prediction_and_falls_back(
     with client.stream(RAW, max_in_flight=4) as session:
         assert session.compact is not None
         ids = [
-            session.send(positions, **({"scene": too_big} if i == 2 else {}))
+            session.send(positions, scene=too_big) if i == 2 else session.send(positions)
             for i, positions in enumerate(frames)
         ]
         results = [session.receive() for _ in ids]

@@ -7,6 +7,8 @@ import os
 from collections.abc import Callable
 from functools import partial
 
+import numpy as np
+
 from benchmarks.studies.wire import (
     DAM_RADIUS,
     FRACTIONS,
@@ -92,8 +94,6 @@ def _codec_table(rows: list[CodecRow]) -> list[str]:
 
 
 def _peer_table(positions: object, rows: list[CodecRow]) -> list[str]:
-    import numpy as np
-
     pos = np.asarray(positions)
     peers = peer_rows(pos, DAM_RADIUS, FRACTIONS)
     lines = [
@@ -121,7 +121,7 @@ def _peer_table(positions: object, rows: list[CodecRow]) -> list[str]:
     return [*lines, ""]
 
 
-def _alone(error: float, positions: object) -> tuple[dict, bytes]:
+def _alone(error: float, positions: np.ndarray) -> tuple[dict, bytes]:
     """One frame with a fresh encoder (nothing to predict it from)."""
     return CompactEncoder(position_error=error).encode(0, {"positions": positions})
 
