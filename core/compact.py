@@ -224,7 +224,7 @@ def _declared_size(spec: Mapping[str, Any]) -> int:
         return 0
     try:
         itemsize = np.dtype(dtype).itemsize if isinstance(dtype, str) and len(dtype) < 8 else 0
-    except TypeError:
+    except (TypeError, ValueError):
         itemsize = 0
     return math.prod(shape) * itemsize
 
