@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from sphrender.core.compact import ENCODING, CompactDecoder, plan_compact_arrays
-from sphrender.core.errors import InputError, show
+from sphrender.core.errors import InputError, LimitError, show
 from sphrender.core.protocol import (
     PREFIX_SIZE,
     MessageType,
@@ -99,6 +99,7 @@ def decode_frame_body(
     *,
     max_header_bytes: int,
     max_particles: int,
+    max_scene_bytes: int,
     admit: Callable[[str | None, int, tuple[str, ...]], None],
 ) -> dict[str, np.ndarray]:
     """An HTTP body holding one FRAME message: prefix, header, payload. `admit(scene JSON,
@@ -135,6 +136,11 @@ def decode_frame_body(
     scene = header.get("scene")
     if scene is not None and not isinstance(scene, dict):
         raise InputError("scene", "must be a JSON object")
-    admit(None if scene is None else json.dumps(scene), plan.count, plan.names)
+    scene_json = None if scene is None else json.dumps(scene)
+    if scene_json is not None and len(scene_json) > max_scene_bytes:
+        raise LimitError(
+            "scene", f"of {len(scene_json)} bytes exceeds the limit of {max_scene_bytes}"
+        )
+    admit(scene_json, plan.count, plan.names)
     payload = view[PREFIX_SIZE + header_len :]
     return FrameDecoder().decode(header, payload, max_particles=max_particles)

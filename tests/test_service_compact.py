@@ -26,7 +26,7 @@ from sphrender.core.protocol import MessageType, encode_frame, encode_message
 RADIUS = SMALL_SCENE["particles"]["radius"]
 ERROR = RADIUS / 100  # the client's default bound (POSITION_ERROR_FRACTION)
 CONFIG: dict[str, dict[str, Any]] = {
-    "limits": {"max_particles": 20_000, "max_pixels": 160 * 120},
+    "limits": {"max_particles": 20_000, "max_pixels": 160 * 120, "max_scene_bytes": 4096},
     "stream": {"message_timeout_s": 3.0, "max_in_flight": 4},
 }
 RAW = {**SMALL_SCENE, "output": {"format": "raw"}}
@@ -221,6 +221,13 @@ def test_bad_compact_bodies_over_http_are_400_naming_the_field(server: ServerPro
         error = json.loads(data)
         assert status == 400 and error["field"].startswith(field), (what, status, error)
         assert not text_faults(error["error"]), error
+    # A scene over the limit is refused before anything is decoded.
+    header, payload = CompactEncoder(position_error=ERROR).encode(1, {"positions": ball(50)})
+    body = encode_message(MessageType.FRAME, {**header, "scene": {"pad": "x" * 5000}}, payload)
+    status, _headers, data = server.request(
+        "POST", "/v1/render", body, {"Content-Type": FRAME_CONTENT_TYPE}
+    )
+    assert status == 413 and json.loads(data)["field"] == "scene", data
     # A delta frame over HTTP is refused: HTTP frames stand alone.
     header, payload = CompactEncoder(position_error=ERROR).encode(1, {"positions": ball(50)})
     body = encode_message(MessageType.FRAME, {**header, "base": 0}, payload)

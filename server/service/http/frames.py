@@ -189,6 +189,7 @@ class FrameRoutes:
                             body,
                             max_header_bytes=service.config.stream.max_header_bytes,
                             max_particles=limits.max_particles,
+                            max_scene_bytes=limits.max_scene_bytes,
                             admit=admit,
                         )
                     else:
