@@ -68,9 +68,13 @@ def test_compact_frame_renders_its_decoded_particles_exactly(server: ServerProce
     arrays = {
         "positions": ball(2000, seed=1),
         "temperatures": (1500 + 500 * rng.random(2000)).astype(np.float32),
+        "velocities": rng.normal(0, 2, (2000, 3)).astype(np.float32),  # within 0.001, carried
+        "ids": rng.permutation(10_000)[:2000].astype(np.int64),  # lossless, checked unique
     }
     truth = decoded(arrays)
     assert np.abs(truth["positions"] - arrays["positions"]).max() <= ERROR
+    assert np.abs(truth["velocities"] - arrays["velocities"]).max() <= 1e-3
+    assert np.array_equal(truth["ids"], arrays["ids"])
     with server.stream() as client:
         client.hello(RAW)
         client.send(compact_message(1, arrays))
