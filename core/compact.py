@@ -9,9 +9,9 @@ decoded) how it was stored:
   ``[lo, hi]`` (float64 per component), ``step`` the quantum; the encoder guarantees
   ``|decoded - x| <= error`` for the error it was given (``step`` just under ``2 * error``,
   with a per-value fix-up for float rounding). ``predict``: ``none`` (store q), ``particle``
-  (q minus the previous particle's q) or ``frame`` (q minus the same array's q in the frame
-  named by the header's ``base``); residuals are zigzag-mapped to unsigned. ``width``: bytes
-  per stored value.
+  (q minus the previous particle's q), ``frame`` (q minus the same array's q in the frame
+  named by the header's ``base``) or ``motion`` (that difference minus the previous
+  particle's); residuals are zigzag-mapped to unsigned. ``width``: bytes per stored value.
 * ``coding`` ``"raw"``: the array's own little-endian bytes, lossless (ids, flags, radii and any
   array without a precision in compact_encoder.py's `DEFAULT_ERRORS`).
 
@@ -50,7 +50,7 @@ __all__ = [
 #: The value of a FRAME header's ``encoding`` key for this encoding.
 ENCODING = "compact"
 CODINGS = ("quantized", "raw")
-PREDICTORS = ("none", "particle", "frame")
+PREDICTORS = ("none", "particle", "frame", "motion")
 WIDTHS = (1, 2, 4, 8)
 #: Largest quantised integer: decoded values stay exact in float64 arithmetic.
 MAX_Q = 2**52
@@ -292,7 +292,7 @@ class CompactDecoder:
         slots, _count = plan_compact_arrays(
             header, memoryview(payload).nbytes, max_particles=max_particles
         )
-        if any(slot.predict == "frame" for slot in slots):
+        if any(slot.predict in ("frame", "motion") for slot in slots):
             _check_base(header.get("base"), held_id)
         elif "base" in header:
             raise InputError("base", "is only for frames with an array predicted from a frame")
@@ -396,7 +396,11 @@ def _predicted(
             f"frame prediction needs {slot.name} with {residual.shape[1]} particles in the base "
             f"frame; it has {have}; send this frame in full",
         )
-    return base + residual.astype(np.int64)
+    moved = residual.astype(np.int64)
+    if slot.predict == "motion":  # each particle moved as the one before it, plus s
+        np.cumsum(moved, axis=1, out=moved)
+    moved += base
+    return moved
 
 
 def _check_range(slot: CompactSlot, index: int, q: np.ndarray) -> None:

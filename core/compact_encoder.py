@@ -189,9 +189,10 @@ class CompactEncoder:
         base = self._base.get(name) if self.delta else None
         if base is not None and base[0] == step and base[1].shape == q.shape and q.size:
             by_frame = q - base[1]
-            sample = slice(None, None, 7)  # a sample decides which residuals are smaller
-            if np.abs(by_frame[:, sample]).mean() < np.abs(by_particle[:, sample]).mean():
-                residual, predict = by_frame, "frame"
+            by_motion = np.diff(by_frame, axis=1, prepend=0)
+            sample = slice(None, None, 7)  # a sample decides which residuals are smallest
+            candidates = ((by_particle, "particle"), (by_frame, "frame"), (by_motion, "motion"))
+            residual, predict = min(candidates, key=lambda c: np.abs(c[0][:, sample]).mean())
         stored = _zigzag(residual)
         width = _width_for(int(stored.max()) if stored.size else 0)
         spec = {
@@ -201,4 +202,4 @@ class CompactEncoder:
             "predict": predict,
             "width": width,
         }
-        return spec, _planes(stored, width), q, step, predict == "frame"
+        return spec, _planes(stored, width), q, step, predict in ("frame", "motion")

@@ -113,10 +113,29 @@ def test_frame_prediction_round_trips_a_sequence() -> None:
     for frame_id in range(5):
         positions = positions + rng.normal(0, 2e-4, positions.shape)  # small steps: predictable
         header, payload = encoder.encode(frame_id, {"positions": positions})
-        predicted += header["arrays"][0]["predict"] == "frame"
+        predicted += header["arrays"][0]["predict"] in ("frame", "motion")
         decoded = decoder.decode(header, payload, max_particles=MAX)["positions"]
         assert max_error(decoded, positions) <= 1e-4
     assert predicted == 4  # every frame after the first
+
+
+def test_motion_prediction_round_trips_a_flow() -> None:
+    """A shear flow (up to 0.02 a frame, 100 quanta, varying along x) over particles in x
+    order, plus a little noise: each particle moves as the one before it, so ``motion`` is
+    chosen (a uniform translation would not do: the frame's bounds move with it)."""
+    rng = np.random.default_rng(8)
+    encoder, decoder = CompactEncoder(position_error=1e-4), CompactDecoder()
+    positions = rng.random((4000, 3))
+    positions = positions[np.argsort(positions[:, 0])]
+    for frame_id in range(4):
+        x = positions[:, :1]
+        flow = 0.02 * np.hstack([np.zeros_like(x), np.sin(6 * x), np.cos(6 * x)])
+        positions = positions + flow + rng.normal(0, 2e-5, positions.shape)
+        header, payload = encoder.encode(frame_id, {"positions": positions})
+        if frame_id:
+            assert header["arrays"][0]["predict"] == "motion"
+        decoded = decoder.decode(header, payload, max_particles=MAX)["positions"]
+        assert max_error(decoded, positions) <= 1e-4
 
 
 def encoded(n: int = 200, **kw: Any) -> tuple[dict[str, Any], bytes]:
