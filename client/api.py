@@ -28,8 +28,10 @@ from typing import Any, Literal
 
 import numpy as np
 
+from sphrender.client.compact_stream import CompactSender, compact_body, offered
 from sphrender.core.errors import InputError
 from sphrender.core.frame import ParticleFrame
+from sphrender.core.frame_message import FRAME_CONTENT_TYPE
 from sphrender.core.protocol import (
     IMAGE_FORMATS,
     ErrorCode,
@@ -127,6 +129,9 @@ class Client:
     timeout: float = 120.0
     retries: int = 4
     backoff_s: float = 0.5
+    #: HTTP frames in the compact encoding (PROTOCOL.md §4.7) instead of .npz; the stream uses
+    #: it whenever the server offers it (`stream(compact=...)`).
+    compact: bool = False
     _host: str = field(init=False)
     _port: int = field(init=False)
 
@@ -240,8 +245,11 @@ class Client:
     ) -> tuple[dict[str, str], bytes]:
         if format is not None and format not in IMAGE_FORMATS:
             raise InputError("format", f"must be one of {', '.join(IMAGE_FORMATS)}")
-        body = encode_npz_frame(positions, scene=scene, **arrays)
         path = "/v1/render" + (f"?format={format}" if format else "")
+        if self.compact:
+            body = compact_body(positions, scene, arrays)
+            return self.request("POST", path, body, FRAME_CONTENT_TYPE)
+        body = encode_npz_frame(positions, scene=scene, **arrays)
         return self.request("POST", path, body, "application/x-npz")
 
     def render_raw(
@@ -303,14 +311,17 @@ class Client:
         mode: Literal["queue", "latest"] = "queue",
         max_in_flight: int | None = None,
         stream_port: int | None = None,
+        compact: bool = True,
     ) -> StreamSession:
-        """Open a streaming session (the port comes from /v1/info unless given)."""
+        """Open a streaming session (the port comes from /v1/info unless given). `compact`:
+        send frames in the compact encoding when the server offers it (client/compact_stream.py:
+        positions within 1/100 of the particle radius)."""
         if stream_port is None:
             stream_port = self.info().get("stream_port")
             if not stream_port:
                 raise ServerUnavailable(f"{self.url} has no streaming socket")
         return StreamSession(
-            self._host, stream_port, scene, self.token, mode, max_in_flight, self.timeout
+            self._host, stream_port, scene, self.token, mode, max_in_flight, self.timeout, compact
         )
 
 
@@ -340,6 +351,7 @@ class StreamSession:
         mode: str,
         max_in_flight: int | None,
         timeout: float,
+        compact: bool = True,
     ) -> None:
         self._socket = socket.create_connection((host, port), timeout=timeout)
         self._reader = self._socket.makefile("rb")
@@ -363,6 +375,9 @@ class StreamSession:
         self._next_id = 0
         self._outstanding: deque[int] = deque()
         self.closed_reason: str | None = None
+        self.compact = CompactSender(self.welcome) if compact and offered(self.welcome) else None
+        self._held: dict[int, StreamResult] = {}  # answers that overtook a frame sent again
+        self._resent: set[int] = set()
 
     @property
     def in_flight(self) -> int:
@@ -399,12 +414,38 @@ class StreamSession:
         if frame_id is None:
             frame_id = self._next_id
         self._next_id = frame_id + 1
-        self._socket.sendall(encode_frame(frame_id, positions, **arrays))
+        if self.compact is not None:
+            self._socket.sendall(self.compact.message(frame_id, positions, arrays))
+        else:
+            self._socket.sendall(encode_frame(frame_id, positions, **arrays))
         self._outstanding.append(frame_id)
         return frame_id
 
     def receive(self) -> StreamResult:
-        """The next answer (in the order frames were sent)."""
+        """The next answer (in the order frames were sent). A compact frame refused for its
+        ``base`` is sent again in full, and its answer still comes in order."""
+        while True:
+            head = self._outstanding[0] if self._outstanding else None
+            if head in self._held and head not in self._resent:
+                return self._held.pop(self._outstanding.popleft())
+            result = self._receive_one()
+            if self.compact is not None and result.kind == "error":
+                again = self.compact.resend(result.id, result.header.get("field"))
+                if again is not None:
+                    self._socket.sendall(again)
+                    self._resent.add(result.id)
+                    continue
+            if self.compact is not None:
+                self.compact.answered(result.id)
+            if head in self._resent and result.id != head:
+                self._held[result.id] = result
+                continue
+            self._resent.discard(result.id)
+            if head == result.id:
+                self._outstanding.popleft()
+            return result
+
+    def _receive_one(self) -> StreamResult:
         message = self._read()
         header = dict(message.header)
         if message.type == MessageType.IMAGE:
@@ -420,8 +461,6 @@ class StreamSession:
             raise ConnectionError(f"the server ended the session: {self.closed_reason}")
         else:
             raise ProtocolError(ErrorCode.PROTOCOL, f"unexpected message {message.type!r}")
-        if self._outstanding and self._outstanding[0] == result.id:
-            self._outstanding.popleft()
         return result
 
     def render_all(self, frames: Iterable[ParticleFrame]) -> Iterator[StreamResult]:

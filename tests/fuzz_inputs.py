@@ -4,9 +4,10 @@ subset and by benchmarks/fuzz_campaign.py for the long campaign).
 
 Three kinds of input:
 
-* **frame-level** (`frame_input`): a FRAME whose prefix is intact but whose header or payload
-  is wrong in one of the ways PROTOCOL.md 4.2 forbids (array specs, dtypes, shapes, counts,
-  NaN, the payload length, unknown keys, the scene override). The server must answer each with
+* **frame-level** (`frame_input`): a FRAME (raw or compact) whose prefix is intact but whose
+  header or payload is wrong in one of the ways PROTOCOL.md 4.2 and 4.7 forbid (array specs,
+  dtypes, shapes, counts, NaN, the payload length, unknown keys, the scene override, the compact
+  encoding's keys and zstd frames). The server must answer each with
   exactly one non-fatal ERROR (or an IMAGE when the mutation happened to be valid), in order,
   on a connection that goes on;
 * **connection-level** (`connection_input`): bytes that break the framing or the handshake
@@ -195,7 +196,12 @@ def _mutate_json(rng: random.Random, value: Any, depth: int = 0, big: bool = Fal
 
 
 def frame_input(rng: random.Random, frame_id: int) -> bytes:
-    """A frame-level input (module docstring): valid prefix and id, something else wrong."""
+    """A frame-level input (module docstring): valid prefix and id, something else wrong; a
+    quarter of them compact frames (tests/fuzz_compact.py)."""
+    if rng.random() < 0.25:
+        from fuzz_compact import compact_frame_input
+
+        return compact_frame_input(rng, frame_id, _weird)
     n = rng.choice((0, 1, 2, 3, 5, 8))
     specs, payload = _valid_arrays(rng, n)
     header: dict[str, Any] = {"id": frame_id, "arrays": specs}
@@ -317,6 +323,10 @@ def http_body(rng: random.Random) -> bytes:
 def http_input(rng: random.Random) -> bytes:
     """A whole HTTP/1.1 request (keep-alive), possibly malformed; garbage may be incomplete
     (the client then half-closes: see `run_http_input`)."""
+    if rng.random() < 0.15:
+        from fuzz_compact import compact_http_request
+
+        return compact_http_request(rng, rng.randrange(1 << 20), _weird, SCENE)
     roll = rng.random()
     if roll < 0.55:
         body = http_body(rng)

@@ -2,7 +2,9 @@
 server: compiled with gcc here, run as a process, its stdout and the pixels it wrote checked.
 
 Its raw frame must be the server's render of the particles it sent, byte for byte: the same
-engine renders them here (raw rgba8 = the PNG's 8-bit codes, `encode_for_scene`).
+engine renders them here (raw rgba8 = the PNG's 8-bit codes, `encode_for_scene`). Its compact
+frame (PROTOCOL.md §4.7, written with libzstd) likewise: the server's render of the positions
+the C encoder says it encoded, which lie within its bound of the particles it was given.
 """
 
 from __future__ import annotations
@@ -20,7 +22,8 @@ from sphrender.server.output.local import encode_for_scene
 from sphrender.server.scene import scene_from_dict
 
 SOURCE = Path(__file__).resolve().parent.parent / "examples" / "c_client" / "sphr_client.c"
-FLAGS = ["-std=c11", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
+FLAGS = ["-std=c11", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2", "-ffp-contract=off"]
+LIBS = ["-lzstd", "-lm"]  # libzstd-dev, deploy/apt/tests.txt
 SCENE = {
     "image": {"width": 64, "height": 48},
     "camera": {"eye": [0.6, 0.5, 0.9], "target": [0, 0, 0], "fov_y": 40},
@@ -37,7 +40,7 @@ def test_c_client_against_a_real_server(
         "gcc not found: install the packages in deploy/apt/tests.txt (see the README)"
     )
     binary = tmp_path / "sphr_client"
-    subprocess.run([gcc, *FLAGS, "-o", str(binary), str(SOURCE)], check=True, timeout=120)
+    subprocess.run([gcc, *FLAGS, "-o", str(binary), str(SOURCE), *LIBS], check=True, timeout=120)
     prefix = tmp_path / "out"
     result = subprocess.run(
         [str(binary), "127.0.0.1", str(service.stream_port), str(prefix)],
@@ -52,7 +55,8 @@ def test_c_client_against_a_real_server(
     assert lines[2].startswith("IMAGE id=2 format=jpeg 64x48 bytes=")
     assert lines[3] == "JPEG markers ok"
     assert lines[4] == "ERROR id=3 code=bad_input field=radii[17] fatal=false"
-    assert lines[5:] == ["GOODBYE reason=bye", "OK"]
+    assert lines[5] == f"IMAGE id=4 format=raw 64x48 bytes={64 * 48 * 4}"
+    assert lines[6:] == ["GOODBYE reason=bye", "OK"]
 
     positions = np.fromfile(prefix.with_suffix(".positions"), dtype="<f8").reshape(300, 3)
     assert np.all(np.linalg.norm(positions, axis=1) <= 0.15)
@@ -63,5 +67,10 @@ def test_c_client_against_a_real_server(
     got = prefix.with_suffix(".rgba").read_bytes()
     assert np.count_nonzero(np.frombuffer(expected, np.uint8)[3::4]) > 100  # a visible ball
     assert got == expected
+    decoded = np.fromfile(f"{prefix}.compact.positions", dtype="<f8").reshape(300, 3)
+    assert np.abs(decoded - positions).max() <= 0.0002  # the C encoder's bound
+    assert not np.array_equal(decoded, positions)
+    rendered, _ = renderer.render(make_frame(decoded, radii=radii), scene)
+    assert Path(f"{prefix}.compact.rgba").read_bytes() == encode_for_scene(rendered, scene, "raw")
     jpeg = prefix.with_suffix(".jpg").read_bytes()
     assert jpeg[:2] == b"\xff\xd8" and jpeg[-2:] == b"\xff\xd9"

@@ -121,7 +121,10 @@ def test_unreachable_server_is_retried_then_reported() -> None:
 def test_stream_session_pipelines_in_order(service: ServerProcess) -> None:
     frames = [make_frame(ball(300, seed=i)) for i in range(12)]
     client = Client(url(service))
-    with client.stream(SMALL_SCENE, max_in_flight=4) as session:
+    # Raw frames (the compact encoding, the default, moves positions by up to radius / 100:
+    # tests/test_service_compact.py checks it renders its decoded particles exactly).
+    with client.stream(SMALL_SCENE, max_in_flight=4, compact=False) as session:
+        assert session.compact is None
         results = list(session.render_all(frames))
     assert [r.id for r in results] == list(range(12))
     assert all(r.kind == "image" and r.data.startswith(b"\x89PNG") for r in results)

@@ -167,7 +167,9 @@ def test_velocities_and_ids_over_http_and_stream(service: ServerProcess) -> None
     assert caught.value.field == "ids[9]" and caught.value.status == 400
     assert "must be unique" in str(caught.value)
 
-    with client.stream(SMALL_SCENE) as session:
+    # Raw frames, to compare bytes with the HTTP render (tests/test_service_compact.py carries
+    # velocities and ids in compact frames).
+    with client.stream(SMALL_SCENE, compact=False) as session:
         session.send(positions, velocities=velocities, ids=ids, scene={"output": {"format": "raw"}})
         session.send(positions, velocities=velocities[:, :2].copy())
         session.send(positions, ids=twice)

@@ -60,7 +60,9 @@ def test_each_list_is_package_names_one_a_line() -> None:
 
 def test_the_lists_are_python_mesa_pocl_and_what_the_tests_drive() -> None:
     assert set(package_list("render.txt")) == PYTHON | set(MESA_PACKAGES) | {"pocl-opencl-icd"}
-    assert set(package_list("tests.txt")) == {"chromium", "haproxy", "gcc", "libc6-dev"}
+    # libzstd-dev: the C example client's compact frames (tests/test_c_client.py).
+    tests = {"chromium", "haproxy", "gcc", "libc6-dev", "libzstd-dev"}
+    assert set(package_list("tests.txt")) == tests
     assert set(package_list("nvidia.txt")) == PYTHON | {"libegl1", "libopengl0"}
 
 

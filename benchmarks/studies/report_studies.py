@@ -1,9 +1,10 @@
 """The studies this repository's REPORT.md adds to `sphrender bench` (`run_bench(studies=...)`,
 run by benchmarks/bench_report.py): the dam break on every frame of the data set, the flicker
-under both readings of the jitter, and the crops of what field normals, `last_pass_sigma` and
-`destreak` change: each needs ../shared/data (and pysplashsurf, or the reference cache) and is
-skipped without it. Shadows (cost per light, error), the brushed plate's finish costs and crop,
-and the cost and error of glare and motion blur (built-in scenes) need nothing outside.
+under both readings of the jitter, the compact frame encoding (wire_report.py), and the crops
+of what field normals, `last_pass_sigma` and `destreak` change: each needs ../shared/data (and
+pysplashsurf, or the reference cache) and is skipped without it. Shadows (cost per light, error),
+the brushed plate's finish costs and crop, and the cost and error of glare and motion blur
+(built-in scenes) need nothing outside.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from benchmarks.studies.dam_frames import (
 from benchmarks.studies.jitter_readings import jitter_readings_section, run_jitter_readings
 from benchmarks.studies.post_effects import run_post_effects
 from benchmarks.studies.shadows import shadows_section
+from benchmarks.studies.wire_report import wire_section
 from sphrender.server.bench.run import StudyContext
 from sphrender.server.bench.surface_bench import (
     NO_FIELD_NORMALS,
@@ -44,6 +46,7 @@ def run_studies(ctx: StudyContext) -> None:
     results.command = COMMAND
     balanced = preset_setting("balanced")
     _dam_frames(ctx)
+    results.extra_sections += wire_section(quick=False, link=True, log=log)
     log("flicker under both readings of the jitter")
     readings = run_jitter_readings(
         ctx.gl,

@@ -7,12 +7,18 @@
  *   id 1: the session's encoding (raw rgba8)      -> OUT_PREFIX.rgba  (64 x 48 x 4 bytes)
  *   id 2: per-frame override output.format "jpeg" -> OUT_PREFIX.jpg
  *   id 3: one negative radius                     -> ERROR bad_input (not fatal)
+ *   id 4: the same particles in the compact encoding (PROTOCOL.md 4.7: positions within
+ *         0.0002 of the sent values, predicted particle to particle, radii raw; zstd)
+ *                                                 -> OUT_PREFIX.compact.rgba
  * then BYE and GOODBYE. The positions sent are written to OUT_PREFIX.positions (N x 3 <f8),
- * so a test can render the same frame. One line per message on stdout; exit status 0 when
- * every answer was what PROTOCOL.md says it must be.
+ * and those frame 4 decodes to to OUT_PREFIX.compact.positions, so a test can render the same
+ * frames. One line per message on stdout; exit status 0 when every answer was what
+ * PROTOCOL.md says it must be. Build with -lzstd (and -ffp-contract=off: the decoder's
+ * lo + q * step must be a multiply and an add, each rounded).
  */
 #define _POSIX_C_SOURCE 200809L
 #include <arpa/inet.h>
+#include <math.h>
 #include <netdb.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
@@ -22,6 +28,7 @@
 #include <string.h>
 #include <sys/socket.h>
 #include <unistd.h>
+#include <zstd.h>
 
 enum { HELLO = 0x01, FRAME = 0x02, BYE = 0x03, WELCOME = 0x81, IMAGE = 0x82, ERROR_MSG = 0x83,
        DROPPED = 0x84, GOODBYE = 0x85 };
@@ -167,6 +174,85 @@ static void make_particles(const char *prefix) {
     write_file(prefix, ".positions", payload, N * 24);
 }
 
+/* The compact FRAME of the particles in `payload`: its JSON header into `header`, its payload
+ * (two zstd frames) into `*out`; returns the payload's length. */
+enum { MAX_COMPACT = 2 * (N * 3 * 8 + N * 4) + 1024 };
+static uint8_t planes[N * 3 * 8];
+static uint8_t compact[MAX_COMPACT];
+
+static size_t zstd_frame(const uint8_t *data, size_t n, uint8_t *out, size_t room) {
+    ZSTD_CCtx *cctx = ZSTD_createCCtx();
+    if (!cctx) die("out of memory");
+    ZSTD_CCtx_setParameter(cctx, ZSTD_c_checksumFlag, 1);     /* the server requires both */
+    ZSTD_CCtx_setParameter(cctx, ZSTD_c_contentSizeFlag, 1);
+    size_t written = ZSTD_compress2(cctx, out, room, data, n);
+    ZSTD_freeCCtx(cctx);
+    if (ZSTD_isError(written)) die("zstd failed");
+    return written;
+}
+
+static double get_f64(const uint8_t *p) {
+    uint64_t bits = 0;
+    for (int i = 0; i < 8; i++) bits |= (uint64_t)p[i] << (8 * i);
+    double d;
+    memcpy(&d, &bits, 8);
+    return d;
+}
+
+static size_t compact_frame(const char *prefix, double error, char *header, size_t hsize) {
+    double p[N][3], lo[3], hi[3], decoded[N * 3];
+    int64_t q[3][N];
+    for (int i = 0; i < N; i++)
+        for (int c = 0; c < 3; c++) p[i][c] = get_f64(payload + (i * 3 + c) * 8);
+    for (int c = 0; c < 3; c++) {
+        lo[c] = hi[c] = p[0][c];
+        for (int i = 1; i < N; i++) {
+            if (p[i][c] < lo[c]) lo[c] = p[i][c];
+            if (p[i][c] > hi[c]) hi[c] = p[i][c];
+        }
+    }
+    const double step = 2.0 * error * (1.0 - 1.0 / 1073741824.0);  /* room for rounding */
+    uint64_t top = 0, zz[3][N];
+    for (int c = 0; c < 3; c++) {
+        for (int i = 0; i < N; i++) {
+            int64_t k = llround((p[i][c] - lo[c]) / step);
+            for (int pass = 0; pass < 2; pass++) {  /* a value one ulp past the bound: nudge */
+                double value = lo[c] + (double)k * step, miss = value - p[i][c];
+                if (miss > error) k--;
+                else if (miss < -error) k++;
+            }
+            q[c][i] = k;
+            decoded[i * 3 + c] = lo[c] + (double)k * step;
+            int64_t r = k - (i ? q[c][i - 1] : 0);  /* predicted from the previous particle */
+            zz[c][i] = ((uint64_t)r << 1) ^ (uint64_t)(r >> 63);  /* zigzag */
+            if (zz[c][i] > top) top = zz[c][i];
+        }
+    }
+    int width = top < 256 ? 1 : top < 65536 ? 2 : top < 4294967296ULL ? 4 : 8;
+    size_t count = 3 * N;  /* elements, component-major; byte b of each in plane b */
+    for (int c = 0; c < 3; c++)
+        for (int i = 0; i < N; i++)
+            for (int b = 0; b < width; b++)
+                planes[b * count + c * N + i] = (uint8_t)(zz[c][i] >> (8 * b));
+    size_t first = zstd_frame(planes, count * width, compact, MAX_COMPACT);
+    for (int i = 0; i < N; i++)  /* radii raw: 4 planes of the float32 bytes */
+        for (int b = 0; b < 4; b++) planes[b * N + i] = payload[N * 24 + i * 4 + b];
+    size_t second = zstd_frame(planes, N * 4, compact + first, MAX_COMPACT - first);
+    snprintf(header, hsize,
+             "{\"id\":4,\"encoding\":\"compact\",\"arrays\":["
+             "{\"name\":\"positions\",\"dtype\":\"<f8\",\"shape\":[%d,3],"
+             "\"coding\":\"quantized\",\"step\":%.17g,"
+             "\"bounds\":[[%.17g,%.17g,%.17g],[%.17g,%.17g,%.17g]],"
+             "\"predict\":\"particle\",\"width\":%d,\"bytes\":%zu},"
+             "{\"name\":\"radii\",\"dtype\":\"<f4\",\"shape\":[%d],\"coding\":\"raw\","
+             "\"bytes\":%zu}]}",
+             N, step, lo[0], lo[1], lo[2], hi[0], hi[1], hi[2], width, first, N, second);
+    uint8_t bytes[N * 3 * 8];
+    for (int i = 0; i < N * 3; i++) put_f64(bytes + i * 8, decoded[i]);
+    write_file(prefix, ".compact.positions", bytes, sizeof bytes);
+    return first + second;
+}
+
 int main(int argc, char **argv) {
     if (argc < 4) {
         fprintf(stderr, "usage: sphr_client HOST PORT OUT_PREFIX [TOKEN]\n");
@@ -202,7 +288,7 @@ int main(int argc, char **argv) {
     long max_in_flight = json_int(m.header, "max_in_flight");
     printf("WELCOME max_in_flight=%ld\n", max_in_flight);
     free_message(&m);
-    if (max_in_flight < 3) die("this example pipelines 3 frames");
+    if (max_in_flight < 4) die("this example pipelines 4 frames");
 
     make_particles(prefix);
     char frame[512];
@@ -214,12 +300,15 @@ int main(int argc, char **argv) {
     snprintf(frame, sizeof frame, "{\"id\":2,%s,\"scene\":{\"output\":{\"format\":\"jpeg\"}}}",
              arrays);
     send_message(FRAME, frame, payload, sizeof payload);
+    char compact_header[1024];
+    size_t compact_length = compact_frame(prefix, 0.0002, compact_header, sizeof compact_header);
     put_f32(payload + N * 24 + 17 * 4, -1.0f);  /* radius 17 < 0: this frame is refused */
     snprintf(frame, sizeof frame, "{\"id\":3,%s}", arrays);
     send_message(FRAME, frame, payload, sizeof payload);
+    send_message(FRAME, compact_header, compact, compact_length);
 
     int ok = 1;
-    for (long id = 1; id <= 3; id++) {
+    for (long id = 1; id <= 4; id++) {
         m = receive_message();
         long got = json_int(m.header, "id");
         char format[32], code[64], field[64];
@@ -229,9 +318,10 @@ int main(int argc, char **argv) {
             printf("IMAGE id=%ld format=%s %ldx%ld bytes=%u\n", got, format, w, h,
                    (unsigned)m.payload_length);
             if (strcmp(format, "raw") == 0) {
-                ok &= id == 1 && w == WIDTH && h == HEIGHT && strstr(m.header, "\"u1\"") != NULL &&
+                ok &= (id == 1 || id == 4) && w == WIDTH && h == HEIGHT && strstr(m.header, "\"u1\"") != NULL &&
                       m.payload_length == (uint32_t)(w * h * 4);
-                write_file(prefix, ".rgba", m.payload, m.payload_length);
+                write_file(prefix, id == 1 ? ".rgba" : ".compact.rgba", m.payload,
+                           m.payload_length);
             } else {
                 int soi = m.payload_length > 4 && m.payload[0] == 0xFF && m.payload[1] == 0xD8;
                 int eoi = m.payload_length > 4 && m.payload[m.payload_length - 2] == 0xFF &&

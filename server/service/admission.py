@@ -44,6 +44,9 @@ PARTICLE_BYTES = 640
 PIXEL_BYTES = 120
 #: Bytes per particle for the arrays the service holds but does not send to the renderer.
 EXTRA_PARTICLE_BYTES: dict[str, int] = {"velocities": 16, "ids": 16}
+#: Bytes per particle more for a compact frame: its inflated byte planes, integers and the
+#: float64 arithmetic of the decode (core/compact.py), on top of the decoded arrays.
+COMPACT_PARTICLE_BYTES = 192
 _MIB = 1 << 20
 
 

@@ -22,6 +22,7 @@ from importlib import metadata
 from typing import Any, Literal, get_args, get_type_hints
 
 from sphrender.core.frame import ParticleFrame, make_frame
+from sphrender.core.frame_message import ENCODINGS, FRAME_CONTENT_TYPE
 from sphrender.core.protocol import ARRAY_NAMES, IMAGE_FORMATS, ErrorCode, LimitError
 from sphrender.core.protocol import VERSION as PROTOCOL_VERSION
 from sphrender.server.content.demo import demo_frame
@@ -314,6 +315,8 @@ class RenderService:
             "formats": list(IMAGE_FORMATS),
             "raw_types": list(RAW_TYPES),
             "frame_arrays": list(ARRAY_NAMES),
+            "frame_encodings": list(ENCODINGS),
+            "frame_content_types": ["application/x-npz", FRAME_CONTENT_TYPE],
             "stream_port": self.stream_port,
             "auth": "bearer" if self.config.security.token else "none",
             "limits": public_limits(self.config),

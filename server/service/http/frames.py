@@ -15,6 +15,7 @@ import json
 from concurrent.futures import TimeoutError as FutureTimeout
 
 from sphrender.core.errors import InputError, kind_of
+from sphrender.core.frame_message import FRAME_CONTENT_TYPE, decode_frame_body
 from sphrender.core.protocol import (
     IMAGE_FORMATS,
     ErrorCode,
@@ -24,7 +25,13 @@ from sphrender.core.protocol import (
     parse_json_object,
 )
 from sphrender.server.scene import Scene, merge_scene_dicts
-from sphrender.server.service.admission import Busy, Reservation, decoding, frame_estimate
+from sphrender.server.service.admission import (
+    COMPACT_PARTICLE_BYTES,
+    Busy,
+    Reservation,
+    decoding,
+    frame_estimate,
+)
 from sphrender.server.service.facade import ServiceFacade
 from sphrender.server.service.http.errors import HttpError
 from sphrender.server.service.http.handler import HandlerBase
@@ -163,6 +170,8 @@ class FrameRoutes:
                 scene = self._scene_for(session, scene_json)
                 pixels = scene.image.width * scene.image.height
                 total = frame_estimate(length, particles, pixels, arrays)
+                if content_type.lower() == FRAME_CONTENT_TYPE:
+                    total += particles * COMPACT_PARTICLE_BYTES
                 what = f"{particles} particles at {scene.image.width}x{scene.image.height}"
                 service.memory.check(total, what, "positions")
                 extra = service.memory.reserve(total - length, what, "positions")
@@ -172,18 +181,28 @@ class FrameRoutes:
                 extra.amount = 0
                 decided.append(scene)
 
+            content_type = self.http.headers.get("Content-Type", "").partition(";")[0].strip()
             try:
                 with decoding("body", "http"):
-                    npz = decode_npz_frame(
-                        body,
-                        max_particles=limits.max_particles,
-                        max_uncompressed_bytes=limits.max_request_bytes,
-                        max_entries=limits.max_npz_entries,
-                        max_scene_bytes=limits.max_scene_bytes,
-                        admit=admit,
-                    )
+                    if content_type.lower() == FRAME_CONTENT_TYPE:
+                        arrays = decode_frame_body(
+                            body,
+                            max_header_bytes=service.config.stream.max_header_bytes,
+                            max_particles=limits.max_particles,
+                            max_scene_bytes=limits.max_scene_bytes,
+                            admit=admit,
+                        )
+                    else:
+                        arrays = decode_npz_frame(
+                            body,
+                            max_particles=limits.max_particles,
+                            max_uncompressed_bytes=limits.max_request_bytes,
+                            max_entries=limits.max_npz_entries,
+                            max_scene_bytes=limits.max_scene_bytes,
+                            admit=admit,
+                        ).arrays
                     del body  # the arrays were copied out of the archive
-                    particles = service.make_particles(npz.arrays)
+                    particles = service.make_particles(arrays)
             except InputError as exc:
                 service.record_invalid_frame("http", input_code(exc))
                 raise HttpError.from_input(exc) from None

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from sphrender.core.errors import show
+from sphrender.core.frame_message import ENCODINGS
 from sphrender.core.protocol import ErrorCode, MessageType, ProtocolError
 from sphrender.server.scene import Scene, scene_to_dict
 from sphrender.server.service.config import ServerConfig, public_limits
@@ -123,6 +124,7 @@ def welcome_header(
         "mode": hello.mode,
         "max_in_flight": hello.max_in_flight,
         "limits": public_limits(config),
+        "frame_encodings": list(ENCODINGS),
         "timeouts": stream_timeouts(config),
         "scene": scene_to_dict(scene),
         "server": server,

@@ -16,6 +16,7 @@ from typing import Any, Literal
 
 from sphrender.core.errors import InputError, show
 from sphrender.core.frame import ParticleFrame
+from sphrender.core.frame_message import FrameDecoder, plan_frame
 from sphrender.core.protocol import (
     MAX_FRAME_ID,
     PREFIX_SIZE,
@@ -23,13 +24,17 @@ from sphrender.core.protocol import (
     LimitError,
     MessageType,
     ProtocolError,
-    decode_frame_arrays,
     parse_header,
     parse_prefix,
-    plan_frame_arrays,
 )
 from sphrender.server.scene import Scene, merge_scene_dicts
-from sphrender.server.service.admission import Busy, Reservation, decoding, frame_estimate
+from sphrender.server.service.admission import (
+    COMPACT_PARTICLE_BYTES,
+    Busy,
+    Reservation,
+    decoding,
+    frame_estimate,
+)
 from sphrender.server.service.facade import ServiceFacade
 from sphrender.server.service.render.jobs import ErrorOutcome, FrameJob
 from sphrender.server.service.render.scheduler import QueueFull, SchedulerClosed
@@ -39,7 +44,7 @@ from sphrender.server.service.stream.wire import Channel, Closed
 
 log = logging.getLogger("sphrender.service.stream")
 
-_FRAME_KEYS = ("id", "arrays", "scene")
+_FRAME_KEYS = ("id", "arrays", "scene", "encoding", "base")
 
 
 def read_head(
@@ -84,6 +89,7 @@ class FrameReader:
         self.mode = mode
         self.max_in_flight = max_in_flight
         self.peer = peer
+        self.decoder = FrameDecoder()  # holds the last compact frame, for frame prediction
 
     def run(self) -> str:
         """Read messages until the connection ends; returns how it ended."""
@@ -190,6 +196,7 @@ class FrameReader:
             outcome = ErrorOutcome(code, exc.message, exc.field)
         self.service.record_invalid_frame("stream", outcome.code)
         self.answers.push(Slot(frame_id, outcome=outcome))
+        self.decoder.forget()
         self.channel.discard(payload_len, deadline)
         self.service.metrics.transport.bytes_in.inc("stream", amount=payload_len)
 
@@ -239,13 +246,15 @@ class FrameReader:
                 if key not in _FRAME_KEYS:
                     allowed = ", ".join(_FRAME_KEYS)
                     raise InputError(f"header.{key}", f"unknown key; allowed: {allowed}")
-            slots, count = plan_frame_arrays(
-                header.get("arrays"), payload_len, max_particles=service.config.limits.max_particles
+            plan = plan_frame(
+                header, payload_len, max_particles=service.config.limits.max_particles
             )
             scene = self._frame_scene(header)
         image = scene.image
-        names = [slot.name for slot in slots]
-        estimate = frame_estimate(payload_len, count, image.width * image.height, names)
+        count = plan.count
+        estimate = frame_estimate(payload_len, count, image.width * image.height, plan.names)
+        if plan.encoding != "raw":
+            estimate += count * COMPACT_PARTICLE_BYTES
         what = f"{count} particles at {image.width}x{image.height}"
         reservation = service.memory.reserve(
             estimate,
@@ -277,7 +286,7 @@ class FrameReader:
             payload = self.channel.recv(payload_len, deadline) if payload_len else bytearray()
             service.metrics.transport.bytes_in.inc("stream", amount=payload_len)
             with decoding("arrays", "stream"):
-                arrays = decode_frame_arrays(header["arrays"], payload, max_particles=max_particles)
+                arrays = self.decoder.decode(header, payload, max_particles=max_particles)
                 return service.make_particles(arrays)
         except InputError as exc:
             reservation.release()

@@ -1,0 +1,222 @@
+"""The "Wire" section of REPORT.md: the compact encoding's measurements (wire.py, wire_link.py)
+as tables, with the issue's targets and whether they are met."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from functools import partial
+
+import numpy as np
+
+from benchmarks.studies.wire import (
+    DAM_RADIUS,
+    FRACTIONS,
+    SPATTER_RADIUS,
+    CodecRow,
+    _best_ms,
+    codec_rows,
+    dam_sequence,
+    image_change,
+    peer_rows,
+    spatter_sequence,
+)
+from sphrender.core.compact_encoder import CompactEncoder
+
+HEADING = "## Wire: the compact frame encoding"
+#: Before this heading when the report has no Wire section yet.
+_BEFORE = "## Scaling"
+DAM_CAMERA = {"eye": [0.0, 2.5, 5.0], "target": [0.0, 0.5, 0.0], "fov_y": 45.0}
+SPATTER_CAMERA = {"eye": [0.5, 0.6, 1.2], "target": [0.0, 0.1, 0.0], "fov_y": 40.0}
+MBIT = 1e6
+
+
+def _r(fraction: float) -> str:
+    return f"r/{round(1 / fraction)}" if fraction else "lossless f32"
+
+
+def wire_section(*, quick: bool, link: bool, log: Callable[[str], None]) -> list[str]:
+    dam = dam_sequence(3)
+    if dam is None:
+        log("wire: skipped (../shared/data not found)")
+        return []
+    repeats = 1 if quick else 3
+    lines = [HEADING, "", _INTRO.format(cpus=os.cpu_count()), ""]
+    log("wire: codec at 100k")
+    rows = list(codec_rows("dam break", dam, DAM_RADIUS, FRACTIONS, repeats))
+    spatter = spatter_sequence(100_000)
+    rows += codec_rows("spatter", spatter, SPATTER_RADIUS, FRACTIONS, repeats)
+    if not quick:
+        log("wire: codec at 1M")
+        big = dam_sequence(31)
+        assert big is not None
+        rows += codec_rows("dam break", big[:4], DAM_RADIUS, (0.01,), 1)
+        del big
+        rows += codec_rows("spatter", spatter_sequence(1_000_000, 4), SPATTER_RADIUS, (0.01,), 1)
+    lines += _codec_table(rows)
+    log("wire: peers")
+    lines += _peer_table(dam[4]["positions"], rows)
+    log("wire: image change")
+    lines += _image_table(dam, spatter)
+    if link:
+        log("wire: rate-limited link")
+        lines += _link_table(dam)
+    lines += ["", *_verdicts(rows), ""]
+    return lines
+
+
+_INTRO = (
+    "`benchmarks/bench_wire.py` (studies/wire.py, wire_link.py), on this machine's {cpus} CPU "
+    "cores, shared (timings: the best of 3 repeats, median over a sequence's frames). Positions "
+    "within the bound b (max |decoded - sent| <= b, measured below in radii), densities within "
+    "0.05 kg/m³, temperatures within 0.05 K (the client's defaults). A session's frames after the "
+    "first are predicted from the one before where that is smaller; the first frame stands alone. "
+    "Dam break: the real frames (0.2 s apart), copies side by side, each a different frame "
+    "turned by 1-4° (no copy repeats another's numbers); temperatures synthetic. Spatter: a "
+    "pool with a slow wave and 5 % droplets in flight, 30 frames a second. A 1M dam-break frame "
+    "holds every frame of the data set about 4 times, the early ones (still in the initial "
+    "lattice's order, cheap) included; a 100k frame holds three neighbouring frames."
+)
+
+
+def _codec_table(rows: list[CodecRow]) -> list[str]:
+    lines = [
+        "| sequence | particles | bound | positions B/particle | frame B/particle | first "
+        "frame B/particle | encode ms | decode ms | decode ms per 100k | decode CPU ms per 100k "
+        "| max error (r) |",
+        "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for row in rows:
+        per = row.decode_ms * 100_000 / row.particles
+        per_cpu = row.decode_cpu_ms * 100_000 / row.particles
+        lines.append(
+            f"| {row.sequence} | {row.particles:,} | {_r(row.fraction)} | "
+            f"{row.positions_bpp:.2f} | {row.frame_bpp:.2f} | {row.first_bpp:.2f} | "
+            f"{row.encode_ms:.1f} | {row.decode_ms:.1f} | {per:.1f} | {per_cpu:.1f} | "
+            f"{row.max_error_r:.4f} |"
+        )
+    return [*lines, ""]
+
+
+def _peer_table(positions: object, rows: list[CodecRow]) -> list[str]:
+    pos = np.asarray(positions)
+    peers = peer_rows(pos, DAM_RADIUS, FRACTIONS)
+    lines = [
+        f"Peers on the positions of one dam-break frame ({len(pos):,} particles, frame 9 and its "
+        "neighbours), beside this encoding's (one frame alone, and in a session):",
+        "",
+        "| coder | bound | positions B/particle | max error (r) | encode ms | decode ms |",
+        "|---|---|---:|---:|---:|---:|",
+    ]
+    for fraction in FRACTIONS:
+        ms, (_header, payload) = _best_ms(partial(_alone, fraction * DAM_RADIUS, pos))
+        alone = len(payload) / len(pos)
+        lines.append(f"| compact, this frame alone | {_r(fraction)} | {alone:.2f} | ≤ {fraction:g} "
+                     f"| {ms:.1f} | |")  # fmt: skip
+        ours = next(r for r in rows if r.fraction == fraction and r.particles == len(pos))
+        lines.append(
+            f"| compact, in a session | {_r(fraction)} | {ours.positions_bpp:.2f} | "
+            f"{ours.max_error_r:.4f} | {ours.encode_ms:.1f} | {ours.decode_ms:.1f} |"
+        )
+    for peer in sorted(peers, key=lambda p: (p.fraction, p.peer)):
+        lines.append(
+            f"| {peer.peer} | {_r(peer.fraction)} | {peer.positions_bpp:.2f} | "
+            f"{peer.max_error_r:.4f} | {peer.encode_ms:.1f} | {peer.decode_ms:.1f} |"
+        )
+    return [*lines, ""]
+
+
+def _alone(error: float, positions: np.ndarray) -> tuple[dict, bytes]:
+    """One frame with a fresh encoder (nothing to predict it from)."""
+    return CompactEncoder(position_error=error).encode(0, {"positions": positions})
+
+
+def _image_table(dam: list[dict], spatter: list[dict]) -> list[str]:
+    lines = [
+        "Image change against float32 input (the float64 positions rounded to float32, as "
+        "today's float32 path sends them), preset balanced, 256x160: normal change over the "
+        "pixels both cover, and coverage (alpha) change:",
+        "",
+        "| sequence | bound | normal change mean° | p99° | alpha change mean | pixels with "
+        "alpha change > 1/255 |",
+        "|---|---|---:|---:|---:|---:|",
+    ]
+    for name, frames, radius, camera in (
+        ("dam break (one copy)", [{k: v[: len(v) // 3] for k, v in f.items()} for f in dam],
+         DAM_RADIUS, DAM_CAMERA),
+        ("spatter", spatter, SPATTER_RADIUS, SPATTER_CAMERA),
+    ):  # fmt: skip
+        for fraction, mean, p99, alpha, changed in image_change(frames, radius, camera, FRACTIONS):
+            lines.append(
+                f"| {name} | {_r(fraction)} | {mean:.3f} | {p99:.2f} | {alpha:.5f} | "
+                f"{100 * changed:.2f} % |"
+            )
+    return [*lines, ""]
+
+
+def _link_table(dam: list[dict]) -> list[str]:
+    from benchmarks.studies.wire_link import run_link
+
+    base = {"image": {"width": 64, "height": 40}, "particles": {"radius": DAM_RADIUS}}
+    scenes = {
+        "dam break, 64x40": {**base, "camera": DAM_CAMERA},
+        "camera turned away": {**base, "camera": {**DAM_CAMERA, "target": [0.0, 2.5, 10.0]}},
+    }
+    links = {"100 Mbit/s": 100 * MBIT, "1 Gbit/s": 1000 * MBIT}
+    rows = list(run_link(dam, scenes, links))
+    lines = [
+        f"End to end over a token-bucket relay on loopback ({len(dam[0]['positions']):,} "
+        f"particles with densities and temperatures, {len(dam)} frames pipelined, queue mode):",
+        "",
+        "| scene | link | encoding | bytes a frame | link alone, frames/s | frames/s | × float64 "
+        "raw |",
+        "|---|---|---|---:|---:|---:|---:|",
+    ]
+    for row in rows:
+        ceiling = links[row.link] / 8 / row.bytes_per_frame
+        base_fps = next(
+            r.fps for r in rows
+            if (r.scene, r.link, r.encoding) == (row.scene, row.link, "float64 raw")
+        )  # fmt: skip
+        lines.append(
+            f"| {row.scene} | {row.link} | {row.encoding} | {row.bytes_per_frame:,.0f} | "
+            f"{ceiling:.1f} | {row.fps:.2f} | {row.fps / base_fps:.2f} |"
+        )
+    load = ", ".join(f"{v:.1f}" for v in os.getloadavg())
+    lines += [
+        "",
+        f"\"link alone\": the link's rate over the frame's bytes. Load average after the runs: "
+        f"{load} on {os.cpu_count()} cores: the client's encoding, the server's decoding and the "
+        "render compete for them, so where frames/s stays below the link's figure the CPU, "
+        "not the link, is the limit.",
+    ]
+    return [*lines, ""]
+
+
+def _verdicts(rows: list[CodecRow]) -> list[str]:
+    dam = [r for r in rows if r.sequence == "dam break" and r.fraction == 0.01]
+    per100k = max(r.decode_ms * 100_000 / r.particles for r in dam)
+    cpu100k = max(r.decode_cpu_ms * 100_000 / r.particles for r in dam)
+    return [
+        f"* positions <= 3 B/particle at r/100 on dam-break frames in a session: "
+        f"{'met' if all(r.positions_bpp <= 3 for r in dam) else 'not met'} "
+        f"({', '.join(f'{r.positions_bpp:.2f}' for r in dam)})",
+        f"* whole frame <= 5 B/particle: "
+        f"{'met' if all(r.frame_bpp <= 5 for r in dam) else 'not met'} "
+        f"({', '.join(f'{r.frame_bpp:.2f}' for r in dam)})",
+        f"* decode <= 2 ms per 100k particles: {'met' if cpu100k <= 2 else 'not met'} "
+        f"(worst {cpu100k:.1f} ms of CPU time, {per100k:.1f} ms of wall time on this shared CPU)",
+    ]
+
+
+def splice_section(report: str, lines: list[str]) -> str:
+    """`report` with its Wire section replaced by `lines` (or inserted before Scaling)."""
+    text = "\n".join(lines).rstrip("\n") + "\n\n"
+    if HEADING in report:
+        head, rest = report.split(HEADING, 1)
+        tail = rest.split("\n## ", 1)
+        return head + text + ("## " + tail[1] if len(tail) == 2 else "")
+    if _BEFORE in report:
+        head, rest = report.split(_BEFORE, 1)
+        return head + text + _BEFORE + rest
+    return report.rstrip("\n") + "\n\n" + text

@@ -1,0 +1,205 @@
+"""The encoder of the compact frame encoding (core/compact.py has the format and the decoder):
+per-array error bounds, quantisation that keeps every decoded value within its bound exactly,
+prediction from the previous particle or the previous frame, byte planes, zstd."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import zstandard
+
+from sphrender.core.compact import ENCODING, MAX_Q, _planes, _width_for, _zigzag
+from sphrender.core.errors import InputError, show
+
+__all__ = ["DEFAULT_ERRORS", "POSITION_ERROR_FRACTION", "CompactEncoder"]
+
+#: Default position error bound, as a fraction of the particle radius.
+POSITION_ERROR_FRACTION = 0.01
+#: Default absolute error per array (its unit); None = lossless. Arrays not listed are lossless.
+DEFAULT_ERRORS: dict[str, float | None] = {
+    "densities": 0.05,  # kg/m^3 (rest density 1000)
+    "temperatures": 0.05,  # K
+    "peak_temperatures": 0.05,  # K
+    "velocities": 1e-3,  # scene units per second
+    "radii": None,
+    "ids": None,
+    "solid": None,
+}
+_ZSTD_LEVEL = 3
+#: Fractions of the error bound kept free for float rounding, smallest first.
+_ROOM = (2.0**-40, 2.0**-30, 2.0**-20, 2.0**-10, 2.0**-4)
+
+
+def _check_error(name: str, error: float) -> float:
+    if isinstance(error, bool) or not isinstance(error, int | float):
+        raise InputError(f"errors.{name}", f"must be a number > 0, got {show(error)}")
+    if not math.isfinite(error) or error <= 0:
+        raise InputError(
+            f"errors.{name}",
+            f"must be a finite error bound > 0 in the array's unit, got {show(float(error))}",
+        )
+    return float(error)
+
+
+def _quantise(
+    name: str,
+    values: np.ndarray,
+    error: float,
+    dtype: np.dtype[Any],
+    bounds: tuple[np.ndarray, np.ndarray] | None,
+) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+    """(q as (C, N) int64, step, lo, hi) with |decoded - values| <= error, decoded as the
+    decoder does it (float64 lo + q * step, then cast to `dtype`)."""
+    components = values.shape[1] if values.ndim == 2 else 1
+    x = np.ascontiguousarray(np.asarray(values, np.float64).reshape(len(values), components).T)
+    if not np.isfinite(x).all():
+        i = int(np.flatnonzero(~np.isfinite(x).all(axis=0))[0])
+        raise InputError(f"{name}[{i}]", "must be finite (found NaN or Infinity)")
+    if bounds is None:
+        lo = x.min(axis=1) if x.size else np.zeros(x.shape[0])
+        hi = x.max(axis=1) if x.size else np.zeros(x.shape[0])
+    else:
+        lo, hi = (np.asarray(b, np.float64).reshape(-1) for b in bounds)
+        outside = ((x < lo[:, None]) | (x > hi[:, None])).any(axis=0)
+        if outside.any():
+            i = int(np.flatnonzero(outside)[0])
+            raise InputError(
+                f"{name}[{i}]",
+                f"lies outside the bounds given, {show(lo.tolist())} to {show(hi.tolist())}",
+            )
+    # Leave room for the decoder's float rounding (and the cast to `dtype`): one ulp at the
+    # largest magnitude; a bound that leaves no room is refused.
+    top_value = float(max(np.abs(lo).max(), np.abs(hi).max())) if x.size else 0.0
+    margin = 2.0 * top_value * float(np.finfo(dtype).eps) + 4.0 * top_value * 2.0**-52
+    # From a short ladder, so that frames of similar extent share a step (frame prediction).
+    room = next((r for r in _ROOM if error * r >= margin), None)
+    if room is None:
+        raise InputError(
+            f"errors.{name}",
+            f"{error!r} is finer than {dtype.name} resolves at {top_value!r}; use a larger bound",
+        )
+    step = 2.0 * error * (1.0 - room)
+    if x.size and float(((hi - lo) / step).max()) >= MAX_Q / 2:
+        raise InputError(
+            f"errors.{name}", f"{error!r} is too fine for {name}'s extent (at most 2^51 steps)"
+        )
+    q = x - lo[:, None]
+    q /= step
+    np.rint(q, out=q)
+    top = np.broadcast_to(np.floor((hi - lo) / step)[:, None] + 1, q.shape)
+    for attempt in range(3):  # float rounding can leave a value one ulp past the bound: nudge it
+        miss = _decoded(q, lo, step, dtype)
+        miss -= x
+        bad = np.abs(miss) > error
+        if not bad.any():
+            break
+        if attempt == 2:
+            i = int(np.flatnonzero(bad.any(axis=0))[0])
+            raise InputError(
+                f"errors.{name}",
+                f"{error!r} is finer than {dtype.name} resolves at {name}[{i}]; use a larger bound",
+            )
+        q[bad] = np.clip(q[bad] - np.sign(miss[bad]), 0, top[bad])
+    return q.astype(np.int64), step, lo, hi
+
+
+def _decoded(q: np.ndarray, lo: np.ndarray, step: float, dtype: np.dtype[Any]) -> np.ndarray:
+    """What the decoder makes of `q` (float64 lo + q * step, then `dtype`), as float64."""
+    decoded = q * step
+    decoded += lo[:, None]
+    if dtype == np.float64:
+        return decoded
+    return decoded.astype(dtype).astype(np.float64)
+
+
+@dataclass
+class CompactEncoder:
+    """Encodes one session's frames (client side): per-array error bounds (`errors`, None =
+    lossless; arrays not named use `DEFAULT_ERRORS`), and ``predict: frame`` against the
+    previous frame when its arrays have the same shapes and steps (`delta`)."""
+
+    position_error: float
+    errors: dict[str, float | None] = field(default_factory=dict)
+    delta: bool = True
+    level: int = _ZSTD_LEVEL
+    bounds: tuple[np.ndarray, np.ndarray] | None = None
+    _base_id: int | None = None
+    _base: dict[str, tuple[float, np.ndarray]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.position_error = _check_error("positions", self.position_error)
+        for name, error in self.errors.items():
+            if error is not None:
+                _check_error(name, error)
+        self._compressor = zstandard.ZstdCompressor(
+            level=self.level, write_content_size=True, write_checksum=True
+        )
+
+    def reset(self) -> None:
+        """Forget the previous frame: the next frame is sent in full."""
+        self._base_id, self._base = None, {}
+
+    def error_for(self, name: str) -> float | None:
+        if name == "positions":
+            return self.position_error
+        return self.errors[name] if name in self.errors else DEFAULT_ERRORS.get(name)
+
+    def encode(
+        self, frame_id: int, arrays: Mapping[str, np.ndarray]
+    ) -> tuple[dict[str, Any], bytes]:
+        """(FRAME header without ``scene``, payload) for `arrays` (already wire dtypes)."""
+        descriptors: list[dict[str, Any]] = []
+        sections: list[bytes] = []
+        state: dict[str, tuple[float, np.ndarray]] = {}
+        uses_base = False
+        for name, array in arrays.items():
+            error = self.error_for(name)
+            if error is None or array.dtype.kind != "f":
+                spec, data = self._raw(array)
+            else:
+                spec, data, q, step, by_frame = self._lossy(name, array, error)
+                state[name] = (step, q)
+                uses_base |= by_frame
+            sections.append(self._compressor.compress(data))
+            desc = {"name": name, "dtype": array.dtype.str, "shape": list(array.shape)}
+            descriptors.append({**desc, **spec, "bytes": len(sections[-1])})
+        header: dict[str, Any] = {"id": int(frame_id), "encoding": ENCODING, "arrays": descriptors}
+        if uses_base:
+            header["base"] = self._base_id
+        self._base_id, self._base = int(frame_id), state
+        return header, b"".join(sections)
+
+    @staticmethod
+    def _raw(array: np.ndarray) -> tuple[dict[str, Any], bytes]:
+        flat = np.ascontiguousarray(array, dtype=array.dtype.newbyteorder("<")).reshape(-1)
+        planes = flat.view(np.uint8).reshape(-1, flat.dtype.itemsize).T
+        return {"coding": "raw"}, np.ascontiguousarray(planes).tobytes()
+
+    def _lossy(
+        self, name: str, array: np.ndarray, error: float
+    ) -> tuple[dict[str, Any], bytes, np.ndarray, float, bool]:
+        bounds = self.bounds if name == "positions" else None
+        q, step, lo, hi = _quantise(name, array, error, array.dtype, bounds)
+        by_particle = np.diff(q, axis=1, prepend=0)
+        residual, predict = by_particle, "particle"
+        base = self._base.get(name) if self.delta else None
+        if base is not None and base[0] == step and base[1].shape == q.shape and q.size:
+            by_frame = q - base[1]
+            by_motion = np.diff(by_frame, axis=1, prepend=0)
+            sample = slice(None, None, 7)  # a sample decides which residuals are smallest
+            candidates = ((by_particle, "particle"), (by_frame, "frame"), (by_motion, "motion"))
+            residual, predict = min(candidates, key=lambda c: np.abs(c[0][:, sample]).mean())
+        stored = _zigzag(residual)
+        width = _width_for(int(stored.max()) if stored.size else 0)
+        spec = {
+            "coding": "quantized",
+            "step": step,
+            "bounds": [lo.tolist(), hi.tolist()],
+            "predict": predict,
+            "width": width,
+        }
+        return spec, _planes(stored, width), q, step, predict in ("frame", "motion")
