@@ -8,7 +8,9 @@ along the bead, a short steep fall ahead and sideways, and the plate at room tem
 from it. The frame carries each particle's peak temperature too: the field moved with the arc
 from the bead's start, so a particle's peak is the field where the arc passed closest to it; the
 heat tint (configs/demo.toml sets material.heat_tint) reads it as temper-colour bands beside the
-bead, behind the molten pool (material.molten).
+bead, behind the molten pool (material.molten). Hot spatter leaves the pool with velocities
+(1-4 m/s, as high-speed footage of GMA spatter shows): the demo's open shutter draws them as
+streaks, and the arc above the pool (a sphere light in configs/demo.toml) casts the shadows.
 """
 
 from __future__ import annotations
@@ -73,6 +75,35 @@ def weld_bead_positions(seed: int = 7) -> npt.NDArray[np.float64]:
     return np.concatenate([plate, bead, spatter])
 
 
+#: Droplets in flight: how many, their speed range (mm/s) and temperature range (K).
+FLYING_COUNT = 24
+FLYING_SPEED = (1000.0, 4000.0)
+FLYING_KELVIN = (1700.0, 2200.0)
+
+
+def flying_spatter(
+    seed: int = 11,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+    """Positions, velocities (mm/s) and kelvin of hot droplets thrown up and out of the pool:
+    each on a ray from the arc, 3-14 mm out, moving along it."""
+    rng = np.random.default_rng(seed)
+    azimuth = rng.uniform(0.0, 2.0 * np.pi, FLYING_COUNT)
+    elevation = rng.uniform(0.25, 1.1, FLYING_COUNT)  # radians above the plate
+    direction = np.stack(
+        [
+            np.cos(elevation) * np.cos(azimuth),
+            np.sin(elevation),
+            np.cos(elevation) * np.sin(azimuth),
+        ],
+        axis=1,
+    )
+    distance = rng.uniform(3.0, 14.0, FLYING_COUNT)[:, None]
+    positions = np.asarray(ARC_POSITION) + direction * distance
+    speed = rng.uniform(*FLYING_SPEED, FLYING_COUNT)[:, None]
+    kelvin = rng.uniform(*FLYING_KELVIN, FLYING_COUNT)
+    return positions, (direction * speed).astype(np.float32), kelvin.astype(np.float32)
+
+
 def weld_temperatures(
     positions: npt.NDArray[np.float64], arc_x: float | npt.NDArray[np.float64] = ARC_POSITION[0]
 ) -> npt.NDArray[np.float32]:
@@ -109,9 +140,13 @@ def demo_scene() -> Scene:
 
 
 def demo_frame() -> ParticleFrame:
-    positions = weld_bead_positions()
+    """The plate, the bead and its spatter at rest, and the droplets in flight."""
+    still = weld_bead_positions()
+    flying, velocities, flying_kelvin = flying_spatter()
+    kelvin = np.concatenate([weld_temperatures(still), flying_kelvin])
     return make_frame(
-        positions,
-        temperatures=weld_temperatures(positions),
-        peak_temperatures=weld_peak_temperatures(positions),
+        np.concatenate([still, flying]),
+        temperatures=kelvin,
+        peak_temperatures=np.concatenate([weld_peak_temperatures(still), flying_kelvin]),
+        velocities=np.concatenate([np.zeros((len(still), 3), np.float32), velocities]),
     )

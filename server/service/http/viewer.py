@@ -65,10 +65,15 @@ def asset(name: str) -> bytes:
 
 @functools.cache
 def demo_frame_message() -> bytes:
-    """The demo's particles and scene as a FRAME (deterministic: built once)."""
+    """The demo's particles and scene as a FRAME (deterministic: built once). Without the
+    velocities: a view being turned is drawn still (no motion-blur sub-frames)."""
     frame = demo_frame()
     return encode_frame(
-        0, frame.positions, temperatures=frame.temperatures, scene=demo_scene_dict()
+        0,
+        frame.positions,
+        temperatures=frame.temperatures,
+        peak_temperatures=frame.peak_temperatures,
+        scene=demo_scene_dict(),
     )
 
 
