@@ -225,15 +225,9 @@ class Client:
         `render_raw` decodes those). `velocities` (N, 3) and `ids` (N,) are validated and carried
         with the frame; `peak_temperatures` (N,) kelvin feed the heat tint; `solid` (N,) flags a
         workpiece's particles (0 / 1)."""
-        arrays = dict(
-            densities=densities,
-            radii=radii,
-            temperatures=temperatures,
-            velocities=velocities,
-            ids=ids,
-            peak_temperatures=peak_temperatures,
-            solid=solid,
-        )
+        arrays = {"densities": densities, "radii": radii, "temperatures": temperatures}
+        arrays |= {"velocities": velocities, "ids": ids, "solid": solid}
+        arrays["peak_temperatures"] = peak_temperatures
         return self._render(positions, scene, arrays, format)[1]
 
     def _render(

@@ -117,14 +117,16 @@ class LiveSession:
         mode: Literal["latest", "queue"] = "latest",
         max_in_flight: int | None = None,
         stream_port: int | None = None,
+        compact: bool = True,
     ) -> None:
-        """Open the session (HELLO; the server prepares the scene before it answers WELCOME)."""
+        """Open the session (HELLO; the server prepares the scene before it answers WELCOME).
+        `compact`: frames in the compact encoding when the server offers it (as `Client.stream`)."""
         if mode not in ("latest", "queue"):
             raise InputError("mode", "must be latest or queue")
         if max_in_flight is None and mode == "latest":
             max_in_flight = LATEST_IN_FLIGHT
         self._session: StreamSession = client.stream(
-            scene, mode=mode, max_in_flight=max_in_flight, stream_port=stream_port
+            scene, mode=mode, max_in_flight=max_in_flight, stream_port=stream_port, compact=compact
         )
         self._session.set_timeout(None)  # an idle producer is not an error; `close` wakes reads
         self.welcome: dict[str, Any] = self._session.welcome

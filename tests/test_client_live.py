@@ -61,7 +61,9 @@ def test_threads_submit_concurrently_and_each_frame_is_answered_once_in_order(
     collected = Collector()
     sizes: dict[int, int] = {}
     sizes_lock = threading.Lock()
-    live = LiveSession(client_of(service), SMALL_SCENE, on_result=collected.on_result, mode="queue")
+    live = LiveSession(  # raw arrays: the image is compared with an in-process render
+        client_of(service), SMALL_SCENE, on_result=collected.on_result, mode="queue", compact=False
+    )
 
     def producer(k: int) -> None:
         for step in range(4):

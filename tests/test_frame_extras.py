@@ -187,7 +187,7 @@ def test_a_frame_opens_the_shutter_over_stream_and_http(service: ServerProcess) 
     velocities = np.random.default_rng(2).normal(size=(600, 3)).astype(np.float32)
     client = Client(f"http://127.0.0.1:{service.http_port}")
     raw = {"output": {"format": "raw"}}
-    with client.stream(SMALL_SCENE) as session:
+    with client.stream(SMALL_SCENE, compact=False) as session:
         session.send(positions, velocities=velocities, scene=raw)
         session.send(positions, velocities=velocities, scene={**raw, "camera": {"shutter": 0.1}})
         still, blurred = session.receive(), session.receive()

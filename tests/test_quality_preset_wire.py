@@ -51,7 +51,7 @@ def test_preset_over_the_wire_matches_the_cli(service: ServerProcess, tmp_path: 
     http = client.render(positions, with_fast, format="png")
     assert np.array_equal(png_pixels(http, tmp_path), fast)
 
-    with client.stream({**SCENE, "quality": {"preset": "best"}}) as session:
+    with client.stream({**SCENE, "quality": {"preset": "best"}}, compact=False) as session:
         assert session.welcome["scene"]["quality"]["preset"] == "best"
         session.send(positions, scene={"output": {"format": "png"}})
         session.send(positions, scene={"quality": {"preset": "fast"}, "output": {"format": "png"}})

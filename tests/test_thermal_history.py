@@ -130,7 +130,7 @@ def test_service_keeps_the_history_of_a_stream_session(service: ServerProcess) -
     }
     shuffle = np.random.default_rng(1).permutation(800)
     client = Client(f"http://127.0.0.1:{service.http_port}")
-    with client.stream(scene) as session:
+    with client.stream(scene, compact=False) as session:  # raw: compared with HTTP's floats
         session.send(positions, temperatures=hot, ids=ids)
         session.send(positions[shuffle], temperatures=cold[shuffle], ids=ids[shuffle])
         _first, cooled = session.receive(), session.receive()
