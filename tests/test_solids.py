@@ -208,3 +208,45 @@ def test_solids_source_is_validated() -> None:
     with pytest.raises(InputError) as raised:
         scene_from_dict({"solids": {"source": "melted"}})
     assert "solids.source" in str(raised.value)
+
+
+def test_the_fluid_part_keeps_every_array_of_the_frame(renderer: SurfaceRenderer) -> None:
+    """Splitting off the solid keeps the fluid's rows of every per-particle array (peaks,
+    velocities, ids included), so a frame with solids and every other feature on renders."""
+    from dataclasses import fields
+
+    from sphrender.server.content.lattice import lattice_slab
+    from sphrender.server.engine.passes.solid_surface import split_solid
+
+    plate = lattice_slab(0.6, 0.6, layers=3, particle_radius=0.015, top_y=0.0)
+    drops = np.array([[0.0, 0.05, 0.0], [0.03, 0.05, 0.0], [-0.03, 0.06, 0.01]])
+    positions = np.concatenate([plate, drops])
+    n = len(positions)
+    flags = np.r_[np.ones(len(plate), bool), np.zeros(len(drops), bool)]
+    frame = make_frame(
+        positions,
+        temperatures=np.full(n, 400.0),
+        peak_temperatures=np.where(positions[:, 0] > 0.0, 600.0, 400.0),
+        velocities=np.tile([1.0, 0.0, 0.0], (n, 1)),
+        ids=np.arange(n),
+        solid=flags,
+    )
+    scene = scene_from_dict(
+        {
+            "image": {"width": 64, "height": 48},
+            "camera": {"eye": [0.0, 1.0, 1.0], "shutter": 0.01},
+            "particles": {"radius": 0.015},
+            "material": {"preset": "iron", "heat_tint": True, "molten": True},
+            "lights": [
+                {"type": "sphere", "position": [0, 0.3, 0], "radius": 0.02, "shadows": True}
+            ],
+            "glare": {"enabled": True},
+        }
+    )
+    fluid, solid = split_solid(frame, scene)
+    assert solid is not None and len(solid.positions) == len(plate)
+    for f in fields(fluid):
+        value = getattr(fluid, f.name)
+        assert value is None or len(value) == len(drops), f.name
+    rendered, stats = renderer.render(frame, scene)
+    assert np.isfinite(rendered.rgba).all() and "solids" in stats.stage_ms

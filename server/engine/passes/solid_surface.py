@@ -14,7 +14,7 @@ on as it came (nothing copied).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import moderngl
 import numpy as np
@@ -368,15 +368,8 @@ def split_solid(frame: ParticleFrame, scene: Scene) -> tuple[ParticleFrame, Soli
     def part(array: np.ndarray | None) -> np.ndarray | None:
         return None if array is None else np.ascontiguousarray(array[keep])
 
-    fluid = replace(
-        frame,
-        positions=np.ascontiguousarray(frame.positions[keep]),
-        densities=part(frame.densities),
-        radii=part(frame.radii),
-        temperatures=part(frame.temperatures),
-        velocities=part(frame.velocities),
-        ids=part(frame.ids),
-        solid=None,
-    )
+    # Every per-particle array of the frame, whichever it carries, keeps the fluid's rows.
+    arrays = {f.name: part(getattr(frame, f.name)) for f in fields(frame) if f.name != "solid"}
+    fluid = replace(frame, **arrays, solid=None)
     temperatures = None if frame.temperatures is None else frame.temperatures[mask]
     return fluid, SolidParticles(np.ascontiguousarray(frame.positions[mask]), radius, temperatures)
