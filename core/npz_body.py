@@ -6,7 +6,7 @@ every size is checked *before* the bytes it describes are read or allocated:
 1. the zip's end-of-archive record: at most `max_entries` entries and a central directory of at
    most `max_entries` x 512 bytes (a 26 MB archive of 300 000 empty entries is refused before
    Python builds 300 000 directory records);
-2. every used entry's ``.npy`` header: dtype (numbers or text only), shape, and the declared size
+2. every used entry's ``.npy`` header: dtype (numbers, booleans or text only), shape, and the declared size
    against what the entry holds and against `max_uncompressed_bytes` summed over the entries (a
    small deflated body cannot expand into gigabytes); particles against `max_particles`; the
    scene text against `max_scene_bytes`;
@@ -210,9 +210,9 @@ def _read_header(archive: zipfile.ZipFile, member: str, name: str) -> _Entry:
                 "fortran_order and shape",
             ) from None
         header_size = handle.tell()
-    if dtype.hasobject or dtype.fields is not None or dtype.kind not in "fiuUS":
+    if dtype.hasobject or dtype.fields is not None or dtype.kind not in "fiuUSb":
         shown = "a structured or object dtype" if dtype.fields or dtype.hasobject else dtype.str
-        raise InputError(name, f"dtype {shown} is not allowed (numbers or text only)")
+        raise InputError(name, f"dtype {shown} is not allowed (numbers, booleans or text only)")
     nbytes = math.prod(shape) * dtype.itemsize
     if nbytes + header_size != info.file_size:
         raise InputError(

@@ -49,8 +49,9 @@ def test_solid_flags_over_stream_and_http(
                 decode_raw(header["arrays"], payload)["rgba"].tobytes() == expected.rgba.tobytes()
             )
     http = Client(f"http://127.0.0.1:{service.http_port}")
-    decoded = http.render_raw(positions, SCENE, solid=flags)
-    assert decoded["rgba"].tobytes() == expected.rgba.tobytes()
+    for sent in (flags, flags.astype(np.bool_)):  # an .npz entry of dtype |u1 or |b1
+        decoded = http.render_raw(positions, SCENE, solid=sent)
+        assert decoded["rgba"].tobytes() == expected.rgba.tobytes()
 
 
 def test_bad_solid_flags_are_refused_by_name(service: ServerProcess) -> None:
