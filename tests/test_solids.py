@@ -250,3 +250,26 @@ def test_the_fluid_part_keeps_every_array_of_the_frame(renderer: SurfaceRenderer
         assert value is None or len(value) == len(drops), f.name
     rendered, stats = renderer.render(frame, scene)
     assert np.isfinite(rendered.rgba).all() and "solids" in stats.stage_ms
+
+
+def test_the_finish_detail_reaches_the_solid_surface(renderer: SurfaceRenderer) -> None:
+    """The world-fixed detail tilts the solid's normals as it does the fluid's (it runs after the
+    solid is composed): the N AOV over a flagged plate changes when the detail is on."""
+    from sphrender.server.content.lattice import lattice_slab
+
+    plate = lattice_slab(0.6, 0.6, layers=3, particle_radius=0.015, top_y=0.0)
+    frame = make_frame(plate, solid=np.ones(len(plate), bool))
+    sections = {
+        "image": {"width": 64, "height": 48},
+        "camera": {"eye": [0.0, 0.8, 0.6]},
+        "particles": {"radius": 0.015},
+    }
+    plain, _ = renderer.render(frame, scene_from_dict(sections), normals=True)
+    brushed = {**sections, "finish": {"detail": "brushed", "detail_scale": 0.02}}
+    detailed, _ = renderer.render(frame, scene_from_dict(brushed), normals=True)
+    assert plain.normals is not None and detailed.normals is not None
+    surface = np.linalg.norm(plain.normals, axis=-1) > 0.5
+    tilt = np.degrees(
+        np.arccos(np.clip(np.sum(plain.normals * detailed.normals, axis=-1), -1.0, 1.0))
+    )
+    assert surface.sum() > 500 and np.median(tilt[surface]) > 0.2

@@ -206,8 +206,8 @@ class SurfaceRenderer:
         camera: Camera,
         stats: RenderStats,
     ) -> tuple[Target, Target, PreparedFrame, int]:
-        """SPH to shade of one (sub-)frame, with the frame's solid part (it does not move):
-        colour, normal + depth, prepared frame, splat count."""
+        """SPH to shade of one (sub-)frame, with the frame's solid part (it does not move) and the
+        finish's detail on both: colour, normal + depth (the N AOV), prepared frame, splat count."""
         sph = self._run_sph(frame, scene, stats)
         with self._stage(stats, "prepare"):
             prepared = self._prepare.run(sph, camera, scene)
@@ -227,6 +227,7 @@ class SurfaceRenderer:
                 surface, normal_depth, prepared = self._solids.add(
                     solid, surface, normal_depth, prepared, camera
                 )
+        normal_depth = self._shade.detail.run(scene.finish, camera, normal_depth, prepared.box)
         with self._stage(stats, "shade"):
             color = self._shade_surface(surface, normal_depth, camera, scene, prepared, shadows)
         return color, normal_depth, prepared, bulk_splatted
@@ -283,11 +284,11 @@ class SurfaceRenderer:
     def _surface_normals(
         self, surface: SplatOutput, prepared: PreparedFrame, camera: Camera, scene: Scene
     ) -> Target:
-        """World normals + eye depth of the surface (field normals near rims, [finish] detail)."""
+        """World normals + eye depth of the surface (field normals near rims)."""
         quality = scene.quality
         field = self._prepare.field_particles(prepared) if quality.field_normals else None
         support = quality.field_normals_support * prepared.reference_radius
-        normal_depth = self._normals.run(
+        return self._normals.run(
             surface.depth,
             camera,
             prepared.box,
@@ -297,7 +298,6 @@ class SurfaceRenderer:
             support,
             bulk=surface.bulk_depth,
         )
-        return self._shade.detail.run(scene.finish, camera, normal_depth, prepared.box)
 
     def _shade_surface(
         self,
