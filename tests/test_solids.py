@@ -273,3 +273,38 @@ def test_the_finish_detail_reaches_the_solid_surface(renderer: SurfaceRenderer) 
         np.arccos(np.clip(np.sum(plain.normals * detailed.normals, axis=-1), -1.0, 1.0))
     )
     assert surface.sum() > 500 and np.median(tilt[surface]) > 0.2
+
+
+def test_the_heat_tint_reads_the_solid_particles_peaks(renderer: SurfaceRenderer) -> None:
+    """A solid plate at room temperature whose right half peaked at 300 C (carbon steel: blue):
+    the solid path carries the peaks beside the kelvin, so that half turns blue and the other
+    half renders as without peaks."""
+    from sphrender.server.content.lattice import lattice_slab
+
+    plate = lattice_slab(0.6, 0.3, layers=2, particle_radius=0.015, top_y=0.0)
+    n = len(plate)
+    current = np.full(n, 293.15)
+    peaks = np.where(plate[:, 0] > 0.0, 573.15, 293.15)
+    scene = scene_from_dict(
+        {
+            "image": {"width": 96, "height": 48},
+            "camera": {"eye": [0.0, 1.2, 0.4], "fov_y": 35.0},
+            "particles": {"radius": 0.015},
+            "material": {"preset": "iron", "roughness": 0.5, "heat_tint": True},
+            "lights": [{"direction": [0.0, -1.0, -0.3], "intensity": 3.0}],
+            "shading": {"ibl_mode": "none"},
+        }
+    )
+    flags = np.ones(n, bool)
+    tinted, _ = renderer.render(
+        make_frame(plate, temperatures=current, peak_temperatures=peaks, solid=flags), scene
+    )
+    cold, _ = renderer.render(make_frame(plate, temperatures=current, solid=flags), scene)
+    covered = (tinted.rgba[..., 3] > 0.99) & (cold.rgba[..., 3] > 0.99)
+    left, right = covered.copy(), covered.copy()
+    left[:, 40:] = False  # a margin each side of the middle, where the blur mixes the halves
+    right[:, :56] = False
+    assert left.sum() > 200 and right.sum() > 200
+    blue = tinted.rgba[right][:, :3].mean(axis=0)
+    assert blue[2] > blue[0] * 1.5, blue  # blue where the peak was 300 C
+    assert np.allclose(tinted.rgba[left], cold.rgba[left], atol=1e-4)

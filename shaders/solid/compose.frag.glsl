@@ -5,6 +5,7 @@
 // the solid at its centre 0.5 + 0.5 x (covered neighbours / 8), one without 0.5 x (solid
 // neighbours / 8), so a straight edge's two pixels still add up to about one.
 #define HAS_TEMPERATURE 0
+#define HAS_PEAK 0
 #define HAS_COVERAGE 0
 
 uniform sampler2D u_fluid_normal_depth;
@@ -19,7 +20,11 @@ uniform sampler2D u_fluid_coverage;
 
 layout(location = 0) out vec4 out_normal_depth;
 layout(location = 1) out float out_depth;
+#if HAS_PEAK
+layout(location = 2) out vec2 out_temperature;  // kelvin, peak kelvin (a fluid without: 0)
+#else
 layout(location = 2) out float out_temperature;
+#endif
 layout(location = 3) out float out_coverage;
 
 void main() {
@@ -30,8 +35,13 @@ void main() {
     out_normal_depth = take_solid ? solid : fluid;
     out_depth = take_solid ? solid.w : max(fluid.w, 0.0);
 #if HAS_TEMPERATURE
+#if HAS_PEAK
+    out_temperature = take_solid ? texelFetch(u_solid_temperature, pixel, 0).rg
+                                 : texelFetch(u_fluid_temperature, pixel, 0).rg;
+#else
     out_temperature = take_solid ? texelFetch(u_solid_temperature, pixel, 0).r
                                  : texelFetch(u_fluid_temperature, pixel, 0).r;
+#endif
 #else
     out_temperature = 0.0;
 #endif

@@ -4,7 +4,7 @@
 
 in vec3 v_view_position;
 flat in vec4 v_sphere;
-flat in float v_temperature;
+flat in vec2 v_temperature;
 
 uniform float u_near;
 uniform float u_far;
@@ -12,7 +12,7 @@ uniform mat3 u_view_to_world;
 
 layout(location = 0) out vec4 out_normal_depth;
 #if HAS_TEMPERATURE
-layout(location = 1) out float out_temperature;
+layout(location = 1) out vec2 out_temperature;  // kelvin, peak kelvin
 #endif
 
 void main() {

@@ -7,11 +7,11 @@ uniform mat4 u_projection;
 
 in vec2 in_corner;
 in vec4 in_sphere;           // per instance: view-space centre, radius
-in float in_temperature;
+in vec2 in_temperature;  // kelvin, peak kelvin
 
 out vec3 v_view_position;
 flat out vec4 v_sphere;
-flat out float v_temperature;
+flat out vec2 v_temperature;
 
 void main() {
     vec3 corner = sphere_quad_corner(in_sphere.xyz, in_sphere.w, in_corner, 0.0);

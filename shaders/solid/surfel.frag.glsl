@@ -9,14 +9,14 @@ flat in vec3 v_world_normal;
 flat in vec4 v_clip0;
 flat in vec4 v_clip1;
 flat in vec4 v_clip2;
-flat in float v_temperature;
+flat in vec2 v_temperature;
 
 uniform float u_near;
 uniform float u_far;
 
 layout(location = 0) out vec4 out_normal_depth;
 #if HAS_TEMPERATURE
-layout(location = 1) out float out_temperature;
+layout(location = 1) out vec2 out_temperature;  // kelvin, peak kelvin
 #endif
 
 void main() {

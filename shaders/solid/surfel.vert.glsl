@@ -13,7 +13,7 @@ in vec3 in_world_normal;
 in vec4 in_clip0;            // view-space planes: keep n . x <= w
 in vec4 in_clip1;
 in vec4 in_clip2;
-in float in_temperature;
+in vec2 in_temperature;  // kelvin, peak kelvin
 
 out vec3 v_view_position;
 out vec2 v_local;
@@ -21,7 +21,7 @@ flat out vec3 v_world_normal;
 flat out vec4 v_clip0;
 flat out vec4 v_clip1;
 flat out vec4 v_clip2;
-flat out float v_temperature;
+flat out vec2 v_temperature;
 
 void main() {
     vec3 n = in_normal;

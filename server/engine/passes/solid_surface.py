@@ -39,17 +39,19 @@ from sphrender.server.scene import Scene
 
 F64 = npt.NDArray[np.float64]
 _CORNERS = np.array([[-1, -1], [1, -1], [-1, 1], [1, 1]], dtype=np.float32)
-_DISC_FLOATS = 3 + 3 + 3 + 4 * MAX_CLIP_PLANES + 1
-_SPHERE_FLOATS = 4 + 1
+_DISC_FLOATS = 3 + 3 + 3 + 4 * MAX_CLIP_PLANES + 2
+_SPHERE_FLOATS = 4 + 2
 
 
 @dataclass(frozen=True)
 class SolidParticles:
-    """The solid part of a frame: world positions (float64), radius, kelvin per particle."""
+    """The solid part of a frame: world positions (float64), radius, kelvin per particle and
+    the peak kelvin the heat tint reads (None: the frame has none, or the material no tint)."""
 
     positions: F64
     radius: float
     temperatures: npt.NDArray[np.float32] | None
+    peaks: npt.NDArray[np.float32] | None = None
 
 
 @dataclass(frozen=True)
@@ -69,15 +71,23 @@ class _Targets:
     def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
         self.size = size
         self.solid = float_texture(ctx, size, 4)
-        self.solid_temperature = float_texture(ctx, size, 1)
+        self.solid_temperature = float_texture(ctx, size, 2)  # kelvin, peak kelvin
         self.depth_buffer = ctx.depth_renderbuffer(size)
         self.solid_fbo = ctx.framebuffer([self.solid, self.solid_temperature], self.depth_buffer)
         self.composed = [float_texture(ctx, size, c) for c in (4, 1, 1, 1)]
         self.composed_fbo = ctx.framebuffer(self.composed)
+        # The same with kelvin and peak kelvin, for frames whose heat tint reads peaks.
+        self.composed_peak = float_texture(ctx, size, 2)
+        normal_depth, depth, _kelvin, coverage = self.composed
+        self.composed_peak_fbo = ctx.framebuffer(
+            [normal_depth, depth, self.composed_peak, coverage]
+        )
 
     def release(self) -> None:
-        for obj in (self.solid_fbo, self.composed_fbo, self.depth_buffer, self.solid):
+        for obj in (self.solid_fbo, self.composed_fbo, self.composed_peak_fbo, self.depth_buffer):
             obj.release()
+        self.solid.release()
+        self.composed_peak.release()
         self.solid_temperature.release()
         for texture in self.composed:
             texture.release()
@@ -131,7 +141,7 @@ class SolidSurfacePass:
             layout: tuple[str, ...]
             if name == "discs":
                 layout = (
-                    "3f 3f 3f 4f 4f 4f 1f/i",
+                    "3f 3f 3f 4f 4f 4f 2f/i",
                     "in_center",
                     "in_normal",
                     "in_world_normal",
@@ -141,7 +151,7 @@ class SolidSurfacePass:
                     "in_temperature",
                 )
             else:
-                layout = ("4f 1f/i", "in_sphere", "in_temperature")
+                layout = ("4f 2f/i", "in_sphere", "in_temperature")
             instance = self._discs if name == "discs" else self._spheres
             assert instance is not None
             content = [(self._corners, "2f", "in_corner"), (instance, *layout)]
@@ -202,11 +212,13 @@ class SolidSurfacePass:
         target the temperature blur, the shading and the read-back use from here on, and the
         prepared frame with its screen box grown over the solid."""
         box = self.run(solid, camera)
+        fluid = surface.temperature
         composed = self.compose(
             normal_depth.texture,
-            surface.temperature,
+            fluid,
             surface.coverage,
             has_temperature=solid.temperatures is not None,
+            has_peak=solid.peaks is not None or (fluid is not None and fluid.components == 2),
         )
         merged = replace(
             surface,
@@ -224,14 +236,20 @@ class SolidSurfacePass:
         fluid_temperature: moderngl.Texture | None,
         fluid_coverage: moderngl.Texture | None,
         has_temperature: bool,
+        has_peak: bool = False,
     ) -> ComposedSurface:
-        """The nearer of the fluid and the solid (drawn by `run` this frame) per pixel."""
+        """The nearer of the fluid and the solid (drawn by `run` this frame) per pixel; with
+        `has_peak` the kelvin carries the peak kelvin beside it, as the fluid's splat does."""
         assert self._targets is not None
         targets = self._targets
         program = self._context.programs.get(
             FULLSCREEN_VERT,
             "solid/compose.frag.glsl",
-            {"HAS_TEMPERATURE": has_temperature, "HAS_COVERAGE": fluid_coverage is not None},
+            {
+                "HAS_TEMPERATURE": has_temperature,
+                "HAS_PEAK": has_temperature and has_peak,
+                "HAS_COVERAGE": fluid_coverage is not None,
+            },
         )
         bindings = [
             ("u_fluid_normal_depth", fluid_normal_depth),
@@ -247,12 +265,16 @@ class SolidSurfacePass:
         for unit, (name, texture) in enumerate(bindings):
             texture.use(unit)
             set_if_used(program, name, unit)
-        targets.composed_fbo.use()
-        targets.composed_fbo.viewport = (0, 0, *targets.size)
+        peak = has_temperature and has_peak
+        fbo = targets.composed_peak_fbo if peak else targets.composed_fbo
+        fbo.use()
+        fbo.viewport = (0, 0, *targets.size)
         self._context.fullscreen.draw(program)
         normal_depth, depth, temperature, coverage = targets.composed
+        if peak:
+            temperature = targets.composed_peak
         return ComposedSurface(
-            Target(normal_depth, targets.composed_fbo),
+            Target(normal_depth, fbo),
             depth,
             temperature if has_temperature else None,
             coverage,
@@ -313,16 +335,19 @@ def _view_instances(
     offsets = surfels.clip_offsets.reshape(-1) - planes @ camera.eye
     clip = np.concatenate([view_normals, offsets[:, None]], axis=1)
     discs[:, 9:21] = clip.reshape(len(centers), 4 * MAX_CLIP_PLANES)
-    if kelvin is not None:
+    peaks = solid.peaks if solid.peaks is not None else kelvin
+    if kelvin is not None and peaks is not None:
         discs[:, 21] = kelvin[surfels.disc_source]
+        discs[:, 22] = peaks[surfels.disc_source]
     sphere_view = camera.to_view(surfels.sphere_centers)
     # A sphere the near plane cuts has no impostor quad; the discs (clipped by GL) stay.
     front = -sphere_view[:, 2] - surfels.sphere_radii > camera.near
     spheres = np.zeros((int(front.sum()), _SPHERE_FLOATS), np.float32)
     spheres[:, 0:3] = sphere_view[front]
     spheres[:, 3] = surfels.sphere_radii[front]
-    if kelvin is not None:
+    if kelvin is not None and peaks is not None:
         spheres[:, 4] = kelvin[surfels.sphere_source[front]]
+        spheres[:, 5] = peaks[surfels.sphere_source[front]]
     reach = max(surfels.disc_radius, float(surfels.sphere_radii.max(initial=0.0)))
     depths = np.concatenate([-centers[:, 2], -sphere_view[:, 2]])
     far = float(depths.max(initial=camera.near)) + 2.0 * reach
@@ -372,4 +397,9 @@ def split_solid(frame: ParticleFrame, scene: Scene) -> tuple[ParticleFrame, Soli
     arrays = {f.name: part(getattr(frame, f.name)) for f in fields(frame) if f.name != "solid"}
     fluid = replace(frame, **arrays, solid=None)
     temperatures = None if frame.temperatures is None else frame.temperatures[mask]
-    return fluid, SolidParticles(np.ascontiguousarray(frame.positions[mask]), radius, temperatures)
+    peaks = None
+    tinted = scene.material.heat_tint  # the only reader of peaks
+    if tinted and temperatures is not None and frame.peak_temperatures is not None:
+        peaks = np.maximum(frame.peak_temperatures[mask], temperatures)
+    solid = SolidParticles(np.ascontiguousarray(frame.positions[mask]), radius, temperatures, peaks)
+    return fluid, solid
