@@ -6,10 +6,10 @@ every size is checked *before* the bytes it describes are read or allocated:
 1. the zip's end-of-archive record: at most `max_entries` entries and a central directory of at
    most `max_entries` x 512 bytes (a 26 MB archive of 300 000 empty entries is refused before
    Python builds 300 000 directory records);
-2. every used entry's ``.npy`` header: dtype (numbers, booleans or text only), shape, and the declared size
-   against what the entry holds and against `max_uncompressed_bytes` summed over the entries (a
-   small deflated body cannot expand into gigabytes); particles against `max_particles`; the
-   scene text against `max_scene_bytes`;
+2. every used entry's ``.npy`` header: dtype (numbers, booleans or text only), shape, and the
+   declared size against what the entry holds and against `max_uncompressed_bytes` summed over
+   the entries (a small deflated body cannot expand into gigabytes); particles against
+   `max_particles`; the scene text against `max_scene_bytes`;
 3. then `admit(scene_json, particles, array_names)`, the caller's last word (the service checks
    its memory budget there), and only then the arrays' data.
 

@@ -15,6 +15,7 @@ on as it came (nothing copied).
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
+from typing import Any
 
 import moderngl
 import numpy as np
@@ -394,7 +395,9 @@ def split_solid(frame: ParticleFrame, scene: Scene) -> tuple[ParticleFrame, Soli
         return None if array is None else np.ascontiguousarray(array[keep])
 
     # Every per-particle array of the frame, whichever it carries, keeps the fluid's rows.
-    arrays = {f.name: part(getattr(frame, f.name)) for f in fields(frame) if f.name != "solid"}
+    arrays: dict[str, Any] = {
+        f.name: part(getattr(frame, f.name)) for f in fields(frame) if f.name != "solid"
+    }
     fluid = replace(frame, **arrays, solid=None)
     temperatures = None if frame.temperatures is None else frame.temperatures[mask]
     peaks = None
