@@ -452,8 +452,11 @@ def _prefix_sum(residual: np.ndarray) -> np.ndarray:
     blocks = -(-n // _BLOCK)
     rows = c * blocks
     batch = min(_BATCH_ROWS, rows)
-    padded = np.zeros((-(-rows // batch) * batch, _BLOCK), np.float64)
-    padded[:rows].reshape(c, blocks * _BLOCK)[:, :n] = residual
+    padded = np.empty((-(-rows // batch) * batch, _BLOCK), np.float64)
+    body = padded[:rows].reshape(c, blocks * _BLOCK)
+    body[:, :n] = residual
+    body[:, n:] = 0.0
+    padded[rows:] = 0.0
     sums = np.matmul(padded.reshape(-1, batch, _BLOCK), _TRIANGLE).reshape(-1, _BLOCK)
     sums = sums[:rows].reshape(c, blocks, _BLOCK)
     before = np.cumsum(sums[:, :, -1], axis=1)  # each block's total and all before it
