@@ -56,8 +56,8 @@ WIDTHS = (1, 2, 4, 8)
 #: Largest quantised integer: decoded values stay exact in float64 arithmetic.
 MAX_Q = 2**52
 _COMPACT_KEYS = ("coding", "step", "bounds", "predict", "width", "bytes")
-#: Particles summed per block by `_prefix_sum`'s matrix product (16: fewest flops per value
-#: that still beat cumsum, measured).
+#: Particles summed per block by `_prefix_sum`'s matrix product (16: the fewest flops per value
+#: for which it beats cumsum).
 _BLOCK = 16
 #: Rows of one matrix product: small enough that BLAS runs it on the calling thread alone.
 _BATCH_ROWS = 1024
@@ -245,7 +245,7 @@ def _planes(values: np.ndarray, width: int) -> bytes:
     """uint64 values (any shape, C order) -> byte planes of their low `width` bytes."""
     flat = np.ascontiguousarray(values, dtype=np.uint64).reshape(-1)
     planes = np.empty((width, flat.size), np.uint8)
-    for b in range(width):  # shifts: faster than a strided transpose of the bytes
+    for b in range(width):  # shifts, not a strided transpose: contiguous rows
         planes[b] = flat >> np.uint64(8 * b)
     return planes.tobytes()
 
@@ -254,7 +254,7 @@ def _unplanes(data: bytes, count: int, width: int) -> np.ndarray:
     """Byte planes -> values as unsigned integers `width` bytes wide."""
     planes = np.frombuffer(data, np.uint8).reshape(width, count)
     values = planes[width - 1].astype(f"=u{width}")
-    for b in range(width - 2, -1, -1):  # shifts: faster than a strided transpose of the bytes
+    for b in range(width - 2, -1, -1):  # shifts, not a strided transpose: contiguous rows
         values <<= 8
         values |= planes[b]
     return values
@@ -396,7 +396,7 @@ def _dequantised(slot: CompactSlot, q: np.ndarray) -> np.ndarray:
     """lo + q * step per component, in float64, then in the slot's dtype and shape."""
     n, c = slot.shape[0], slot.components
     wide = np.empty((n, c), np.float64)
-    for k in range(c):  # column by column: a third faster than one transposed multiply
+    for k in range(c):  # column by column: contiguous writes
         column = wide[:, k]
         np.multiply(q[k], slot.step, out=column)
         column += slot.lo[k]
