@@ -10,7 +10,7 @@ Only what the scene needs is built: no IBL resources with ``ibl_mode = "none"`` 
 background shows the environment), no prefiltered chain in sampled mode, no temperature target
 or blackbody table without temperatures. Owns: the colour target, the blackbody table, the
 `IblCache`, the `EnvironmentLibrary` and the surface-detail pass (`detail`; the renderer runs it
-after the normals, so the N AOV has the detail too).
+after the normals and the solid's compose, so the N AOV has the detail too).
 """
 
 from __future__ import annotations
