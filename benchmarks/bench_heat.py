@@ -12,7 +12,8 @@ molten, and heat_tint with the frame's own peak_temperatures (the RG32F kelvin p
 second blur). Prints per setting the median frame time and the median of the per-cycle ratios
 to "off", as wall time and as the process's CPU time (every thread: llvmpipe's rasterisers are
 in the process), which on a shared, oversubscribed machine tracks the work far more steadily.
-`--only-off` renders only "off" (runs on a checkout without these fields).
+`--only-off` renders only "off" (runs on a checkout without these fields). `--report` writes
+REPORT.md's heat section instead (benchmarks/studies/heat_report.py: cost, error, demo crop).
 `--today-shaders DIR` (the `shaders/` folder of a checkout from before these features, e.g.
 `git archive main shaders | tar -x -C /tmp/main`) adds "today": a renderer whose GL programs
 are built from those files (the define names this code sets declared there as no-ops), so the
@@ -32,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import repo_path  # noqa: F401
 
 from sphrender.core.frame import make_frame
 from sphrender.server.bench.sweep import bench_scene_from_dict
@@ -96,7 +98,11 @@ def main() -> None:
     parser.add_argument("--only-off", action="store_true")
     parser.add_argument("--json", help="write the per-setting frame times (ms) here")
     parser.add_argument("--today-shaders", type=Path, help="shaders/ from before these features")
+    parser.add_argument("--report", action="store_true", help="write REPORT.md's heat section")
     args = parser.parse_args()
+    if args.report:
+        write_report(args.cycles)
+        return
     positions = jittered_lattice_ball(0.58, 0.01, seed=0)
     height = (positions[:, 1] - positions[:, 1].min()) / np.ptp(positions[:, 1])
     kelvin = 300.0 + 1700.0 * height
@@ -147,6 +153,21 @@ def main() -> None:
     if args.json:
         with open(args.json, "w") as handle:
             json.dump({"wall": times, "cpu": cpu_times}, handle)
+
+
+def write_report(cycles: int) -> None:
+    from benchmarks.studies import heat_report
+
+    report = Path(__file__).resolve().parent / "REPORT.md"
+    with GLContext() as gl:
+        lines = heat_report.section(heat_report.measure(gl, cycles))
+        renderer = SurfaceRenderer(gl)
+        try:
+            heat_report.write_demo_crop(renderer, report.parent)
+        finally:
+            renderer.release()
+    print("\n".join(lines))
+    report.write_text(heat_report.splice(report.read_text(), lines))
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ the brushed plate's finish costs and crop, and the cost and error of glare and m
 
 from __future__ import annotations
 
+from benchmarks.studies import heat_report
 from benchmarks.studies.brushed_plate import measure as measure_brushed_plate
 from benchmarks.studies.brushed_plate import section as brushed_plate_section
 from benchmarks.studies.brushed_plate import write_crop as write_brushed_plate_crop
@@ -66,6 +67,9 @@ def run_studies(ctx: StudyContext) -> None:
     write_brushed_plate_crop(ctx.renderer, ctx.out)
     log("glare and motion blur: cost and error")
     results.extra_sections += [*run_post_effects(ctx.renderer, ctx.width, ctx.height), ""]
+    log("heat tint: cost; the demo's crop")
+    results.extra_sections += heat_report.section(heat_report.measure(ctx.gl, log=log))
+    heat_report.write_demo_crop(ctx.renderer, ctx.out)
     surfaces = results.surfaces
     if surfaces is None:
         return
