@@ -179,17 +179,19 @@ class LiveSession:
         temperatures: object | None = None,
         velocities: object | None = None,
         ids: object | None = None,
+        peak_temperatures: object | None = None,
+        solid: object | None = None,
         timeout: float | None = None,
     ) -> int:
         """Accept one frame (thread-safe) and return its id; its result follows (module
-        docstring). Arrays as PROTOCOL.md §4.2: positions (N, 3), densities, radii, temperatures
-        (N,), velocities (N, 3), ids (N,); `scene`: a partial override for this frame alone.
+        docstring). Arrays as PROTOCOL.md §4.2: positions (N, 3), densities, radii, temperatures,
+        peak_temperatures, ids, solid (N,), velocities (N, 3); `scene`: a partial override for
+        this frame alone.
         Raises `InputError` for a frame the server would refuse, `SessionClosed` once the
         session has ended, `TimeoutError` when a ``queue`` session had no room for `timeout` s."""
-        arrays = dict(
-            densities=densities, radii=radii, temperatures=temperatures, velocities=velocities
-        )
-        frame = _snapshot(positions, scene, {**arrays, "ids": ids})
+        arrays = {"densities": densities, "radii": radii, "temperatures": temperatures}
+        arrays |= {"velocities": velocities, "ids": ids, "solid": solid}
+        frame = _snapshot(positions, scene, {**arrays, "peak_temperatures": peak_temperatures})
         superseded: list[_Frame] = []
         with self._lock:
             room = self._lock.wait_for(

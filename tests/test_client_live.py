@@ -204,6 +204,9 @@ def test_bad_input_is_refused_by_submit_with_the_field(service: ServerProcess) -
         with pytest.raises(InputError) as info:
             live.submit(ball(100), scene={"camera": {"fov_y": float("nan")}})
         assert info.value.field == "scene"
+        with pytest.raises(InputError) as info:  # every frame array is checked, solid included
+            live.submit(ball(100), solid=np.full(100, 2, np.uint8))
+        assert info.value.field.startswith("solid")
 
 
 def session_ends(tmp_path: Path) -> tuple[list[BaseException], dict[int, StreamResult], list[Any]]:
