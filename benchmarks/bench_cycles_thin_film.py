@@ -10,14 +10,29 @@ The case, the same in both: a flat mirror plate (roughness 0) of the preset's me
 uniform white environment of radiance 1, seen head-on and at 60 degrees from the normal, a
 thin film of the preset's film n on it. Cycles renders a 16x16 orthographic view of the plate
 (GGX, roughness 0, Thin Film Thickness / IOR; Standard view transform, linear Rec.709 scene
-space) and the bench takes the mean pixel, with two base-metal models: the Principled BSDF
-(metallic 1, base colour = F0, its F82-tint conductor) and the Metallic BSDF's physical
-conductor given thin_film.py's own substrate n + ik at 650, 550 and 450 nm (the same metal).
-sphrender's side is thin_film.py's functions: `film_rgb` with the film's k set to 0 (Cycles
-takes a real IOR only: the like-for-like case), `film_rgb` with the real k, and the product's
-table value (`spread_rgb`: real k plus the lognormal thickness spread). Both RGBs go to
-CIELAB (D65, white = RGB 1) and the bench prints ΔE2000 per thickness. This process imports bpy
-only in `--cycles-worker` mode, which the main mode runs under --bpy-python.
+space) and the bench takes the mean pixel.
+
+Cycles' base metals. The Metallic BSDF's physical conductor ("conductor") is given thin_film.py's
+own substrate n + ik at 650, 550 and 450 nm: the same metal. The Principled BSDF (metallic 1)
+takes a base colour F0 and a Specular Tint t, an F82-tint metal (Kutz et al.): F(cos) =
+Schlick(cos) - b cos (1 - cos)^6 with b set so that F(1/7) = Schlick(1/7) t. With a film
+(kernel/closure/bsdf_microfacet.h, microfacet_fresnel, the F82_TINT branch; bsdf_util.h,
+fresnel_iridescence and fresnel_conductor_polarized; shipped with bpy under
+cycles/source/kernel) it turns that metal into a conductor by Gulbrandsen's inversion with
+r = min(F0, 0.999) and edge tint g = F(1/7), the model's own reflectance at 82 degrees; the
+film/metal interface then takes its phase from that n + ik and its reflectance from the F82
+model again (F0 of n + ik relative to the film index, F82 = g), the same for s and p. Our
+thin_film.py inverts with g = F0. So the Principled's film substrate is ours exactly when
+F(1/7) = F0, i.e. t = F0 / Schlick(1/7) ("principled g=F0"); t = white (today's row,
+"principled") gives g = Schlick(1/7) > F0, a smaller n and another phase; t = our metal's true
+82-degree reflectance over Schlick's ("principled F82") matches our bare metal's angular curve but
+not its film substrate. sphrender's side is thin_film.py's functions: `film_rgb` with the film's
+k set to 0 (Cycles takes a real IOR only: the like-for-like case), the same with the substrate
+Cycles' Principled derives from its inputs ("implied": isolates the film optics from the metal
+model), `film_rgb` with the real k, and the product's table value (`spread_rgb`: real k plus
+the lognormal thickness spread). Both RGBs go to CIELAB (D65, white = RGB 1) and the bench
+prints ΔE2000 per thickness. This process imports bpy only in `--cycles-worker` mode, which
+the main mode runs under --bpy-python.
 """
 
 from __future__ import annotations
@@ -34,13 +49,18 @@ import numpy as np
 THICKNESSES_NM = (0.0, 20.0, 40.0, 60.0, 80.0, 100.0, 150.0)
 COS_THETAS = (1.0, 0.5)
 PRESETS = ("iron", "stainless_steel")
-MODELS = ("principled", "conductor")
-HEADER = """Cycles: principled = Principled BSDF (metallic 1, base colour F0, F82 tint white);
+MODELS = ("principled", "principled g=F0", "principled F82", "conductor")
+HEADER = """Cycles: principled = Principled BSDF (metallic 1, base colour F0, Specular Tint white);
+  principled g=F0 = the same, Specular Tint F0 / Schlick(82 deg): its film substrate is ours;
+  principled F82 = Specular Tint = our metal's reflectance at 82 deg / Schlick's: our bare metal;
   conductor = Metallic BSDF, physical conductor, n + ik = thin_film.py's substrate, 650/550/450 nm.
 dE2000 (CIELAB D65, white = RGB 1) of Cycles against thin_film.py with the film's k = 0 and no
-  spread (like for like), with its k, and the table (k + lognormal spread: the product's);
+  spread (like for like), the same on the substrate Cycles' model implies (implied) and with
+  Cycles' Principled film/metal interface too (rule: F82 |r|^2, one for s and p), with the film's
+  k, and the table (k + lognormal spread: the product's);
   noise = the largest per-pixel standard deviation in the Cycles image."""
 SIZE = 16
+CHANNEL_NM = np.array([650.0, 550.0, 450.0])  # thin_film.py's R, G, B wavelengths
 SAMPLES = 64
 
 SRGB_TO_XYZ = np.array(
@@ -97,9 +117,10 @@ def cycles_worker(request_path: str, out_path: str) -> None:
     results = []
     out_dir = Path(tempfile.mkdtemp())
     for case in request:
-        if case["model"] == "principled":
+        if case["model"].startswith("principled"):
             bsdf = principled
             bsdf.inputs["Base Color"].default_value = (*case["f0"], 1.0)
+            bsdf.inputs["Specular Tint"].default_value = (*case["tint"], 1.0)
         else:
             bsdf = conductor
             bsdf.inputs["IOR"].default_value = case["substrate_n"]
@@ -175,8 +196,102 @@ def ciede2000(lab1: np.ndarray, lab2: np.ndarray) -> np.ndarray:
     return result
 
 
-def sphrender_rgbs(preset: str, thickness: float, cos_theta: float) -> dict[str, np.ndarray]:
-    """thin_film.py's reflectance: k = 0 uniform, real k uniform, real k with the spread."""
+def schlick_82(f0: np.ndarray) -> np.ndarray:
+    """Schlick's Fresnel at cos theta = 1/7 (~82 degrees), where F82-tint pins its tint."""
+    result: np.ndarray = f0 + (1.0 - f0) * (6.0 / 7.0) ** 5
+    return result
+
+
+def gulbrandsen(r: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """Gulbrandsen's (2014) n + ik from reflectivity r and edge tint g, as Cycles' Principled
+    evaluates it (r clamped to 0.999; thin_film.gulbrandsen_index is the case g = r)."""
+    r = np.minimum(r, 0.999)
+    sr = np.sqrt(r)
+    n = (1.0 + sr) / (1.0 - sr) * (1.0 - g) + (1.0 - r) / (1.0 + r) * g
+    k2 = (r * (n + 1.0) ** 2 - (n - 1.0) ** 2) / (1.0 - r)
+    result: np.ndarray = n + 1j * np.sqrt(np.maximum(k2, 0.0))
+    return result
+
+
+def principled_inputs(model: str, f0: np.ndarray, substrate: np.ndarray) -> dict[str, list]:
+    """Specular Tint for a Principled model, and the edge tint g and n + ik per RGB channel
+    its film sees."""
+    from sphrender.server.engine.lighting.thin_film import film_reflectance_spectrum
+
+    if model == "principled":
+        tint = np.ones(3)
+    elif model == "principled g=F0":
+        tint = f0 / schlick_82(f0)
+    else:
+        ours_82 = film_reflectance_spectrum(
+            np.zeros(3), np.full(3, 1.0 / 7.0), CHANNEL_NM, 1.0 + 0j, substrate
+        )
+        tint = ours_82 / schlick_82(f0)
+    edge = schlick_82(f0) * np.minimum(tint, 1.0)  # the model's reflectance at cos 1/7
+    implied = gulbrandsen(f0, edge)
+    return {
+        "tint": tint.tolist(),
+        "implied_g": edge.tolist(),
+        "implied_n": implied.real.tolist(),
+        "implied_k": implied.imag.tolist(),
+    }
+
+
+def per_wavelength(channels: np.ndarray, wavelengths: np.ndarray) -> np.ndarray:
+    """Values at the R, G, B wavelengths, linear in between and constant outside, as
+    thin_film.substrate_index spreads the substrate's n + ik."""
+    order = np.argsort(CHANNEL_NM)
+    real = np.interp(wavelengths, CHANNEL_NM[order], np.real(channels)[order])
+    imag = np.interp(wavelengths, CHANNEL_NM[order], np.imag(channels)[order])
+    result: np.ndarray = real + 1j * imag if np.iscomplexobj(channels) else real
+    return result
+
+
+def f82_tint_reflectance(cos: np.ndarray, f0: np.ndarray, f82: np.ndarray) -> np.ndarray:
+    """The F82 metal model (Kutz et al.) through F0 at normal incidence and f82 at cos = 1/7."""
+    b = 7.0 / (6.0 / 7.0) ** 6 * (schlick_82(f0) - f82)
+    s = 1.0 - cos
+    result: np.ndarray = np.clip(f0 + (1.0 - f0) * s**5 - b * cos * s**6, 0.0, 1.0)
+    return result
+
+
+def film_rgb_on(row: dict, interface_f82: bool) -> np.ndarray:
+    """Airy reflectance (film k = 0, no spread) on the substrate Cycles' model implies: with
+    thin_film.py's own optics, or (interface_f82) with Cycles' Principled rule, where the
+    film/metal interface keeps the phase of n + ik but reflects the F82 model's |r|^2 (F0 of
+    n + ik relative to the film, F82 = the edge tint g), the same for s and p."""
+    from sphrender.server.engine.lighting.thin_film import (
+        film_reflectance_spectrum,
+        spectrum_to_rgb,
+    )
+
+    wavelengths = np.arange(380.0, 781.0, 5.0)
+    n2 = per_wavelength(np.array(row["implied_n"]) + 1j * np.array(row["implied_k"]), wavelengths)
+    n1, c0, d = row["film_n"], row["cos_theta"], row["thickness_nm"]
+    if not interface_f82:
+        spectrum = film_reflectance_spectrum(
+            np.array([[d]]), np.array([[c0]]), wavelengths, complex(n1), n2
+        )
+        return np.asarray(spectrum_to_rgb(spectrum)[0])
+    sin2 = 1.0 - c0**2
+    c1, c2 = np.sqrt(1.0 - sin2 / n1**2), np.sqrt(1.0 - sin2 / n2**2 + 0j)
+    edge = per_wavelength(np.array(row["implied_g"]), wavelengths)
+    f0_inside = np.abs((n2 / n1 - 1.0) / (n2 / n1 + 1.0)) ** 2
+    amplitude = np.sqrt(f82_tint_reflectance(c1, f0_inside, edge))
+    phase = np.exp(4j * np.pi * n1 * d * c1 / wavelengths)
+    spectrum = np.zeros_like(wavelengths)
+    for r01, r12 in (
+        ((c0 - n1 * c1) / (c0 + n1 * c1), (n1 * c1 - n2 * c2) / (n1 * c1 + n2 * c2)),
+        ((n1 * c0 - c1) / (n1 * c0 + c1), (n2 * c1 - n1 * c2) / (n2 * c1 + n1 * c2)),
+    ):
+        r12 = amplitude * r12 / np.abs(r12)
+        spectrum += 0.5 * np.abs((r01 + r12 * phase) / (1.0 + r01 * r12 * phase)) ** 2
+    return np.asarray(spectrum_to_rgb(spectrum))
+
+
+def sphrender_rgbs(row: dict) -> dict[str, np.ndarray]:
+    """thin_film.py's reflectance: k = 0 uniform, k = 0 on Cycles' implied substrate (with
+    thin_film.py's interface, then Cycles' rule), real k uniform, real k with the spread."""
     from sphrender.server.engine.lighting.materials import METAL_F0
     from sphrender.server.engine.lighting.thin_film import (
         FilmSpec,
@@ -185,14 +300,81 @@ def sphrender_rgbs(preset: str, thickness: float, cos_theta: float) -> dict[str,
         spread_rgb,
     )
 
-    spec = film_spec(preset, METAL_F0[preset])
+    spec = film_spec(row["preset"], METAL_F0[row["preset"]])
     lossless = FilmSpec(spec.f0, complex(spec.film_index.real, 0.0))
-    d, c = np.array([thickness]), np.array([cos_theta])
+    d, c = np.array([row["thickness_nm"]]), np.array([row["cos_theta"]])
     return {
         "k0": film_rgb(lossless, d, c)[0],
+        "implied": film_rgb_on(row, interface_f82=False),
+        "rule": film_rgb_on(row, interface_f82=row["model"] != "conductor"),
         "k": film_rgb(spec, d, c)[0],
         "table": spread_rgb(spec, d, c)[0, 0],
     }
+
+
+def build_cases() -> list[dict]:
+    """Every (preset, Cycles model, angle, thickness) with the inputs both sides need."""
+    from sphrender.server.engine.lighting.materials import METAL_F0
+    from sphrender.server.engine.lighting.thin_film import (
+        FILM_INDEX,
+        gulbrandsen_index,
+        substrate_index,
+    )
+
+    cases = []
+    for preset in PRESETS:
+        f0 = np.asarray(METAL_F0[preset], dtype=np.float64)
+        substrate = substrate_index(METAL_F0[preset], CHANNEL_NM)
+        # The bench's Gulbrandsen must be thin_film.py's where the edge tint is F0.
+        assert np.allclose(gulbrandsen(f0, f0), gulbrandsen_index(f0), rtol=1e-12)
+        common = {
+            "preset": preset,
+            "f0": f0.tolist(),
+            "substrate_n": substrate.real.tolist(),
+            "substrate_k": substrate.imag.tolist(),
+            "film_n": FILM_INDEX[preset].real,
+        }
+        for model in MODELS:
+            if model == "conductor":
+                extra = {"implied_n": common["substrate_n"], "implied_k": common["substrate_k"]}
+            else:
+                extra = principled_inputs(model, f0, substrate)
+            for c in COS_THETAS:
+                for d in THICKNESSES_NM:
+                    cases.append(
+                        {**common, **extra, "model": model, "thickness_nm": d, "cos_theta": c}
+                    )
+    return cases
+
+
+def render_in_cycles(bpy_python: str, cases: list[dict]) -> list[dict]:
+    with tempfile.TemporaryDirectory() as tmp:
+        request, out = Path(tmp) / "request.json", Path(tmp) / "out.json"
+        request.write_text(json.dumps(cases))
+        subprocess.run(
+            [bpy_python, __file__, "--cycles-worker", str(request), str(out)],
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
+        rendered: list[dict] = json.loads(out.read_text())
+    return rendered
+
+
+def print_inputs(cases: list[dict]) -> None:
+    """The Principled inputs and the n + ik they imply, per preset and model."""
+    seen = set()
+    print("inputs (R, G, B at 650/550/450 nm):")
+    for case in cases:
+        key = (case["preset"], case["model"])
+        if key in seen:
+            continue
+        seen.add(key)
+        tint = np.array(case.get("tint", [np.nan] * 3))
+        n_k = np.array(case["implied_n"]) + 1j * np.array(case["implied_k"])
+        print(
+            f"  {case['preset']:16s} {case['model']:16s} tint {np.array2string(tint, precision=3)}"
+            f"  n+ik {np.array2string(n_k, precision=3)}"
+        )
 
 
 def main() -> None:
@@ -205,50 +387,35 @@ def main() -> None:
     if args.cycles_worker:
         cycles_worker(*args.cycles_worker)
         return
-    from sphrender.server.engine.lighting.materials import METAL_F0
-    from sphrender.server.engine.lighting.thin_film import (
-        FILM_INDEX,
-        substrate_index,
-    )
-
-    cases = []
-    for preset in PRESETS:
-        substrate = substrate_index(METAL_F0[preset], np.array([650.0, 550.0, 450.0]))
-        common = {
-            "preset": preset,
-            "f0": list(METAL_F0[preset]),
-            "substrate_n": substrate.real.tolist(),
-            "substrate_k": substrate.imag.tolist(),
-            "film_n": FILM_INDEX[preset].real,
-        }
-        for model in MODELS:
-            for c in COS_THETAS:
-                for d in THICKNESSES_NM:
-                    cases.append({**common, "model": model, "thickness_nm": d, "cos_theta": c})
-    with tempfile.TemporaryDirectory() as tmp:
-        request, out = Path(tmp) / "request.json", Path(tmp) / "out.json"
-        request.write_text(json.dumps(cases))
-        subprocess.run(
-            [args.bpy_python, __file__, "--cycles-worker", str(request), str(out)],
-            check=True,
-            stdout=subprocess.DEVNULL,
-        )
-        rendered = json.loads(out.read_text())
+    cases = build_cases()
+    rendered = render_in_cycles(args.bpy_python, cases)
     print(HEADER)
+    print_inputs(cases)
     print(
-        f"{'preset':16s} {'model':10s} cos  d nm  {'Cycles RGB':24s} {'ours k=0 RGB':24s} "
-        "dE k=0  dE k  dE table  noise"
+        f"{'preset':16s} {'model':16s} cos  d nm  {'Cycles RGB':24s} {'ours k=0 RGB':24s} "
+        "dE k=0  implied  rule  dE k  dE table  noise"
     )
+    worst: dict[tuple[str, float], list[float]] = {}
     for row in rendered:
-        ours = sphrender_rgbs(row["preset"], row["thickness_nm"], row["cos_theta"])
+        ours = sphrender_rgbs(row)
         theirs = cielab(np.array(row["rgb"]))
         de = {key: float(ciede2000(cielab(value), theirs)) for key, value in ours.items()}
+        worst.setdefault((row["model"], row["cos_theta"]), []).append(de["k0"])
         print(
-            f"{row['preset']:16s} {row['model']:10s} "
+            f"{row['preset']:16s} {row['model']:16s} "
             f"{row['cos_theta']:.1f} {row['thickness_nm']:5.0f}  "
             f"{np.array2string(np.array(row['rgb']), precision=3):24s} "
             f"{np.array2string(ours['k0'], precision=3):24s} "
-            f"{de['k0']:6.2f} {de['k']:5.2f} {de['table']:8.2f}  {max(row['std']):.1e}"
+            f"{de['k0']:6.2f} {de['implied']:8.2f} {de['rule']:5.2f} {de['k']:5.2f} "
+            f"{de['table']:8.2f}  "
+            f"{max(row['std']):.1e}"
+        )
+    print("against thin_film.py with k = 0 and no spread, both presets, every thickness:")
+    for (model, cos), values in worst.items():
+        within = sum(value <= 3.0 for value in values)
+        print(
+            f"  {model:16s} cos {cos:.1f}: max dE {max(values):5.2f}, "
+            f"median {np.median(values):4.2f}, {within} of {len(values)} <= 3"
         )
     sys.stdout.flush()
 
