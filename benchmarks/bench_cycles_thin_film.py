@@ -12,27 +12,30 @@ thin film of the preset's film n on it. Cycles renders a 16x16 orthographic view
 (GGX, roughness 0, Thin Film Thickness / IOR; Standard view transform, linear Rec.709 scene
 space) and the bench takes the mean pixel.
 
-Cycles' base metals. The Metallic BSDF's physical conductor ("conductor") is given thin_film.py's
-own substrate n + ik at 650, 550 and 450 nm: the same metal. The Principled BSDF (metallic 1)
-takes a base colour F0 and a Specular Tint t, an F82-tint metal (Kutz et al.): F(cos) =
-Schlick(cos) - b cos (1 - cos)^6 with b set so that F(1/7) = Schlick(1/7) t. With a film
-(kernel/closure/bsdf_microfacet.h, microfacet_fresnel, the F82_TINT branch; bsdf_util.h,
-fresnel_iridescence and fresnel_conductor_polarized; shipped with bpy under
-cycles/source/kernel) it turns that metal into a conductor by Gulbrandsen's inversion with
-r = min(F0, 0.999) and edge tint g = F(1/7), the model's own reflectance at 82 degrees; the
-film/metal interface then takes its phase from that n + ik and its reflectance from the F82
-model again (F0 of n + ik relative to the film index, F82 = g), the same for s and p. Our
-thin_film.py inverts with g = F0. So the Principled's film substrate is ours exactly when
-F(1/7) = F0, i.e. t = F0 / Schlick(1/7) ("principled g=F0"); t = white (today's row,
-"principled") gives g = Schlick(1/7) > F0, a smaller n and another phase; t = our metal's true
-82-degree reflectance over Schlick's ("principled F82") matches our bare metal's angular curve but
-not its film substrate. sphrender's side is thin_film.py's functions: `film_rgb` with the film's
-k set to 0 (Cycles takes a real IOR only: the like-for-like case), the same with the substrate
-Cycles' Principled derives from its inputs ("implied": isolates the film optics from the metal
-model), `film_rgb` with the real k, and the product's table value (`spread_rgb`: real k plus
-the lognormal thickness spread). Both RGBs go to CIELAB (D65, white = RGB 1) and the bench
-prints ΔE2000 per thickness. This process imports bpy only in `--cycles-worker` mode, which
-the main mode runs under --bpy-python.
+Cycles' base metals. The Metallic BSDF's physical conductor ("conductor") is given
+thin_film.py's own substrate n + ik at 650, 550 and 450 nm: the same metal. The Principled BSDF
+(metallic 1) takes a base colour F0 and a Specular Tint t, an F82-tint metal (Kutz et al.):
+F(cos) = Schlick(cos) - b cos (1 - cos)^6 with b set so that F(1/7) = Schlick(1/7) t. With a
+film (kernel/closure/bsdf_microfacet.h, microfacet_fresnel, the F82_TINT branch; bsdf_util.h,
+fresnel_iridescence and fresnel_conductor_polarized; bpy 5.0.1's copy under
+cycles/source/kernel, other versions may differ) it turns that metal into a conductor by
+Gulbrandsen's inversion with r = min(F0, 0.999) and edge tint g = F(1/7), the model's own
+reflectance at 82 degrees; the film/metal interface then takes its phase from that n + ik and
+its reflectance from the F82 model again (F0 of n + ik relative to the film index, F82 = g), one
+value for s and p. thin_film.py inverts with g = F0 and uses the exact s and p terms. So the
+Principled's film sits on our n + ik exactly when F(1/7) = F0, i.e. t = F0 / Schlick(1/7)
+("principled g=F0"); t white ("principled") gives g = Schlick(1/7) > F0, a smaller n and another
+phase; t = our metal's true 82-degree reflectance over Schlick's ("principled F82") matches our
+bare metal's angular curve but not its film substrate.
+
+sphrender's side is thin_film.py's functions: `film_rgb` with the film's k set to 0 (Cycles
+takes a real IOR only: the like-for-like case); the same on the substrate Cycles' model implies
+("implied": the film optics apart from the metal model) and, for the Principled, with its F82
+interface reflectance too ("rule", numpy here: what is left is Cycles' spectral integration);
+`film_rgb` with the real k; and the product's table value (`spread_rgb`: real k plus the
+lognormal thickness spread). Both RGBs go to CIELAB (D65, white = RGB 1) and the bench prints
+ΔE2000 per thickness. This process imports bpy only in `--cycles-worker` mode, which the main
+mode runs under --bpy-python.
 """
 
 from __future__ import annotations
