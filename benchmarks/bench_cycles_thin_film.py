@@ -29,13 +29,14 @@ phase; t = our metal's true 82-degree reflectance over Schlick's ("principled F8
 bare metal's angular curve but not its film substrate.
 
 sphrender's side is thin_film.py's functions: `film_rgb` with the film's k set to 0 (Cycles
-takes a real IOR only: the like-for-like case); the same on the substrate Cycles' model implies
-("implied": the film optics apart from the metal model) and, for the Principled, with its F82
-interface reflectance too ("rule", numpy here: what is left is Cycles' spectral integration);
-`film_rgb` with the real k; and the product's table value (`spread_rgb`: real k plus the
-lognormal thickness spread). Both RGBs go to CIELAB (D65, white = RGB 1) and the bench prints
-ΔE2000 per thickness. This process imports bpy only in `--cycles-worker` mode, which the main
-mode runs under --bpy-python.
+takes a real IOR only: the like-for-like case); thin_film.py's optics on the substrate Cycles'
+model implies ("implied": the film apart from the metal model); the bench's numpy Airy sum with
+the Principled's F82 interface ("iface"), and with all of Cycles' rule ("rule": also Belcour &
+Barla's series cut after m = 3 and n + ik constant within each RGB channel, each channel
+integrated on its own, bsdf_util.h iridescence_airy_summation); `film_rgb` with the real k; and
+the product's table value (`spread_rgb`: real k plus the lognormal thickness spread). Both RGBs
+go to CIELAB (D65, white = RGB 1) and the bench prints ΔE2000 per thickness. This process
+imports bpy only in `--cycles-worker` mode, which the main mode runs under --bpy-python.
 """
 
 from __future__ import annotations
@@ -58,9 +59,11 @@ HEADER = """Cycles: principled = Principled BSDF (metallic 1, base colour F0, Sp
   principled F82 = Specular Tint = our metal's reflectance at 82 deg / Schlick's: our bare metal;
   conductor = Metallic BSDF, physical conductor, n + ik = thin_film.py's substrate, 650/550/450 nm.
 dE2000 (CIELAB D65, white = RGB 1) of Cycles against thin_film.py with the film's k = 0 and no
-  spread (like for like), the same on the substrate Cycles' model implies (implied) and with
-  Cycles' Principled film/metal interface too (rule: F82 |r|^2, one for s and p), with the film's
-  k, and the table (k + lognormal spread: the product's);
+  spread (like for like); the same on the substrate Cycles' model implies (implied), then with
+  the Principled's film/metal interface (iface: F82 |r|^2, one for s and p), then with all of
+  Cycles' rule (rule: also Airy's series cut at m = 3, n + ik constant per RGB channel, each
+  channel integrated on its own); with the film's k; the table (k + lognormal spread: the
+  product's);
   noise = the largest per-pixel standard deviation in the Cycles image."""
 SIZE = 16
 CHANNEL_NM = np.array([650.0, 550.0, 450.0])  # thin_film.py's R, G, B wavelengths
@@ -258,43 +261,65 @@ def f82_tint_reflectance(cos: np.ndarray, f0: np.ndarray, f82: np.ndarray) -> np
     return result
 
 
-def film_rgb_on(row: dict, interface_f82: bool) -> np.ndarray:
-    """Airy reflectance (film k = 0, no spread) on the substrate Cycles' model implies: with
-    thin_film.py's own optics, or (interface_f82) with Cycles' Principled rule, where the
-    film/metal interface keeps the phase of n + ik but reflects the F82 model's |r|^2 (F0 of
-    n + ik relative to the film, F82 = the edge tint g), the same for s and p."""
-    from sphrender.server.engine.lighting.thin_film import (
-        film_reflectance_spectrum,
-        spectrum_to_rgb,
-    )
-
-    wavelengths = np.arange(380.0, 781.0, 5.0)
-    n2 = per_wavelength(np.array(row["implied_n"]) + 1j * np.array(row["implied_k"]), wavelengths)
+def airy_spectrum(
+    row: dict, n2: np.ndarray, edge: np.ndarray, wavelengths: np.ndarray, cycles: set[str]
+) -> np.ndarray:
+    """Film (k = 0) on a substrate n2 with edge tint `edge` (per wavelength or constant), the
+    reflectance spectrum averaged over s and p. `cycles` picks Cycles' approximations:
+    "interface" = the film/metal interface keeps the phase of n2 but reflects the F82 model's
+    |r|^2 (F0 of n2 relative to the film, F82 = the edge tint), one value for s and p;
+    "orders" = Airy's series in Belcour & Barla's Fourier form cut after the third order."""
     n1, c0, d = row["film_n"], row["cos_theta"], row["thickness_nm"]
-    if not interface_f82:
-        spectrum = film_reflectance_spectrum(
-            np.array([[d]]), np.array([[c0]]), wavelengths, complex(n1), n2
-        )
-        return np.asarray(spectrum_to_rgb(spectrum)[0])
     sin2 = 1.0 - c0**2
     c1, c2 = np.sqrt(1.0 - sin2 / n1**2), np.sqrt(1.0 - sin2 / n2**2 + 0j)
-    edge = per_wavelength(np.array(row["implied_g"]), wavelengths)
     f0_inside = np.abs((n2 / n1 - 1.0) / (n2 / n1 + 1.0)) ** 2
     amplitude = np.sqrt(f82_tint_reflectance(c1, f0_inside, edge))
-    phase = np.exp(4j * np.pi * n1 * d * c1 / wavelengths)
+    delta = 4.0 * np.pi * n1 * d * c1 / wavelengths
     spectrum = np.zeros_like(wavelengths)
     for r01, r12 in (
         ((c0 - n1 * c1) / (c0 + n1 * c1), (n1 * c1 - n2 * c2) / (n1 * c1 + n2 * c2)),
         ((n1 * c0 - c1) / (n1 * c0 + c1), (n2 * c1 - n1 * c2) / (n2 * c1 + n1 * c2)),
     ):
-        r12 = amplitude * r12 / np.abs(r12)
-        spectrum += 0.5 * np.abs((r01 + r12 * phase) / (1.0 + r01 * r12 * phase)) ** 2
-    return np.asarray(spectrum_to_rgb(spectrum))
+        if "interface" in cycles:
+            r12 = amplitude * r12 / np.abs(r12)
+        if "orders" not in cycles:
+            phase = np.exp(1j * delta)
+            spectrum += 0.5 * np.abs((r01 + r12 * phase) / (1.0 + r01 * r12 * phase)) ** 2
+            continue
+        r_top, r_bottom = r01**2, np.abs(r12) ** 2
+        t_top, r_both = 1.0 - r_top, np.sqrt(r_top * r_bottom)
+        r_sum = t_top**2 * r_bottom / (1.0 - r_top * r_bottom)
+        shift = np.angle(r12) + np.angle(-r01)
+        total = r_top + r_sum
+        for m in range(1, 4):
+            total = total + 2.0 * (r_sum - t_top) * r_both**m * np.cos(m * (delta + shift))
+        spectrum += 0.5 * total
+    return spectrum
+
+
+def film_rgb_on(row: dict, cycles: set[str]) -> np.ndarray:
+    """RGB of airy_spectrum on the substrate Cycles' model implies. With "channels" in `cycles`
+    as Cycles does: n + ik constant within each RGB channel, each channel integrated on its own
+    and clamped to 0..1; else n + ik interpolated over wavelength as thin_film.py does."""
+    from sphrender.server.engine.lighting.thin_film import spectrum_to_rgb
+
+    wavelengths = np.arange(380.0, 781.0, 5.0)
+    n_k = np.array(row["implied_n"]) + 1j * np.array(row["implied_k"])
+    edge = np.array(row.get("implied_g", [-1.0] * 3))
+    if "channels" not in cycles:
+        n2, g = per_wavelength(n_k, wavelengths), per_wavelength(edge, wavelengths)
+        return np.asarray(spectrum_to_rgb(airy_spectrum(row, n2, g, wavelengths, cycles)))
+    rgb = np.empty(3)
+    for channel in range(3):
+        spectrum = airy_spectrum(row, n_k[channel], edge[channel], wavelengths, cycles)
+        rgb[channel] = spectrum_to_rgb(spectrum)[channel]
+    return np.clip(rgb, 0.0, 1.0)
 
 
 def sphrender_rgbs(row: dict) -> dict[str, np.ndarray]:
-    """thin_film.py's reflectance: k = 0 uniform, k = 0 on Cycles' implied substrate (with
-    thin_film.py's interface, then Cycles' rule), real k uniform, real k with the spread."""
+    """thin_film.py's reflectance: k = 0 uniform; k = 0 on the substrate Cycles implies, then
+    with Cycles' interface, then with all of Cycles' rule; real k uniform; real k with the
+    spread."""
     from sphrender.server.engine.lighting.materials import METAL_F0
     from sphrender.server.engine.lighting.thin_film import (
         FilmSpec,
@@ -304,12 +329,14 @@ def sphrender_rgbs(row: dict) -> dict[str, np.ndarray]:
     )
 
     spec = film_spec(row["preset"], METAL_F0[row["preset"]])
+    interface = set() if row["model"] == "conductor" else {"interface"}
     lossless = FilmSpec(spec.f0, complex(spec.film_index.real, 0.0))
     d, c = np.array([row["thickness_nm"]]), np.array([row["cos_theta"]])
     return {
         "k0": film_rgb(lossless, d, c)[0],
-        "implied": film_rgb_on(row, interface_f82=False),
-        "rule": film_rgb_on(row, interface_f82=row["model"] != "conductor"),
+        "implied": film_rgb_on(row, set()),
+        "interface": film_rgb_on(row, interface),
+        "rule": film_rgb_on(row, interface | {"orders", "channels"}),
         "k": film_rgb(spec, d, c)[0],
         "table": spread_rgb(spec, d, c)[0, 0],
     }
@@ -396,29 +423,33 @@ def main() -> None:
     print_inputs(cases)
     print(
         f"{'preset':16s} {'model':16s} cos  d nm  {'Cycles RGB':24s} {'ours k=0 RGB':24s} "
-        "dE k=0  implied  rule  dE k  dE table  noise"
+        "dE k=0  implied  iface  rule  dE k  dE table  noise"
     )
-    worst: dict[tuple[str, float], list[float]] = {}
+    worst: dict[tuple[str, float], list[tuple[float, float, float]]] = {}
     for row in rendered:
         ours = sphrender_rgbs(row)
         theirs = cielab(np.array(row["rgb"]))
         de = {key: float(ciede2000(cielab(value), theirs)) for key, value in ours.items()}
-        worst.setdefault((row["model"], row["cos_theta"]), []).append(de["k0"])
+        worst.setdefault((row["model"], row["cos_theta"]), []).append(
+            (row["thickness_nm"], de["k0"], de["rule"])
+        )
         print(
             f"{row['preset']:16s} {row['model']:16s} "
             f"{row['cos_theta']:.1f} {row['thickness_nm']:5.0f}  "
             f"{np.array2string(np.array(row['rgb']), precision=3):24s} "
             f"{np.array2string(ours['k0'], precision=3):24s} "
-            f"{de['k0']:6.2f} {de['implied']:8.2f} {de['rule']:5.2f} {de['k']:5.2f} "
+            f"{de['k0']:6.2f} {de['implied']:8.2f} {de['interface']:6.2f} {de['rule']:5.2f} "
+            f"{de['k']:5.2f} "
             f"{de['table']:8.2f}  "
             f"{max(row['std']):.1e}"
         )
     print("against thin_film.py with k = 0 and no spread, both presets, every thickness:")
-    for (model, cos), values in worst.items():
-        within = sum(value <= 3.0 for value in values)
+    for (model, cos), pairs in worst.items():
+        thickness, values, rule = np.array(pairs).T
         print(
-            f"  {model:16s} cos {cos:.1f}: max dE {max(values):5.2f}, "
-            f"median {np.median(values):4.2f}, {within} of {len(values)} <= 3"
+            f"  {model:16s} cos {cos:.1f}: max dE {values.max():5.2f}, "
+            f"median {np.median(values):4.2f}, {(values <= 3.0).sum()} of {len(values)} <= 3; "
+            f"Cycles' rule in numpy with a film: max dE {rule[thickness > 0].max():4.2f}"
         )
     sys.stdout.flush()
 
