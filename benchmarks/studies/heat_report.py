@@ -101,7 +101,7 @@ def section(costs: dict[str, tuple[float, float]]) -> list[str]:
         "Tint F0 / Schlick(82°) (its film then sits on the same n + ik) ≤ 2.37 head-on, ≤ 4.66",
         "at 60° (12 of 14 ≤ 3: its F82 film/metal interface at the 40 nm minimum); with",
         "Specular Tint white ≤ 24.6 (another metal under the film). A numpy of Cycles' rule",
-        "(its metal, interface, Airy series cut at m = 3) is within 0.43 of every render:",
+        "(its metal, interface, Airy series cut at m = 3) is within 0.43 of each filmed plate:",
         'STUDIES.md, "Heat tint against Blender Cycles". The demo before the',
         "weld features and now: [before](crops/crop-demo-weld-before.png),",
         "[after](crops/crop-demo-weld-after.png).",
