@@ -301,11 +301,23 @@ def film_rgb_on(row: dict, cycles: set[str]) -> np.ndarray:
     """RGB of airy_spectrum on the substrate Cycles' model implies. With "channels" in `cycles`
     as Cycles does: n + ik constant within each RGB channel, each channel integrated on its own
     and clamped to 0..1; else n + ik interpolated over wavelength as thin_film.py does."""
-    from sphrender.server.engine.lighting.thin_film import spectrum_to_rgb
+    from sphrender.server.engine.lighting.thin_film import (
+        film_reflectance_spectrum,
+        spectrum_to_rgb,
+    )
 
     wavelengths = np.arange(380.0, 781.0, 5.0)
     n_k = np.array(row["implied_n"]) + 1j * np.array(row["implied_k"])
     edge = np.array(row.get("implied_g", [-1.0] * 3))
+    if not cycles:  # thin_film.py's own optics on Cycles' metal
+        spectrum = film_reflectance_spectrum(
+            np.array(row["thickness_nm"]),
+            np.array(row["cos_theta"]),
+            wavelengths,
+            complex(row["film_n"]),
+            per_wavelength(n_k, wavelengths),
+        )
+        return np.asarray(spectrum_to_rgb(spectrum))
     if "channels" not in cycles:
         n2, g = per_wavelength(n_k, wavelengths), per_wavelength(edge, wavelengths)
         return np.asarray(spectrum_to_rgb(airy_spectrum(row, n2, g, wavelengths, cycles)))
