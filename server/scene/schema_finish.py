@@ -65,7 +65,6 @@ class FinishConfig:
         high=1.0,
     )
 
-
     detail_image: str | None = spec(
         None,
         "height map (1 channel; a 2nd channel is a roughness map) tiled in world space over the "

@@ -91,4 +91,3 @@ def _read_pixels(path: Path) -> npt.NDArray[np.float32]:
         oiio.geterror()
         raise InputError(KEY, f"the pixels of {path.name} cannot be read (damaged file)")
     return np.asarray(data, dtype=np.float32).reshape(height, width, channels)
-

@@ -354,9 +354,7 @@ def read_environment_file(path: Path, key: str = "environment.file") -> F32:
     return np.ascontiguousarray(pixels)
 
 
-def find_asset(
-    directories: Sequence[Path], name: str, key: str, suffixes: Sequence[str]
-) -> Path:
+def find_asset(directories: Sequence[Path], name: str, key: str, suffixes: Sequence[str]) -> Path:
     """The file `name` names in one of the (resolved) environment `directories`; errors name
     `key`. Absolute names, ``..``, ``~`` and symlinks leading outside are refused (the scene may
     come from a network client), and the server's directories never appear in a message."""
