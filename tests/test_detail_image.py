@@ -25,6 +25,7 @@ from sphrender.core.errors import InputError
 from sphrender.core.frame import ParticleFrame, make_frame
 from sphrender.core.protocol import encode_npz_frame
 from sphrender.server.content.lattice import lattice_slab
+from sphrender.server.content.marks import grinding_marks
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
@@ -281,3 +282,22 @@ def test_bad_files_over_http_name_the_field(assets: Path, tmp_path: Path) -> Non
             "POST", "/v1/render", encode_npz_frame(ball(200), scene=good)
         )
         assert status == 200 and body.startswith(b"\x89PNG")
+
+
+def test_grinding_marks_tile_without_seams() -> None:
+    """The example's height map wraps: the step across the tile's edge is no larger than the
+    largest step inside it (a seam would be a step of up to a whole mark's depth)."""
+    heights = grinding_marks(64, marks=20)[..., 0].astype(np.float64)
+    assert heights.min() >= 0.0 and heights.max() == 1.0 and heights.min() < 0.5
+    for axis in (0, 1):
+        inside = np.abs(np.diff(heights, axis=axis)).max()
+        edge = np.abs(np.take(heights, 0, axis) - np.take(heights, -1, axis)).max()
+        assert edge <= inside
+
+
+def test_ground_plate_example_is_a_valid_scene() -> None:
+    from sphrender.server.scene import read_scene_toml
+
+    path = Path(__file__).resolve().parents[1] / "examples" / "ground_plate.toml"
+    scene = scene_from_dict(read_scene_toml(path))
+    assert scene.finish.detail_image == "grinding-marks.exr"
