@@ -82,6 +82,7 @@ def assets(tmp_path_factory: pytest.TempPathFactory) -> Path:
     nan = wave(8)
     nan[3, 5, 0] = np.nan
     write_image(directory / "nan.exr", nan)
+    write_image(directory / "big.exr", np.full((4, 4, 1), 2e6))
     (directory / "junk.png").write_bytes(b"this is not an image at all")
     return directory
 
@@ -220,6 +221,7 @@ BAD_FILES = [
     ("rgb.png", "has 3 channels; a detail image has 1 (height) or 2 (height, roughness)"),
     ("huge.png", "is 2049x1 pixels; at most 2048 a side"),
     ("nan.exr", "contains NaN or infinite pixels"),
+    ("big.exr", "has values beyond -1e6 to 1e6"),
     ("../wave.exr", "must be a path relative to an environment directory"),
     ("/etc/passwd.png", "must be a path relative to an environment directory"),
     ("wave.txt", "must end in one of .png, .exr"),
@@ -240,6 +242,21 @@ def test_bad_files_are_refused_naming_the_field(
     good = plane_scene([0.5, 0.5, 0.5], [0, 0, 0], {"detail_image": "wave.exr"})
     rendered, _ = image_renderer.render(frame, good)  # the renderer is still whole
     assert np.all(np.isfinite(rendered.rgba))
+
+
+def test_the_steepest_detail_stays_finite(image_renderer: SurfaceRenderer) -> None:
+    """The largest depth over the smallest tile (slopes ~1e21 before the shader's clamp), seen
+    from near and far: every colour, depth and normal finite, normals unit length."""
+    frame = make_frame(lattice_slab(0.6, 0.6, 2, 0.02))
+    finish = {"detail_image": "wave.exr", "detail_image_depth": 1e6, "detail_image_size": 1e-6,
+              "detail_image_roughness": 1.0}  # fmt: skip
+    for eye in ([0.0, 0.8, 0.6], [0.0, 0.05, 0.4]):
+        scene = plane_scene(eye, [0.0, 0.0, 0.0], finish)
+        out, _ = image_renderer.render(frame, scene, depth=True, normals=True)
+        assert out.normals is not None and np.all(np.isfinite(out.rgba))
+        length = np.linalg.norm(out.normals, axis=-1)
+        surface = length > 0
+        assert surface.any() and np.allclose(length[surface], 1.0, atol=1e-3)
 
 
 def test_roughness_map_moves_the_shading_and_stays_finite(

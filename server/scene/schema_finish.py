@@ -73,10 +73,9 @@ class FinishConfig:
     )
     detail_image_size: float = spec(
         0.05,
-        "world size of one tile of detail_image (both sides). No preset sets it; match the "
-        "marks' size on the workpiece",
-        low=0.0,
-        low_open=True,
+        "world size of one tile of detail_image (both sides), at least 1e-6. No preset sets "
+        "it; match the marks' size on the workpiece",
+        low=1e-6,
         unit="scene units",
     )
     detail_image_depth: float = spec(
@@ -84,6 +83,7 @@ class FinishConfig:
         "height between detail_image values 0 and 1; the normals tilt by the slope this gives. "
         "No preset sets it; raise for deep marks, 0 leaves normals alone",
         low=0.0,
+        high=1e6,
         unit="scene units",
     )
     detail_image_roughness: float = spec(

@@ -104,7 +104,7 @@ vec3 detail_normal(vec3 n, vec3 position) {
     slope *= u_detail_normal_strength;  // d(s H)/dp = dH/d(p / s)
 #endif
 #if DETAIL_IMAGE
-    slope += detail_image_slope(weights, n, position);
+    slope += clamp(detail_image_slope(weights, n, position), -1e4, 1e4);  // <= 89.99 deg
 #endif
     return normalize(n - (slope - n * dot(n, slope)));
 }

@@ -24,6 +24,8 @@ from sphrender.server.engine.lighting.environment import find_asset
 KEY = "finish.detail_image"
 #: The largest side accepted, in pixels (a 2048 x 2048 tile is 85 MB of float texels with mips).
 MAX_SIDE = 2048
+#: The largest image value accepted (either sign): slopes stay finite in float32.
+MAX_VALUE = 1e6
 #: Suffixes accepted; OpenImageIO reads each as float (8- and 16-bit files scaled to [0, 1]).
 SUFFIXES = (".png", ".exr", ".tif", ".tiff", ".hdr", ".pfm", ".jpg", ".jpeg")
 
@@ -50,6 +52,8 @@ def read_detail_image(path: Path) -> DetailTexels:
     pixels = _read_pixels(path)
     if not np.isfinite(pixels).all():
         raise InputError(KEY, f"{path.name} contains NaN or infinite pixels")
+    if np.abs(pixels).max(initial=0.0) > MAX_VALUE:
+        raise InputError(KEY, f"{path.name} has values beyond -1e6 to 1e6; heights are 0 to 1")
     return detail_texels(pixels)
 
 
