@@ -6,12 +6,18 @@
 // in float64, so the tiles stay put at 1e5 scene units. Included by detail/surface_detail.glsl
 // after its uniforms (u_detail_pixel_angle).
 
-uniform sampler2D u_detail_image;  // d height / du, d height / dv (per tile), height, roughness
+uniform sampler2D u_detail_image;  // d height / du, d height / dv (per tile, / slope scale),
+                                   // height, roughness
+uniform float u_detail_image_slope_scale;
 uniform vec3 u_detail_image_offset;    // the eye's world position in tiles, modulo 1
 uniform float u_detail_image_size;     // a tile's side, scene units
 uniform float u_detail_image_depth;    // height of image value 1, scene units
 uniform float u_detail_image_roughness;
 uniform float u_detail_image_texels;   // texels along the tile's longer side
+
+// Planes weighing less are not read (a slope error under 0.1 % of the detail's; a face mostly
+// reads one plane, so this saves most lookups).
+const float DETAIL_IMAGE_MIN_WEIGHT = 1e-3;
 
 // The mip level whose texels are a pixel's footprint on the surface (widened edge-on).
 float detail_image_lod(vec3 n, vec3 position) {
@@ -31,11 +37,14 @@ vec3 detail_image_slope(vec3 weights, vec3 n, vec3 position) {
     float lod = detail_image_lod(n, position);
     vec3 slope = vec3(0.0);
     for (int k = 0; k < 3; ++k) {
+        if (weights[k] < DETAIL_IMAGE_MIN_WEIGHT) {
+            continue;
+        }
         vec2 g = detail_image_texel(k, position, lod).xy * weights[k];
         slope[(k + 1) % 3] += g.x;
         slope[(k + 2) % 3] += g.y;
     }
-    return slope * (u_detail_image_depth / u_detail_image_size);
+    return slope * (u_detail_image_slope_scale * u_detail_image_depth / u_detail_image_size);
 }
 
 // Roughness moved by u_detail_image_roughness x (2 g - 1), g the roughness map.
@@ -43,7 +52,9 @@ float detail_image_roughness(float roughness, vec3 weights, vec3 n, vec3 positio
     float lod = detail_image_lod(n, position);
     float g = 0.0;
     for (int k = 0; k < 3; ++k) {
-        g += weights[k] * detail_image_texel(k, position, lod).w;
+        if (weights[k] >= DETAIL_IMAGE_MIN_WEIGHT) {
+            g += weights[k] * detail_image_texel(k, position, lod).w;
+        }
     }
     return clamp(roughness + u_detail_image_roughness * (2.0 * g - 1.0), 0.0, 1.0);
 }

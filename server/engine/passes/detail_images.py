@@ -1,14 +1,16 @@
 """The detail pass's image textures (`[finish] detail_image`): each file's texels
-(`lighting/detail_image.py`) as an RGBA32F texture that repeats, with mipmaps (the shader picks
-the level from the pixel's footprint). Cached by (resolved path, size, mtime): an unchanged file
-is read and uploaded once, a changed one again; the least recently used beyond `CACHE_SIZE` are
-released. Owned by the surface-detail pass, on the GL owner thread.
+(`lighting/detail_image.py`) as an RGBA16F texture that repeats, with mipmaps (the shader picks
+the level from the pixel's footprint), and the scale of its slopes. Cached by (resolved path,
+size, mtime): an unchanged file is read and uploaded once, a changed one again; the least
+recently used beyond `CACHE_SIZE` are released. Owned by the surface-detail pass, on the GL
+owner thread.
 """
 
 from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import moderngl
@@ -20,13 +22,20 @@ from sphrender.server.engine.passes.context import PassContext
 CACHE_SIZE = 2
 
 
+@dataclass(frozen=True)
+class DetailTexture:
+    texture: moderngl.Texture
+    #: The texels' slopes times this are d height / d (tile coordinate).
+    slope_scale: float
+
+
 class DetailImages:
     def __init__(self, context: PassContext, directories: Sequence[str | Path] = ()) -> None:
         self._context = context
         self._directories = tuple(Path(d).resolve() for d in directories)
-        self._textures: OrderedDict[tuple[str, int, int], moderngl.Texture] = OrderedDict()
+        self._textures: OrderedDict[tuple[str, int, int], DetailTexture] = OrderedDict()
 
-    def texture(self, name: str) -> moderngl.Texture:
+    def texture(self, name: str) -> DetailTexture:
         """The texture of the file `name` (relative to the environment directories)."""
         path = find_detail_image(self._directories, name)
         stat = path.stat()
@@ -36,16 +45,16 @@ class DetailImages:
             self._textures.move_to_end(key)
             return texture
         texels = read_detail_image(path)
-        texture = self._context.gl.ctx.texture(texels.size, 4, texels.texels.tobytes(), dtype="f4")
+        texture = self._context.gl.ctx.texture(texels.size, 4, texels.texels.tobytes(), dtype="f2")
         texture.repeat_x = texture.repeat_y = True
         texture.build_mipmaps()
         texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
-        self._textures[key] = texture
+        entry = self._textures[key] = DetailTexture(texture, texels.slope_scale)
         while len(self._textures) > CACHE_SIZE:
-            self._textures.popitem(last=False)[1].release()
-        return texture
+            self._textures.popitem(last=False)[1].texture.release()
+        return entry
 
     def release(self) -> None:
-        for texture in self._textures.values():
-            texture.release()
+        for entry in self._textures.values():
+            entry.texture.release()
         self._textures.clear()

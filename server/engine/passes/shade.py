@@ -180,8 +180,8 @@ class ShadePass:
         for unit, (name, texture) in enumerate(textures):
             texture.use(unit)
             set_if_used(program, name, unit)
-            if name == "u_detail_image":
-                set_image_texels(program, texture)
+        if _image_roughness(scene):
+            set_image_texels(program, self.detail.image_texture(scene.finish))
         target = self.target(normal_depth.size)
         clear_and_scissor(target.fbo, box if shading.background == "transparent" else None)
         target.fbo.use()
@@ -214,7 +214,7 @@ class ShadePass:
         if temperature is not None:
             wanted += [("u_temperature", temperature), ("u_blackbody", self._blackbody_texture())]
         if _image_roughness(scene):
-            wanted.append(("u_detail_image", self.detail.image_texture(scene.finish)))
+            wanted.append(("u_detail_image", self.detail.image_texture(scene.finish).texture))
         return [(n, t) for n, t in wanted if t is not None and uses(program, n)]
 
     def _scene_uniforms(

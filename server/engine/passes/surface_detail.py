@@ -25,7 +25,7 @@ from sphrender.server.engine.geometry.screen_box import ScreenBox
 from sphrender.server.engine.gpu.draw import PerSize, Target, clear_and_scissor, set_scissor
 from sphrender.server.engine.gpu.uniforms import set_group, set_if_used, uses, write_matrix
 from sphrender.server.engine.passes.context import FULLSCREEN_VERT, PassContext
-from sphrender.server.engine.passes.detail_images import DetailImages
+from sphrender.server.engine.passes.detail_images import DetailImages, DetailTexture
 from sphrender.server.scene import FinishConfig
 
 SHADER = "detail/detail_normals.frag.glsl"
@@ -72,9 +72,11 @@ def detail_uniforms(finish: FinishConfig, camera: Camera) -> dict[str, object]:
     }
 
 
-def set_image_texels(program: moderngl.Program, texture: moderngl.Texture) -> None:
-    """The image's texels along the tile's longer side (its mip level's scale)."""
-    set_if_used(program, "u_detail_image_texels", float(max(texture.size)))
+def set_image_texels(program: moderngl.Program, image: DetailTexture) -> None:
+    """The image's texels along the tile's longer side (its mip level's scale) and its slope
+    scale."""
+    set_if_used(program, "u_detail_image_texels", float(max(image.texture.size)))
+    set_if_used(program, "u_detail_image_slope_scale", image.slope_scale)
 
 
 def has_detail(finish: FinishConfig) -> bool:
@@ -104,7 +106,7 @@ class SurfaceDetailPass:
         self._target = PerSize(lambda size: Target.float(context.gl.ctx, size, 4))
         self._images = DetailImages(context, image_dirs)
 
-    def image_texture(self, finish: FinishConfig) -> moderngl.Texture:
+    def image_texture(self, finish: FinishConfig) -> DetailTexture:
         """The texture of `finish.detail_image` (read on first use, again when it changes)."""
         assert finish.detail_image is not None
         return self._images.texture(finish.detail_image)
@@ -140,7 +142,7 @@ class SurfaceDetailPass:
         normal_depth.texture.use(0)
         set_if_used(program, "u_normal_depth", 0)
         if image is not None:
-            image.use(1)
+            image.texture.use(1)
             set_if_used(program, "u_detail_image", 1)
             set_image_texels(program, image)
         target = self._target.get(normal_depth.texture.size)
