@@ -51,7 +51,6 @@ from sphrender.server.engine.passes.solid_surface import (
     shadow_casters,
 )
 from sphrender.server.engine.passes.splat import SplatOutput, SplatPass
-from sphrender.server.engine.passes.surface_detail import has_detail
 from sphrender.server.engine.passes.temperature import TemperaturePass
 from sphrender.server.engine.sph.engine import SphEngine
 from sphrender.server.engine.sph.frame import SphOutcome, SphStage
@@ -228,11 +227,8 @@ class SurfaceRenderer:
                 surface, normal_depth, prepared = self._solids.add(
                     solid, surface, normal_depth, prepared, camera
                 )
-        if has_detail(scene.finish):
-            with self._stage(stats, "detail"):
-                detail = self._shade.detail
-                normal_depth = detail.run(scene.finish, camera, normal_depth, prepared.box)
-        with self._stage(stats, "shade"):
+        with self._stage(stats, "shade"):  # the finish's detail first: the N AOV has it too
+            normal_depth = self._shade.detail.run(scene.finish, camera, normal_depth, prepared.box)
             color = self._shade_surface(surface, normal_depth, camera, scene, prepared, shadows)
         return color, normal_depth, prepared, bulk_splatted
 
