@@ -40,10 +40,10 @@ class DetailImages:
         path = find_detail_image(self._directories, name)
         stat = path.stat()
         key = (str(path), stat.st_size, stat.st_mtime_ns)
-        texture = self._textures.get(key)
-        if texture is not None:
+        cached = self._textures.get(key)
+        if cached is not None:
             self._textures.move_to_end(key)
-            return texture
+            return cached
         texels = read_detail_image(path)
         texture = self._context.gl.ctx.texture(texels.size, 4, texels.texels.tobytes(), dtype="f2")
         texture.repeat_x = texture.repeat_y = True
