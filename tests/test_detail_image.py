@@ -23,7 +23,7 @@ from single_passes import SinglePasses
 
 from sphrender.core.errors import InputError
 from sphrender.core.frame import ParticleFrame, make_frame
-from sphrender.core.protocol import encode_npz_frame
+from sphrender.core.protocol import MessageType, encode_message, encode_npz_frame
 from sphrender.server.content.lattice import lattice_slab
 from sphrender.server.content.marks import grinding_marks
 from sphrender.server.engine.geometry.camera import Camera
@@ -84,6 +84,10 @@ def assets(tmp_path_factory: pytest.TempPathFactory) -> Path:
     write_image(directory / "nan.exr", nan)
     write_image(directory / "big.exr", np.full((4, 4, 1), 2e6))
     (directory / "junk.png").write_bytes(b"this is not an image at all")
+    roughness = np.stack([np.full((4, 4), 0.5), np.ones((4, 4))], axis=-1)  # flat, map = 1
+    write_image(directory / "rough.exr", roughness)
+    outside = write_image(directory.parent / "outside.exr", wave(8))
+    os.symlink(outside, directory / "escape.exr")
     return directory
 
 
@@ -225,6 +229,7 @@ BAD_FILES = [
     ("../wave.exr", "must be a path relative to an environment directory"),
     ("/etc/passwd.png", "must be a path relative to an environment directory"),
     ("wave.txt", "must end in one of .png, .exr"),
+    ("escape.exr", "leads outside the environment directories"),
 ]
 
 
@@ -259,6 +264,24 @@ def test_the_steepest_detail_stays_finite(image_renderer: SurfaceRenderer) -> No
         assert surface.any() and np.allclose(length[surface], 1.0, atol=1e-3)
 
 
+def test_a_roughness_map_of_one_adds_the_strength(image_renderer: SurfaceRenderer) -> None:
+    """A flat height with a roughness channel of 1 moves roughness by + strength (2 g - 1) =
+    + strength everywhere: the same image as the material's roughness raised by it (0.3 + 0.4).
+    0.3 + 0.4 rounds to 1 ulp above 0.7, and where that moves an IBL or BRDF-table lookup across
+    one of llvmpipe's 8-bit filter weight steps the colour moves by up to 1/256 of the texels'
+    difference: rtol 1/256 (measured: 1.1e-3 at most, on 135 of the pixels)."""
+    frame = make_frame(lattice_slab(0.6, 0.6, 2, 0.02))
+    base = {**SMALL_SCENE, "camera": {"eye": [0.0, 0.8, 0.6], "target": [0, 0, 0]}}
+    finish = {"detail_image": "rough.exr", "detail_image_roughness": 0.4}
+    mapped = {**base, "material": {"roughness": 0.3}, "finish": finish}
+    raised = {**base, "material": {"roughness": 0.7}}
+    got, _ = image_renderer.render(frame, scene_from_dict(mapped))
+    want, _ = image_renderer.render(frame, scene_from_dict(raised))
+    lower, _ = image_renderer.render(frame, scene_from_dict({**mapped, "finish": {}}))
+    assert np.abs(want.rgba - lower.rgba).max() > 0.01  # roughness shows in this view
+    np.testing.assert_allclose(got.rgba, want.rgba, rtol=1 / 256, atol=1e-6)
+
+
 def test_roughness_map_moves_the_shading_and_stays_finite(
     image_renderer: SurfaceRenderer,
 ) -> None:
@@ -279,8 +302,8 @@ def test_roughness_map_moves_the_shading_and_stays_finite(
 
 def test_bad_files_over_http_name_the_field(assets: Path, tmp_path: Path) -> None:
     """Through `sphrender serve`: a session naming a bad file gets 400 with the field and the
-    reason in its JSON, and so does a frame naming it; a good file then renders (the server and
-    its renderer are up)."""
+    reason in its JSON, and so does a frame naming it, and a stream HELLO a fatal ERROR; a good
+    file then renders (the server and its renderer are up)."""
     config = {"security": {"environment_dirs": [str(assets)]}}
     with ServerProcess(tmp_path / "server", config) as service:
         for name, words in (BAD_FILES[0], BAD_FILES[2], BAD_FILES[4], BAD_FILES[5]):
@@ -294,6 +317,11 @@ def test_bad_files_over_http_name_the_field(assets: Path, tmp_path: Path) -> Non
             error = json.loads(body)
             assert status == 400 and error["field"] == FIELD, error
             assert words in error["error"], error
+            with service.stream() as client:
+                client.send(encode_message(MessageType.HELLO, {"scene": bad}))
+                kind, header, _payload = client.receive()
+                assert kind == MessageType.ERROR and header["code"] == "bad_input", header
+                assert header["field"] == FIELD and words in header["error"], header
         good = {**SMALL_SCENE, "finish": {"detail_image": "wave.exr"}}
         status, _h, body = service.request(
             "POST", "/v1/render", encode_npz_frame(ball(200), scene=good)
