@@ -28,6 +28,7 @@ from sphrender.server.content.lattice import lattice_slab
 from sphrender.server.content.marks import grinding_marks
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.gpu.gl_context import GLContext
+from sphrender.server.engine.lighting.detail_image import detail_texels
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import Scene, scene_from_dict
 
@@ -83,6 +84,7 @@ def assets(tmp_path_factory: pytest.TempPathFactory) -> Path:
     nan[3, 5, 0] = np.nan
     write_image(directory / "nan.exr", nan)
     write_image(directory / "big.exr", np.full((4, 4, 1), 2e6))
+    write_image(directory / "fine.exr", np.tile(wave(4), (16, 16, 1)))  # period: 4 texels
     (directory / "junk.png").write_bytes(b"this is not an image at all")
     roughness = np.stack([np.full((4, 4), 0.5), np.ones((4, 4))], axis=-1)  # flat, map = 1
     write_image(directory / "rough.exr", roughness)
@@ -149,6 +151,33 @@ def test_a_known_slope_gives_the_analytic_tilt(
     assert tilt.mean() > 4.0  # the detail is there
     assert angle.max() < 0.1
     assert np.array_equal(got[..., 3], image[..., 3])  # depth passes through
+
+
+def test_marks_finer_than_a_pixel_average_out(image_renderer: SurfaceRenderer) -> None:
+    """A sinusoid of 4 texels a period, its tile 0.05 wide, seen from ~1.5 away: a pixel covers
+    ~16 texels (level ~4), and from level 2 on every texel averages whole periods, whose sampled
+    slopes sum to 0. So the normals stay flat (within 0.1 degree; measured 0) where the base
+    level would tilt them by up to 19 degrees: no aliased noise."""
+    size, depth = 0.05, 0.0011
+    finish = {"detail_image": "fine.exr", "detail_image_size": size, "detail_image_depth": depth}
+    scene = plane_scene([0.3, 1.2, 0.9], [0.0, 0.0, 0.0], finish)
+    camera = Camera.from_config(scene.camera, scene.image.width, scene.image.height)
+    rays = ref.pixel_rays(camera)
+    towards = -rays.directions[..., 1]
+    t = camera.eye[1] / np.maximum(towards, 1e-9)
+    hit = towards > 0.05
+    image = np.zeros((camera.height, camera.width, 4), dtype=np.float32)
+    image[..., 1] = np.where(hit, 1.0, 0.0)
+    image[..., 3] = np.where(hit, t * rays.view_z, 0.0)
+    got = SinglePasses(image_renderer).detail_normal_depth(image, scene)
+    footprint = t * 2 * camera.tan_half_fov_y / camera.height / np.maximum(towards, 0.25)
+    coarse = hit & (np.log2(footprint * TEXELS / size) > 2.5)
+    assert coarse.sum() > 0.9 * hit.sum()
+    fine = detail_texels(np.tile(wave(4), (16, 16, 1)).astype(np.float32))
+    base = np.degrees(np.arctan(depth / size * fine.slope_scale))  # the steepest base texel
+    tilt = np.degrees(np.arccos(np.clip(got[..., 1], -1, 1)))[coarse]
+    print(f"{coarse.sum()} px: tilt max {tilt.max():.3f} deg (base level up to {base:.1f})")
+    assert base > 15.0 and tilt.max() < 0.1
 
 
 def top_face(
