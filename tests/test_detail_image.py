@@ -86,6 +86,8 @@ def assets(tmp_path_factory: pytest.TempPathFactory) -> Path:
     write_image(directory / "big.exr", np.full((4, 4, 1), 2e6))
     write_image(directory / "fine.exr", np.tile(wave(4), (16, 16, 1)))  # period: 4 texels
     (directory / "junk.png").write_bytes(b"this is not an image at all")
+    whole = write_image(directory / "trunc.png", wave(64), "uint8").read_bytes()
+    (directory / "trunc.png").write_bytes(whole[: len(whole) // 2])  # a header, half the pixels
     roughness = np.stack([np.full((4, 4), 0.5), np.ones((4, 4))], axis=-1)  # flat, map = 1
     write_image(directory / "rough.exr", roughness)
     outside = write_image(directory.parent / "outside.exr", wave(8))
@@ -253,6 +255,7 @@ def test_a_changed_file_is_read_again(gl_context: GLContext, tmp_path: Path) -> 
 BAD_FILES = [
     ("missing.png", "not found in the environment directories"),
     ("junk.png", "cannot be read as an image"),
+    ("trunc.png", "the pixels of trunc.png cannot be read (damaged file)"),
     ("rgb.png", "has 3 channels; a detail image has 1 (height) or 2 (height, roughness)"),
     ("huge.png", "is 2049x1 pixels; at most 2048 a side"),
     ("nan.exr", "contains NaN or infinite pixels"),

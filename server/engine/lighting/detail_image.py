@@ -6,7 +6,7 @@ Channel 0 is height (image values; `detail_image_depth` scene units per unit val
 channel 1 a roughness map in [0, 1]. The height's slope is taken here once per file, by central
 differences that wrap (the image tiles), in height per tile: row j, column i of a W x H image
 sits at u = (i + 0.5) / W, v = (j + 0.5) / H of the tile. Half floats: a 2048 x 2048 tile is
-43 MB with its mipmaps, and they halve the pass's texture reads. CPU and numpy only.
+45 MB with its mipmaps, and they halve the pass's texture reads. CPU and numpy only.
 """
 
 from __future__ import annotations
