@@ -8,11 +8,12 @@ frame cost of the anisotropic lobe and the surface detail against the finish off
 from __future__ import annotations
 
 import argparse
+import tempfile
 from pathlib import Path
 
 import repo_path  # noqa: F401
 
-from benchmarks.studies.brushed_plate import measure, section, write_crop
+from benchmarks.studies.brushed_plate import measure, section, write_crop, write_marks
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
 
@@ -25,11 +26,12 @@ def main() -> None:
         "--frames", type=int, default=9, help="timed frames per setting (the fastest counts)"
     )
     args = parser.parse_args()
-    with GLContext() as gl:
-        renderer = SurfaceRenderer(gl)
+    with GLContext() as gl, tempfile.TemporaryDirectory() as assets:
+        write_marks(Path(assets))
+        renderer = SurfaceRenderer(gl, environment_dirs=[assets])
         try:
             rows = measure(renderer, max(1, args.frames))
-            print(f"crop: {write_crop(renderer, OUT)}")
+            print(f"crops: {', '.join(str(p) for p in write_crop(renderer, OUT))}")
         finally:
             renderer.release()
     print("\n".join(section(rows)))

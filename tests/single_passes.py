@@ -51,6 +51,20 @@ class SinglePasses:
         rgba = np.frombuffer(color.texture.read(), dtype=np.float32).reshape(height, width, 4)
         return np.ascontiguousarray(rgba[::-1])
 
+    def detail_normal_depth(
+        self, normal_depth: npt.NDArray[np.float32], scene: Scene
+    ) -> npt.NDArray[np.float32]:
+        """Run only the surface-detail pass on given world normals + eye depth (H, W, 4), rows
+        top first; returns its normals + depth, so the detail can be compared on exact shapes."""
+        self._gl.check_owner()
+        height, width = normal_depth.shape[:2]
+        target = self._normals.target((width, height))
+        target.texture.write(image_bytes(normal_depth))
+        camera = Camera.from_config(scene.camera, width, height)
+        out = self._shade.detail.run(scene.finish, camera, target, None)
+        rgba = np.frombuffer(out.texture.read(), dtype=np.float32).reshape(height, width, 4)
+        return np.ascontiguousarray(rgba[::-1])
+
     def filter_depth_image(
         self,
         depth: npt.NDArray[np.float32],

@@ -47,8 +47,8 @@ def add_env_dir(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="DIR",
-        help="directory that [environment] file may name files in (repeatable; default: the "
-        "scene file's directory)",
+        help="directory that [environment] file and [finish] detail_image may name files in "
+        "(repeatable; default: the scene file's directory)",
     )
 
 

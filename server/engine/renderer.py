@@ -227,8 +227,8 @@ class SurfaceRenderer:
                 surface, normal_depth, prepared = self._solids.add(
                     solid, surface, normal_depth, prepared, camera
                 )
-        normal_depth = self._shade.detail.run(scene.finish, camera, normal_depth, prepared.box)
-        with self._stage(stats, "shade"):
+        with self._stage(stats, "shade"):  # the finish's detail first: the N AOV has it too
+            normal_depth = self._shade.detail.run(scene.finish, camera, normal_depth, prepared.box)
             color = self._shade_surface(surface, normal_depth, camera, scene, prepared, shadows)
         return color, normal_depth, prepared, bulk_splatted
 

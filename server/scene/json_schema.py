@@ -32,6 +32,7 @@ from sphrender.server.scene.schema import (
     MAX_STRING_LENGTH,
     CameraConfig,
     EnvironmentConfig,
+    FinishConfig,
     LightConfig,
     Scene,
     Vec3,
@@ -192,6 +193,9 @@ def scene_json_schema() -> dict[str, Any]:
             section = _environment_schema() if hint is EnvironmentConfig else _section_schema(hint)
             if hint is CameraConfig:
                 section["properties"]["up"].update(_NONZERO)
+            if hint is FinishConfig:
+                image_schema = section["properties"]["detail_image"]["anyOf"][0]
+                image_schema["allOf"] = [{"pattern": _NOT_BLANK, "description": "not blank"}]
             defs[hint.__name__] = section
             prop = {"$ref": f"#/$defs/{hint.__name__}"}
         properties[f.name] = prop

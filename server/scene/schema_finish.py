@@ -1,7 +1,8 @@
 """The scene's `[finish]` section: how the workpiece's surface was worked. An anisotropic GGX
-lobe (brushed metal: smooth along the brush strokes, rough across them) and a procedural
-surface detail fixed in world space (grinding grooves along the same brush direction). Part of
-the scene schema (`schema.py` re-exports it); both are off by default and cost nothing then.
+lobe (brushed metal: smooth along the brush strokes, rough across them), a procedural surface
+detail fixed in world space (grinding grooves along the same brush direction) and detail from an
+image file (a height map tiled over the faces, plus an optional roughness map). Part of the
+scene schema (`schema.py` re-exports it); all are off by default and cost nothing then.
 """
 
 from __future__ import annotations
@@ -64,9 +65,41 @@ class FinishConfig:
         high=1.0,
     )
 
+    detail_image: str | None = spec(
+        None,
+        "height map (1 channel; a 2nd channel is a roughness map) tiled in world space over the "
+        "faces, read with OpenImageIO, relative to one of the server's environment directories, "
+        "at most 2048 px a side. No preset sets it; for scratches, grinding marks, mill scale",
+    )
+    detail_image_size: float = spec(
+        0.05,
+        "world size of one tile of detail_image (both sides), at least 1e-6. No preset sets "
+        "it; match the marks' size on the workpiece",
+        low=1e-6,
+        unit="scene units",
+    )
+    detail_image_depth: float = spec(
+        0.0005,
+        "height between detail_image values 0 and 1; the normals tilt by the slope this gives. "
+        "No preset sets it; raise for deep marks, 0 leaves normals alone",
+        low=0.0,
+        high=1e6,
+        unit="scene units",
+    )
+    detail_image_roughness: float = spec(
+        0.0,
+        "how far detail_image moves roughness: + this x (2 g - 1), g its 2nd channel or else 1 - "
+        "height (rougher in the troughs); clamped to [0, 1]. No preset sets it; for patchy scale",
+        low=0.0,
+        high=1.0,
+    )
+
 
 def check_finish(finish: FinishConfig) -> None:
-    """The rules across the section's fields: a brush direction must have a length."""
+    """The rules across the section's fields: a brush direction must have a length; an image
+    name must not be blank."""
     length = math.sqrt(sum(c * c for c in finish.brush_direction))
     if not length > 0.0:
         raise InputError("finish.brush_direction", "must not be the zero vector")
+    if finish.detail_image is not None and not finish.detail_image.strip():
+        raise InputError("finish.detail_image", "must not be empty")

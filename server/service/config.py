@@ -215,7 +215,9 @@ class SecurityConfig:
         "WebSocket stream (GET /v1/stream); a request with another Origin gets 403",
     )
     environment_dirs: tuple[str, ...] = spec(
-        (), "directories environment maps ([environment] file) may be read from; empty = none"
+        (),
+        "directories environment maps ([environment] file) and detail images ([finish] "
+        "detail_image) may be read from; empty = none",
     )
 
 

@@ -31,6 +31,7 @@ from typing import Any, Literal
 
 from sphrender.core.frame import ParticleFrame
 from sphrender.core.protocol import LimitError, parse_json_object
+from sphrender.server.engine.lighting.detail_image import find_detail_image
 from sphrender.server.engine.lighting.environment import EnvironmentLibrary
 from sphrender.server.scene import Scene, scene_from_dict, scene_to_dict
 from sphrender.server.service.thermal_history import PeakHistory
@@ -227,7 +228,10 @@ class SceneValidator:
         return scene
 
     def _check_environment_file(self, scene: Scene) -> None:
-        """Fail at submission, not at render time, when `[environment] file` names a file
-        outside the configured directories (the render thread applies the same rule)."""
+        """Fail at submission, not at render time, when `[environment] file` or `[finish]
+        detail_image` names a file outside the configured directories (the render thread
+        applies the same rule; what the file holds is checked there)."""
         if scene.environment.file is not None:
             self._environments.find_file(scene.environment.file)
+        if scene.finish.detail_image is not None:
+            find_detail_image(self._environments.directories, scene.finish.detail_image)

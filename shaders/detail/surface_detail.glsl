@@ -4,6 +4,11 @@
 // blended by |n_axis|^4. A face so reads the plane it faces, and its pattern does not move with
 // the surface's depth along the normal. The eye's pattern coordinates (modulo the pattern's
 // period) are taken on the host in float64, so a workpiece at 1e5 scene units keeps its grooves.
+// DETAIL_PATTERN: these grooves; DETAIL_IMAGE: an image's height and roughness added (the same
+// triplanar frame, detail/detail_image.glsl).
+
+#define DETAIL_PATTERN 1
+#define DETAIL_IMAGE 0
 
 // Per axis plane k (coordinates p[k+1], p[k+2]): the unit brush direction in the plane (xy)
 // and the eye's (across, along) pattern coordinates (zw).
@@ -12,6 +17,8 @@ uniform float u_detail_scale;       // s, scene units
 uniform float u_detail_normal_strength;
 uniform float u_detail_roughness_strength;
 uniform float u_detail_pixel_angle;  // 2 tan(fov_y / 2) / height: a pixel's width per unit distance
+
+#include "detail/detail_image.glsl"
 
 const float DETAIL_PERIOD = 256.0;
 const float DETAIL_GROOVE_LENGTH = 40.0;
@@ -83,28 +90,39 @@ vec3 detail_plane_weights(vec3 n) {
     return w / (w.x + w.y + w.z);
 }
 
-// Unit normal `n` tilted by the grooves' slope at `position`.
+// Unit normal `n` tilted by the grooves' and the image's slope at `position`.
 vec3 detail_normal(vec3 n, vec3 position) {
     vec3 weights = detail_plane_weights(n);
-    float footprint = detail_footprint(n, position);
     vec3 slope = vec3(0.0);
+#if DETAIL_PATTERN
+    float footprint = detail_footprint(n, position);
     for (int k = 0; k < 3; ++k) {
         vec2 g = detail_plane_height(k, position, footprint).xy * weights[k];
         slope[(k + 1) % 3] += g.x;
         slope[(k + 2) % 3] += g.y;
     }
     slope *= u_detail_normal_strength;  // d(s H)/dp = dH/d(p / s)
+#endif
+#if DETAIL_IMAGE
+    slope += clamp(detail_image_slope(weights, n, position), -1e4, 1e4);  // <= 89.99 deg
+#endif
     return normalize(n - (slope - n * dot(n, slope)));
 }
 
-// Roughness raised in the troughs and lowered on the crests of the grooves.
+// Roughness raised in the troughs and lowered on the crests of the grooves; then the image's.
 float detail_roughness(float roughness, vec3 n, vec3 position) {
     vec3 weights = detail_plane_weights(n);
+#if DETAIL_PATTERN
     float footprint = detail_footprint(n, position);
     float h = 0.0;
     for (int k = 0; k < 3; ++k) {
         h += weights[k] * detail_plane_height(k, position, footprint).z;
     }
     h /= dot(DETAIL_WEIGHTS, vec3(1.0, 2.0, 4.0));
-    return clamp(roughness + u_detail_roughness_strength * (1.0 - 2.0 * h), 0.0, 1.0);
+    roughness = clamp(roughness + u_detail_roughness_strength * (1.0 - 2.0 * h), 0.0, 1.0);
+#endif
+#if DETAIL_IMAGE
+    roughness = detail_image_roughness(roughness, weights, n, position);
+#endif
+    return roughness;
 }

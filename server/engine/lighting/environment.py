@@ -354,6 +354,30 @@ def read_environment_file(path: Path, key: str = "environment.file") -> F32:
     return np.ascontiguousarray(pixels)
 
 
+def find_asset(directories: Sequence[Path], name: str, key: str, suffixes: Sequence[str]) -> Path:
+    """The file `name` names in one of the (resolved) environment `directories`; errors name
+    `key`. Absolute names, ``..``, ``~`` and symlinks leading outside are refused (the scene may
+    come from a network client), and the server's directories never appear in a message."""
+    if not directories:
+        raise InputError(
+            key, "no environment directories are configured (sphrender render --env-dir DIR)"
+        )
+    relative = Path(name)
+    if relative.is_absolute() or ".." in relative.parts or name.startswith("~"):
+        raise InputError(
+            key, f"must be a path relative to an environment directory, got {show(name)}"
+        )
+    if relative.suffix.lower() not in suffixes:
+        raise InputError(key, f"must end in one of {', '.join(suffixes)}, got {show(name)}")
+    for directory in directories:
+        candidate = (directory / relative).resolve()
+        if not candidate.is_relative_to(directory):
+            raise InputError(key, f"{show(name)} leads outside the environment directories")
+        if candidate.is_file():
+            return candidate
+    raise InputError(key, f"{show(name)} not found in the environment directories")
+
+
 class EnvironmentLibrary:
     """Resolves `[environment]` to an `EnvironmentImage`; files only from `directories`.
 
@@ -374,26 +398,7 @@ class EnvironmentLibrary:
         return preset_image(config.preset or DEFAULT_PRESET)
 
     def find_file(self, name: str) -> Path:
-        key = "environment.file"
-        if not self.directories:
-            raise InputError(
-                key, "no environment directories are configured (sphrender render --env-dir DIR)"
-            )
-        relative = Path(name)
-        if relative.is_absolute() or ".." in relative.parts or name.startswith("~"):
-            raise InputError(
-                key, f"must be a path relative to an environment directory, got {show(name)}"
-            )
-        if relative.suffix.lower() not in FILE_SUFFIXES:
-            allowed = ", ".join(FILE_SUFFIXES)
-            raise InputError(key, f"must end in one of {allowed}, got {show(name)}")
-        for directory in self.directories:
-            candidate = (directory / relative).resolve()
-            if not candidate.is_relative_to(directory):
-                raise InputError(key, f"{show(name)} leads outside the environment directories")
-            if candidate.is_file():
-                return candidate
-        raise InputError(key, f"{show(name)} not found in the environment directories")
+        return find_asset(self.directories, name, "environment.file", FILE_SUFFIXES)
 
     def _load_file(self, name: str) -> EnvironmentImage:
         path = self.find_file(name)

@@ -36,6 +36,7 @@ from sphrender.server.engine.passes.shadow import ShadowMaps
 from sphrender.server.engine.passes.surface_detail import (
     SurfaceDetailPass,
     detail_uniforms,
+    set_image_texels,
     write_planes,
 )
 from sphrender.server.scene import MAX_LIGHTS, Scene
@@ -54,8 +55,16 @@ _VIEW_DEFINES = {
 _G_TERM_DEFINES = {"smith_height_correlated": 0, "cook_torrance": 1}
 
 
-def _detail_roughness(scene: Scene) -> bool:
+def _pattern_roughness(scene: Scene) -> bool:
     return scene.finish.detail != "none" and scene.finish.detail_roughness_strength > 0.0
+
+
+def _image_roughness(scene: Scene) -> bool:
+    return scene.finish.detail_image is not None and scene.finish.detail_image_roughness > 0.0
+
+
+def _detail_roughness(scene: Scene) -> bool:
+    return _pattern_roughness(scene) or _image_roughness(scene)
 
 
 def _finish_uniforms(program: moderngl.Program, scene: Scene, camera: Camera) -> dict[str, object]:
@@ -81,7 +90,7 @@ class ShadePass:
         self._film = FilmTables(context)
         self._target = PerSize(lambda size: Target.float(context.gl.ctx, size, 4))
         #: The world-fixed surface detail on the normals, which this pass and the N AOV read.
-        self.detail = SurfaceDetailPass(context)
+        self.detail = SurfaceDetailPass(context, environment_dirs)
 
     def program_for(
         self, scene: Scene, has_temperature: bool, antialias: bool = False, shadows: bool = False
@@ -105,6 +114,8 @@ class ShadePass:
                 "SHADOWS": shadows,
                 "ANISOTROPIC": scene.finish.anisotropy != 0.0,
                 "DETAIL_ROUGHNESS": _detail_roughness(scene),
+                "DETAIL_PATTERN": _pattern_roughness(scene),
+                "DETAIL_IMAGE": _image_roughness(scene),
             },
         )
 
@@ -169,6 +180,8 @@ class ShadePass:
         for unit, (name, texture) in enumerate(textures):
             texture.use(unit)
             set_if_used(program, name, unit)
+        if _image_roughness(scene):
+            set_image_texels(program, self.detail.image_texture(scene.finish))
         target = self.target(normal_depth.size)
         clear_and_scissor(target.fbo, box if shading.background == "transparent" else None)
         target.fbo.use()
@@ -200,6 +213,8 @@ class ShadePass:
             wanted.append(("u_brdf_lut", self.ibl.brdf_lut(shading.g_term)))
         if temperature is not None:
             wanted += [("u_temperature", temperature), ("u_blackbody", self._blackbody_texture())]
+        if _image_roughness(scene):
+            wanted.append(("u_detail_image", self.detail.image_texture(scene.finish).texture))
         return [(n, t) for n, t in wanted if t is not None and uses(program, n)]
 
     def _scene_uniforms(
