@@ -14,6 +14,10 @@ MAX_IMAGE_SIDE = 16384
 MAX_IMAGE_PIXELS = 8192 * 8192
 #: Longest string value (characters); strings must not contain NUL either.
 MAX_STRING_LENGTH = 4096
+#: Range of a length the renderer cubes in float32 (particle radius, kernel support): 1e±12 keeps
+#: r^3 and 1 / r^3 normal floats.
+MIN_LENGTH = 1e-12
+MAX_LENGTH = 1e12
 
 Vec3 = tuple[float, float, float]
 

@@ -21,7 +21,9 @@ from sphrender.core.protocol import ImageFormat
 from sphrender.server.scene.fields import (
     MAX_IMAGE_PIXELS,
     MAX_IMAGE_SIDE,
+    MAX_LENGTH,
     MAX_STRING_LENGTH,
+    MIN_LENGTH,
     SceneNote,
     Vec3,
     spec,
@@ -108,8 +110,8 @@ class ParticlesConfig:
     radius: float = spec(
         0.015,
         "particle radius in scene units, used when a frame has no radii",
-        low=0.0,
-        low_open=True,
+        low=MIN_LENGTH,
+        high=MAX_LENGTH,
         unit="scene units",
     )
 

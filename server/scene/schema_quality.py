@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from sphrender.server.scene.fields import bench_spec, spec
+from sphrender.server.scene.fields import MAX_LENGTH, MIN_LENGTH, bench_spec, spec
 
 FilterName = Literal["narrow_range", "bilateral", "gaussian", "none"]
 QualityPreset = Literal["fast", "balanced", "best"]
@@ -281,8 +281,8 @@ class SphConfig:
         None,
         "kernel support h (W = 0 beyond); absent = 4 x particles.radius. No preset sets it; set "
         "it to your simulator's h",
-        low=0.0,
-        low_open=True,
+        low=MIN_LENGTH,
+        high=MAX_LENGTH,
         unit="scene units",
     )
     mass: float | None = spec(

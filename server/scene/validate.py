@@ -42,7 +42,7 @@ def _describe_range(meta: Mapping[str, Any]) -> str:
 
 
 def _fmt(x: float) -> str:
-    return str(int(x)) if float(x).is_integer() else str(x)
+    return str(int(x)) if float(x).is_integer() and abs(x) < 1e7 else f"{x:g}"
 
 
 def _check_range(key: str, value: float, meta: Mapping[str, Any]) -> None:
