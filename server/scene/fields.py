@@ -18,6 +18,9 @@ MAX_STRING_LENGTH = 4096
 #: r^3 and 1 / r^3 normal floats.
 MIN_LENGTH = 1e-12
 MAX_LENGTH = 1e12
+#: Range of a rest density: frames carry densities as float32, with room for 0.35-1.5 x of it.
+MIN_DENSITY = 1e-30
+MAX_DENSITY = 1e30
 
 Vec3 = tuple[float, float, float]
 

@@ -9,7 +9,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from sphrender.server.scene.fields import MAX_LENGTH, MIN_LENGTH, bench_spec, spec
+from sphrender.server.scene.fields import (
+    MAX_DENSITY,
+    MAX_LENGTH,
+    MIN_DENSITY,
+    MIN_LENGTH,
+    bench_spec,
+    spec,
+)
 
 FilterName = Literal["narrow_range", "bilateral", "gaussian", "none"]
 QualityPreset = Literal["fast", "balanced", "best"]
@@ -273,8 +280,8 @@ class SphConfig:
         "rest density rho_0 in the frames' density units (water 1000, molten steel ~7000 "
         "kg/m^3); frames whose densities peak outside 0.5-1.5 rho_0 get densities from their "
         "positions, with a note. No preset sets it; set it to your fluid's",
-        low=0.0,
-        low_open=True,
+        low=MIN_DENSITY,
+        high=MAX_DENSITY,
         unit="mass per scene unit^3",
     )
     support_radius: float | None = spec(
