@@ -12,7 +12,8 @@
 //   combine  direct + indirect (default) or weighted (eq 55): w direct + (1 - w) indirect
 //   emission (1 - F(n.v)) B(T) for hot metal, from the splatted temperature (added after)
 //   finish   (options) ANISOTROPIC: the brushed GGX lobe of lighting/anisotropic_ggx.glsl in
-//            place of the isotropic one; DETAIL_ROUGHNESS: roughness from detail/surface_detail.glsl
+//            place of the isotropic one, its split-sum (A, B) from its own table
+//            (lighting/anisotropic_albedo.glsl); DETAIL_ROUGHNESS: roughness from detail/surface_detail.glsl
 // Output: straight scene-linear RGB, alpha = coverage (1 over the environment background).
 // ANTIALIAS: coverage is the splat's sub-pixel coverage (splat/splat_coverage.frag.glsl); a
 // pixel just outside a silhouette (coverage > 0, no surface at its centre) shows the nearest of
@@ -113,6 +114,8 @@ float g_roughness;
 #include "shade/anisotropic_ibl.glsl"
 #if ANISOTROPIC
 AnisotropicFrame g_frame;  // the pixel's brushed frame, set in main before any lighting
+uniform sampler3D u_anisotropic_lut;  // the brushed lobe's (A, B), lighting/anisotropic_albedo
+#include "lighting/anisotropic_albedo.glsl"
 #endif
 
 layout(location = 0) out vec4 out_color;
@@ -306,7 +309,9 @@ void main() {
     lookup_roughness = anisotropic_lookup_roughness(g_frame);
 #endif
 
-#if IBL_MODE != IBL_NONE || MULTIPLE_SCATTERING
+#if (IBL_MODE != IBL_NONE || MULTIPLE_SCATTERING) && ANISOTROPIC
+    vec2 scale_bias = anisotropic_scale_bias(u_anisotropic_lut, nv, v, g_frame);
+#elif IBL_MODE != IBL_NONE || MULTIPLE_SCATTERING
     vec2 scale_bias = texture(u_brdf_lut, vec2(nv, lookup_roughness)).rg;
 #endif
 #if MULTIPLE_SCATTERING
