@@ -306,7 +306,6 @@ void main() {
     float lookup_roughness = g_roughness;
 #if ANISOTROPIC
     g_frame = anisotropic_frame(n, u_brush_direction, alpha, u_anisotropy);
-    lookup_roughness = anisotropic_lookup_roughness(g_frame);
 #endif
 
 #if (IBL_MODE != IBL_NONE || MULTIPLE_SCATTERING) && ANISOTROPIC
@@ -332,7 +331,9 @@ void main() {
 #endif
     irradiance = max(sh9_irradiance(u_sh, u_world_to_env * n), 0.0) * u_env_intensity;
     diffuse_ibl = (1.0 - specular_albedo) * g_diffuse_albedo * irradiance * (1.0 / PI);
-#if IBL_MODE == IBL_PREFILTERED
+#if IBL_MODE == IBL_PREFILTERED && ANISOTROPIC
+    specular_ibl = prefiltered_anisotropic(n, v, g_frame) * u_env_intensity * specular_albedo;
+#elif IBL_MODE == IBL_PREFILTERED
     vec3 r = u_world_to_env * reflect(-v, n);
     float lod = clamp(lookup_roughness, 0.0, 1.0) * u_prefiltered_max_lod;
     specular_ibl = textureLod(u_env_prefiltered, equirect_uv(r), lod).rgb * u_env_intensity

@@ -9,8 +9,9 @@ prefiltered chain, BRDF table, blackbody table, programs) is built on first use 
 Only what the scene needs is built: no IBL resources with ``ibl_mode = "none"`` (unless the
 background shows the environment), no prefiltered chain in sampled mode, no temperature target
 or blackbody table without temperatures. Owns: the colour target, the blackbody table, the
-`IblCache`, the anisotropic split-sum table (`AnisotropicLut`), the `EnvironmentLibrary` and the surface-detail pass (`detail`; the renderer runs it
-after the normals and the solid's compose, so the N AOV has the detail too).
+`IblCache`, the brushed lobe's split-sum table (`AnisotropicLut`), the `EnvironmentLibrary` and
+the surface-detail pass (`detail`; the renderer runs it after the normals and the solid's
+compose, so the N AOV has the detail too).
 """
 
 from __future__ import annotations
