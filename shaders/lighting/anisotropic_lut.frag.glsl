@@ -1,7 +1,8 @@
 #version 330 core
 // Split-sum table of the anisotropic GGX lobe (lighting/anisotropic_ggx.glsl): per texel of a
 // 2-D atlas, A = E[(1 - Fc) G_vis] and B = E[Fc G_vis] as in brdf_lut.frag.glsl, over
-// (sqrt(n.v), the view's azimuth from the brush in [0, pi/2], sqrt(alpha_t), sqrt(alpha_b)).
+// (sqrt(n.v), the view's azimuth from the brush in [0, pi/2] at cosine spacing, sqrt(alpha_t),
+// sqrt(alpha_b)).
 // Atlas: x = i_nv + NV * i_phi, y = i_t + ROUGH * i_b; the owner (lighting/anisotropic_lut.py)
 // reads it back into a 3-D texture (nv, phi, t + ROUGH b). Half vectors ~ D(h) (n.h) by the
 // stretched sampling map, integrated with Gauss-Legendre nodes in s times the midpoint rule in
@@ -12,7 +13,7 @@
 #include "lighting/anisotropic_ggx.glsl"
 
 #define NV 32
-#define PHI 16
+#define PHI 24
 #define ROUGH 16
 #define NODES 32
 
@@ -24,7 +25,8 @@ layout(location = 0) out vec2 out_scale_bias;
 void main() {
     ivec2 texel = ivec2(gl_FragCoord.xy);
     float x = float(texel.x % NV) / float(NV - 1);
-    float phi = float(texel.x / NV) / float(PHI - 1) * (0.5 * PI);
+    // Azimuths at cosine spacing: at grazing views the albedo turns fastest next to the axes.
+    float phi = 0.25 * PI * (1.0 - cos(PI * float(texel.x / NV) / float(PHI - 1)));
     float rho_t = mix(MIN_ROUGHNESS, 1.0, float(texel.y % ROUGH) / float(ROUGH - 1));
     float rho_b = mix(MIN_ROUGHNESS, 1.0, float(texel.y / ROUGH) / float(ROUGH - 1));
     AnisotropicFrame frame;

@@ -13,7 +13,8 @@
 //   emission (1 - F(n.v)) B(T) for hot metal, from the splatted temperature (added after)
 //   finish   (options) ANISOTROPIC: the brushed GGX lobe of lighting/anisotropic_ggx.glsl in
 //            place of the isotropic one, its split-sum (A, B) from its own table
-//            (lighting/anisotropic_albedo.glsl); DETAIL_ROUGHNESS: roughness from detail/surface_detail.glsl
+//            (lighting/anisotropic_albedo.glsl); DETAIL_ROUGHNESS: roughness from
+//            detail/surface_detail.glsl
 // Output: straight scene-linear RGB, alpha = coverage (1 over the environment background).
 // ANTIALIAS: coverage is the splat's sub-pixel coverage (splat/splat_coverage.frag.glsl); a
 // pixel just outside a silhouette (coverage > 0, no surface at its centre) shows the nearest of

@@ -22,7 +22,7 @@ from sphrender.server.engine.gpu.programs import ProgramCache
 
 #: Texels along sqrt(n.v), the view azimuth, and each of sqrt(alpha_t), sqrt(alpha_b).
 NV_SIZE = 32
-PHI_SIZE = 16
+PHI_SIZE = 24
 ROUGH_SIZE = 16
 #: Gauss-Legendre nodes (and midpoint-rule steps) per axis of the sampling map.
 NODES = 32
