@@ -1,15 +1,15 @@
 """The anisotropic GGX lobe's split-sum table: the directional albedo's scale and bias (A, B)
 for F0, as the isotropic BRDF table (`ibl.py`) but over (sqrt(n.v), the view's azimuth from the
-brush folded to [0, pi/2], sqrt(alpha_t), sqrt(alpha_b)), so the prefiltered IBL and the
-multiple-scattering compensation follow the brushed lobe's albedo (the isotropic table at any
-single roughness misses it by up to 19 % at grazing views).
+brush folded to [0, pi/2] at cosine spacing, sqrt(alpha_t), sqrt(alpha_b)), so the prefiltered
+IBL and the multiple-scattering compensation follow the brushed lobe's albedo (the isotropic
+table at any single roughness misses it by up to 19 % at grazing views).
 
 `lighting/anisotropic_lut.frag.glsl` integrates every entry into a 2-D atlas, read back once
-into an RG16F 3-D texture (32 x 16 x 16^2 = 512 KB); `lighting/anisotropic_albedo.glsl` reads it
+into an RG16F 3-D texture (32 x 24 x 16^2 = 768 KB); `lighting/anisotropic_albedo.glsl` reads it
 (hardware trilinear over the first three axes, two fetches over the fourth). Built on first use
-per G term and kept by `AnisotropicLut`, owned by the shade pass on the GL owner thread.
-Linear interpolation on this grid is within 0.9 % of the integral for n.v >= 0.05 and every
-alpha in [0.002, 1], 3.2 % at n.v = 0.02 (benchmarks/STUDIES.md).
+per G term (1.8 s on llvmpipe) and kept by `AnisotropicLut`, owned by the shade pass on the GL
+owner thread. Shaded albedo within 0.9 % of numpy's for n.v >= 0.05 over the lobes measured
+(benchmarks/STUDIES.md); the error grows below that, next to the horizon.
 """
 
 from __future__ import annotations
