@@ -73,7 +73,10 @@ def measure(
             wall_ms = (time.perf_counter() - start) * 1e3
             shade_ms = stats.stage_ms.get("shade", 0.0)
             times[name].append((wall_ms, stats.stage_ms.get("normals", 0.0) + shade_ms, shade_ms))
-    return [(name, *(min(t[k] for t in v) for k in range(3))) for name, v in times.items()]
+    return [
+        (name, min(t[0] for t in v), min(t[1] for t in v), min(t[2] for t in v))
+        for name, v in times.items()
+    ]
 
 
 def section(rows: list[tuple[str, float, float, float]]) -> list[str]:

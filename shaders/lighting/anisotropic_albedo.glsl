@@ -13,7 +13,8 @@ vec2 anisotropic_scale_bias(sampler3D table, float nv, vec3 v, AnisotropicFrame 
     float rough = floor(sqrt(size.z) + 0.5);
     float phi = atan(abs(dot(f.b, v)), abs(dot(f.t, v)) + 1e-20);
     float x = albedo_texel(sqrt(nv), size.x);
-    float y = albedo_texel(acos(1.0 - phi * (4.0 / PI)) * (1.0 / PI), size.y);  // cosine spacing
+    // Cosine spacing; the clamp keeps acos defined where atan rounds past pi/2.
+    float y = albedo_texel(acos(clamp(1.0 - phi * (4.0 / PI), -1.0, 1.0)) * (1.0 / PI), size.y);
     float span = 1.0 / (1.0 - MIN_ROUGHNESS);
     float t = clamp((sqrt(f.alpha_t) - MIN_ROUGHNESS) * span, 0.0, 1.0) * (rough - 1.0);
     float b = clamp((sqrt(f.alpha_b) - MIN_ROUGHNESS) * span, 0.0, 1.0) * (rough - 1.0);

@@ -187,10 +187,10 @@ class ShadePass:
         normal_depth: moderngl.Texture,
         temperature: moderngl.Texture | None,
         coverage: moderngl.Texture | None,
-    ) -> list[tuple[str, moderngl.Texture]]:
+    ) -> list[tuple[str, moderngl.Texture | moderngl.Texture3D]]:
         """The (sampler, texture) pairs the variant reads, resources built on first use."""
         shading = scene.shading
-        wanted: list[tuple[str, moderngl.Texture | None]] = [
+        wanted: list[tuple[str, moderngl.Texture | moderngl.Texture3D | None]] = [
             ("u_normal_depth", normal_depth),
             ("u_coverage", coverage),
         ]
