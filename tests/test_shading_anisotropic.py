@@ -14,9 +14,7 @@ Tolerances:
   integrand converges like ~log(N)^2 / N (512 samples leave 2 % at n.v = 0.2, and a numpy
   Hammersley estimate of the same pdf leaves the same: the estimate's own error, not a bias);
   the issue's bound, 2 %, is what is asserted.
-* uniform environment, prefiltered mode: the split-sum table is isotropic, looked up at the
-  lobe's RMS alpha; the rule's own error against the anisotropic albedo (numpy, 4 % on this
-  lobe) plus the table's 0.6 % (see the test).
+* uniform environment, prefiltered mode: test_shading_anisotropic_ibl.py.
 * Mitsuba: pointwise, its float32 evaluation (1e-4 relative); its directional albedo from
   4096 stratified BSDF samples has a spread of ~0.3 %, and the G-form difference (Mitsuba's G
   is separable) is divided out exactly with the numpy ratio, leaving the 2 % of the issue.
@@ -159,25 +157,6 @@ def test_uniform_environment_sampled_matches_numpy_albedo(
     assert worst < 0.02
 
 
-def test_uniform_environment_prefiltered_is_the_split_sum_at_the_rms_roughness(
-    renderer: SurfaceRenderer,
-) -> None:
-    """The split sum looks the isotropic table up at alpha_rms = sqrt((at^2 + ab^2) / 2): its
-    result is F0-weighted E(n.v, alpha_rms), which misses the albedo's dependence on the view's
-    azimuth about the brush. Allowed: that rule's own error (numpy, per pixel) plus the
-    furnace test's table budget, 0.6 %."""
-    alpha_rms = math.sqrt(0.5 * (ALPHA_T**2 + ALPHA_B**2))
-    worst_rule = 0.0
-    for mu in MUS:
-        scene = brushed_scene(F0S["white"], ibl_mode="prefiltered")
-        got, _ = shade(renderer, scene, mu)
-        want = reference_albedos(mu)[..., 0]
-        rule = ref.albedo_quadrature("smith_height_correlated", mu, alpha_rms)
-        worst_rule = max(worst_rule, float(np.max(np.abs(rule - want) / want)))
-        assert np.all(np.abs(got[..., 0] - want) <= np.abs(rule - want) + 0.006 * want)
-    print(f"prefiltered: the rule's worst relative error {worst_rule:.4f}")
-
-
 def mitsuba_albedo(view: np.ndarray, count: int = 4096) -> float:
     """Mitsuba's directional albedo of a rough conductor (F = 1, alpha_u along x = the brush),
     from `count` stratified BSDF samples."""
@@ -230,11 +209,14 @@ def test_mitsuba_rough_conductor_agrees_pointwise_and_in_the_furnace(
             ra.brdf_specular(v, light, ALPHA_T, ALPHA_B, np.ones(3), separable=True)[0] * light[2]
         )
         assert abs(theirs - ours) <= 1e-4 * ours + 1e-7
-    # The shader's furnace (height-correlated G), with the G form divided out, against Mitsuba's.
-    scene = brushed_scene(F0S["white"], ibl_mode="sampled", ibl_samples=4096)
-    worst = 0.0
+    # The shader's furnace (height-correlated G), with the G form divided out, against Mitsuba's:
+    # sampled and prefiltered (the anisotropic split-sum table) IBL.
+    sampled = brushed_scene(F0S["white"], ibl_mode="sampled", ibl_samples=4096)
+    prefiltered = brushed_scene(F0S["white"], ibl_mode="prefiltered")
+    worst = {"sampled": 0.0, "prefiltered": 0.0}
     for mu in MUS:
-        got, view_local = shade(renderer, scene, mu)
+        got, view_local = shade(renderer, sampled, mu)
+        got_prefiltered, _ = shade(renderer, prefiltered, mu)
         for pixel in [(0, 0), (1, 2), (2, 1)]:
             v = view_local[pixel]
             ratio = (
@@ -242,14 +224,18 @@ def test_mitsuba_rough_conductor_agrees_pointwise_and_in_the_furnace(
                 / ra.albedo(v, ALPHA_T, ALPHA_B, ONE, n=QUADRATURE_N)[0]
             )
             theirs = mitsuba_albedo(v)
-            worst = max(worst, abs(got[pixel][0] * ratio - theirs) / theirs)
-    print(f"Mitsuba furnace: worst relative difference {worst:.4f}")
-    assert worst < 0.02
+            for mode, image in (("sampled", got), ("prefiltered", got_prefiltered)):
+                error = abs(image[pixel][0] * ratio - theirs) / theirs
+                worst[mode] = max(worst[mode], error)
+    print(f"Mitsuba furnace: worst relative difference {worst}")
+    assert max(worst.values()) < 0.02
 
 
 def test_brush_along_the_normal_falls_back_to_isotropic(renderer: SurfaceRenderer) -> None:
     """Normals within the fade (and exactly along the brush) shade finite, and exactly along it
-    as the isotropic lobe does (the same arithmetic up to fp32 rounding)."""
+    as the isotropic lobe does: the same arithmetic up to fp32 rounding, but the IBL's (A, B)
+    from the anisotropic table at alpha_t = alpha_b, which differs from the isotropic table by
+    their interpolation errors (measured 4e-4 here; each within 1 % of its integral)."""
     light = [{"type": "directional", "direction": [0.2, -0.3, -1.0], "intensity": 1.0}]
     data = {
         "image": {"width": 4, "height": 3},
@@ -267,7 +253,7 @@ def test_brush_along_the_normal_falls_back_to_isotropic(renderer: SurfaceRendere
     got = passes.shade_normal_depth(ref.normal_depth_image(camera, normals), brushed)
     want = passes.shade_normal_depth(ref.normal_depth_image(camera, normals), plain)
     assert np.all(np.isfinite(got))
-    assert np.allclose(got, want, rtol=1e-4, atol=1e-6)
+    assert np.allclose(got, want, rtol=2e-3, atol=1e-6)
 
 
 def plate_scene(eye: list[float], detail: str = "brushed") -> Scene:

@@ -69,27 +69,30 @@ def plate_scene(shading: dict[str, Any], finish: dict[str, Any]) -> Scene:
 
 def measure(
     renderer: SurfaceRenderer, frames: int = 5, log: Callable[[str], None] = print
-) -> list[tuple[str, float, float]]:
-    """(setting, frame ms, normals + shade ms; the shade stage holds the detail pass) per
-    setting: the fastest of `frames`, the one other processes disturbed least, frames
-    interleaved so every setting sees the same load."""
+) -> list[tuple[str, float, float, float]]:
+    """(setting, frame ms, normals + shade ms, shade ms) per setting: the fastest of `frames`,
+    the one other processes disturbed least, frames interleaved so every setting sees the same
+    load."""
     frame = plate_frame()
     scenes = [(name, plate_scene(shading, finish)) for name, shading, finish in SETTINGS]
     for _, scene in scenes:  # warm: programs, IBL resources, targets
         renderer.render(frame, scene)
-    times: dict[str, list[tuple[float, float]]] = {name: [] for name, _ in scenes}
+    times: dict[str, list[tuple[float, float, float]]] = {name: [] for name, _ in scenes}
     for i in range(frames):
         log(f"brushed plate: round {i + 1} of {frames}")
         for name, scene in scenes:
             start = time.perf_counter()
             _, stats = renderer.render(frame, scene)
             wall_ms = (time.perf_counter() - start) * 1e3
-            stages = stats.stage_ms.get("normals", 0.0) + stats.stage_ms.get("shade", 0.0)
-            times[name].append((wall_ms, stages))
-    return [(name, min(t for t, _ in v), min(s for _, s in v)) for name, v in times.items()]
+            shade_ms = stats.stage_ms.get("shade", 0.0)
+            times[name].append((wall_ms, stats.stage_ms.get("normals", 0.0) + shade_ms, shade_ms))
+    return [
+        (name, min(t[0] for t in v), min(t[1] for t in v), min(t[2] for t in v))
+        for name, v in times.items()
+    ]
 
 
-def section(rows: list[tuple[str, float, float]]) -> list[str]:
+def section(rows: list[tuple[str, float, float, float]]) -> list[str]:
     """The report's section: the table of `measure` with ratios to each preset's finish off."""
     lines = [
         "### Brushed plate: what the finish costs",
@@ -103,16 +106,14 @@ def section(rows: list[tuple[str, float, float]]) -> list[str]:
         "sampled with 64 samples. The fastest of interleaved frames; the ratio is to the same "
         "IBL mode with the finish off.",
         "",
-        "| setting | frame ms | / off | normals + shade (+ detail) ms | / off |",
-        "|---|---|---|---|---|",
+        "| setting | frame ms | / off | normals + shade (+ detail) ms | / off | shade (+ detail) ms | / off |",
+        "|---|---|---|---|---|---|---|",
     ]
-    offs = {name.split(",")[0]: (t, s) for name, t, s in rows if name.endswith("finish off")}
-    for name, total, stages in rows:
-        off_total, off_stages = offs[name.split(",")[0]]
-        lines.append(
-            f"| {name} | {total:.0f} | {total / off_total:.2f} | {stages:.1f} | "
-            f"{stages / off_stages:.2f} |"
-        )
+    offs = {name.split(",")[0]: values for name, *values in rows if name.endswith("finish off")}
+    for name, *values in rows:
+        off = offs[name.split(",")[0]]
+        cells = " | ".join(f"{v:.1f} | {v / o:.2f}" for v, o in zip(values, off, strict=True))
+        lines.append(f"| {name} | {cells} |")
     lines += ["", "![brushed plate](crops/crop-brushed-plate.png)", ""]
     lines += [
         "Brushed plate, balanced: finish off (left) / anisotropic + detail (right).",

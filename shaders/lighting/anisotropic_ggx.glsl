@@ -82,10 +82,9 @@ vec3 sample_ggx_anisotropic_tangent(vec2 xi, AnisotropicFrame f) {
     return normalize(vec3(f.alpha_t * sin_t * cos(phi), f.alpha_b * sin_t * sin(phi), cos_t));
 }
 
-// The perceptual roughness whose isotropic lobe stands in for the anisotropic one in the
-// split-sum lookups (prefiltered level along the plain reflection, BRDF table): alpha =
-// sqrt((at^2 + ab^2) / 2), the lobe's RMS slope (the closest of the simple rules to the
-// anisotropic albedo, and than Filament's bent reflection normal: benchmarks/STUDIES.md).
+// The perceptual roughness of the lobe's RMS slope, alpha = sqrt((at^2 + ab^2) / 2): the
+// prefiltered level along the plain reflection where no tap of prefiltered_anisotropic
+// (shade/anisotropic_ibl.glsl) lies above the horizon.
 float anisotropic_lookup_roughness(AnisotropicFrame f) {
     return sqrt(sqrt(0.5 * (f.alpha_t * f.alpha_t + f.alpha_b * f.alpha_b)));
 }

@@ -12,7 +12,9 @@
 //   combine  direct + indirect (default) or weighted (eq 55): w direct + (1 - w) indirect
 //   emission (1 - F(n.v)) B(T) for hot metal, from the splatted temperature (added after)
 //   finish   (options) ANISOTROPIC: the brushed GGX lobe of lighting/anisotropic_ggx.glsl in
-//            place of the isotropic one; DETAIL_ROUGHNESS: roughness from detail/surface_detail.glsl
+//            place of the isotropic one, its split-sum (A, B) from its own table
+//            (lighting/anisotropic_albedo.glsl); DETAIL_ROUGHNESS: roughness from
+//            detail/surface_detail.glsl
 // Output: straight scene-linear RGB, alpha = coverage (1 over the environment background).
 // ANTIALIAS: coverage is the splat's sub-pixel coverage (splat/splat_coverage.frag.glsl); a
 // pixel just outside a silhouette (coverage > 0, no surface at its centre) shows the nearest of
@@ -113,6 +115,8 @@ float g_roughness;
 #include "shade/anisotropic_ibl.glsl"
 #if ANISOTROPIC
 AnisotropicFrame g_frame;  // the pixel's brushed frame, set in main before any lighting
+uniform sampler3D u_anisotropic_lut;  // the brushed lobe's (A, B), lighting/anisotropic_albedo
+#include "lighting/anisotropic_albedo.glsl"
 #endif
 
 layout(location = 0) out vec4 out_color;
@@ -303,10 +307,11 @@ void main() {
     float lookup_roughness = g_roughness;
 #if ANISOTROPIC
     g_frame = anisotropic_frame(n, u_brush_direction, alpha, u_anisotropy);
-    lookup_roughness = anisotropic_lookup_roughness(g_frame);
 #endif
 
-#if IBL_MODE != IBL_NONE || MULTIPLE_SCATTERING
+#if (IBL_MODE != IBL_NONE || MULTIPLE_SCATTERING) && ANISOTROPIC
+    vec2 scale_bias = anisotropic_scale_bias(u_anisotropic_lut, nv, v, g_frame);
+#elif IBL_MODE != IBL_NONE || MULTIPLE_SCATTERING
     vec2 scale_bias = texture(u_brdf_lut, vec2(nv, lookup_roughness)).rg;
 #endif
 #if MULTIPLE_SCATTERING
@@ -327,7 +332,9 @@ void main() {
 #endif
     irradiance = max(sh9_irradiance(u_sh, u_world_to_env * n), 0.0) * u_env_intensity;
     diffuse_ibl = (1.0 - specular_albedo) * g_diffuse_albedo * irradiance * (1.0 / PI);
-#if IBL_MODE == IBL_PREFILTERED
+#if IBL_MODE == IBL_PREFILTERED && ANISOTROPIC
+    specular_ibl = prefiltered_anisotropic(n, v, g_frame) * u_env_intensity * specular_albedo;
+#elif IBL_MODE == IBL_PREFILTERED
     vec3 r = u_world_to_env * reflect(-v, n);
     float lod = clamp(lookup_roughness, 0.0, 1.0) * u_prefiltered_max_lod;
     specular_ibl = textureLod(u_env_prefiltered, equirect_uv(r), lod).rgb * u_env_intensity

@@ -9,8 +9,9 @@ prefiltered chain, BRDF table, blackbody table, programs) is built on first use 
 Only what the scene needs is built: no IBL resources with ``ibl_mode = "none"`` (unless the
 background shows the environment), no prefiltered chain in sampled mode, no temperature target
 or blackbody table without temperatures. Owns: the colour target, the blackbody table, the
-`IblCache`, the `EnvironmentLibrary` and the surface-detail pass (`detail`; the renderer runs it
-after the normals and the solid's compose, so the N AOV has the detail too).
+`IblCache`, the brushed lobe's split-sum table (`AnisotropicLut`), the `EnvironmentLibrary` and
+the surface-detail pass (`detail`; the renderer runs it after the normals and the solid's
+compose, so the N AOV has the detail too).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.geometry.screen_box import ScreenBox
 from sphrender.server.engine.gpu.draw import PerSize, Target, clear_and_scissor, set_scissor
 from sphrender.server.engine.gpu.uniforms import set_group, set_if_used, uses, write_matrix
+from sphrender.server.engine.lighting.anisotropic_lut import AnisotropicLut
 from sphrender.server.engine.lighting.blackbody import TABLE_MAX_K, TABLE_MIN_K, blackbody_table
 from sphrender.server.engine.lighting.environment import EnvironmentLibrary, rotation_about_y
 from sphrender.server.engine.lighting.ibl import PREFILTER_LEVELS, EnvironmentTextures, IblCache
@@ -86,6 +88,7 @@ class ShadePass:
         self._context = context
         self.environments = EnvironmentLibrary(environment_dirs)
         self.ibl = IblCache(context.gl, context.programs)
+        self._anisotropic_lut = AnisotropicLut(context.gl, context.programs)
         self._blackbody: moderngl.Texture | None = None
         self._film = FilmTables(context)
         self._target = PerSize(lambda size: Target.float(context.gl.ctx, size, 4))
@@ -197,10 +200,10 @@ class ShadePass:
         normal_depth: moderngl.Texture,
         temperature: moderngl.Texture | None,
         coverage: moderngl.Texture | None,
-    ) -> list[tuple[str, moderngl.Texture]]:
+    ) -> list[tuple[str, moderngl.Texture | moderngl.Texture3D]]:
         """The (sampler, texture) pairs the variant reads, resources built on first use."""
         shading = scene.shading
-        wanted: list[tuple[str, moderngl.Texture | None]] = [
+        wanted: list[tuple[str, moderngl.Texture | moderngl.Texture3D | None]] = [
             ("u_normal_depth", normal_depth),
             ("u_coverage", coverage),
         ]
@@ -211,6 +214,8 @@ class ShadePass:
                 wanted.append(("u_env_prefiltered", prefiltered))
         if shading.ibl_mode != "none" or shading.multiple_scattering:
             wanted.append(("u_brdf_lut", self.ibl.brdf_lut(shading.g_term)))
+            if scene.finish.anisotropy != 0.0:
+                wanted.append(("u_anisotropic_lut", self._anisotropic_lut.texture(shading.g_term)))
         if temperature is not None:
             wanted += [("u_temperature", temperature), ("u_blackbody", self._blackbody_texture())]
         if _image_roughness(scene):
@@ -286,6 +291,7 @@ class ShadePass:
         self._target.release()
         self.detail.release()
         self.ibl.release()
+        self._anisotropic_lut.release()
         self._film.release()
         if self._blackbody is not None:
             self._blackbody.release()
