@@ -158,11 +158,12 @@ def _timed_frame(
 ) -> tuple[float, float, float, dict[str, Any], bytes, Frame]:
     """One frame of a session, encoded and decoded `repeats` times from the same state
     (timings: the best), leaving both sides as after one pass."""
-    state = (encoder._base_id, dict(encoder._base))
+    state = (encoder._base_id, dict(encoder._base), encoder.order, encoder._cell_bits)
     held = (decoder.base_id, decoder.base_q)
 
     def encode() -> tuple[dict[str, Any], bytes]:
         encoder._base_id, encoder._base = state[0], dict(state[1])
+        encoder.order, encoder._cell_bits = state[2], state[3]
         return encoder.encode(frame_id, frame)
 
     encode_ms, (header, payload) = _best_ms(encode, repeats)
@@ -177,11 +178,12 @@ def _timed_frame(
 
 
 def codec_rows(name: str, frames: list[Frame], radius: float, fractions: tuple[float, ...],
-               repeats: int = 3) -> Iterator[CodecRow]:  # fmt: skip
-    """The session encoding of `frames` at each bound (timings: the best of `repeats`)."""
+               repeats: int = 3, reorder: bool = True) -> Iterator[CodecRow]:  # fmt: skip
+    """The session encoding of `frames` at each bound (timings: the best of `repeats`);
+    `reorder` False keeps the particles' order (the coding before order-free positions)."""
     n = len(frames[0]["positions"])
     for fraction in fractions:
-        encoder = CompactEncoder(position_error=fraction * radius)
+        encoder = CompactEncoder(position_error=fraction * radius, reorder=reorder)
         decoder = CompactDecoder()
         sizes, positions_sizes, enc, dec, cpu, worst = [], [], [], [], [], 0.0
         for frame_id, frame in enumerate(frames):
@@ -191,7 +193,9 @@ def codec_rows(name: str, frames: list[Frame], radius: float, fractions: tuple[f
             enc.append(ms_e)
             dec.append(ms_d)
             cpu.append(ms_cpu)
-            worst = max(worst, float(np.abs(arrays["positions"] - frame["positions"]).max()))
+            order = encoder.order if encoder.order is not None else slice(None)
+            sent = frame["positions"][order]
+            worst = max(worst, float(np.abs(arrays["positions"] - sent).max()))
             sizes.append(len(payload))
             positions_sizes.append(header["arrays"][0]["bytes"])
         later = slice(1, None)
