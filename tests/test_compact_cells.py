@@ -12,12 +12,20 @@ import numpy as np
 import pytest
 import zstandard
 from error_texts import text_faults
+from test_protocol import _doc_example
 
 from sphrender.core.compact import CompactDecoder, _planes
 from sphrender.core.compact_cells import CellLayout, cells_layout, decode_cells, encode_cells
 from sphrender.core.compact_encoder import CompactEncoder
 from sphrender.core.errors import InputError
 from sphrender.core.frame import make_frame
+from sphrender.core.protocol import (
+    PREFIX_SIZE,
+    MessageType,
+    encode_message,
+    parse_header,
+    parse_prefix,
+)
 from sphrender.server.bench.surface_quality import flicker_deg
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import scene_from_dict
@@ -252,3 +260,39 @@ def test_a_reordered_frame_renders_as_the_same_particles(renderer: SurfaceRender
     assert (codes[0] != codes[1]).mean() <= 0.01
     mean, _p99 = flicker_deg(raw, a)
     assert mean <= 2 * np.degrees(0.765 / 100), mean
+
+
+#: PROTOCOL.md §4.7's cells example: four particles whose quantised positions are A (0, 0, 0),
+#: B (5, 1, 0), C (1, 2, 3) and D (6, 5, 2) at step 2 x 0.001 x (1 - 2^-30).
+EXAMPLE_Q = np.array([[0, 0, 0], [5, 1, 0], [1, 2, 3], [6, 5, 2]])
+
+
+def cells_example_message() -> bytes:
+    """The example as the codec writes it: cells of 2^2 quanta, every zstd frame as the
+    encoder compresses it."""
+    step = 2 * 0.001 * (1 - 2.0**-30)
+    positions = EXAMPLE_Q * step
+    order, spec, raw = encode_cells(EXAMPLE_Q.T.astype(np.int64), 2)
+    assert order.tolist() == [0, 2, 1, 3]
+    packed = zstandard.ZstdCompressor(level=3, write_content_size=True, write_checksum=True)
+    section = packed.compress(raw)
+    lo, hi = positions.min(axis=0).tolist(), positions.max(axis=0).tolist()
+    descriptor = {"name": "positions", "dtype": "<f8", "shape": [4, 3], "coding": "quantized",
+                  "step": step, "bounds": [lo, hi], **spec, "bytes": len(section)}  # fmt: skip
+    header = {"id": 8, "encoding": "compact", "arrays": [descriptor]}
+    return encode_message(MessageType.FRAME, header, section)
+
+
+def test_protocol_md_cells_example_decodes_as_documented() -> None:
+    data = _doc_example("compact-cells")
+    assert data == cells_example_message()
+    _kind, header_len, _payload_len = parse_prefix(
+        data[:PREFIX_SIZE], max_header_bytes=1 << 16, max_payload_bytes=1 << 20
+    )
+    header = parse_header(data[PREFIX_SIZE : PREFIX_SIZE + header_len])
+    decoded = CompactDecoder().decode(header, data[PREFIX_SIZE + header_len :], max_particles=MAX)[
+        "positions"
+    ]
+    step = header["arrays"][0]["step"]
+    # Sent in the order A, C, B, D: cell 0 holds A and C, cell 2 holds B, cell 3 holds D.
+    assert np.array_equal(decoded, EXAMPLE_Q[[0, 2, 1, 3]] * step)
