@@ -85,6 +85,8 @@ def cells_layout(where: str, spec: Mapping[str, Any], particles: int) -> CellLay
 
 
 def _planes(values: np.ndarray, width: int) -> bytes:
+    if width == 1:
+        return np.ascontiguousarray(values, dtype=np.uint8).tobytes()
     flat = np.ascontiguousarray(values).reshape(-1).astype(np.uint64, copy=False)
     planes = np.empty((width, flat.size), np.uint8)
     for b in range(width):
@@ -108,7 +110,7 @@ def _width(top: int) -> int:
 def encode_cells(q: np.ndarray, cell_bits: int) -> tuple[np.ndarray, dict[str, Any], bytes] | None:
     """(order, descriptor keys, inflated section) for quantised positions `q` (3, N) int64, or
     None when the cell numbers would not fit `MAX_GRID_BITS`. ``order[j]`` is the particle sent
-    j-th."""
+    j-th (the caller gathers ``q[:, order]`` once it has chosen this coding)."""
     n = q.shape[1]
     cell = q >> cell_bits
     top = cell.max(axis=1) if n else np.zeros(3, np.int64)
@@ -135,7 +137,9 @@ def encode_cells(q: np.ndarray, cell_bits: int) -> tuple[np.ndarray, dict[str, A
     if len(occupied) < n:
         spec["count_width"] = _width(int(counts.max()))
         sections.append(_planes(counts, spec["count_width"]))
-    offsets = q[:, order] & ((1 << cell_bits) - 1)
+    offsets = np.empty((3, n), np.uint8 if cell_bits <= 8 else np.uint16)
+    for axis in range(3):
+        np.bitwise_and(q[axis][order], (1 << cell_bits) - 1, out=offsets[axis], casting="unsafe")
     sections.append(_planes(offsets, (cell_bits + 7) // 8))
     return order, spec, b"".join(sections)
 

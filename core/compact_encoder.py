@@ -32,6 +32,9 @@ DEFAULT_ERRORS: dict[str, float | None] = {
     "solid": None,
 }
 _ZSTD_LEVEL = 3
+#: Every this many frames the encoder tries the cell size next to its last one (the first frame
+#: walks up to 3 sizes); in between it keeps the last (each try costs a sort and a compression).
+_CELL_RETRY = 8
 #: Fractions of the error bound kept free for float rounding, smallest first.
 _ROOM = (2.0**-40, 2.0**-30, 2.0**-20, 2.0**-10, 2.0**-4)
 
@@ -138,6 +141,7 @@ class CompactEncoder:
     _base_id: int | None = None
     _base: dict[str, tuple[float, np.ndarray]] = field(default_factory=dict)
     _cell_bits: int | None = None
+    _frames: int = 0
 
     def __post_init__(self) -> None:
         self.position_error = _check_error("positions", self.position_error)
@@ -220,9 +224,10 @@ class CompactEncoder:
     def _cells(
         self, q: np.ndarray, step: float, lo: np.ndarray, hi: np.ndarray
     ) -> tuple[dict[str, Any], bytes, np.ndarray] | None:
-        """The smallest ``cells`` coding near the last frame's cell size (the first frame
-        starts from the bounds' mean spacing and walks while it shrinks)."""
+        """The ``cells`` coding at the last frame's cell size, or the smaller next to it (the
+        first frame starts from the bounds' mean spacing and walks while it shrinks)."""
         first = self._cell_bits is None
+        self._frames += 1
         if self._cell_bits is None:
             spacing = (float(np.prod((hi - lo) / step + 1)) / q.shape[1]) ** (1 / 3)
             self._cell_bits = int(np.clip(math.floor(math.log2(max(spacing, 2.0))) - 1, 1, 16))
@@ -238,8 +243,8 @@ class CompactEncoder:
             return tried[bits]
 
         here = attempt(k)
-        if here is None:
-            return None
+        if here is None or not (first or self._frames % _CELL_RETRY == 0):
+            return here
         # Cells that mostly hold one particle can grow; crowded ones shrink.
         direction = 1 if here[0]["cells"] >= 0.99 * q.shape[1] else -1
         for _ in range(3 if first else 1):

@@ -293,16 +293,20 @@ def image_change(frames: list[Frame], radius: float, camera: dict[str, Any],
     with GLContext() as gl:
         renderer = SurfaceRenderer(gl)
 
-        def render(positions: np.ndarray) -> Any:
-            particles = make_frame(positions, densities=frame["densities"],
-                                   temperatures=frame["temperatures"])  # fmt: skip
+        def render(positions: np.ndarray, order: Any = slice(None)) -> Any:
+            """`positions` with the frame's other arrays in the same (sent) `order`: only the
+            positions' quantisation differs from the reference."""
+            particles = make_frame(positions, densities=frame["densities"][order],
+                                   temperatures=frame["temperatures"][order])  # fmt: skip
             return renderer.render(particles, scene, depth=True, normals=True)[0]
 
         reference = render(frame["positions"].astype(np.float32).astype(np.float64))
         for fraction in fractions:
-            header, payload = CompactEncoder(position_error=fraction * radius).encode(0, frame)
+            encoder = CompactEncoder(position_error=fraction * radius)
+            header, payload = encoder.encode(0, frame)
             decoded = CompactDecoder().decode(header, payload, max_particles=10**8)
-            image = render(decoded["positions"])
+            order = encoder.order if encoder.order is not None else slice(None)
+            image = render(decoded["positions"], order)
             mean, p99 = flicker_deg(reference, image)
             alpha = np.abs(image.rgba[..., 3] - reference.rgba[..., 3])
             out.append((fraction, mean, p99, float(alpha.mean()), float((alpha > 1 / 255).mean())))
