@@ -120,7 +120,7 @@ def encode_cells(q: np.ndarray, cell_bits: int) -> tuple[np.ndarray, dict[str, A
     number = cell[0] << (bits[1] + bits[2])
     number |= cell[1] << bits[2]
     number |= cell[2]
-    order = np.argsort(number, kind="stable")
+    order = np.argsort(number)  # any order within a cell; quicksort is 5x faster than stable
     ranked = number[order]
     starts = np.flatnonzero(np.diff(ranked, prepend=-1))  # each occupied cell's first particle
     occupied = ranked[starts]

@@ -42,6 +42,9 @@ SPATTER_RADIUS = 0.01
 FRACTIONS = (1 / 25, 1 / 50, 1 / 100, 1 / 200)
 
 Frame = dict[str, np.ndarray]
+#: What a CompactEncoder carries from one frame to the next (restored between timing repeats).
+_ENCODER_STATE = ("_base_id", "_base", "order", "_cell_bits", "_frames", "_ordered_won",
+                  "_last_bytes")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -158,12 +161,12 @@ def _timed_frame(
 ) -> tuple[float, float, float, dict[str, Any], bytes, Frame]:
     """One frame of a session, encoded and decoded `repeats` times from the same state
     (timings: the best), leaving both sides as after one pass."""
-    state = (encoder._base_id, dict(encoder._base), encoder.order, encoder._cell_bits)
+    state = {key: getattr(encoder, key) for key in _ENCODER_STATE}
     held = (decoder.base_id, decoder.base_q)
 
     def encode() -> tuple[dict[str, Any], bytes]:
-        encoder._base_id, encoder._base = state[0], dict(state[1])
-        encoder.order, encoder._cell_bits = state[2], state[3]
+        for key, value in state.items():
+            setattr(encoder, key, dict(value) if isinstance(value, dict) else value)
         return encoder.encode(frame_id, frame)
 
     encode_ms, (header, payload) = _best_ms(encode, repeats)
