@@ -32,8 +32,9 @@ DEFAULT_ERRORS: dict[str, float | None] = {
     "solid": None,
 }
 _ZSTD_LEVEL = 3
-#: Every this many frames the encoder tries the cell size next to its last one (the first frame
-#: walks up to 3 sizes); in between it keeps the last (each try costs a sort and a compression).
+#: Every this many frames (and on a session's first 4) the encoder tries the cell size next to its
+#: last one and both codings (the first frame walks up to 3 sizes); in between it keeps the last
+#: size (each try costs a sort and a compression).
 _CELL_RETRY = 8
 #: Fractions of the error bound kept free for float rounding, smallest first.
 _ROOM = (2.0**-40, 2.0**-30, 2.0**-20, 2.0**-10, 2.0**-4)
@@ -143,7 +144,7 @@ class CompactEncoder:
     _cell_bits: int | None = None
     _frames: int = 0
     _ordered_won: bool = False
-    _last_bytes: int = 0
+    _cells_bytes: int = 0
 
     def __post_init__(self) -> None:
         self.position_error = _check_error("positions", self.position_error)
@@ -209,21 +210,22 @@ class CompactEncoder:
         self, array: np.ndarray, error: float, held: np.ndarray | None
     ) -> tuple[dict[str, Any], bytes, np.ndarray, float, bool, np.ndarray | None]:
         """The smaller of the positions coded order-free and in the held order (predicted as any
-        array): (keys, zstd frame, q as sent, step, predicted from a frame?, order). Each is
-        tried on the first frame and every `_CELL_RETRY`-th; in between the order-free one
-        unless the ordered one won last time (or grew by a quarter: the scene changed), and the
-        ordered one when it won last time or an eighth of the particles says it may win."""
+        array): (keys, zstd frame, q as sent, step, predicted from a frame?, order). Both are
+        tried on a session's first 4 frames and every `_CELL_RETRY`-th; in between the
+        order-free one unless the ordered one won last time and is still smaller than the
+        order-free one was, and the ordered one when it won last time or an eighth of the
+        particles says frame prediction may win."""
         q, step, lo, hi = _quantise("positions", array, error, array.dtype, self.bounds)
         quantised = {"coding": "quantized", "step": step, "bounds": [lo.tolist(), hi.tolist()]}
         self._frames += 1
-        retry = self._frames % _CELL_RETRY == 1
+        retry = self._frames <= 4 or self._frames % _CELL_RETRY == 1
         free = self.reorder and q.shape[1] > 1
         tried = free and (retry or not self._ordered_won)
         cells = self._cells(q, step, lo, hi) if tried else None
         ordered = None
         if cells is None or retry or self._ordered_won or self._may_win(q, held, len(cells[1])):
             ordered = self._in_order(q, step, held)
-            if free and not tried and len(ordered[1]) > 1.25 * self._last_bytes:
+            if free and not tried and len(ordered[1]) > self._cells_bytes:
                 cells = self._cells(q, step, lo, hi)
         self._ordered_won = cells is None or (
             ordered is not None and len(ordered[1]) <= len(cells[1])
@@ -236,7 +238,8 @@ class CompactEncoder:
             assert cells is not None
             spec, packed, order = cells
             sent, by_frame = q[:, order], False
-        self._last_bytes = len(packed)
+        if cells is not None:
+            self._cells_bytes = len(cells[1])
         return {**quantised, **spec}, packed, sent, step, by_frame, order
 
     def _in_order(
@@ -266,8 +269,8 @@ class CompactEncoder:
     def _cells(
         self, q: np.ndarray, step: float, lo: np.ndarray, hi: np.ndarray
     ) -> tuple[dict[str, Any], bytes, np.ndarray] | None:
-        """The ``cells`` coding at the last cell size, or the smaller next to it on the retry
-        frames (the first starts from the bounds' mean spacing and walks while it shrinks)."""
+        """The ``cells`` coding at the last cell size, or a smaller one next to it on the retry
+        frames (the first starts from the bounds' mean spacing and walks up to 3 sizes)."""
         first = self._cell_bits is None
         if self._cell_bits is None:
             spacing = (float(np.prod((hi - lo) / step + 1)) / q.shape[1]) ** (1 / 3)
@@ -284,8 +287,19 @@ class CompactEncoder:
             return tried[bits]
 
         here = attempt(k)
-        if here is None or not (first or self._frames % _CELL_RETRY == 1):
+        if here is None or not (first or self._frames <= 4 or self._frames % _CELL_RETRY == 1):
             return here
+        for direction in (-1, 1):  # smaller cells, then larger: walk while the bytes shrink
+            start = k
+            for _ in range(3 if first else 1):
+                there = attempt(k + direction)
+                if there is None or len(there[1]) >= len(here[1]):
+                    break
+                k, here = k + direction, there
+            if k != start:
+                break
+        self._cell_bits = k
+        return here
         # Cells that mostly hold one particle can grow; crowded ones shrink.
         direction = 1 if here[0]["cells"] >= 0.99 * q.shape[1] else -1
         for _ in range(3 if first else 1):

@@ -44,7 +44,7 @@ FRACTIONS = (1 / 25, 1 / 50, 1 / 100, 1 / 200)
 Frame = dict[str, np.ndarray]
 #: What a CompactEncoder carries from one frame to the next (restored between timing repeats).
 _ENCODER_STATE = ("_base_id", "_base", "order", "_cell_bits", "_frames", "_ordered_won",
-                  "_last_bytes")  # fmt: skip
+                  "_cells_bytes")  # fmt: skip
 
 
 @dataclass(frozen=True)

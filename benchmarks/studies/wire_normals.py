@@ -9,7 +9,7 @@ mean = a * (b / r)^p over the bounds, solves for the bound that gives `TARGET_DE
 interpolates the session's positions bytes a particle (98,304 particles, bench_wire's
 sequence) at that bound.
 
-    .venv/bin/python benchmarks/studies/wire_normals.py
+    .venv/bin/python -m benchmarks.studies.wire_normals   (from the repository root)
 """
 
 from __future__ import annotations
