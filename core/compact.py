@@ -404,7 +404,7 @@ def decode_compact_arrays(
             stored = _unplanes(raw, count, slot.width).reshape(c, n)
             q = _predicted(slot, index, stored, base_q or {})
         _check_range(slot, index, q)
-        if q.dtype != np.int64:
+        if slot.layout is None:  # cells keep int64 (their base rows stay exact either way)
             q = q.astype(np.float64, copy=False)  # exact: within the bounds, so below 2^52
         arrays[slot.name] = _dequantised(slot, q)
         quantised[slot.name] = q

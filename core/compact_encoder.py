@@ -221,12 +221,12 @@ class CompactEncoder:
         retry = self._frames <= 4 or self._frames % _CELL_RETRY == 1
         free = self.reorder and q.shape[1] > 1
         tried = free and (retry or not self._ordered_won)
-        cells = self._cells(q, step, lo, hi) if tried else None
+        cells = self._cells(q, step, lo, hi, retry) if tried else None
         ordered = None
         if cells is None or retry or self._ordered_won or self._may_win(q, held, len(cells[1])):
             ordered = self._in_order(q, step, held)
             if free and not tried and len(ordered[1]) > self._cells_bytes:
-                cells = self._cells(q, step, lo, hi)
+                cells = self._cells(q, step, lo, hi, retry)
         self._ordered_won = cells is None or (
             ordered is not None and len(ordered[1]) <= len(cells[1])
         )
@@ -267,7 +267,7 @@ class CompactEncoder:
         return len(self._compressor.compress(data)) / len(part) < 1.05 * cells / len(held)
 
     def _cells(
-        self, q: np.ndarray, step: float, lo: np.ndarray, hi: np.ndarray
+        self, q: np.ndarray, step: float, lo: np.ndarray, hi: np.ndarray, retry: bool
     ) -> tuple[dict[str, Any], bytes, np.ndarray] | None:
         """The ``cells`` coding at the last cell size, or a smaller one next to it on the retry
         frames (the first starts from the bounds' mean spacing and walks up to 3 sizes)."""
@@ -287,7 +287,7 @@ class CompactEncoder:
             return tried[bits]
 
         here = attempt(k)
-        if here is None or not (first or self._frames <= 4 or self._frames % _CELL_RETRY == 1):
+        if here is None or not (first or retry):
             return here
         for direction in (-1, 1):  # smaller cells, then larger: walk while the bytes shrink
             start = k
@@ -298,15 +298,6 @@ class CompactEncoder:
                 k, here = k + direction, there
             if k != start:
                 break
-        self._cell_bits = k
-        return here
-        # Cells that mostly hold one particle can grow; crowded ones shrink.
-        direction = 1 if here[0]["cells"] >= 0.99 * q.shape[1] else -1
-        for _ in range(3 if first else 1):
-            there = attempt(k + direction)
-            if there is None or len(there[1]) >= len(here[1]):
-                break
-            k, here = k + direction, there
         self._cell_bits = k
         return here
 
