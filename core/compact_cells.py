@@ -73,12 +73,13 @@ def cells_layout(where: str, spec: Mapping[str, Any], particles: int) -> CellLay
         raise InputError(f"{where}.width", f"must be 1, 2, 4 or 8, got {show(width)}")
     count_width = 0
     if cells < particles:
-        count_width = spec.get("count_width")
-        if count_width not in _WIDTHS or isinstance(count_width, bool):
+        given = spec.get("count_width")
+        if given not in _WIDTHS or isinstance(given, bool):
             raise InputError(
                 f"{where}.count_width",
-                f"must be 1, 2, 4 or 8 when cells < particles, got {show(count_width)}",
+                f"must be 1, 2, 4 or 8 when cells < particles, got {show(given)}",
             )
+        count_width = int(given)
     elif "count_width" in spec:
         raise InputError(f"{where}.count_width", "is only for fewer cells than particles")
     return CellLayout(k, (bits[0], bits[1], bits[2]), cells, width, count_width)
@@ -107,6 +108,19 @@ def _width(top: int) -> int:
     return next(w for w in _WIDTHS if top < 1 << (8 * w))
 
 
+def _order(number: np.ndarray, q: np.ndarray, cell_bits: int, grid_bits: int) -> np.ndarray:
+    """Particles by cell number, then by position inside the cell: the same particles come out
+    in the same order whatever order they were given in (a solid's surfel cache keys on it).
+    One quicksort of a combined key where it fits 63 bits (5x faster than a stable sort)."""
+    if grid_bits + 3 * cell_bits > 63:
+        return np.lexsort((q[2], q[1], q[0], number))
+    key = number << (3 * cell_bits)
+    mask = (1 << cell_bits) - 1
+    for axis, shift in ((0, 2 * cell_bits), (1, cell_bits), (2, 0)):
+        key |= (q[axis] & mask) << shift
+    return np.argsort(key)
+
+
 def encode_cells(q: np.ndarray, cell_bits: int) -> tuple[np.ndarray, dict[str, Any], bytes] | None:
     """(order, descriptor keys, inflated section) for quantised positions `q` (3, N) int64, or
     None when the cell numbers would not fit `MAX_GRID_BITS`. ``order[j]`` is the particle sent
@@ -120,7 +134,7 @@ def encode_cells(q: np.ndarray, cell_bits: int) -> tuple[np.ndarray, dict[str, A
     number = cell[0] << (bits[1] + bits[2])
     number |= cell[1] << bits[2]
     number |= cell[2]
-    order = np.argsort(number)  # any order within a cell; quicksort is 5x faster than stable
+    order = _order(number, q, cell_bits, sum(bits))
     ranked = number[order]
     starts = np.flatnonzero(np.diff(ranked, prepend=-1))  # each occupied cell's first particle
     occupied = ranked[starts]

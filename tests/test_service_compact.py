@@ -10,7 +10,7 @@ import copy
 import json
 import struct
 from collections.abc import Iterator
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import pytest
@@ -261,3 +261,15 @@ def test_declared_particles_over_the_limit_are_refused_unread(server: ServerProc
         )
         client.send(encode_frame(10, ball(100)))
         assert answer(client)[0] == MessageType.IMAGE
+
+
+def test_the_stream_reorders_unless_told_to_keep_the_order(server: ServerProcess) -> None:
+    positions = ball(1500, seed=7)
+    client = Client(f"http://127.0.0.1:{server.http_port}")
+    cases: list[tuple[bool | Literal["ordered"], bool]] = [(True, True), ("ordered", False)]
+    for compact, reordered in cases:
+        with client.stream(RAW, compact=compact) as session:
+            assert session.compact is not None
+            session.send(positions)
+            assert session.receive().kind == "image"
+            assert (session.compact.encoder.order is not None) == reordered, compact
