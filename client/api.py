@@ -305,11 +305,11 @@ class Client:
         mode: Literal["queue", "latest"] = "queue",
         max_in_flight: int | None = None,
         stream_port: int | None = None,
-        compact: bool = True,
+        compact: bool | Literal["ordered"] = True,
     ) -> StreamSession:
         """Open a streaming session (the port comes from /v1/info unless given). `compact`:
         send frames in the compact encoding when the server offers it (client/compact_stream.py:
-        positions within 1/100 of the particle radius)."""
+        positions within 1/100 of the particle radius, maybe reordered: "ordered" keeps it)."""
         if stream_port is None:
             stream_port = self.info().get("stream_port")
             if not stream_port:
@@ -345,7 +345,7 @@ class StreamSession:
         mode: str,
         max_in_flight: int | None,
         timeout: float,
-        compact: bool = True,
+        compact: bool | Literal["ordered"] = True,
     ) -> None:
         self._socket = socket.create_connection((host, port), timeout=timeout)
         self._reader = self._socket.makefile("rb")
@@ -369,7 +369,8 @@ class StreamSession:
         self._next_id = 0
         self._outstanding: deque[int] = deque()
         self.closed_reason: str | None = None
-        self.compact = CompactSender(self.welcome) if compact and offered(self.welcome) else None
+        wanted = compact and offered(self.welcome)
+        self.compact = CompactSender(self.welcome, reorder=compact != "ordered") if wanted else None
         self._held: dict[int, StreamResult] = {}  # answers that overtook a frame sent again
         self._resent: set[int] = set()
 

@@ -3,9 +3,11 @@
 `CompactSender` turns a frame's arrays into a compact FRAME message when the server's WELCOME
 offers ``compact``: positions within an absolute error of `POSITION_ERROR_FRACTION` x the
 particle radius unless told otherwise, the other arrays at `DEFAULT_ERRORS`, each frame
-predicted from the one before when that is smaller. It keeps the arrays of every frame sent
-predicted from another until it is answered, so that a frame the server answers with an error
-on ``base`` (it does not hold the frame predicted from) is sent again in full.
+predicted from the one before when that is smaller; positions may be sent order-free (the
+frame's particles reordered, every array with them) unless `reorder` is False. It keeps the
+arrays of every frame sent predicted from another until it is answered, so that a frame the
+server answers with an error on ``base`` (it does not hold the frame predicted from) is sent
+again in full.
 
 A frame the encoder cannot quantise (NaN, a bound finer than float64 resolves) goes out raw, so
 the server's error names the problem exactly as it does for every other client.
@@ -58,11 +60,14 @@ class CompactSender:
         *,
         position_error: float | None = None,
         errors: Mapping[str, float | None] | None = None,
+        reorder: bool = True,
     ) -> None:
         self.fixed_error = position_error
         radius = _scene_radius(welcome)
         error = position_error if position_error is not None else POSITION_ERROR_FRACTION * radius
-        self.encoder = CompactEncoder(position_error=error, errors=dict(errors or {}))
+        self.encoder = CompactEncoder(
+            position_error=error, errors=dict(errors or {}), reorder=reorder
+        )
         self._pending: dict[int, tuple[object, dict[str, Any]]] = {}
 
     def message(self, frame_id: int, positions: object, arrays: Mapping[str, Any]) -> bytes:

@@ -117,7 +117,7 @@ class LiveSession:
         mode: Literal["latest", "queue"] = "latest",
         max_in_flight: int | None = None,
         stream_port: int | None = None,
-        compact: bool = True,
+        compact: bool | Literal["ordered"] = True,
     ) -> None:
         """Open the session (HELLO; the server prepares the scene before it answers WELCOME).
         `compact`: frames in the compact encoding when the server offers it (as `Client.stream`)."""

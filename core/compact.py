@@ -10,8 +10,9 @@ decoded) how it was stored:
   ``|decoded - x| <= error`` for the error it was given (``step`` just under ``2 * error``,
   with a per-value fix-up for float rounding). ``predict``: ``none`` (store q), ``particle``
   (q minus the previous particle's q), ``frame`` (q minus the same array's q in the frame
-  named by the header's ``base``) or ``motion`` (that difference minus the previous
-  particle's); residuals are zigzag-mapped to unsigned. ``width``: bytes per stored value.
+  named by the header's ``base``), ``motion`` (that difference minus the previous
+  particle's) or ``cells`` (positions only, order-free: core/compact_cells.py); residuals are
+  zigzag-mapped to unsigned. ``width``: bytes per stored value.
 * ``coding`` ``"raw"``: the array's own little-endian bytes, lossless (ids, flags, radii and any
   array without a precision in compact_encoder.py's `DEFAULT_ERRORS`).
 
@@ -36,6 +37,7 @@ from typing import Any
 import numpy as np
 import zstandard
 
+from sphrender.core.compact_cells import CELLS, CellLayout, cells_layout, decode_cells
 from sphrender.core.errors import InputError, show
 from sphrender.core.protocol import plan_frame_arrays
 
@@ -51,11 +53,12 @@ __all__ = [
 #: The value of a FRAME header's ``encoding`` key for this encoding.
 ENCODING = "compact"
 CODINGS = ("quantized", "raw")
-PREDICTORS = ("none", "particle", "frame", "motion")
+PREDICTORS = ("none", "particle", "frame", "motion", CELLS)
 WIDTHS = (1, 2, 4, 8)
 #: Largest quantised integer: decoded values stay exact in float64 arithmetic.
 MAX_Q = 2**52
-_COMPACT_KEYS = ("coding", "step", "bounds", "predict", "width", "bytes")
+_CELL_KEYS = ("cell_bits", "grid_bits", "cells", "count_width")
+_COMPACT_KEYS = ("coding", "step", "bounds", "predict", "width", "bytes", *_CELL_KEYS)
 #: Particles summed per block by `_prefix_sum`'s matrix product (16: the fewest flops per value
 #: for which it beats cumsum).
 _BLOCK = 16
@@ -80,6 +83,7 @@ class CompactSlot:
     step: float = 0.0
     lo: tuple[float, ...] = ()
     hi: tuple[float, ...] = ()
+    layout: CellLayout | None = None  # predict: cells
 
     @property
     def components(self) -> int:
@@ -87,6 +91,8 @@ class CompactSlot:
 
     @property
     def raw_size(self) -> int:
+        if self.layout is not None:
+            return self.layout.raw_size(self.shape[0])
         return math.prod(self.shape) * self.width
 
 
@@ -171,7 +177,7 @@ def plan_compact_arrays(
                 f"declares {nbytes} bytes at offset {offset} but the payload has {payload_length}",
             )
         if coding == "raw":
-            extra = set(spec) & {"step", "bounds", "width"}
+            extra = set(spec) & {"step", "bounds", "width", *_CELL_KEYS}
             if extra or spec.get("predict", "none") != "none":
                 key = sorted(extra)[0] if extra else "predict"
                 raise InputError(f"{where}.{key}", "is only for quantized arrays")
@@ -200,6 +206,14 @@ def plan_compact_arrays(
                 raise InputError(f"{where}.width", f"must be 1, 2, 4 or 8, got {show(width)}")
             components = base.shape[1] if len(base.shape) == 2 else 1
             step, lo, hi = _quantized(where, spec, components)
+            layout = None
+            if predict == CELLS:
+                if components != 3:
+                    raise InputError(f"{where}.predict", "cells codes [N, 3] positions only")
+                layout = cells_layout(where, spec, base.shape[0])
+            elif set(spec) & set(_CELL_KEYS):
+                key = sorted(set(spec) & set(_CELL_KEYS))[0]
+                raise InputError(f"{where}.{key}", "is only for predict cells")
             slot = CompactSlot(
                 base.name,
                 base.dtype,
@@ -212,6 +226,7 @@ def plan_compact_arrays(
                 step,
                 tuple(lo),
                 tuple(hi),
+                layout,
             )
             slots.append(slot)
         offset += nbytes
@@ -383,10 +398,14 @@ def decode_compact_arrays(
             arrays[slot.name] = values.view(native).reshape(slot.shape)
             continue
         n, c = slot.shape[0], slot.components
-        stored = _unplanes(raw, count, slot.width).reshape(c, n)
-        q = _predicted(slot, index, stored, base_q or {})
+        if slot.layout is not None:
+            q = decode_cells(slot.layout, index, raw, n)
+        else:
+            stored = _unplanes(raw, count, slot.width).reshape(c, n)
+            q = _predicted(slot, index, stored, base_q or {})
         _check_range(slot, index, q)
-        q = q.astype(np.float64, copy=False)  # exact: within the bounds, so below 2^52
+        if slot.layout is None:  # cells keep int64 (their base rows stay exact either way)
+            q = q.astype(np.float64, copy=False)  # exact: within the bounds, so below 2^52
         arrays[slot.name] = _dequantised(slot, q)
         quantised[slot.name] = q
     return arrays, quantised

@@ -1,8 +1,11 @@
 """Fuzz inputs of the compact frame encoding (PROTOCOL.md §4.7), for tests/fuzz_inputs.py: a
 valid compact FRAME (from the real encoder) with one thing wrong in its header or its payload:
-the descriptors' keys (coding, step, bounds, predict, width, bytes), the base, the encoding's
-name, the zstd frames (bytes flipped, cut, swapped for a bomb or a frame without its size or
-checksum), the declared shapes. Seeded like the rest: a failure is reproduced by its seed."""
+the descriptors' keys (coding, step, bounds, predict, width, bytes, and the order-free cells'
+cell_bits, grid_bits, cells, count_width), the base, the encoding's name, the zstd frames
+(bytes flipped, cut, swapped for a bomb or a frame without its size or checksum, or inflated,
+changed and compressed again so that the checksum holds and the decoder's own checks meet the
+change: gaps, counts, offsets), the declared shapes. Seeded like the rest: a failure is
+reproduced by its seed."""
 
 from __future__ import annotations
 
@@ -17,7 +20,8 @@ from sphrender.core.compact_encoder import CompactEncoder
 from sphrender.core.frame_message import FRAME_CONTENT_TYPE
 from sphrender.core.protocol import MessageType, encode_message
 
-_KEYS = ("coding", "step", "bounds", "predict", "width", "bytes", "dtype", "shape", "name")
+_KEYS = ("coding", "step", "bounds", "predict", "width", "bytes", "dtype", "shape", "name",
+         "cell_bits", "grid_bits", "cells", "count_width")  # fmt: skip
 
 
 def _valid(rng: random.Random, frame_id: int) -> tuple[dict[str, Any], bytes]:
@@ -30,7 +34,8 @@ def _valid(rng: random.Random, frame_id: int) -> tuple[dict[str, Any], bytes]:
         arrays["radii"] = np.full(n, 0.02, np.float32)
     if rng.random() < 0.2:
         arrays["ids"] = numbers.permutation(10 * n + 1)[:n].astype(np.int64)
-    encoder = CompactEncoder(position_error=rng.choice((1e-4, 2e-4, 1e-3, 0.01)))
+    error = rng.choice((1e-4, 2e-4, 1e-3, 0.01))
+    encoder = CompactEncoder(position_error=error, reorder=rng.random() < 0.8)
     if rng.random() < 0.3 and n:  # a frame predicted from one the server may not hold
         encoder.encode(frame_id - 1, arrays)
         arrays["positions"] = arrays["positions"] + 1e-5
@@ -46,6 +51,8 @@ def _spoil_payload(rng: random.Random, header: dict[str, Any], payload: bytes) -
         return bytes(spoiled)
     if roll < 0.6:
         return payload[: rng.randrange(len(payload) + 1)] + bytes(rng.randrange(0, 9))
+    if roll < 0.8:
+        return _respoiled(rng, header, payload)
     # Swap the first array's zstd frame for another one, its `bytes` kept true.
     size = rng.choice((1 << 20, 1 << 24, 7))
     other = zstandard.ZstdCompressor(
@@ -54,6 +61,20 @@ def _spoil_payload(rng: random.Random, header: dict[str, Any], payload: bytes) -
     first = header["arrays"][0]["bytes"]
     header["arrays"][0]["bytes"] = len(other)
     return other + payload[first:]
+
+
+def _respoiled(rng: random.Random, header: dict[str, Any], payload: bytes) -> bytes:
+    """One array's zstd frame inflated, a few bytes changed, compressed again (size and
+    checksum true): what gets past zstd reaches the decoder's checks of the values."""
+    index = rng.randrange(len(header["arrays"]))
+    start = sum(spec["bytes"] for spec in header["arrays"][:index])
+    end = start + header["arrays"][index]["bytes"]
+    raw = bytearray(zstandard.ZstdDecompressor().decompress(payload[start:end]))
+    for _ in range(rng.randrange(1, 4) if raw else 0):
+        raw[rng.randrange(len(raw))] = rng.choice((0, 1, 255, rng.randrange(256)))
+    packed = zstandard.ZstdCompressor(write_checksum=True).compress(bytes(raw))
+    header["arrays"][index]["bytes"] = len(packed)
+    return payload[:start] + packed + payload[end:]
 
 
 def compact_frame_input(rng: random.Random, frame_id: int, weird: Any) -> bytes:

@@ -4,7 +4,9 @@ server: compiled with gcc here, run as a process, its stdout and the pixels it w
 Its raw frame must be the server's render of the particles it sent, byte for byte: the same
 engine renders them here (raw rgba8 = the PNG's 8-bit codes, `encode_for_scene`). Its compact
 frame (PROTOCOL.md §4.7, written with libzstd) likewise: the server's render of the positions
-the C encoder says it encoded, which lie within its bound of the particles it was given.
+the C encoder says it encoded, which lie within its bound of the particles it was given. Its
+order-free frame (``predict: "cells"``) too, which it decodes itself before sending: the server's
+render of the positions in the order the C client sent them, a permutation of the particles.
 """
 
 from __future__ import annotations
@@ -51,12 +53,15 @@ def test_c_client_against_a_real_server(
     assert result.returncode == 0, result.stdout + result.stderr
     lines = result.stdout.splitlines()
     assert lines[0] == "WELCOME max_in_flight=8"
+    assert lines[1].startswith("CELLS cells=") and lines[1].endswith(" roundtrip ok")
+    lines = lines[:1] + lines[2:]
     assert lines[1] == f"IMAGE id=1 format=raw 64x48 bytes={64 * 48 * 4}"
     assert lines[2].startswith("IMAGE id=2 format=jpeg 64x48 bytes=")
     assert lines[3] == "JPEG markers ok"
     assert lines[4] == "ERROR id=3 code=bad_input field=radii[17] fatal=false"
     assert lines[5] == f"IMAGE id=4 format=raw 64x48 bytes={64 * 48 * 4}"
-    assert lines[6:] == ["GOODBYE reason=bye", "OK"]
+    assert lines[6] == f"IMAGE id=5 format=raw 64x48 bytes={64 * 48 * 4}"
+    assert lines[7:] == ["GOODBYE reason=bye", "OK"]
 
     positions = np.fromfile(prefix.with_suffix(".positions"), dtype="<f8").reshape(300, 3)
     assert np.all(np.linalg.norm(positions, axis=1) <= 0.15)
@@ -72,5 +77,12 @@ def test_c_client_against_a_real_server(
     assert not np.array_equal(decoded, positions)
     rendered, _ = renderer.render(make_frame(decoded, radii=radii), scene)
     assert Path(f"{prefix}.compact.rgba").read_bytes() == encode_for_scene(rendered, scene, "raw")
+    # The order-free frame: a permutation of the particles, each within the bound.
+    order = np.fromfile(f"{prefix}.cells.order", dtype="<i4")
+    assert sorted(order.tolist()) == list(range(300)) and not np.array_equal(order, np.arange(300))
+    sent = np.fromfile(f"{prefix}.cells.positions", dtype="<f8").reshape(300, 3)
+    assert np.abs(sent - positions[order]).max() <= 0.0002
+    rendered, _ = renderer.render(make_frame(sent, radii=radii), scene)
+    assert Path(f"{prefix}.cells.rgba").read_bytes() == encode_for_scene(rendered, scene, "raw")
     jpeg = prefix.with_suffix(".jpg").read_bytes()
     assert jpeg[:2] == b"\xff\xd8" and jpeg[-2:] == b"\xff\xd9"

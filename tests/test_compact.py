@@ -29,9 +29,23 @@ MAX = 1_000_000
 
 
 def roundtrip(arrays: dict[str, np.ndarray], error: float, **kw: Any) -> dict[str, np.ndarray]:
-    header, payload = CompactEncoder(position_error=error, **kw).encode(1, arrays)
+    """Encoded, decoded and put back in the given order by the encoder's `order`."""
+    encoder = CompactEncoder(position_error=error, **kw)
+    header, payload = encoder.encode(1, arrays)
     json.loads(json.dumps(header))  # the header is plain JSON
-    return CompactDecoder().decode(header, payload, max_particles=MAX)
+    return as_given(CompactDecoder().decode(header, payload, max_particles=MAX), encoder.order)
+
+
+def as_given(decoded: dict[str, np.ndarray], order: np.ndarray | None) -> dict[str, np.ndarray]:
+    """Decoded arrays with particle ``order[j]`` (sent j-th) back at index ``order[j]``."""
+    if order is None:
+        return decoded
+    assert sorted(order.tolist()) == list(range(len(order)))  # a permutation
+    back = {}
+    for name, array in decoded.items():
+        back[name] = np.empty_like(array)
+        back[name][order] = array
+    return back
 
 
 def max_error(a: np.ndarray, b: np.ndarray) -> float:
@@ -114,8 +128,8 @@ def test_frame_prediction_round_trips_a_sequence() -> None:
         positions = positions + rng.normal(0, 2e-4, positions.shape)  # small steps: predictable
         header, payload = encoder.encode(frame_id, {"positions": positions})
         predicted += header["arrays"][0]["predict"] in ("frame", "motion")
-        decoded = decoder.decode(header, payload, max_particles=MAX)["positions"]
-        assert max_error(decoded, positions) <= 1e-4
+        decoded = decoder.decode(header, payload, max_particles=MAX)
+        assert max_error(as_given(decoded, encoder.order)["positions"], positions) <= 1e-4
     assert predicted == 4  # every frame after the first
 
 
@@ -134,8 +148,8 @@ def test_motion_prediction_round_trips_a_flow() -> None:
         header, payload = encoder.encode(frame_id, {"positions": positions})
         if frame_id:
             assert header["arrays"][0]["predict"] == "motion"
-        decoded = decoder.decode(header, payload, max_particles=MAX)["positions"]
-        assert max_error(decoded, positions) <= 1e-4
+        decoded = decoder.decode(header, payload, max_particles=MAX)
+        assert max_error(as_given(decoded, encoder.order)["positions"], positions) <= 1e-4
 
 
 def encoded(n: int = 200, **kw: Any) -> tuple[dict[str, Any], bytes]:
@@ -288,6 +302,8 @@ def test_protocol_md_compact_example_decodes_as_documented() -> None:
 def example_message() -> bytes:
     positions = np.array([[0.0, 0.5, -1.0], [1.0, 2.0, 3.0]])
     radii = np.array([0.02, 0.03], np.float32)
-    encoder = CompactEncoder(position_error=0.001, errors={"radii": None}, delta=False)
+    encoder = CompactEncoder(
+        position_error=0.001, errors={"radii": None}, delta=False, reorder=False
+    )
     header, payload = encoder.encode(7, {"positions": positions, "radii": radii})
     return encode_message(MessageType.FRAME, header, payload)

@@ -10,7 +10,7 @@ import copy
 import json
 import struct
 from collections.abc import Iterator
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import pytest
@@ -43,9 +43,14 @@ def compact_message(frame_id: int, arrays: dict[str, np.ndarray], **kw: Any) -> 
     return encode_message(MessageType.FRAME, header, payload)
 
 
-def decoded(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    header, payload = CompactEncoder(position_error=ERROR).encode(0, arrays)
-    return CompactDecoder().decode(header, payload, max_particles=10**6)
+def decoded(arrays: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """(the arrays as the server decodes them, `arrays` in that order: the encoder may send the
+    particles in another order, `encoder.order`)."""
+    encoder = CompactEncoder(position_error=ERROR)
+    header, payload = encoder.encode(0, arrays)
+    order = encoder.order if encoder.order is not None else slice(None)
+    sent = {name: array[order] for name, array in arrays.items()}
+    return CompactDecoder().decode(header, payload, max_particles=10**6), sent
 
 
 def answer(client: Any) -> tuple[MessageType, dict[str, Any], bytes]:
@@ -71,10 +76,10 @@ def test_compact_frame_renders_its_decoded_particles_exactly(server: ServerProce
         "velocities": rng.normal(0, 2, (2000, 3)).astype(np.float32),  # within 0.001, carried
         "ids": rng.permutation(10_000)[:2000].astype(np.int64),  # lossless, checked unique
     }
-    truth = decoded(arrays)
-    assert np.abs(truth["positions"] - arrays["positions"]).max() <= ERROR
-    assert np.abs(truth["velocities"] - arrays["velocities"]).max() <= 1e-3
-    assert np.array_equal(truth["ids"], arrays["ids"])
+    truth, sent = decoded(arrays)
+    assert np.abs(truth["positions"] - sent["positions"]).max() <= ERROR
+    assert np.abs(truth["velocities"] - sent["velocities"]).max() <= 1e-3
+    assert np.array_equal(truth["ids"], sent["ids"])
     with server.stream() as client:
         client.hello(RAW)
         client.send(compact_message(1, arrays))
@@ -98,8 +103,9 @@ def test_python_http_client_sends_compact_frames_when_asked(server: ServerProces
     positions = ball(1500, seed=6)
     client = Client(f"http://127.0.0.1:{server.http_port}", compact=True)
     image = client.render(positions, RAW)
-    truth = decoded({"positions": positions})["positions"]
-    assert 0 < np.abs(truth - positions).max() <= ERROR
+    truths, sent = decoded({"positions": positions})
+    truth = truths["positions"]
+    assert 0 < np.abs(truth - sent["positions"]).max() <= ERROR
     assert image == Client(f"http://127.0.0.1:{server.http_port}").render(truth, RAW)
 
 
@@ -255,3 +261,15 @@ def test_declared_particles_over_the_limit_are_refused_unread(server: ServerProc
         )
         client.send(encode_frame(10, ball(100)))
         assert answer(client)[0] == MessageType.IMAGE
+
+
+def test_the_stream_reorders_unless_told_to_keep_the_order(server: ServerProcess) -> None:
+    positions = ball(1500, seed=7)
+    client = Client(f"http://127.0.0.1:{server.http_port}")
+    cases: list[tuple[bool | Literal["ordered"], bool]] = [(True, True), ("ordered", False)]
+    for compact, reordered in cases:
+        with client.stream(RAW, compact=compact) as session:
+            assert session.compact is not None
+            session.send(positions)
+            assert session.receive().kind == "image"
+            assert (session.compact.encoder.order is not None) == reordered, compact

@@ -42,6 +42,9 @@ SPATTER_RADIUS = 0.01
 FRACTIONS = (1 / 25, 1 / 50, 1 / 100, 1 / 200)
 
 Frame = dict[str, np.ndarray]
+#: What a CompactEncoder carries from one frame to the next (restored between timing repeats).
+_ENCODER_STATE = ("_base_id", "_base", "order", "_cell_bits", "_frames", "_ordered_won",
+                  "_cells_bytes")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -158,11 +161,12 @@ def _timed_frame(
 ) -> tuple[float, float, float, dict[str, Any], bytes, Frame]:
     """One frame of a session, encoded and decoded `repeats` times from the same state
     (timings: the best), leaving both sides as after one pass."""
-    state = (encoder._base_id, dict(encoder._base))
+    state = {key: getattr(encoder, key) for key in _ENCODER_STATE}
     held = (decoder.base_id, decoder.base_q)
 
     def encode() -> tuple[dict[str, Any], bytes]:
-        encoder._base_id, encoder._base = state[0], dict(state[1])
+        for key, value in state.items():
+            setattr(encoder, key, dict(value) if isinstance(value, dict) else value)
         return encoder.encode(frame_id, frame)
 
     encode_ms, (header, payload) = _best_ms(encode, repeats)
@@ -177,11 +181,12 @@ def _timed_frame(
 
 
 def codec_rows(name: str, frames: list[Frame], radius: float, fractions: tuple[float, ...],
-               repeats: int = 3) -> Iterator[CodecRow]:  # fmt: skip
-    """The session encoding of `frames` at each bound (timings: the best of `repeats`)."""
+               repeats: int = 3, reorder: bool = True) -> Iterator[CodecRow]:  # fmt: skip
+    """The session encoding of `frames` at each bound (timings: the best of `repeats`);
+    `reorder` False keeps the particles' order (the coding before order-free positions)."""
     n = len(frames[0]["positions"])
     for fraction in fractions:
-        encoder = CompactEncoder(position_error=fraction * radius)
+        encoder = CompactEncoder(position_error=fraction * radius, reorder=reorder)
         decoder = CompactDecoder()
         sizes, positions_sizes, enc, dec, cpu, worst = [], [], [], [], [], 0.0
         for frame_id, frame in enumerate(frames):
@@ -191,7 +196,9 @@ def codec_rows(name: str, frames: list[Frame], radius: float, fractions: tuple[f
             enc.append(ms_e)
             dec.append(ms_d)
             cpu.append(ms_cpu)
-            worst = max(worst, float(np.abs(arrays["positions"] - frame["positions"]).max()))
+            order = encoder.order if encoder.order is not None else slice(None)
+            sent = frame["positions"][order]
+            worst = max(worst, float(np.abs(arrays["positions"] - sent).max()))
             sizes.append(len(payload))
             positions_sizes.append(header["arrays"][0]["bytes"])
         later = slice(1, None)
@@ -289,16 +296,20 @@ def image_change(frames: list[Frame], radius: float, camera: dict[str, Any],
     with GLContext() as gl:
         renderer = SurfaceRenderer(gl)
 
-        def render(positions: np.ndarray) -> Any:
-            particles = make_frame(positions, densities=frame["densities"],
-                                   temperatures=frame["temperatures"])  # fmt: skip
+        def render(positions: np.ndarray, order: Any = slice(None)) -> Any:
+            """`positions` with the frame's other arrays in the same (sent) `order`: only the
+            positions' quantisation differs from the reference."""
+            particles = make_frame(positions, densities=frame["densities"][order],
+                                   temperatures=frame["temperatures"][order])  # fmt: skip
             return renderer.render(particles, scene, depth=True, normals=True)[0]
 
         reference = render(frame["positions"].astype(np.float32).astype(np.float64))
         for fraction in fractions:
-            header, payload = CompactEncoder(position_error=fraction * radius).encode(0, frame)
+            encoder = CompactEncoder(position_error=fraction * radius)
+            header, payload = encoder.encode(0, frame)
             decoded = CompactDecoder().decode(header, payload, max_particles=10**8)
-            image = render(decoded["positions"])
+            order = encoder.order if encoder.order is not None else slice(None)
+            image = render(decoded["positions"], order)
             mean, p99 = flicker_deg(reference, image)
             alpha = np.abs(image.rgba[..., 3] - reference.rgba[..., 3])
             out.append((fraction, mean, p99, float(alpha.mean()), float((alpha > 1 / 255).mean())))

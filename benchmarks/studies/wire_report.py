@@ -44,6 +44,7 @@ def wire_section(*, quick: bool, link: bool, log: Callable[[str], None]) -> list
     lines = [HEADING, "", _INTRO.format(cpus=os.cpu_count()), ""]
     log("wire: codec at 100k")
     rows = list(codec_rows("dam break", dam, DAM_RADIUS, FRACTIONS, repeats))
+    rows += codec_rows("dam break, in order", dam, DAM_RADIUS, (0.01,), repeats, reorder=False)
     spatter = spatter_sequence(100_000)
     rows += codec_rows("spatter", spatter, SPATTER_RADIUS, FRACTIONS, repeats)
     if not quick:
@@ -51,6 +52,7 @@ def wire_section(*, quick: bool, link: bool, log: Callable[[str], None]) -> list
         big = dam_sequence(31)
         assert big is not None
         rows += codec_rows("dam break", big[:4], DAM_RADIUS, (0.01,), 1)
+        rows += codec_rows("dam break, in order", big[:4], DAM_RADIUS, (0.01,), 1, reorder=False)
         del big
         rows += codec_rows("spatter", spatter_sequence(1_000_000, 4), SPATTER_RADIUS, (0.01,), 1)
     lines += _codec_table(rows)
@@ -69,13 +71,16 @@ _INTRO = (
     "`benchmarks/bench_wire.py` (studies/wire.py, wire_link.py), on this machine's {cpus} CPU "
     "cores, shared (timings: the best of 3 repeats, median over a sequence's frames). Positions "
     "within the bound b (max |decoded - sent| <= b, measured below in radii), densities within "
-    "0.05 kg/m³, temperatures within 0.05 K (the client's defaults). A session's frames after the "
-    "first are predicted from the one before where that is smaller; the first frame stands alone. "
+    "0.05 kg/m³, temperatures within 0.05 K (the client's defaults). Positions go out order-free "
+    "(`predict: cells`) or, where smaller, predicted from the frame before; the first frame "
+    "stands alone. "
     "Dam break: the real frames (0.2 s apart), copies side by side, each a different frame "
     "turned by 1-4° (no copy repeats another's numbers); temperatures synthetic. Spatter: a "
     "pool with a slow wave and 5 % droplets in flight, 30 frames a second. A 1M dam-break frame "
     "holds every frame of the data set about 4 times, the early ones (still in the initial "
-    "lattice's order, cheap) included; a 100k frame holds three neighbouring frames."
+    "lattice's order, cheap) included; a 100k frame holds three neighbouring frames. Rows "
+    '"in order": the encoder told to keep the particles\' order (`reorder=False`: every frame '
+    "predicted particle to particle or from the frame before, as before order-free positions)."
 )
 
 

@@ -10,9 +10,13 @@
  *   id 4: the same particles in the compact encoding (PROTOCOL.md 4.7: positions within
  *         0.0002 of the sent values, predicted particle to particle, radii raw; zstd)
  *                                                 -> OUT_PREFIX.compact.rgba
+ *   id 5: the same again, order-free (PROTOCOL.md 4.7 "cells": particles sorted into cells of
+ *         2^6 quanta, radii permuted with them); decoded here too before it is sent
+ *                                                 -> OUT_PREFIX.cells.rgba
  * then BYE and GOODBYE. The positions sent are written to OUT_PREFIX.positions (N x 3 <f8),
- * and those frame 4 decodes to to OUT_PREFIX.compact.positions, so a test can render the same
- * frames. One line per message on stdout; exit status 0 when every answer was what
+ * those frame 4 decodes to to OUT_PREFIX.compact.positions, those frame 5 decodes to (in the
+ * order sent) to OUT_PREFIX.cells.positions and that order (N <i4) to OUT_PREFIX.cells.order,
+ * so a test can render the same frames. One line per message on stdout; exit status 0 when every answer was what
  * PROTOCOL.md says it must be. Build with -lzstd (and -ffp-contract=off: the decoder's
  * lo + q * step must be a multiply and an add, each rounded).
  */
@@ -199,9 +203,10 @@ static double get_f64(const uint8_t *p) {
     return d;
 }
 
-static size_t compact_frame(const char *prefix, double error, char *header, size_t hsize) {
-    double p[N][3], lo[3], hi[3], decoded[N * 3];
-    int64_t q[3][N];
+/* q = round((x - lo) / step) per component, nudged so that lo + q * step is within `error`;
+ * returns the step. */
+static double quantise(double error, int64_t q[3][N], double lo[3], double hi[3]) {
+    double p[N][3];
     for (int i = 0; i < N; i++)
         for (int c = 0; c < 3; c++) p[i][c] = get_f64(payload + (i * 3 + c) * 8);
     for (int c = 0; c < 3; c++) {
@@ -212,7 +217,6 @@ static size_t compact_frame(const char *prefix, double error, char *header, size
         }
     }
     const double step = 2.0 * error * (1.0 - 1.0 / 1073741824.0);  /* room for rounding */
-    uint64_t top = 0, zz[3][N];
     for (int c = 0; c < 3; c++) {
         for (int i = 0; i < N; i++) {
             int64_t k = llround((p[i][c] - lo[c]) / step);
@@ -222,6 +226,19 @@ static size_t compact_frame(const char *prefix, double error, char *header, size
                 else if (miss < -error) k++;
             }
             q[c][i] = k;
+        }
+    }
+    return step;
+}
+
+static size_t compact_frame(const char *prefix, double error, char *header, size_t hsize) {
+    double lo[3], hi[3], decoded[N * 3];
+    int64_t q[3][N];
+    const double step = quantise(error, q, lo, hi);
+    uint64_t top = 0, zz[3][N];
+    for (int c = 0; c < 3; c++) {
+        for (int i = 0; i < N; i++) {
+            int64_t k = q[c][i];
             decoded[i * 3 + c] = lo[c] + (double)k * step;
             int64_t r = k - (i ? q[c][i - 1] : 0);  /* predicted from the previous particle */
             zz[c][i] = ((uint64_t)r << 1) ^ (uint64_t)(r >> 63);  /* zigzag */
@@ -250,6 +267,131 @@ static size_t compact_frame(const char *prefix, double error, char *header, size
     uint8_t bytes[N * 3 * 8];
     for (int i = 0; i < N * 3; i++) put_f64(bytes + i * 8, decoded[i]);
     write_file(prefix, ".compact.positions", bytes, sizeof bytes);
+    return first + second;
+}
+
+/* Byte planes of n values (of `width` bytes each) into `out`. */
+static size_t put_planes(const uint64_t *values, size_t n, int width, uint8_t *out) {
+    for (int b = 0; b < width; b++)
+        for (size_t i = 0; i < n; i++) out[b * n + i] = (uint8_t)(values[i] >> (8 * b));
+    return n * (size_t)width;
+}
+
+static uint64_t get_plane_value(const uint8_t *data, size_t n, int width, size_t i) {
+    uint64_t v = 0;
+    for (int b = 0; b < width; b++) v |= (uint64_t)data[b * n + i] << (8 * b);
+    return v;
+}
+
+static int bit_length(uint64_t v) {
+    int bits = 0;
+    while (v) bits++, v >>= 1;
+    return bits;
+}
+
+static int width_of(uint64_t top) {
+    return top < 256 ? 1 : top < 65536 ? 2 : top < 4294967296ULL ? 4 : 8;
+}
+
+enum { CELL_BITS = 6 };
+static uint64_t cell_number[N];
+
+static int by_cell(const void *a, const void *b) {  /* cell number, then the given order */
+    int i = *(const int *)a, j = *(const int *)b;
+    if (cell_number[i] != cell_number[j]) return cell_number[i] < cell_number[j] ? -1 : 1;
+    return i - j;
+}
+
+/* The cells section (gaps, counts when fewer cells than particles, offsets) decoded back to q,
+ * in the order sent: what the server will do with it. */
+static void decode_cells(const uint8_t *raw, int cells, int width, int count_width,
+                         const int grid[3], int64_t out[3][N]) {
+    const uint8_t *counts = raw + (size_t)cells * width;
+    const uint8_t *offsets = counts + (cells < N ? (size_t)cells * count_width : 0);
+    uint64_t number = 0;
+    int particle = 0;
+    for (int j = 0; j < cells; j++) {
+        number += get_plane_value(raw, cells, width, j);
+        uint64_t count = cells < N ? get_plane_value(counts, cells, count_width, j) : 1;
+        uint64_t cell[3] = {number >> (grid[1] + grid[2]),
+                            (number >> grid[2]) & ((1ULL << grid[1]) - 1),
+                            number & ((1ULL << grid[2]) - 1)};
+        for (uint64_t n = 0; n < count && particle < N; n++, particle++)
+            for (int c = 0; c < 3; c++)
+                out[c][particle] = (int64_t)(cell[c] << CELL_BITS) + offsets[c * N + particle];
+    }
+    if (particle != N) die("the cells decode to the wrong particle count");
+}
+
+/* The compact FRAME of the particles in `payload` with order-free positions (predict cells),
+ * radii raw in the same order; as compact_frame. */
+static size_t cells_frame(const char *prefix, double error, char *header, size_t hsize) {
+    double lo[3], hi[3], decoded[N * 3];
+    int64_t q[3][N], back[3][N];
+    const double step = quantise(error, q, lo, hi);
+    int grid[3], order[N];
+    for (int c = 0; c < 3; c++) {
+        int64_t top = 0;
+        for (int i = 0; i < N; i++)
+            if (q[c][i] >> CELL_BITS > top) top = q[c][i] >> CELL_BITS;
+        grid[c] = bit_length((uint64_t)top);
+    }
+    for (int i = 0; i < N; i++) {
+        cell_number[i] = (uint64_t)(q[0][i] >> CELL_BITS) << (grid[1] + grid[2]) |
+                         (uint64_t)(q[1][i] >> CELL_BITS) << grid[2] |
+                         (uint64_t)(q[2][i] >> CELL_BITS);
+        order[i] = i;
+    }
+    qsort(order, N, sizeof order[0], by_cell);
+    static uint64_t gaps[N], counts[N], offsets[3 * N];
+    int cells = 0;
+    uint64_t previous = 0, top_gap = 0, top_count = 0;
+    for (int j = 0; j < N; j++) {
+        uint64_t number = cell_number[order[j]];
+        if (j == 0 || number != cell_number[order[j - 1]]) {
+            gaps[cells] = number - previous;
+            counts[cells] = 0;
+            previous = number;
+            if (gaps[cells] > top_gap) top_gap = gaps[cells];
+            cells++;
+        }
+        if (++counts[cells - 1] > top_count) top_count = counts[cells - 1];
+        for (int c = 0; c < 3; c++)
+            offsets[c * N + j] = (uint64_t)q[c][order[j]] & ((1u << CELL_BITS) - 1);
+    }
+    int width = width_of(top_gap), count_width = width_of(top_count);
+    size_t n = put_planes(gaps, cells, width, planes);
+    if (cells < N) n += put_planes(counts, cells, count_width, planes + n);
+    n += put_planes(offsets, 3 * N, 1, planes + n);
+    decode_cells(planes, cells, width, count_width, grid, back);
+    for (int j = 0; j < N; j++)
+        for (int c = 0; c < 3; c++) {
+            if (back[c][j] != q[c][order[j]]) die("the cells section does not decode to q");
+            decoded[j * 3 + c] = lo[c] + (double)back[c][j] * step;
+        }
+    size_t first = zstd_frame(planes, n, compact, MAX_COMPACT);
+    for (int j = 0; j < N; j++)  /* radii raw, in the order sent */
+        for (int b = 0; b < 4; b++) planes[b * N + j] = payload[N * 24 + order[j] * 4 + b];
+    size_t second = zstd_frame(planes, N * 4, compact + first, MAX_COMPACT - first);
+    char counted[32] = "";
+    if (cells < N) snprintf(counted, sizeof counted, ",\"count_width\":%d", count_width);
+    snprintf(header, hsize,
+             "{\"id\":5,\"encoding\":\"compact\",\"arrays\":["
+             "{\"name\":\"positions\",\"dtype\":\"<f8\",\"shape\":[%d,3],"
+             "\"coding\":\"quantized\",\"step\":%.17g,"
+             "\"bounds\":[[%.17g,%.17g,%.17g],[%.17g,%.17g,%.17g]],"
+             "\"predict\":\"cells\",\"cell_bits\":%d,\"grid_bits\":[%d,%d,%d],"
+             "\"cells\":%d,\"width\":%d%s,\"bytes\":%zu},"
+             "{\"name\":\"radii\",\"dtype\":\"<f4\",\"shape\":[%d],\"coding\":\"raw\","
+             "\"bytes\":%zu}]}",
+             N, step, lo[0], lo[1], lo[2], hi[0], hi[1], hi[2], CELL_BITS, grid[0], grid[1],
+             grid[2], cells, width, counted, first, N, second);
+    uint8_t bytes[N * 3 * 8], order_bytes[N * 4];
+    for (int i = 0; i < N * 3; i++) put_f64(bytes + i * 8, decoded[i]);
+    for (int j = 0; j < N; j++) put_u32(order_bytes + j * 4, (uint32_t)order[j]);
+    write_file(prefix, ".cells.positions", bytes, sizeof bytes);
+    write_file(prefix, ".cells.order", order_bytes, sizeof order_bytes);
+    printf("CELLS cells=%d roundtrip ok\n", cells);
     return first + second;
 }
 
@@ -288,7 +430,7 @@ int main(int argc, char **argv) {
     long max_in_flight = json_int(m.header, "max_in_flight");
     printf("WELCOME max_in_flight=%ld\n", max_in_flight);
     free_message(&m);
-    if (max_in_flight < 4) die("this example pipelines 4 frames");
+    if (max_in_flight < 5) die("this example pipelines 5 frames");
 
     make_particles(prefix);
     char frame[512];
@@ -302,13 +444,18 @@ int main(int argc, char **argv) {
     send_message(FRAME, frame, payload, sizeof payload);
     char compact_header[1024];
     size_t compact_length = compact_frame(prefix, 0.0002, compact_header, sizeof compact_header);
+    static uint8_t compact4[MAX_COMPACT];
+    memcpy(compact4, compact, compact_length);
+    char cells_header[1024];
+    size_t cells_length = cells_frame(prefix, 0.0002, cells_header, sizeof cells_header);
     put_f32(payload + N * 24 + 17 * 4, -1.0f);  /* radius 17 < 0: this frame is refused */
     snprintf(frame, sizeof frame, "{\"id\":3,%s}", arrays);
     send_message(FRAME, frame, payload, sizeof payload);
-    send_message(FRAME, compact_header, compact, compact_length);
+    send_message(FRAME, compact_header, compact4, compact_length);
+    send_message(FRAME, cells_header, compact, cells_length);
 
     int ok = 1;
-    for (long id = 1; id <= 4; id++) {
+    for (long id = 1; id <= 5; id++) {
         m = receive_message();
         long got = json_int(m.header, "id");
         char format[32], code[64], field[64];
@@ -318,10 +465,11 @@ int main(int argc, char **argv) {
             printf("IMAGE id=%ld format=%s %ldx%ld bytes=%u\n", got, format, w, h,
                    (unsigned)m.payload_length);
             if (strcmp(format, "raw") == 0) {
-                ok &= (id == 1 || id == 4) && w == WIDTH && h == HEIGHT && strstr(m.header, "\"u1\"") != NULL &&
+                ok &= (id == 1 || id >= 4) && w == WIDTH && h == HEIGHT &&
+                      strstr(m.header, "\"u1\"") != NULL &&
                       m.payload_length == (uint32_t)(w * h * 4);
-                write_file(prefix, id == 1 ? ".rgba" : ".compact.rgba", m.payload,
-                           m.payload_length);
+                const char *names[] = {".rgba", "", "", ".compact.rgba", ".cells.rgba"};
+                write_file(prefix, names[id - 1], m.payload, m.payload_length);
             } else {
                 int soi = m.payload_length > 4 && m.payload[0] == 0xFF && m.payload[1] == 0xD8;
                 int eoi = m.payload_length > 4 && m.payload[m.payload_length - 2] == 0xFF &&
