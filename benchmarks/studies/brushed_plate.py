@@ -106,7 +106,8 @@ def section(rows: list[tuple[str, float, float, float]]) -> list[str]:
         "sampled with 64 samples. The fastest of interleaved frames; the ratio is to the same "
         "IBL mode with the finish off.",
         "",
-        "| setting | frame ms | / off | normals + shade (+ detail) ms | / off | shade (+ detail) ms | / off |",
+        "| setting | frame ms | / off | normals + shade (+ detail) ms | / off "
+        "| shade (+ detail) ms | / off |",
         "|---|---|---|---|---|---|---|",
     ]
     offs = {name.split(",")[0]: values for name, *values in rows if name.endswith("finish off")}
