@@ -414,12 +414,11 @@ def decode_compact_arrays(
 def _dequantised(slot: CompactSlot, q: np.ndarray) -> np.ndarray:
     """lo + q * step per component, in float64, then in the slot's dtype and shape."""
     n, c = slot.shape[0], slot.components
-    wide = np.empty((n, c), np.float64)
-    for k in range(c):  # column by column: contiguous writes
-        column = wide[:, k]
-        np.multiply(q[k], slot.step, out=column)
-        column += slot.lo[k]
-    decoded = wide.astype(slot.dtype.newbyteorder("="), copy=False)
+    decoded = np.empty((n, c), slot.dtype.newbyteorder("="))
+    wide = np.empty(n, np.float64)
+    for k in range(c):  # the sum in float64, rounded once into the output's column
+        np.multiply(q[k], slot.step, out=wide)
+        np.add(wide, slot.lo[k], out=decoded[:, k], casting="unsafe")
     return decoded.reshape(slot.shape)
 
 

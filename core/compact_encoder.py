@@ -187,8 +187,7 @@ class CompactEncoder:
                 uses_base |= by_frame
             else:
                 values = array if order is None else array[order]
-                spec, data, q, step, by_frame = self._lossy(name, values, error, same_order)
-                packed = self._compressor.compress(data)
+                spec, packed, q, step, by_frame = self._lossy(name, values, error, same_order)
                 state[name] = (step, q)
                 uses_base |= by_frame
             sections.append(packed)
@@ -304,10 +303,18 @@ class CompactEncoder:
     def _lossy(
         self, name: str, array: np.ndarray, error: float, same_order: bool
     ) -> tuple[dict[str, Any], bytes, np.ndarray, float, bool]:
+        """(keys, zstd frame, q, step, predicted from a frame?): predicted as `_predicted`
+        says, or stored as they are when that is no larger (no running sum to decode)."""
         q, step, lo, hi = _quantise(name, array, error, array.dtype, None)
         spec, data, by_frame = self._predicted(name, q, step, same_order)
+        packed = self._compressor.compress(data)
+        if spec["predict"] == "particle" and q.size:
+            width = _width_for(int(q.max()))
+            plain = self._compressor.compress(_planes(q, width))
+            if len(plain) <= len(packed):
+                spec, packed = {"predict": "none", "width": width}, plain
         quantised = {"coding": "quantized", "step": step, "bounds": [lo.tolist(), hi.tolist()]}
-        return {**quantised, **spec}, data, q, step, by_frame
+        return {**quantised, **spec}, packed, q, step, by_frame
 
     def _predicted(
         self, name: str, q: np.ndarray, step: float, same_order: bool
