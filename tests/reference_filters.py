@@ -339,12 +339,13 @@ class Crease:
         self.crease = False
 
     def met(self, k: float, za: float, zb: float, zc: float, on_surface: bool) -> bool:
-        # in float32, as the shader: a turn within float64's rounding of the limit must not
-        # flip the test between the two
+        # in float32 and in the shader's form (|da - db| step > tan(L) (step^2 + da db): the
+        # chords' turn passes L), so that a turn within rounding of L flips neither alone
         f = np.float32
         step = f(k) * f(zc) / f(self.px_per_unit)
-        turn = abs(np.arctan((f(za) - f(zc)) / step) - np.arctan((f(zc) - f(zb)) / step))
-        if on_surface and turn > f(self.limit):
+        da, db = f(za) - f(zc), f(zc) - f(zb)
+        excess = abs(da - db) * step - f(math.tan(self.limit)) * (step * step + da * db)
+        if on_surface and excess > 0.0:
             self.run_start = k if self.run_start is None else self.run_start
             self.crease = self.crease or k - self.run_start >= self.radius_px
         else:

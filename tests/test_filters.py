@@ -87,10 +87,11 @@ def assert_matches_reference(
     assert np.array_equal(gpu > 0, depth > 0), "background must stay background, surface surface"
     error = np.abs(gpu - reference)
     if quality.filter == "narrow_range" and quality.separable and quality.crease_angle > 0.0:
-        # The crease test is a hard limit on a float32 atan: a chord within the GPU's rounding
-        # of it flips the test at one far tap (on the 72 x 90 image: 1 pixel at 30 and 45 deg,
-        # none at 29 and 31; 5e-4), and the later passes carry it to a few neighbours (up to
-        # 11 pixels measured, up to 0.11 r). At most 1 pixel in 200, each within 0.25 r.
+        # The crease test is a hard limit on float32 products: a chord pair within the GPU's
+        # rounding of it flips the test at one far tap (on the 72 x 90 image, with an atan
+        # form of the test: 1 pixel at 30 and 45 deg, none at 29 and 31), and the later passes
+        # carry it to a few neighbours (up to 11 pixels, 0.11 r). At most 1 pixel in 200,
+        # each within 0.25 r.
         flipped = error > TOLERANCE
         assert flipped.sum() <= max(1, error.size // 200), f"{flipped.sum()} pixels differ"
         assert error.max() <= 0.25 * RADIUS, f"max |gpu - numpy| = {error.max():.3g}"

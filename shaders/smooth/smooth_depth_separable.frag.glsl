@@ -38,7 +38,7 @@ uniform float u_sigma_scale;
 // The narrow range's pair limit (quality.narrow_range_pairs x r, scene units) on this pass;
 // 3e38 where it is off (passes/smooth.py: always on the first pass).
 uniform float u_nr_pair_limit;
-// The crease test's turn limit on this pass (quality.crease_angle, radians; 3e38 where off).
+// The crease test's turn limit on this pass: tan(quality.crease_angle); negative: off.
 uniform float u_crease_limit;
 
 layout(location = 0) out vec4 out_packed_depth;
@@ -81,7 +81,7 @@ bvec4 pair_test(vec4 za, vec4 zb) {
 #if CREASE_TEST
 // A crease (two flat faces meeting at an edge) turns the surface by a large angle within the
 // kernel, a sphere of radius R by the kernel's length over R only. Where the chords from the
-// centre to the pair's two taps turn by more than u_crease_limit for a projected radius of taps
+// centre to the pair's two taps turn by more than crease_angle for a projected radius of taps
 // in a row (the relief between particles turns them for a tap or two), no further tap is taken:
 // the faces are not averaged across the edge. Taps off the centre's surface never count.
 // Called once per pair, in order from the centre outwards.
@@ -89,9 +89,15 @@ bvec4 crease_met(vec4 za, vec4 zb, float k) {
     // within the narrow range's band: neither behind it (dropped) nor in front (clamped)
     bvec4 on_surface = both(both(greaterThanEqual(za, g_lower), lessThanEqual(za, g_upper)),
                             both(greaterThanEqual(zb, g_lower), lessThanEqual(zb, g_upper)));
+    // the chords' slopes da / step, db / step turn by more than L where
+    // |da - db| step > tan(L) (step^2 + da db): tan of their angle's difference, without atan
+    // (and always where step^2 + da db <= 0: a turn of 90 degrees or more)
     vec4 step = k * g_center / u_px_per_unit;  // the taps' lateral offset, scene units
-    vec4 turn = abs(atan((za - g_center) / step) - atan((g_center - zb) / step));
-    bvec4 over = both(on_surface, greaterThan(turn, vec4(u_crease_limit)));
+    vec4 da = za - g_center;
+    vec4 db = g_center - zb;
+    vec4 turn_excess = abs(da - db) * step - u_crease_limit * (step * step + da * db);
+    bvec4 over = both(on_surface, greaterThan(turn_excess, vec4(0.0)));
+    over = both(over, bvec4(u_crease_limit >= 0.0));
     vec4 started = mix(g_run_start, vec4(k), lessThan(g_run_start, vec4(0.0)));
     g_run_start = mix(vec4(-1.0), started, over);
     g_crease = either(g_crease, both(over, greaterThanEqual(vec4(k) - g_run_start, g_radius_px)));

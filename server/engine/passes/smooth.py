@@ -262,14 +262,18 @@ def pair_limits_per_pass(count: int, quality: QualityConfig, particle_radius: fl
     return [PAIR_TEST_OFF] + [limit] * (count - 1)
 
 
+#: The crease limit's "off" on a pass of a program that has the test.
+CREASE_TEST_OFF = -1.0
+
+
 def crease_limits_per_pass(count: int, quality: QualityConfig) -> list[float]:
-    """quality.crease_angle per 1-D pass in radians: off on the first pass, whose raw splat
+    """tan(quality.crease_angle) per 1-D pass: off on the first pass, whose raw splat
     turns by tens of degrees between particles over runs longer than a radius where a lattice
     is seen obliquely (a ball's stair-stepped shell would keep its ripple), and everywhere when
     the setting is 0."""
     if quality.crease_angle <= 0.0:
-        return [PAIR_TEST_OFF] * count
-    return [PAIR_TEST_OFF] + [math.radians(quality.crease_angle)] * (count - 1)
+        return [CREASE_TEST_OFF] * count
+    return [CREASE_TEST_OFF] + [math.tan(math.radians(quality.crease_angle))] * (count - 1)
 
 
 class _FilterUniforms:
