@@ -161,10 +161,11 @@ def _pass(
     box: bool = False,
     scale: float = 1.0,
     pair_limit: float | None = None,
+    crease_limit: float | None = None,
 ) -> F32:
     """One filter pass. `directions` = [(dx, dy)] for a 1-D pass, None for the 2-D kernel;
     `scale` multiplies a 1-D pass's sigma; `pair_limit` (scene units): the narrow range's pair
-    test on this pass (None: off).
+    test on this pass (None: off); `crease_limit` (radians): its crease test (None: off).
     Offsets are (x, y) in image coordinates with y pointing *up* (GL), rows stored top first."""
     h, w = depth.shape
     out = np.zeros_like(depth)
@@ -188,8 +189,11 @@ def _pass(
                 return 1.0 if box else math.exp(-(off[0] ** 2 + off[1] ** 2) * inv2s2)
 
             if q.filter == "narrow_range":
+                crease = None
+                if crease_limit is not None:
+                    crease = Crease(crease_limit, px_per_unit, radius * px_per_unit / zc)
                 out[row, col] = _narrow_range(
-                    depth, row, col, directions, reach, taps, spatial, radius, q, pair_limit
+                    depth, row, col, directions, reach, taps, spatial, radius, q, pair_limit, crease
                 )
                 continue
             out[row, col] = _gaussian_or_bilateral(
@@ -261,6 +265,7 @@ def _narrow_range(
     radius: float,
     q: QualityConfig,
     pair_limit: float | None = None,
+    crease: Crease | None = None,
 ) -> float:
     """Truong & Yuksel's narrow range at one pixel: a sample behind the centre by more than
     lambda r drops its mirror too, one in front by more is clamped to z - mu r, the range grows
@@ -269,7 +274,9 @@ def _narrow_range(
     intercept at the pixel of the weighted line (1-D) or plane (2-D) fit through the inverse
     depths taken, kept within those the kernel can have taken. With `pair_limit`, a pair
     with both sides inside the image whose midpoint in inverse depth departs from the centre's
-    by more than it (as a depth, times zc^2) is dropped (quality.narrow_range_pairs)."""
+    by more than it (as a depth, times zc^2) is dropped (quality.narrow_range_pairs). With
+    `crease` (1-D): no pair is taken past the point where the chords to a pair of surface taps
+    have turned by more than its limit for a projected radius of offsets (quality.crease_angle)."""
     h, w = depth.shape
     zc = float(depth[row, col])
     thr = q.narrow_range_threshold * radius
@@ -297,6 +304,9 @@ def _narrow_range(
             if pair_limit is not None and use_a and use_b:
                 mid = (0.5 * (1.0 / za + 1.0 / zb) - 1.0 / zc) * zc * zc
                 use_a = use_b = abs(mid) <= pair_limit
+            band = lower <= za <= upper and lower <= zb <= upper  # neither dropped nor clamped
+            if crease is not None and crease.met(k, za, zb, zc, band):
+                use_a = use_b = False
             for z, use, o in ((za, use_a, off), (zb, use_b, mirror)):
                 if not use:
                     continue
@@ -317,6 +327,30 @@ def _narrow_range(
     nearest = min(lower, lower_clamp)
     u_max = 1.0 / nearest if nearest > 0.0 else math.inf
     return 1.0 / min(max(fit, 1.0 / upper), u_max)
+
+
+class Crease:
+    """The crease test's state along one pixel's 1-D kernel (smooth_depth_separable.frag.glsl,
+    crease_met): sticky once met."""
+
+    def __init__(self, limit: float, px_per_unit: float, radius_px: float) -> None:
+        self.limit, self.px_per_unit, self.radius_px = limit, px_per_unit, radius_px
+        self.run_start: float | None = None
+        self.crease = False
+
+    def met(self, k: float, za: float, zb: float, zc: float, on_surface: bool) -> bool:
+        # in float32 and in the shader's form (|da - db| step > tan(L) (step^2 + da db): the
+        # chords' turn passes L), so that a turn within rounding of L flips neither alone
+        f = np.float32
+        step = f(k) * f(zc) / f(self.px_per_unit)
+        da, db = f(za) - f(zc), f(zc) - f(zb)
+        excess = abs(da - db) * step - f(math.tan(self.limit)) * (step * step + da * db)
+        if on_surface and excess > 0.0:
+            self.run_start = k if self.run_start is None else self.run_start
+            self.crease = self.crease or k - self.run_start >= self.radius_px
+        else:
+            self.run_start = None
+        return self.crease
 
 
 def _fit_intercept(
@@ -354,9 +388,14 @@ def filter_depth(
             image = _pass(image, None, radius, px_per_unit, q, box)
         return image
     limit = q.narrow_range_pairs * radius if q.narrow_range_pairs > 0.0 else None
+    crease = math.radians(q.crease_angle) if q.crease_angle > 0.0 else None
     for index, (direction, scale) in enumerate(_separable_passes(q)):
-        pair_limit = limit if index > 0 else None  # never on the first pass (the raw splat)
-        image = _pass(image, [direction], radius, px_per_unit, q, box, scale, pair_limit)
+        # neither test on the first pass (the raw splat)
+        pair_limit = limit if index > 0 else None
+        crease_limit = crease if index > 0 else None
+        image = _pass(
+            image, [direction], radius, px_per_unit, q, box, scale, pair_limit, crease_limit
+        )
     return image
 
 

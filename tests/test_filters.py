@@ -86,6 +86,16 @@ def assert_matches_reference(
     assert not ambiguous.any(), "pick a synthetic image whose kernel reaches are unambiguous"
     assert np.array_equal(gpu > 0, depth > 0), "background must stay background, surface surface"
     error = np.abs(gpu - reference)
+    if quality.filter == "narrow_range" and quality.separable and quality.crease_angle > 0.0:
+        # The crease test is a hard limit on float32 products: a chord pair within the GPU's
+        # rounding of it flips the test at one far tap (on the 72 x 90 image, with an atan
+        # form of the test: 1 pixel at 30 and 45 deg, none at 29 and 31), and the later passes
+        # carry it to a few neighbours (up to 11 pixels, 0.11 r). At most 1 pixel in 200,
+        # each within 0.25 r.
+        flipped = error > TOLERANCE
+        assert flipped.sum() <= max(1, error.size // 200), f"{flipped.sum()} pixels differ"
+        assert error.max() <= 0.25 * RADIUS, f"max |gpu - numpy| = {error.max():.3g}"
+        error = np.where(flipped, 0.0, error)
     assert error.max() <= TOLERANCE, f"max |gpu - numpy| = {error.max():.3g}"
 
     # The comparison is sharp enough to catch the classic porting bug: spatial weights that
@@ -277,7 +287,8 @@ def test_pair_test_keeps_a_filament_in_front_of_a_surface_and_leaves_the_slope(
     plane's noise is smoothed the same with and without (the slope's pairs never depart;
     1e-4 r)."""
     depth = filament_on_a_slope()
-    on = QualityConfig(filter="narrow_range", iterations=2, narrow_range_pairs=4.0)
+    # the pair test alone (the crease test would stop kernels at the filament's sides too)
+    on = QualityConfig(filter="narrow_range", iterations=2, narrow_range_pairs=4.0, crease_angle=0)
     off = replace(on, narrow_range_pairs=0.0)
     results = {}
     for name, quality in (("on", on), ("off", off)):
@@ -380,3 +391,40 @@ def test_temperature_border_variant_gives_the_same_bits_inside(
         temperature, "packed_border_split", lambda size, axis, _: everywhere(size, axis, 10**6)
     )
     assert np.array_equal(run(), split)
+
+
+def ridge(height: int = 30, width: int = 40) -> tuple[np.ndarray, np.ndarray]:
+    """Two planes meeting at a ridge along x (row 14.5) nearest the eye, each turned 37.6 deg
+    from the image plane (depth slope 0.77 r per pixel, r_px = 1.3 at z = 2: a 75 deg crease),
+    with particle-scale noise of +-0.3 r: (the true depth, the noisy one)."""
+    rng = np.random.default_rng(11)
+    y = np.mgrid[0:height, 0:width][0].astype(np.float64)
+    plane = 2.0 + 0.77 * RADIUS * np.abs(y - 14.5)
+    noisy = plane + rng.uniform(-0.3, 0.3, y.shape) * RADIUS
+    return plane.astype(np.float32), noisy.astype(np.float32)
+
+
+def test_crease_test_keeps_a_ridge_and_smooths_the_faces(renderer: SurfaceRenderer) -> None:
+    """quality.crease_angle: the kernels across the ridge stop where the chords turn by more
+    than 30 deg, so the rows within 3 px of it keep nearer their true depth: 0.80 r mean
+    error with the test, 1.26 r without (measured; bound 0.8x, between 0.64x and 1). Far from
+    it (8 px on) the faces' noise is smoothed as without the test: no chord turns there but
+    the noise's, over runs shorter than a projected radius (0.02-0.03 r both; bound +0.01 r).
+    Both match the numpy reference."""
+    truth, depth = ridge()
+    on = QualityConfig(filter="narrow_range", iterations=2, crease_angle=30.0)
+    off = replace(on, crease_angle=0.0)
+    errors = {}
+    for name, quality in (("on", on), ("off", off)):
+        assert_matches_reference(renderer, depth, PX_PER_UNIT, quality, box_check=False)
+        smoothed = SinglePasses(renderer).filter_depth_image(
+            depth,
+            particle_radius=RADIUS,
+            px_per_unit=PX_PER_UNIT,
+            quality=replace(quality, close_gaps=0.0),
+        )
+        errors[name] = np.abs(smoothed - truth)[:, 8:32] / RADIUS  # clear of the image's ends
+    near = slice(12, 18)
+    faces = np.r_[0:7, 23:30]
+    assert errors["on"][near].mean() < 0.8 * errors["off"][near].mean()
+    assert errors["on"][faces].mean() <= errors["off"][faces].mean() + 0.01

@@ -403,11 +403,15 @@ def test_last_pass_sigma_and_destreak_make_a_spheres_rim_isotropic_again(
     amplitude goes with the last pass's sigma squared: at the default 0.7 the excess over the
     sphere's ratio should be about half, bound at 70 % (measured 1.25: 56 %); the light column
     pass on top: 0.99 (0.95-1.01 on balls of 4k-30k at 320x240-640x480 over equal passes: the
-    bound 0.1). The band's error against the sphere: 6.84, 6.65, 6.56 deg."""
+    bound 0.1). The band's error against the sphere: 6.84, 6.65, 6.56 deg. The crease test is
+    off here: it stops kernels where the rim's beads turn the chords, per row, which adds
+    streaks of its own (1.54 at the default 0.7 with it on) that these options do not target."""
     ball = ball_scene(4000)
     camera = {key: ball.camera[key] for key in ("eye", "target", "fov_y")}
     errors, ratios, true_ratios = [], [], []
+    no_crease = {"crease_angle": 0.0}
     for quality in ({"last_pass_sigma": 1.0}, {}, {"destreak": 0.25}):
+        quality = {**quality, **no_crease}
         scene = make_scene(
             320, 240, camera=camera, particles={"radius": ball.radius}, quality=quality
         )

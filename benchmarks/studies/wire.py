@@ -281,7 +281,18 @@ def image_change(frames: list[Frame], radius: float, camera: dict[str, Any],
                  fractions: tuple[float, ...], size: tuple[int, int] = (256, 160),
                  ) -> list[tuple[float, float, float, float, float]]:  # fmt: skip
     """(fraction, normal change mean°, p99°, coverage change mean, pixels whose coverage
-    changed by > 1/255) of the decoded frame against the float32 input, rendered (balanced)."""
+    changed by > 1/255) of the decoded frame against the float32 input, rendered (balanced).
+    Renders on a thread of its own: the caller's thread may own a GL context already (a full
+    `sphrender bench` run holds one), and a thread owns at most one."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(1) as pool:
+        return pool.submit(_image_change, frames, radius, camera, fractions, size).result()
+
+
+def _image_change(frames: list[Frame], radius: float, camera: dict[str, Any],
+                  fractions: tuple[float, ...], size: tuple[int, int],
+                  ) -> list[tuple[float, float, float, float, float]]:  # fmt: skip
     from sphrender.server.bench.surface_quality import flicker_deg
     from sphrender.server.engine.gpu.gl_context import GLContext
     from sphrender.server.engine.renderer import SurfaceRenderer

@@ -163,6 +163,15 @@ class QualityConfig:
         low=0.0,
         unit="particle radii",
     )
+    crease_angle: float = spec(
+        30.0,
+        "separable narrow_range, from the second pass on: a kernel stops where the surface turns "
+        "by more than this across it for a projected radius of taps, so faces stay flat up to a "
+        "fluid body's edge or a container wall. 0: off. Presets: fast 0, balanced 30, best 30",
+        low=0.0,
+        high=90.0,
+        unit="degrees",
+    )
     normal_stencil: float = spec(
         1.0,
         "normals from a central difference over +-this many projected radii (1 px to "

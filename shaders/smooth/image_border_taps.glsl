@@ -51,7 +51,12 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     bvec4 use_a = both(both(in_reach, not(out_a)), both(valid_a, either(valid_b, out_b)));
     bvec4 use_b = both(both(in_reach, not(out_b)), both(valid_b, either(valid_a, out_a)));
     // the pair test where both taps lie inside the image (a side alone has no midpoint)
-    bvec4 kept = either(pair_kept(za, zb), either(out_a, out_b));
+    bvec4 kept = either(pair_test(za, zb), either(out_a, out_b));
+#if CREASE_TEST
+    // past a crease no tap is taken, one-sided or not; a tap past the end is no surface to it
+    bvec4 creased = crease_met(mix(za, vec4(0.0), out_a), mix(zb, vec4(0.0), out_b), kf);
+    kept = both(kept, not(creased));
+#endif
     use_a = both(use_a, kept);
     use_b = both(use_b, kept);
     za = narrow_range_sample(za, use_a);

@@ -21,6 +21,8 @@
 // kernel_max_px of them): there the kernel goes on one-sided and fits a line
 // (image_border_taps.glsl); the same result as 0 wherever no kernel reaches that far.
 #define IMAGE_BORDER 0
+// 1: the narrow range's crease test (quality.crease_angle) is compiled in.
+#define CREASE_TEST 0
 
 // The depth is its own guide (common/packed_taps.glsl).
 #define PACKED_VALUE 0
@@ -36,6 +38,8 @@ uniform float u_sigma_scale;
 // The narrow range's pair limit (quality.narrow_range_pairs x r, scene units) on this pass;
 // 3e38 where it is off (passes/smooth.py: always on the first pass).
 uniform float u_nr_pair_limit;
+// The crease test's turn limit on this pass: tan(quality.crease_angle); negative: off.
+uniform float u_crease_limit;
 
 layout(location = 0) out vec4 out_packed_depth;
 
@@ -48,6 +52,11 @@ vec4 g_weight_sum;
 vec4 g_upper;
 vec4 g_lower;
 vec4 g_lower_clamp;
+#if CREASE_TEST
+vec4 g_run_start;      // offset where the current run of turning pairs began; -1: none
+bvec4 g_crease;        // the kernel met a crease: no tap further out is taken
+vec4 g_radius_px;      // the projected particle radius, per lane
+#endif
 #endif
 
 #if FILTER == FILTER_NARROW_RANGE
@@ -65,9 +74,44 @@ vec4 inverse_depth(vec4 z) {
 // any slope and kernel length); a pair whose taps both lie on a surface h behind (a blob
 // narrower than the kernel, in front of a pool) departs by about h, a pair across one step
 // of h by h / 2.
-bvec4 pair_kept(vec4 za, vec4 zb) {
+bvec4 pair_test(vec4 za, vec4 zb) {
     vec4 mid = 0.5 * (inverse_depth(za) + inverse_depth(zb)) - inverse_depth(g_center);
     return lessThanEqual(abs(mid) * g_center * g_center, vec4(u_nr_pair_limit));
+}
+#if CREASE_TEST
+// A crease (two flat faces meeting at an edge) turns the surface by a large angle within the
+// kernel, a sphere of radius R by the kernel's length over R only. Where the chords from the
+// centre to the pair's two taps turn by more than crease_angle for a projected radius of taps
+// in a row (the relief between particles turns them for a tap or two), no further tap is taken:
+// the faces are not averaged across the edge. Taps off the centre's surface never count.
+// Called once per pair, in order from the centre outwards.
+bvec4 crease_met(vec4 za, vec4 zb, float k) {
+    // within the narrow range's band: neither behind it (dropped) nor in front (clamped)
+    bvec4 on_surface = both(both(greaterThanEqual(za, g_lower), lessThanEqual(za, g_upper)),
+                            both(greaterThanEqual(zb, g_lower), lessThanEqual(zb, g_upper)));
+    // the chords' slopes da / step, db / step turn by more than L where
+    // |da - db| step > tan(L) (step^2 + da db): tan of their angle's difference, without atan
+    // (and always where step^2 + da db <= 0: a turn of 90 degrees or more)
+    vec4 step = k * g_center / u_px_per_unit;  // the taps' lateral offset, scene units
+    vec4 da = za - g_center;
+    vec4 db = g_center - zb;
+    vec4 turn_excess = abs(da - db) * step - u_crease_limit * (step * step + da * db);
+    bvec4 over = both(on_surface, greaterThan(turn_excess, vec4(0.0)));
+    over = both(over, bvec4(u_crease_limit >= 0.0));
+    vec4 started = mix(g_run_start, vec4(k), lessThan(g_run_start, vec4(0.0)));
+    g_run_start = mix(vec4(-1.0), started, over);
+    g_crease = either(g_crease, both(over, greaterThanEqual(vec4(k) - g_run_start, g_radius_px)));
+    return g_crease;
+}
+#endif
+
+// pair_test and the crease test together: whether the pair at +-k is taken.
+bvec4 pair_kept(vec4 za, vec4 zb, float k) {
+#if CREASE_TEST
+    return both(pair_test(za, zb), not(crease_met(za, zb, k)));
+#else
+    return pair_test(za, zb);
+#endif
 }
 
 // One sample `z` of the narrow range: clamped to z_centre - mu r when in front by more than
@@ -123,7 +167,7 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     // clamped to z - mu*r; the accepted range grows around every accepted sample.
     bvec4 valid_a = both(greaterThan(za, vec4(0.0)), lessThanEqual(za, g_upper));
     bvec4 valid_b = both(greaterThan(zb, vec4(0.0)), lessThanEqual(zb, g_upper));
-    bvec4 accept = both(both(in_reach, both(valid_a, valid_b)), pair_kept(za, zb));
+    bvec4 accept = both(both(in_reach, both(valid_a, valid_b)), pair_kept(za, zb, float(k)));
     za = narrow_range_sample(za, accept);
     zb = narrow_range_sample(zb, accept);
     g_sum += mix(vec4(0.0), w * (inverse_depth(za) + inverse_depth(zb)), accept);
@@ -202,6 +246,11 @@ void main() {
     g_upper = zc + u_nr_threshold;
     g_lower = zc - u_nr_threshold;
     g_lower_clamp = zc - u_nr_clamp;
+#if CREASE_TEST
+    g_run_start = vec4(-1.0);
+    g_crease = bvec4(false);
+    g_radius_px = u_particle_radius * u_px_per_unit / z;
+#endif
 #endif
     int radius = int(max(max(g_reach.x, g_reach.y), max(g_reach.z, g_reach.w)));
 

@@ -151,6 +151,7 @@ class SmoothPass:
         depth.use(0)
         packed[0].fbo.use()
         draw(pack)
+        defines = {**defines, "CREASE_TEST": int(quality.crease_angle > 0.0)}
         draws = {
             axis: self._axis_draws(defines, uniforms, axis, depth.size, packed_scissor, margin_px)
             for axis in (0, 1)
@@ -158,12 +159,16 @@ class SmoothPass:
         read_index = 0
         passes = separable_passes(quality.iterations, quality.last_pass_sigma, quality.destreak)
         pair_limits = pair_limits_per_pass(len(passes), quality, uniforms.particle_radius)
-        for (axis, sigma_scale), pair_limit in zip(passes, pair_limits, strict=True):
+        crease_limits = crease_limits_per_pass(len(passes), quality)
+        for (axis, sigma_scale), pair_limit, crease_limit in zip(
+            passes, pair_limits, crease_limits, strict=True
+        ):
             packed[read_index].texture.use(0)
             fbo = packed[1 - read_index].fbo
             for program, scissor in draws[axis]:
                 set_if_used(program, "u_sigma_scale", sigma_scale)
                 set_if_used(program, "u_nr_pair_limit", pair_limit)
+                set_if_used(program, "u_crease_limit", crease_limit)
                 set_scissor(fbo, scissor)
                 fbo.use()
                 draw(program)
@@ -255,6 +260,20 @@ def pair_limits_per_pass(count: int, quality: QualityConfig, particle_radius: fl
     if limit <= 0.0:
         return [PAIR_TEST_OFF] * count
     return [PAIR_TEST_OFF] + [limit] * (count - 1)
+
+
+#: The crease limit's "off" on a pass of a program that has the test.
+CREASE_TEST_OFF = -1.0
+
+
+def crease_limits_per_pass(count: int, quality: QualityConfig) -> list[float]:
+    """tan(quality.crease_angle) per 1-D pass: off on the first pass, whose raw splat
+    turns by tens of degrees between particles over runs longer than a radius where a lattice
+    is seen obliquely (a ball's stair-stepped shell would keep its ripple), and everywhere when
+    the setting is 0."""
+    if quality.crease_angle <= 0.0:
+        return [CREASE_TEST_OFF] * count
+    return [CREASE_TEST_OFF] + [math.tan(math.radians(quality.crease_angle))] * (count - 1)
 
 
 class _FilterUniforms:
