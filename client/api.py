@@ -388,7 +388,8 @@ class StreamSession:
         self._socket.sendall(encode_message(MessageType.BYE, {}))
 
     def abort(self) -> None:
-        """Close the connection now, without BYE; a thread blocked reading it wakes up."""
+        """Close the connection now, without BYE (a blocked reader wakes): reason "aborted"."""
+        self.closed_reason = self.closed_reason or "aborted"
         with contextlib.suppress(OSError):
             self._socket.shutdown(socket.SHUT_RDWR)
         self._socket.close()

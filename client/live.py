@@ -286,12 +286,12 @@ class LiveSession:
             try:
                 self._session.send(frame.positions, frame_id=frame.id, **frame.arrays)
             except OSError as exc:
-                self._end(exc, "disconnected")
+                self._broken(exc)
                 return
         try:
             self._session.bye()
         except OSError as exc:
-            self._end(exc, "disconnected")
+            self._broken(exc)
 
     def _read_loop(self) -> None:
         """Answers from the socket to their frames, until GOODBYE or the connection ends."""
@@ -302,11 +302,7 @@ class LiveSession:
                 self._end(exc, "disconnected")
                 break
             except (OSError, ProtocolError) as exc:
-                reason = self._session.closed_reason
-                if self._closing and reason in ("bye", None):
-                    self._end(None, "closed")
-                else:
-                    self._end(SessionEnded(reason) if reason else exc, "disconnected")
+                self._broken(exc)
                 break
             with self._lock:
                 self._sent.pop(result.id, None)
@@ -314,12 +310,19 @@ class LiveSession:
             self._results.put(result)
         self._session.close()
 
+    def _broken(self, exc: BaseException) -> None:
+        """The connection failed: `close` ended it (BYE answered, or aborted after its
+        timeout), or the server did (a GOODBYE's reason, or it went away), even mid-close."""
+        reason = self._session.closed_reason
+        if reason == "aborted" or (self._closing and reason == "bye"):
+            self._end(None, "closed")
+        else:
+            self._end(SessionEnded(reason) if reason else exc, "disconnected")
+
     def _end(self, error: BaseException | None, reason: str) -> None:
         """Report every frame without an answer dropped (`reason`), once; keep `error`."""
         with self._lock:
-            if self._closing:
-                reason = "closed"  # whatever broke the connection, `close` did it
-            if error is not None and self.error is None and not self._closing:
+            if error is not None and self.error is None:
                 self.error = error
             else:
                 error = None
