@@ -6,7 +6,7 @@
 // Atlas: x = i_nv + NV * i_phi, y = i_t + ROUGH * i_b; the owner (lighting/anisotropic_lut.py)
 // reads it back into a 3-D texture (nv, phi, t + ROUGH b). Half vectors ~ D(h) (n.h) by the
 // stretched sampling map, integrated with Gauss-Legendre nodes in s times the midpoint rule in
-// t (32 x 32 points: <= 0.2 % against a hemisphere quadrature, benchmarks/STUDIES.md).
+// t (32 x 32 points; against a hemisphere quadrature: benchmarks/STUDIES.md).
 
 #include "common/brdf.glsl"
 #include "common/sampling.glsl"

@@ -1,15 +1,14 @@
 """The anisotropic GGX lobe's split-sum table: the directional albedo's scale and bias (A, B)
 for F0, as the isotropic BRDF table (`ibl.py`) but over (sqrt(n.v), the view's azimuth from the
 brush folded to [0, pi/2] at cosine spacing, sqrt(alpha_t), sqrt(alpha_b)), so the prefiltered
-IBL and the multiple-scattering compensation follow the brushed lobe's albedo (the isotropic
-table at any single roughness misses it by up to 19 % at grazing views).
+IBL and the multiple-scattering compensation follow the brushed lobe's albedo, which the
+isotropic table at any single roughness cannot.
 
 `lighting/anisotropic_lut.frag.glsl` integrates every entry into a 2-D atlas, read back once
-into an RG16F 3-D texture (32 x 24 x 16^2 = 768 KB); `lighting/anisotropic_albedo.glsl` reads it
+into an RG16F 3-D texture (32 x 24 x 16^2); `lighting/anisotropic_albedo.glsl` reads it
 (hardware trilinear over the first three axes, two fetches over the fourth). Built on first use
-per G term (1.8 s on llvmpipe) and kept by `AnisotropicLut`, owned by the shade pass on the GL
-owner thread. Shaded albedo within 0.9 % of numpy's for n.v >= 0.05 over the lobes measured
-(benchmarks/STUDIES.md); the error grows below that, next to the horizon.
+per G term and kept by `AnisotropicLut`, owned by the shade pass on the GL owner thread. Its
+accuracy and cost: benchmarks/STUDIES.md; it is least accurate next to the horizon.
 """
 
 from __future__ import annotations
