@@ -51,7 +51,7 @@ SWEEP: tuple[Setting, ...] = (
     preset_setting("best"),
     Setting("filter none", {"quality": {"filter": "none"}}),
     Setting("no occlusion culling", {"quality": {"occlusion_culling": False}}),
-    Setting("balanced, no crease test", {"quality": {"crease_angle": 0.0}}),
+    Setting("balanced + crease test 30°", {"quality": {"crease_angle": 30.0}}),
     Setting("narrow_range 3 iter", {"quality": {"iterations": 3}}),
     Setting("narrow_range k=1", {"quality": {"kernel_scale": 1.0}}),
     Setting("narrow_range k=1.5", {"quality": {"kernel_scale": 1.5}}),

@@ -164,10 +164,10 @@ class QualityConfig:
         unit="particle radii",
     )
     crease_angle: float = spec(
-        30.0,
-        "separable narrow_range, from the second pass on: a kernel stops where the surface turns "
-        "by more than this across it for a projected radius of taps, so faces stay flat up to a "
-        "fluid body's edge or a container wall. 0: off. Presets: fast 0, balanced 30, best 30",
+        0.0,
+        "separable narrow_range: a kernel stops where the surface turns by more than this over "
+        "a projected radius of taps, keeping faces flat up to an edge; 0: off. No preset sets "
+        "it; about 30 for box-like fluid bodies or fluid in a container (streaks rippled beads)",
         low=0.0,
         high=90.0,
         unit="degrees",
