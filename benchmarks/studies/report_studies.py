@@ -9,10 +9,14 @@ the brushed plate's finish costs and crop, and the cost and error of glare and m
 
 from __future__ import annotations
 
+import tempfile
+from pathlib import Path
+
 from benchmarks.studies import heat_report
 from benchmarks.studies.brushed_plate import measure as measure_brushed_plate
 from benchmarks.studies.brushed_plate import section as brushed_plate_section
 from benchmarks.studies.brushed_plate import write_crop as write_brushed_plate_crop
+from benchmarks.studies.brushed_plate import write_marks
 from benchmarks.studies.closeup_crop import BALANCED_DESTREAK, EQUAL_PASSES, write_closeup_crop
 from benchmarks.studies.dam_frames import (
     dam_frame_counts,
@@ -33,6 +37,7 @@ from sphrender.server.bench.surface_bench import (
     write_crops,
 )
 from sphrender.server.bench.sweep import preset_setting
+from sphrender.server.engine.renderer import SurfaceRenderer
 
 #: The report's first paragraph: how to regenerate it.
 COMMAND = (
@@ -62,9 +67,7 @@ def run_studies(ctx: StudyContext) -> None:
         results.extra_sections += [*jitter_readings_section(readings), ""]
     log("shadows: cost per light and error against the truth")
     results.extra_sections += shadows_section(ctx.renderer, log=log)
-    log("brushed plate: what the finish costs")
-    results.extra_sections += brushed_plate_section(measure_brushed_plate(ctx.renderer, log=log))
-    write_brushed_plate_crop(ctx.renderer, ctx.out)
+    _brushed_plate(ctx)
     log("glare and motion blur: cost and error")
     results.extra_sections += [*run_post_effects(ctx.renderer, ctx.width, ctx.height), ""]
     log("heat tint: cost; the demo's crop")
@@ -90,6 +93,21 @@ def run_studies(ctx: StudyContext) -> None:
         (balanced, BALANCED_DESTREAK, "crop-closeup-destreak-dambreak.png"),
     ):
         write_closeup_crop(ctx.renderer, ctx.out, surfaces, before=before, after=after, name=name)
+
+
+def _brushed_plate(ctx: StudyContext) -> None:
+    """The finish's costs and crop, on a renderer that may read the image detail's height map
+    (written into a temporary asset directory, as `sphrender render --env-dir` would name it)."""
+    ctx.log("brushed plate: what the finish costs")
+    with tempfile.TemporaryDirectory() as assets:
+        write_marks(Path(assets))
+        renderer = SurfaceRenderer(ctx.gl, environment_dirs=[assets])
+        try:
+            rows = measure_brushed_plate(renderer, log=ctx.log)
+            ctx.results.extra_sections += brushed_plate_section(rows)
+            write_brushed_plate_crop(renderer, ctx.out)
+        finally:
+            renderer.release()
 
 
 def _dam_frames(ctx: StudyContext) -> None:
