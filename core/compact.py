@@ -425,7 +425,7 @@ def _predicted(
         return stored
     residual = _unzigzag(stored)
     if slot.predict == "particle":
-        return _prefix_sum(residual)
+        return _prefix_sum(residual, (int(stored.max()) + 1) // 2 if stored.size else 0)
     base = base_q.get(slot.name)
     if base is None or base.shape != residual.shape:
         have = "none" if base is None else f"{base.shape[1]} particles"
@@ -442,11 +442,14 @@ def _predicted(
     return moved
 
 
-def _prefix_sum(residual: np.ndarray) -> np.ndarray:
-    """Running sums of signed residuals (c, n) along the particles, in int64. Every sum up to
-    the first one outside the bounds is exact (a value below 2^52 plus one residual), and that
-    one is refused by `_check_range`; wider residuals wrap as the encoder's integers would."""
-    return np.cumsum(residual, axis=1, dtype=np.int64)
+def _prefix_sum(residual: np.ndarray, largest: int | None = None) -> np.ndarray:
+    """Running sums of signed residuals (c, n) along the particles: in int32 when `largest`
+    (a bound on |residual|) times n stays below 2^31, so no sum can wrap; else in int64, where
+    every sum up to the first one outside the bounds is exact (a value below 2^52 plus one
+    residual) and `_check_range` refuses that one; 8-byte residuals wrap as the encoder's
+    integers would."""
+    narrow = largest is not None and residual.shape[1] * largest < 2**31
+    return np.cumsum(residual, axis=1, dtype=np.int32 if narrow else np.int64)
 
 
 def _check_range(slot: CompactSlot, index: int, q: np.ndarray) -> None:
