@@ -420,7 +420,7 @@ def _predicted(
 ) -> np.ndarray:
     """The quantised integers (c, n): as stored (``none``) or int64."""
     if slot.predict == "none":
-        if stored.size and int(stored.max()) >= MAX_Q:
+        if slot.width == 8 and stored.size and int(stored.max()) >= MAX_Q:  # narrower fit
             raise InputError(f"arrays[{index}]", "holds a value beyond 2^52")
         return stored
     residual = _unzigzag(stored)
@@ -459,7 +459,7 @@ def _check_range(slot: CompactSlot, index: int, q: np.ndarray) -> None:
     for c in range(slot.components):
         top = math.floor((slot.hi[c] - slot.lo[c]) / slot.step) + 1
         row = q[c]
-        if row.min() >= 0 and row.max() <= top:
+        if (row.dtype.kind == "u" or row.min() >= 0) and row.max() <= top:
             continue
         bad = (row < 0) | (row > top)
         if bad.any():
