@@ -113,15 +113,27 @@ def _width(top: int) -> int:
 def _order(number: np.ndarray, q: np.ndarray, cell_bits: int, grid_bits: int) -> np.ndarray:
     """Particles by cell number, then by position inside the cell: the same particles come out
     in the same order whatever order they were given in (a solid's surfel cache keys on it).
-    One quicksort of a combined key where it fits 63 bits (equal keys are equal positions, so
-    a stable sort would buy nothing)."""
-    if grid_bits + 3 * cell_bits > 63:
+    Where a combined key fits 63 bits, its stable radix sort (equal keys are equal positions and
+    keep the order given)."""
+    bits = grid_bits + 3 * cell_bits
+    if bits > 63:
         return np.lexsort((q[2], q[1], q[0], number))
     key = number << (3 * cell_bits)
     mask = (1 << cell_bits) - 1
     for axis, shift in ((0, 2 * cell_bits), (1, cell_bits), (2, 0)):
         key |= (q[axis] & mask) << shift
-    return np.argsort(key)
+    return _radix_argsort(key, bits)
+
+
+def _radix_argsort(key: np.ndarray, bits: int) -> np.ndarray:
+    """Indices that sort `key` (int64, 0 to 2^bits - 1), ties in the order given: numpy's
+    stable argsort of 16-bit integers is a radix sort, so one pass per 16 bits, lowest first."""
+    order: np.ndarray | None = None
+    for shift in range(0, bits, 16):
+        digits = (key if order is None else key[order]) >> shift
+        step = np.argsort(digits.astype(np.uint16), kind="stable")
+        order = step if order is None else order[step]
+    return np.arange(len(key)) if order is None else order
 
 
 def encode_cells(q: np.ndarray, cell_bits: int) -> tuple[np.ndarray, dict[str, Any], bytes] | None:
