@@ -420,7 +420,8 @@ def _predicted(
 ) -> np.ndarray:
     """The quantised integers (c, n): as stored (``none``) or int64."""
     if slot.predict == "none":
-        if slot.width == 8 and stored.size and int(stored.max()) >= MAX_Q:  # narrower fit
+        # Only 8-byte values can reach 2^52.
+        if slot.width == 8 and stored.size and int(stored.max()) >= MAX_Q:
             raise InputError(f"arrays[{index}]", "holds a value beyond 2^52")
         return stored
     residual = _unzigzag(stored)
