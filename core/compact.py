@@ -59,12 +59,6 @@ WIDTHS = (1, 2, 4, 8)
 MAX_Q = 2**52
 _CELL_KEYS = ("cell_bits", "grid_bits", "cells", "count_width")
 _COMPACT_KEYS = ("coding", "step", "bounds", "predict", "width", "bytes", *_CELL_KEYS)
-#: Particles summed per block by `_prefix_sum`'s matrix product (16: the fewest flops per value
-#: for which it beats cumsum).
-_BLOCK = 16
-#: Rows of one matrix product: small enough that BLAS runs it on the calling thread alone.
-_BATCH_ROWS = 1024
-_TRIANGLE = np.triu(np.ones((_BLOCK, _BLOCK)))
 _THREAD = threading.local()
 
 
@@ -384,8 +378,8 @@ def decode_compact_arrays(
     payload: bytes | bytearray | memoryview,
     base_q: Mapping[str, np.ndarray] | None = None,
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """Decode planned slots: (arrays in their native dtypes, quantised integers by name, held
-    as float64: exact, since a decoded value is below 2^52)."""
+    """Decode planned slots: (arrays in their native dtypes, quantised integers (C, N) by name,
+    in whichever integer dtype decoded them)."""
     view = memoryview(payload).cast("B")
     arrays: dict[str, np.ndarray] = {}
     quantised: dict[str, np.ndarray] = {}
@@ -404,15 +398,14 @@ def decode_compact_arrays(
             stored = _unplanes(raw, count, slot.width).reshape(c, n)
             q = _predicted(slot, index, stored, base_q or {})
         _check_range(slot, index, q)
-        if slot.layout is None:  # cells keep int64 (their base rows stay exact either way)
-            q = q.astype(np.float64, copy=False)  # exact: within the bounds, so below 2^52
         arrays[slot.name] = _dequantised(slot, q)
         quantised[slot.name] = q
     return arrays, quantised
 
 
 def _dequantised(slot: CompactSlot, q: np.ndarray) -> np.ndarray:
-    """lo + q * step per component, in float64, then in the slot's dtype and shape."""
+    """lo + q * step per component, in float64 (exact for q: within the bounds, so below 2^52),
+    then in the slot's dtype and shape."""
     n, c = slot.shape[0], slot.components
     decoded = np.empty((n, c), slot.dtype.newbyteorder("="))
     wide = np.empty(n, np.float64)
@@ -425,14 +418,15 @@ def _dequantised(slot: CompactSlot, q: np.ndarray) -> np.ndarray:
 def _predicted(
     slot: CompactSlot, index: int, stored: np.ndarray, base_q: Mapping[str, np.ndarray]
 ) -> np.ndarray:
-    """The quantised integers (c, n): int64, or float64 holding integers (see `_prefix_sum`)."""
+    """The quantised integers (c, n): as stored (``none``) or int64."""
     if slot.predict == "none":
-        if stored.size and int(stored.max()) >= MAX_Q:
+        # Only 8-byte values can reach 2^52.
+        if slot.width == 8 and stored.size and int(stored.max()) >= MAX_Q:
             raise InputError(f"arrays[{index}]", "holds a value beyond 2^52")
         return stored
     residual = _unzigzag(stored)
     if slot.predict == "particle":
-        return _prefix_sum(residual)
+        return _prefix_sum(residual, (int(stored.max()) + 1) // 2 if stored.size else 0)
     base = base_q.get(slot.name)
     if base is None or base.shape != residual.shape:
         have = "none" if base is None else f"{base.shape[1]} particles"
@@ -441,45 +435,22 @@ def _predicted(
             f"frame prediction needs {slot.name} with {residual.shape[1]} particles in the base "
             f"frame; it has {have}; send this frame in full",
         )
-    if slot.predict == "motion":  # each particle moved as the one before it, plus s
-        moved = _prefix_sum(residual)
-    elif residual.dtype.itemsize > 4:
-        moved = residual.astype(np.int64)
-    else:
-        moved = residual.astype(np.float64)
-    if moved.dtype == np.int64:
-        return moved + base.astype(np.int64)
-    moved += base
+    # motion: each particle moved as the one before it, plus s
+    moved = _prefix_sum(residual) if slot.predict == "motion" else residual.astype(np.int64)
+    # The base's integers are below 2^52 (their dtype may be uint64): the sums stay exact up to
+    # the first value outside the bounds.
+    np.add(moved, base, out=moved, casting="unsafe")
     return moved
 
 
-def _prefix_sum(residual: np.ndarray) -> np.ndarray:
-    """Running sums of signed residuals (c, n) along the particles.
-
-    Residuals of up to 4 bytes are summed in float64 blocks of `_BLOCK` by one matrix product
-    with a triangle of ones (BLAS: several times numpy's sequential cumsum), then the blocks'
-    running totals are added. Every sum up to the first one outside the bounds is an integer
-    below 2^53, so it is exact, and that first one is refused by `_check_range`. Wider residuals
-    take int64 cumsum (it wraps as the encoder's integers would)."""
-    c, n = residual.shape
-    if residual.dtype.itemsize > 4:
-        q = residual.astype(np.int64)
-        return np.cumsum(q, axis=1, out=q)
-    if not residual.size:
-        return residual.astype(np.float64)
-    blocks = -(-n // _BLOCK)
-    rows = c * blocks
-    batch = min(_BATCH_ROWS, rows)
-    padded = np.empty((-(-rows // batch) * batch, _BLOCK), np.float64)
-    body = padded[:rows].reshape(c, blocks * _BLOCK)
-    body[:, :n] = residual
-    body[:, n:] = 0.0
-    padded[rows:] = 0.0
-    sums = np.matmul(padded.reshape(-1, batch, _BLOCK), _TRIANGLE).reshape(-1, _BLOCK)
-    sums = sums[:rows].reshape(c, blocks, _BLOCK)
-    before = np.cumsum(sums[:, :, -1], axis=1)  # each block's total and all before it
-    sums[:, 1:, :] += before[:, :-1, None]
-    return sums.reshape(c, blocks * _BLOCK)[:, :n]
+def _prefix_sum(residual: np.ndarray, largest: int | None = None) -> np.ndarray:
+    """Running sums of signed residuals (c, n) along the particles: in int32 when `largest`
+    (a bound on |residual|) times n stays below 2^31, so no sum can wrap; else in int64, where
+    every sum up to the first one outside the bounds is exact (a value below 2^52 plus one
+    residual) and `_check_range` refuses that one; 8-byte residuals wrap as the encoder's
+    integers would."""
+    narrow = largest is not None and residual.shape[1] * largest < 2**31
+    return np.cumsum(residual, axis=1, dtype=np.int32 if narrow else np.int64)
 
 
 def _check_range(slot: CompactSlot, index: int, q: np.ndarray) -> None:
@@ -489,7 +460,7 @@ def _check_range(slot: CompactSlot, index: int, q: np.ndarray) -> None:
     for c in range(slot.components):
         top = math.floor((slot.hi[c] - slot.lo[c]) / slot.step) + 1
         row = q[c]
-        if row.min() >= 0 and row.max() <= top:
+        if (row.dtype.kind == "u" or row.min() >= 0) and row.max() <= top:
             continue
         bad = (row < 0) | (row > top)
         if bad.any():

@@ -97,6 +97,8 @@ def _planes(values: np.ndarray, width: int) -> bytes:
 
 def _unplanes(data: memoryview, count: int, width: int) -> np.ndarray:
     planes = np.frombuffer(data, np.uint8, count * width).reshape(width, count)
+    if width == 1:
+        return planes[0]  # a view of the section: nothing to combine
     values = planes[width - 1].astype(f"=u{width}")
     for b in range(width - 2, -1, -1):
         values <<= 8
@@ -111,15 +113,27 @@ def _width(top: int) -> int:
 def _order(number: np.ndarray, q: np.ndarray, cell_bits: int, grid_bits: int) -> np.ndarray:
     """Particles by cell number, then by position inside the cell: the same particles come out
     in the same order whatever order they were given in (a solid's surfel cache keys on it).
-    One quicksort of a combined key where it fits 63 bits (equal keys are equal positions, so
-    a stable sort would buy nothing)."""
-    if grid_bits + 3 * cell_bits > 63:
+    Where a combined key fits 63 bits, its stable radix sort (equal keys are equal positions and
+    keep the order given)."""
+    bits = grid_bits + 3 * cell_bits
+    if bits > 63:
         return np.lexsort((q[2], q[1], q[0], number))
     key = number << (3 * cell_bits)
     mask = (1 << cell_bits) - 1
     for axis, shift in ((0, 2 * cell_bits), (1, cell_bits), (2, 0)):
         key |= (q[axis] & mask) << shift
-    return np.argsort(key)
+    return _radix_argsort(key, bits)
+
+
+def _radix_argsort(key: np.ndarray, bits: int) -> np.ndarray:
+    """Indices that sort `key` (int64, 0 to 2^bits - 1), ties in the order given: numpy's
+    stable argsort of 16-bit integers is a radix sort, so one pass per 16 bits, lowest first."""
+    order: np.ndarray | None = None
+    for shift in range(0, bits, 16):
+        digits = (key if order is None else key[order]) >> shift
+        step = np.argsort(digits.astype(np.uint16), kind="stable")
+        order = step if order is None else order[step]
+    return np.arange(len(key)) if order is None else order
 
 
 def encode_cells(q: np.ndarray, cell_bits: int) -> tuple[np.ndarray, dict[str, Any], bytes] | None:
@@ -160,8 +174,9 @@ def encode_cells(q: np.ndarray, cell_bits: int) -> tuple[np.ndarray, dict[str, A
 
 
 def decode_cells(layout: CellLayout, index: int, raw: bytes, particles: int) -> np.ndarray:
-    """The quantised positions (3, N) int64 of an inflated ``cells`` section, in the order sent;
-    every value is checked except against the upper bounds (the caller's range check)."""
+    """The quantised positions (3, N) of an inflated ``cells`` section, in the order sent: int32
+    where every cell number and coordinate fits 31 bits, else int64; every value is checked
+    except against the upper bounds (the caller's range check)."""
     where = f"arrays[{index}]"
     view = memoryview(raw)
     m, k = layout.cells, layout.cell_bits
@@ -170,7 +185,9 @@ def decode_cells(layout: CellLayout, index: int, raw: bytes, particles: int) -> 
     total_bits = sum(layout.grid_bits)
     if m and float(gaps.sum(dtype=np.float64)) >= 2.0**total_bits:
         raise InputError(f"{where}.cells", f"gaps sum past the grid's {total_bits} bits")
-    number = np.cumsum(gaps, dtype=np.int64)
+    narrow = total_bits <= 31 and max(layout.grid_bits) + k <= 31
+    dtype = np.int32 if narrow else np.int64
+    number = np.cumsum(gaps, dtype=dtype)  # below 2^total_bits (checked): no wrap
     if m < particles:
         counts = _unplanes(view[at:], m, layout.count_width)
         at += m * layout.count_width
@@ -182,13 +199,28 @@ def decode_cells(layout: CellLayout, index: int, raw: bytes, particles: int) -> 
     offsets = _unplanes(view[at:], 3 * particles, layout.offset_width).reshape(3, particles)
     if particles and int(offsets.max()) >> k:
         raise InputError(f"{where}.cell_bits", f"an offset is not below 2^{k}")
-    by, bz = layout.grid_bits[1], layout.grid_bits[2]
-    q = np.empty((3, particles), np.int64)
+    return _coordinates(number, offsets, layout.grid_bits, k, dtype)
+
+
+def _coordinates(
+    number: np.ndarray,
+    offsets: np.ndarray,
+    grid_bits: tuple[int, int, int],
+    cell_bits: int,
+    dtype: type[np.signedinteger[Any]],
+) -> np.ndarray:
+    """Each particle's cell coordinate per axis (shifted and masked out of its cell number),
+    times 2^cell_bits, plus its offset in the cell."""
+    by, bz = grid_bits[1], grid_bits[2]
+    q = np.empty((3, number.size), dtype)
     for axis, (shift, mask) in enumerate(((by + bz, -1), (bz, (1 << by) - 1), (0, (1 << bz) - 1))):
         row = q[axis]
-        np.right_shift(number, shift, out=row)
-        if mask >= 0:
-            row &= mask
-        row <<= k
+        if shift:
+            np.right_shift(number, shift, out=row)
+            if mask >= 0:
+                row &= mask
+        else:
+            np.bitwise_and(number, mask, out=row)
+        row <<= cell_bits
         row |= offsets[axis]
     return q

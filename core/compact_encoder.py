@@ -62,13 +62,16 @@ def _quantise(
     decoder does it (float64 lo + q * step, then cast to `dtype`)."""
     components = values.shape[1] if values.ndim == 2 else 1
     x = np.ascontiguousarray(np.asarray(values, np.float64).reshape(len(values), components).T)
-    if not np.isfinite(x).all():
-        i = int(np.flatnonzero(~np.isfinite(x).all(axis=0))[0])
-        raise InputError(f"{name}[{i}]", "must be finite (found NaN or Infinity)")
-    if bounds is None:
+    if bounds is None:  # a NaN or an infinity shows in the minima or maxima
         lo = x.min(axis=1) if x.size else np.zeros(x.shape[0])
         hi = x.max(axis=1) if x.size else np.zeros(x.shape[0])
+        finite = bool(np.isfinite(lo).all() and np.isfinite(hi).all())
     else:
+        finite = bool(np.isfinite(x).all())
+    if not finite:
+        i = int(np.flatnonzero(~np.isfinite(x).all(axis=0))[0])
+        raise InputError(f"{name}[{i}]", "must be finite (found NaN or Infinity)")
+    if bounds is not None:
         lo, hi = (np.asarray(b, np.float64).reshape(-1) for b in bounds)
         outside = ((x < lo[:, None]) | (x > hi[:, None])).any(axis=0)
         if outside.any():
@@ -100,9 +103,9 @@ def _quantise(
     for attempt in range(3):  # float rounding can leave a value one ulp past the bound: nudge it
         miss = _decoded(q, lo, step, dtype)
         miss -= x
-        bad = np.abs(miss) > error
-        if not bad.any():
+        if not miss.size or (miss.max() <= error and miss.min() >= -error):
             break
+        bad = np.abs(miss) > error
         if attempt == 2:
             i = int(np.flatnonzero(bad.any(axis=0))[0])
             raise InputError(
@@ -117,9 +120,9 @@ def _decoded(q: np.ndarray, lo: np.ndarray, step: float, dtype: np.dtype[Any]) -
     """What the decoder makes of `q` (float64 lo + q * step, then `dtype`), as float64."""
     decoded = q * step
     decoded += lo[:, None]
-    if dtype == np.float64:
-        return decoded
-    return decoded.astype(dtype).astype(np.float64)
+    if dtype != np.float64:
+        decoded[...] = decoded.astype(dtype)  # rounded as the decoder's cast rounds
+    return decoded
 
 
 @dataclass

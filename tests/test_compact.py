@@ -94,6 +94,18 @@ def test_float32_arrays_hold_their_bound_after_the_cast() -> None:
     assert decoded["temperatures"].dtype == np.float32
 
 
+def test_running_sums_of_wide_residuals_hold_the_bound() -> None:
+    """Particle-to-particle residuals of 4 bytes, summed in int64 (n times the largest could
+    pass 2^31), and 1-byte ones beside them, summed in int32 (no sum can wrap)."""
+    rng = np.random.default_rng(4)
+    positions = rng.uniform(0, 1e4, (5000, 3))  # in random order: residuals up to ~1e8 steps
+    temperatures = (1500 + np.cumsum(rng.normal(0, 0.2, 5000))).astype(np.float32)
+    arrays: dict[str, np.ndarray] = {"positions": positions, "temperatures": temperatures}
+    decoded = roundtrip(arrays, 1e-4, reorder=False)
+    assert max_error(decoded["positions"], positions) <= 1e-4
+    assert max_error(decoded["temperatures"], temperatures) <= 0.05
+
+
 def test_an_empty_frame_round_trips_with_every_array() -> None:
     arrays: dict[str, np.ndarray] = {
         "positions": np.zeros((0, 3)),
