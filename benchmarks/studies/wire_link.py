@@ -1,9 +1,11 @@
 """End-to-end frames per second over a rate-limited link: a token-bucket relay on loopback
 between the Python client and a real `sphrender serve` stream port, both directions limited to
 the link's rate. Per link rate and frame encoding (float64 raw, as numpy's default reaches the
-wire today; float32 raw; compact), one stream session pipelines a sequence of frames (the
-server's max_in_flight) and the frames per second are counted from the first send to the last
-answer.
+wire today; float32 raw; compact, order-free and in order), one stream session pipelines a
+sequence of frames (the server's max_in_flight) and the frames per second are counted from the
+first send to the last answer. Each answer's stage timings give the render process's
+milliseconds a frame (the renderer's stages and the image encoding, one after the other in one
+process): its inverse is a ceiling no encoding on the wire can lift.
 
 Two scenes: the dam break rendered at 64x40 (what a trainee would see, small so that the render
 is not the only limit on this CPU), and the same with the camera turned away from the particles
@@ -15,16 +17,26 @@ from __future__ import annotations
 import os
 import signal
 import socket
+import statistics
 import tempfile
 import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from benchmarks.bench_service import start_server
-from sphrender.client.api import Client
+from sphrender.client.api import Client, StreamResult
+
+#: The encodings compared, and what each asks of `Client.stream(compact=...)`.
+_COMPACT: dict[str, bool | Literal["ordered"]] = {
+    "float64 raw": False,
+    "float32 raw": False,
+    "compact": True,
+    "compact, in order": "ordered",
+}
+ENCODINGS = tuple(_COMPACT)
 
 #: Bytes one relay read moves at most; also the bucket's burst.
 _CHUNK = 64 * 1024
@@ -91,6 +103,7 @@ class LinkRow:
     encoding: str
     fps: float
     bytes_per_frame: float
+    server_ms: float  # median over the answers of the render process's stage timings, summed
 
 
 def run_link(frames: list[dict[str, Any]], scenes: dict[str, dict[str, Any]],
@@ -109,9 +122,11 @@ def run_link(frames: list[dict[str, Any]], scenes: dict[str, dict[str, Any]],
             for link_name, rate in links.items():
                 relay = Relay(ready["stream_port"], rate)
                 try:
-                    for encoding in ("float64 raw", "float32 raw", "compact"):
-                        fps, size = _session_fps(url, relay.port, scene, frames, encoding, rounds)
-                        yield LinkRow(scene_name, link_name, encoding, fps, size)
+                    for encoding in ENCODINGS:
+                        fps, size, server_ms = _session_fps(
+                            url, relay.port, scene, frames, encoding, rounds
+                        )
+                        yield LinkRow(scene_name, link_name, encoding, fps, size, server_ms)
                 finally:
                     relay.close()
     finally:
@@ -120,12 +135,14 @@ def run_link(frames: list[dict[str, Any]], scenes: dict[str, dict[str, Any]],
 
 
 def _session_fps(url: str, port: int, scene: dict[str, Any], frames: list[dict[str, Any]],
-                 encoding: str, rounds: int) -> tuple[float, float]:  # fmt: skip
+                 encoding: str, rounds: int) -> tuple[float, float, float]:  # fmt: skip
+    """(frames/s, bytes a frame, the render process's median ms a frame) of one session."""
     client = Client(url, timeout=300)
-    compact = encoding == "compact"
+    compact: bool | Literal["ordered"] = _COMPACT[encoding]
     sent = 0
+    server_ms: list[float] = []
     with client.stream(scene, stream_port=port, compact=compact) as session:
-        assert (session.compact is not None) == compact
+        assert (session.compact is not None) == bool(compact)
         start = time.perf_counter()
         outstanding = 0
         for _ in range(rounds):
@@ -135,17 +152,25 @@ def _session_fps(url: str, port: int, scene: dict[str, Any], frames: list[dict[s
                     positions = positions.astype("float32")
                 arrays = {k: v for k, v in frame.items() if k != "positions"}
                 while outstanding >= session.max_in_flight:
-                    assert session.receive().kind == "image"
+                    server_ms.append(_server_ms(session.receive()))
                     outstanding -= 1
                 session.send(positions, **arrays)
                 outstanding += 1
                 sent += 1
         while outstanding:
-            assert session.receive().kind == "image"
+            server_ms.append(_server_ms(session.receive()))
             outstanding -= 1
         elapsed = time.perf_counter() - start
     size = _wire_bytes(frames, encoding, float(scene["particles"]["radius"]))
-    return sent / elapsed, size
+    return sent / elapsed, size, statistics.median(server_ms)
+
+
+def _server_ms(answer: StreamResult) -> float:
+    """The render process's stage timings of one IMAGE, summed: not the wait in the queue nor
+    the hand-over (`ipc`), which overlap the previous frame's render."""
+    assert answer.kind == "image", answer.header
+    timings = answer.header.get("timings_ms", {})
+    return float(sum(v for k, v in timings.items() if k not in ("queue", "ipc")))
 
 
 def _wire_bytes(frames: list[dict[str, Any]], encoding: str, radius: float) -> float:
@@ -157,5 +182,6 @@ def _wire_bytes(frames: list[dict[str, Any]], encoding: str, radius: float) -> f
         return n * (24 + 4 * (len(frames[0]) - 1))
     if encoding == "float32 raw":
         return n * (12 + 4 * (len(frames[0]) - 1))
-    encoder = CompactEncoder(position_error=POSITION_ERROR_FRACTION * radius)
+    reorder = _COMPACT[encoding] is True
+    encoder = CompactEncoder(position_error=POSITION_ERROR_FRACTION * radius, reorder=reorder)
     return sum(len(encoder.encode(i, f)[1]) for i, f in enumerate(frames)) / len(frames)
