@@ -42,7 +42,7 @@ from sphrender.server.engine.renderer import SurfaceRenderer
 #: The report's first paragraph: how to regenerate it.
 COMMAND = (
     "`.venv/bin/python benchmarks/bench_report.py` (after `pip install -e '.[bench]'`; about "
-    "5-10 minutes on 2 CPU cores)"
+    "15 minutes on 2 CPU cores)"
 )
 
 
