@@ -95,7 +95,7 @@ def measure(
 def section(rows: list[tuple[str, float, float, float]]) -> list[str]:
     """The report's section: the table of `measure` with ratios to each preset's finish off."""
     lines = [
-        "### Brushed plate: what the finish costs",
+        "## Brushed plate: what the finish costs",
         "",
         "A flat plate of lattice particles (3 layers, 12k particles, r = 0.01) under the workshop "
         "environment and a point light, 960x540, seen obliquely ([examples/brushed_plate.toml]"

@@ -207,7 +207,7 @@ def dam_frames_section(rows: Sequence[DamFrameRow], setting: str = "preset balan
     head += ["truth's flicker°", "edge alpha (all / silhouettes)", "droplet° (unfiltered)"]
     head += ["finite"]
     lines = [
-        "### The dam break, every frame",
+        "## The dam break, every frame",
         "",
         "The figures above are of one frame. Here every frame of the data set at the same "
         "size, camera and jitter, each against its own pysplashsurf reference (band: 1 px "

@@ -107,7 +107,7 @@ def jitter_readings_section(rows: Sequence[JitterReadingRow]) -> list[str]:
     head = ["jitter", "mean move", "setting", "spatter flicker°", "its truth's°"]
     head += ["dam flicker°", "its truth's°"]
     lines = [
-        "### Flicker under both readings of the jitter",
+        "## Flicker under both readings of the jitter",
         "",
         'The issue\'s flicker item asks for a "2 %-of-r jitter" and describes it as "moving '
         "every particle of a frame by 2 % of r\". The bench's Gaussian of 2 % r per axis moves "

@@ -162,7 +162,7 @@ def motion_rows(renderer: SurfaceRenderer, width: int, height: int, frames: int)
 
 def post_effects_section(rows: list[Row]) -> list[str]:
     lines = [
-        "### Glare and motion blur: cost and error",
+        "## Glare and motion blur: cost and error",
         "",
         "Frame times in one run, best of 3 after a warm-up "
         "(benchmarks/studies/post_effects.py). Glare's error is against a numpy FFT "

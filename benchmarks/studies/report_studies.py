@@ -52,7 +52,6 @@ def run_studies(ctx: StudyContext) -> None:
     results.command = COMMAND
     balanced = preset_setting("balanced")
     _dam_frames(ctx)
-    results.extra_sections += wire_section(quick=False, link=True, log=log)
     log("flicker under both readings of the jitter")
     readings = run_jitter_readings(
         ctx.gl,
@@ -65,6 +64,7 @@ def run_studies(ctx: StudyContext) -> None:
     )
     if readings:
         results.extra_sections += [*jitter_readings_section(readings), ""]
+    results.extra_sections += wire_section(quick=False, link=True, log=log)
     log("shadows: cost per light and error against the truth")
     results.extra_sections += shadows_section(ctx.renderer, log=log)
     _brushed_plate(ctx)
