@@ -1,11 +1,15 @@
-"""Keep a long-running process's resident memory flat under images and payloads of varying size.
+"""Keep a long-running process's resident memory flat under images and payloads of varying size,
+without paying a page fault for every block a frame allocates.
 
 glibc's malloc serves a block above its mmap threshold with its own mapping, returned to the
 system when freed, but raises the threshold to the size of each such block freed (up to 32 MiB).
 A service that handles a 30 MB image once then takes every later image and payload from its
 heaps, where freed space between live small objects is seldom returned: resident memory climbs
-with the variety of sizes seen. A fixed threshold keeps large blocks in their own mappings;
-`HeapTrimmer`, every few seconds, returns the free pages the heaps of many threads still hold.
+with the variety of sizes seen. A fixed threshold keeps large blocks in their own mappings.
+Below it, glibc gives a heap's free top back to the system as soon as it passes the trim
+threshold (128 KiB), so the next frame's blocks fault their pages in again; a high trim
+threshold keeps that space for reuse, and `HeapTrimmer`, every few seconds, returns the free
+pages the heaps of many threads still hold.
 """
 
 from __future__ import annotations
@@ -15,10 +19,13 @@ import ctypes.util
 import time
 from typing import Any
 
-#: mallopt's parameter number for the mmap threshold (glibc's malloc.h).
+#: mallopt's parameter numbers for the trim and mmap thresholds (glibc's malloc.h).
+_M_TRIM_THRESHOLD = -1
 _M_MMAP_THRESHOLD = -3
 #: glibc's initial threshold: blocks from 128 KiB up get their own mapping, always.
 MMAP_THRESHOLD_BYTES = 128 << 10
+#: Free space a heap keeps at its top between two trims (blocks below the mmap threshold only).
+TRIM_THRESHOLD_BYTES = 256 << 20
 
 
 #: Seconds between two trims of a process's heaps.
@@ -34,14 +41,18 @@ def _glibc_function(name: str) -> Any | None:
         return None
 
 
-def fix_mmap_threshold(threshold: int = MMAP_THRESHOLD_BYTES) -> bool:
-    """Fix glibc's mmap threshold (no dynamic raise); False where the C library is not glibc."""
+def configure_malloc(
+    mmap_threshold: int = MMAP_THRESHOLD_BYTES, trim_threshold: int = TRIM_THRESHOLD_BYTES
+) -> bool:
+    """Fix glibc's mmap threshold (no dynamic raise) and raise its trim threshold (the process
+    must run a `HeapTrimmer`); False where the C library is not glibc."""
     mallopt = _glibc_function("mallopt")
     if mallopt is None:
         return False
     mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
     mallopt.restype = ctypes.c_int
-    return bool(mallopt(_M_MMAP_THRESHOLD, threshold))
+    fixed = bool(mallopt(_M_MMAP_THRESHOLD, mmap_threshold))
+    return bool(mallopt(_M_TRIM_THRESHOLD, trim_threshold)) and fixed
 
 
 class HeapTrimmer:

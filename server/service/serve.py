@@ -18,7 +18,7 @@ from typing import Any
 
 from sphrender.server.service.app import RenderService, package_version
 from sphrender.server.service.config import ServerConfig, check_bind_policy
-from sphrender.server.service.heap import HeapTrimmer, fix_mmap_threshold
+from sphrender.server.service.heap import HeapTrimmer, configure_malloc
 from sphrender.server.service.http.api import make_http_server
 from sphrender.server.service.http.listener import SphrenderHttpServer
 from sphrender.server.service.logs import configure_logging
@@ -143,7 +143,7 @@ def serve(config: ServerConfig) -> int:
     """Run until SIGTERM/SIGINT; returns the exit status (0 after a clean drain)."""
     configure_logging(json_lines=config.logging.json, level=config.logging.level)
     check_bind_policy(config)
-    fix_mmap_threshold()
+    configure_malloc()
     service = RenderService(config)
     stop = threading.Event()
 

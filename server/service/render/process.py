@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, TypeAlias
 import numpy as np
 
 from sphrender.server.scene import Scene
-from sphrender.server.service.heap import HeapTrimmer, fix_mmap_threshold
+from sphrender.server.service.heap import HeapTrimmer, configure_malloc
 from sphrender.server.service.logs import configure_inherited_logging
 from sphrender.server.service.render.messages import (
     Answer,
@@ -300,7 +300,7 @@ class RenderProcess:
 def process_main(conn: Connection, environment_dirs: tuple[str, ...], encoders: int) -> None:
     """Entry point of the render process (multiprocessing ``spawn``)."""
     faulthandler.enable()  # a native fault prints the Python stacks of every thread to stderr
-    fix_mmap_threshold()
+    configure_malloc()
     configure_inherited_logging()  # the service's format (JSON lines or not), warnings included
     # The service drains and then sends a StopRequest; a Ctrl-C to the terminal's process group
     # must not kill the renderer while the service is still answering frames. SIGTERM keeps its
