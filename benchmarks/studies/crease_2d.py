@@ -38,7 +38,7 @@ from sphrender.server.bench.scenes import (
     droplets_scene,
     slab_scene,
 )
-from sphrender.server.bench.solid_scenes import Polytope, polytope_truth
+from sphrender.server.bench.solid_scenes import wall_scene
 from sphrender.server.bench.sweep import Setting, bench_scene_dict, preset_setting, scene_for
 from sphrender.server.engine.frame_output import RenderedFrame
 from sphrender.server.engine.geometry.camera import Camera
@@ -61,41 +61,9 @@ class StudyScene:
     solid: npt.NDArray[np.bool_] | None = None  # per-particle solid flags (None: all fluid)
 
 
-def _box(lower: F64, upper: F64) -> Polytope:
-    return Polytope(np.vstack([np.eye(3), -np.eye(3)]), np.concatenate([upper, -lower]))
-
-
-def _lattice(counts: tuple[int, int, int], origin: F64, spacing: float) -> F64:
-    axes = [origin[i] + np.arange(n) * spacing for i, n in enumerate(counts)]
-    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-
-
-def wall_scene(radius: float = 0.01) -> StudyScene:
-    """A fluid lattice block (30 x 12 x 30, jitter 0.1 r per axis) whose +x face is flush
-    against a solid wall (a 4-layer plate of solid particles, wider and taller than the block);
-    the truth is the union of the two boxes."""
-    spacing = 2.0 * radius
-    block_origin = np.array([-0.6, -0.24, -0.3])
-    rng = np.random.default_rng(7)
-    block = _lattice((30, 12, 30), block_origin, spacing)
-    block = block + rng.uniform(-0.1 * radius, 0.1 * radius, block.shape)
-    block_lower = block_origin - radius
-    block_upper = block_lower + np.array([30, 12, 30]) * spacing
-    wall_origin = np.array([block_upper[0] + radius, -0.24, -0.5])
-    wall = _lattice((4, 24, 50), wall_origin, spacing)
-    wall_lower = wall_origin - radius
-    wall_upper = wall_lower + np.array([4, 24, 50]) * spacing
-    solids = [_box(block_lower, block_upper), _box(wall_lower, wall_upper)]
-    scene = BenchScene(
-        "wall",
-        f"fluid block against a solid wall, {len(block)} + {len(wall)} particles",
-        np.vstack([block, wall]),
-        radius,
-        {"eye": [-1.0, 0.55, 0.75], "target": [-0.25, -0.05, 0.0], "fov_y": 40.0},
-        lambda camera: polytope_truth(camera, solids, None),
-    )
-    flags = np.concatenate([np.zeros(len(block), np.bool_), np.ones(len(wall), np.bool_)])
-    return StudyScene(scene, flags)
+def _wall() -> StudyScene:
+    scene = wall_scene()
+    return StudyScene(scene, scene.solid_flags())
 
 
 def _dambreak(gl: GLContext, renderer: SurfaceRenderer) -> StudyScene | None:
@@ -118,7 +86,7 @@ def study_scenes(names: list[str], gl: GLContext, renderer: SurfaceRenderer) -> 
         "slab": lambda: StudyScene(slab_scene(1.2, 4)),
         "sheet": lambda: StudyScene(slab_scene(1.0, 1, "sheet")),
         "droplets": lambda: StudyScene(droplets_scene(150)),
-        "wall": wall_scene,
+        "wall": _wall,
         "dambreak": lambda: _dambreak(gl, renderer),
     }
     return [made for name in names if name and (made := makers[name]()) is not None]

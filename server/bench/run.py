@@ -44,7 +44,7 @@ from sphrender.server.bench.solid_bench import (
     today_renderer,
     write_solid_crops,
 )
-from sphrender.server.bench.solid_scenes import bevel_joint_scene, plate_scene
+from sphrender.server.bench.solid_scenes import bevel_joint_scene, plate_scene, wall_scene
 from sphrender.server.bench.surface_bench import (
     QUICK_SURFACE_SETTINGS,
     SURFACE_SETTINGS,
@@ -244,7 +244,7 @@ def _sweep_scenes(
     if quick:
         return [ball_scene(3000), slab_scene(0.3, 3)], QUICK_SWEEP, ""
     scenes = [ball_scene(90_000), slab_scene(1.2, 4), slab_scene(1.0, 1, "sheet")]
-    scenes += [droplets_scene(150), plate_scene(), bevel_joint_scene()]
+    scenes += [droplets_scene(150), plate_scene(), bevel_joint_scene(), wall_scene()]
     dam = dambreak_frame()
     if dam is None:
         return scenes, SWEEP, "dam break skipped: ../shared/data not found"

@@ -54,7 +54,13 @@ class BenchScene:
     radius: float
     camera: dict[str, Any]  # a [camera] section
     truth: Callable[[Camera], Truth]  # computed on demand (per resolution)
-    solid: bool = False  # the frame flags every particle solid (a workpiece)
+    solid: bool | npt.NDArray[np.bool_] = False  # True: every particle solid; or per particle
+
+    def solid_flags(self) -> npt.NDArray[np.bool_] | None:
+        """The frame's ``solid`` array (None: all fluid)."""
+        if isinstance(self.solid, np.ndarray):
+            return self.solid
+        return np.ones(len(self.positions), np.bool_) if self.solid else None
 
     def camera_config(self) -> CameraConfig:
         return CameraConfig(

@@ -1,4 +1,5 @@
-"""Solid workpieces with analytic truth: a plate and a single-V bevelled butt joint.
+"""Solid workpieces with analytic truth: a plate, a single-V bevelled butt joint, and fluid
+pressed against a wall.
 
 Both are jittered lattices (up to 0.1 r per axis) flagged solid; the intended surface is the
 analytic solid grown by r, a union of convex polytopes (planes n . x <= c). The truth carries
@@ -10,6 +11,9 @@ band within 3 r of an edge, and for the joint the window where the root gap is s
 * bevel joint: two plates (8 layers) with 30-degree bevels (a 60-degree V), a root face of two
   layers and a root gap of 4 r between the true surfaces, seen from above along the joint. Each
   layer's row starts on the bevel plane (moved in by r), so the bevel is a plane of particles.
+* wall: a fluid lattice block (30 x 12 x 30, not flagged) whose +x face is flush against a
+  solid plate (4 x 24 x 50, flagged): the fluid's flat faces and edges beside a solid, as in a
+  container; truth = the union of the two boxes.
 """
 
 from __future__ import annotations
@@ -218,4 +222,34 @@ def bevel_joint_scene(radius: float = 0.01, shape: JointShape | None = None) -> 
         {"eye": eye, "target": [0.0, 0.3 * thickness, 0.15 * half_length], "fov_y": 40.0},
         lambda camera: polytope_truth(camera, [left_solid, right_solid], window),
         solid=True,
+    )
+
+
+def _grid(counts: tuple[int, int, int], origin: F64, spacing: float) -> F64:
+    axes = [origin[i] + np.arange(n) * spacing for i, n in enumerate(counts)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def wall_scene(radius: float = 0.01) -> BenchScene:
+    """A jittered fluid lattice block flush against a solid wall plate (see the module
+    docstring); only the wall's particles are flagged solid."""
+    spacing, unturned = 2.0 * radius, np.eye(3)
+    block_counts, wall_counts = (30, 12, 30), (4, 24, 50)
+    block_origin = np.array([-0.6, -0.24, -0.3])
+    block = _jitter(_grid(block_counts, block_origin, spacing), radius, seed=7)
+    block_lower = block_origin - radius
+    block_upper = block_lower + np.array(block_counts) * spacing
+    wall_origin = np.array([block_upper[0] + radius, -0.24, -0.5])
+    wall = _grid(wall_counts, wall_origin, spacing)
+    wall_lower = wall_origin - radius
+    wall_upper = wall_lower + np.array(wall_counts) * spacing
+    solids = [_box(block_lower, block_upper, unturned), _box(wall_lower, wall_upper, unturned)]
+    return BenchScene(
+        "wall",
+        f"fluid block against a solid wall, {len(block)} + {len(wall)} particles",
+        np.vstack([block, wall]),
+        radius,
+        {"eye": [-1.0, 0.55, 0.75], "target": [-0.25, -0.05, 0.0], "fov_y": 40.0},
+        lambda camera: polytope_truth(camera, solids, None),
+        solid=np.concatenate([np.zeros(len(block), np.bool_), np.ones(len(wall), np.bool_)]),
     )

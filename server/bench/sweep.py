@@ -127,8 +127,7 @@ def run_sweep(
     frames: int,
     log: Any = print,
 ) -> list[SweepRow]:
-    flags = np.ones(len(scene.positions), np.bool_) if scene.solid else None
-    frame = make_frame(scene.positions, solid=flags)
+    frame = make_frame(scene.positions, solid=scene.solid_flags())
     base = bench_scene_dict(scene, width, height)
     camera = Camera.from_config(scene.camera_config(), width, height)
     truth = scene.truth(camera)
