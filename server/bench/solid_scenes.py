@@ -1,10 +1,11 @@
 """Solid workpieces with analytic truth: a plate, a single-V bevelled butt joint, and fluid
 pressed against a wall.
 
-Both are jittered lattices (up to 0.1 r per axis) flagged solid; the intended surface is the
-analytic solid grown by r, a union of convex polytopes (planes n . x <= c). The truth carries
-each pixel's distance to the nearest edge of its face, so the metrics split flat faces from the
-band within 3 r of an edge, and for the joint the window where the root gap is seen through.
+The plate and the joint are jittered lattices (up to 0.1 r per axis) flagged solid; the
+intended surface is the analytic solid grown by r, a union of convex polytopes (planes
+n . x <= c). The truth carries each pixel's distance to the nearest edge of its face, so the
+metrics split flat faces from the band within 3 r of an edge, and for the joint the window
+where the root gap is seen through.
 
 * plate: a lattice box (80 x 4 x 80 particles at the bench's r), yawed 30 degrees, seen
   obliquely; truth = the unjittered lattice box grown by r.
