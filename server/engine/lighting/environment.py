@@ -23,9 +23,10 @@ import hashlib
 import math
 import os
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Generic, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -378,6 +379,39 @@ def find_asset(directories: Sequence[Path], name: str, key: str, suffixes: Seque
     raise InputError(key, f"{show(name)} not found in the environment directories")
 
 
+Loaded = TypeVar("Loaded")
+
+
+class FileCache(Generic[Loaded]):
+    """What was loaded from the latest `size` files, keyed by (resolved path, size, mtime): an
+    unchanged file is loaded once, a changed one again; `evict` is called on what the least
+    recently used entries drop (e.g. to release a texture)."""
+
+    def __init__(self, size: int, evict: Callable[[Loaded], None] | None = None) -> None:
+        self._size, self._evict = size, evict
+        self._entries: OrderedDict[tuple[str, int, int], Loaded] = OrderedDict()
+
+    def get(self, path: Path, load: Callable[[Path], Loaded]) -> Loaded:
+        stat = path.stat()
+        key = (str(path), stat.st_size, stat.st_mtime_ns)
+        cached = self._entries.get(key)
+        if cached is not None:
+            self._entries.move_to_end(key)
+            return cached
+        entry = self._entries[key] = load(path)
+        while len(self._entries) > self._size:
+            dropped = self._entries.popitem(last=False)[1]
+            if self._evict is not None:
+                self._evict(dropped)
+        return entry
+
+    def __iter__(self) -> Iterator[Loaded]:
+        return iter(list(self._entries.values()))
+
+    def clear(self) -> None:
+        self._entries.clear()
+
+
 class EnvironmentLibrary:
     """Resolves `[environment]` to an `EnvironmentImage`; files only from `directories`.
 
@@ -387,8 +421,7 @@ class EnvironmentLibrary:
 
     def __init__(self, directories: Sequence[str | Path] = (), cache_size: int = 4) -> None:
         self.directories = tuple(Path(d).resolve() for d in directories)
-        self._files: OrderedDict[tuple[str, int, int], EnvironmentImage] = OrderedDict()
-        self._cache_size = cache_size
+        self._files: FileCache[EnvironmentImage] = FileCache(cache_size)
 
     def resolve(self, config: EnvironmentConfig) -> EnvironmentImage:
         if config.uniform is not None:
@@ -401,18 +434,10 @@ class EnvironmentLibrary:
         return find_asset(self.directories, name, "environment.file", FILE_SUFFIXES)
 
     def _load_file(self, name: str) -> EnvironmentImage:
-        path = self.find_file(name)
-        stat = path.stat()
-        cache_key = (str(path), stat.st_size, stat.st_mtime_ns)
-        cached = self._files.get(cache_key)
-        if cached is not None:
-            self._files.move_to_end(cache_key)
-            return cached
-        image = make_image(read_environment_file(path), f"file:{name}")
-        self._files[cache_key] = image
-        while len(self._files) > self._cache_size:
-            self._files.popitem(last=False)
-        return image
+        def load(path: Path) -> EnvironmentImage:
+            return make_image(read_environment_file(path), f"file:{name}")
+
+        return self._files.get(self.find_file(name), load)
 
 
 def rotation_about_y(degrees: float) -> F64:

@@ -8,7 +8,6 @@ owner thread.
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,6 +15,7 @@ from pathlib import Path
 import moderngl
 
 from sphrender.server.engine.lighting.detail_image import find_detail_image, read_detail_image
+from sphrender.server.engine.lighting.environment import FileCache
 from sphrender.server.engine.passes.context import PassContext
 
 #: Image textures kept (a scene rarely names more than one; a changed file is a new entry).
@@ -33,28 +33,23 @@ class DetailImages:
     def __init__(self, context: PassContext, directories: Sequence[str | Path] = ()) -> None:
         self._context = context
         self._directories = tuple(Path(d).resolve() for d in directories)
-        self._textures: OrderedDict[tuple[str, int, int], DetailTexture] = OrderedDict()
+        self._textures: FileCache[DetailTexture] = FileCache(
+            CACHE_SIZE, lambda entry: entry.texture.release()
+        )
 
     def texture(self, name: str) -> DetailTexture:
         """The texture of the file `name` (relative to the environment directories)."""
-        path = find_detail_image(self._directories, name)
-        stat = path.stat()
-        key = (str(path), stat.st_size, stat.st_mtime_ns)
-        cached = self._textures.get(key)
-        if cached is not None:
-            self._textures.move_to_end(key)
-            return cached
+        return self._textures.get(find_detail_image(self._directories, name), self._upload)
+
+    def _upload(self, path: Path) -> DetailTexture:
         texels = read_detail_image(path)
         texture = self._context.gl.ctx.texture(texels.size, 4, texels.texels.tobytes(), dtype="f2")
         texture.repeat_x = texture.repeat_y = True
         texture.build_mipmaps()
         texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
-        entry = self._textures[key] = DetailTexture(texture, texels.slope_scale)
-        while len(self._textures) > CACHE_SIZE:
-            self._textures.popitem(last=False)[1].texture.release()
-        return entry
+        return DetailTexture(texture, texels.slope_scale)
 
     def release(self) -> None:
-        for entry in self._textures.values():
+        for entry in self._textures:
             entry.texture.release()
         self._textures.clear()
