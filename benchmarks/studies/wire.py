@@ -277,6 +277,13 @@ def _unordered_error(decoded: np.ndarray, original: np.ndarray) -> float:
     return float(np.abs(distance).max())
 
 
+def decoded_positions(frame: Frame, error: float) -> np.ndarray:
+    """`frame`'s positions through the compact encoding at the bound `error` (sent order)."""
+    encoder = CompactEncoder(position_error=error)
+    header, payload = encoder.encode(0, frame)
+    return CompactDecoder().decode(header, payload, max_particles=10**8)["positions"]
+
+
 def image_change(frames: list[Frame], radius: float, camera: dict[str, Any],
                  fractions: tuple[float, ...], size: tuple[int, int] = (256, 160),
                  ) -> list[tuple[float, float, float, float, float]]:  # fmt: skip
