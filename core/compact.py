@@ -40,6 +40,7 @@ import zstandard
 from sphrender.core.compact_cells import CELLS, CellLayout, cells_layout, decode_cells
 from sphrender.core.errors import InputError, show
 from sphrender.core.protocol import plan_frame_arrays
+from sphrender.core.scratch import DECODE_SCRATCH, Lease
 
 __all__ = [
     "ENCODING",
@@ -259,10 +260,12 @@ def _planes(values: np.ndarray, width: int) -> bytes:
     return planes.tobytes()
 
 
-def _unplanes(data: bytes, count: int, width: int) -> np.ndarray:
-    """Byte planes -> values as unsigned integers `width` bytes wide."""
-    planes = np.frombuffer(data, np.uint8).reshape(width, count)
-    values = planes[width - 1].astype(f"=u{width}")
+def _unplanes(data: Any, count: int, width: int, scratch: Lease | None = None) -> np.ndarray:
+    """Byte planes -> values as unsigned integers `width` bytes wide (in `scratch` if given)."""
+    planes = np.frombuffer(data, np.uint8, count * width).reshape(width, count)
+    kind = np.dtype(f"=u{width}")
+    values = np.empty(count, kind) if scratch is None else scratch.array(count, kind)
+    values[...] = planes[width - 1]
     for b in range(width - 2, -1, -1):  # shifts, not a strided transpose: contiguous rows
         values <<= 8
         values |= planes[b]
@@ -273,11 +276,16 @@ def _zigzag(r: np.ndarray) -> np.ndarray:
     return ((r << 1) ^ (r >> 63)).view(np.uint64)
 
 
-def _unzigzag(z: np.ndarray) -> np.ndarray:
+def _unzigzag(z: np.ndarray, scratch: Lease) -> np.ndarray:
     """Zigzag back to signed, in the stored width (cheap); callers widen when summing."""
     one = z.dtype.type(1)
-    signed = np.dtype(f"<i{z.dtype.itemsize}")
-    return (z >> one).view(signed) ^ -(z & one).view(signed)
+    signed = np.dtype(f"=i{z.dtype.itemsize}")
+    sign = scratch.array(z.shape, z.dtype)
+    np.bitwise_and(z, one, out=sign)
+    np.negative(sign.view(signed), out=sign.view(signed))
+    half = scratch.array(z.shape, z.dtype)
+    np.right_shift(z, one, out=half)
+    return np.bitwise_xor(half.view(signed), sign.view(signed), out=half.view(signed))
 
 
 def _width_for(top: int) -> int:
@@ -347,7 +355,8 @@ def _decompressor() -> zstandard.ZstdDecompressor:
     return dctx
 
 
-def _inflate(slot: CompactSlot, index: int, data: memoryview) -> bytes:
+def _inflate(slot: CompactSlot, index: int, data: memoryview, out: np.ndarray) -> np.ndarray:
+    """Section `index`'s zstd frame inflated into `out` (uint8, the declared raw size)."""
     where = f"arrays[{index}].bytes"
     expected = slot.raw_size
     try:
@@ -362,14 +371,20 @@ def _inflate(slot: CompactSlot, index: int, data: memoryview) -> bytes:
         raise InputError(
             where, f"zstd frame declares {declared}; the header's shape and width need {expected}"
         )
+    target = out.data.cast("B")
+    filled = 0
     try:
-        out = _decompressor().decompress(data, max_output_size=expected)
+        reader = _decompressor().stream_reader(data, read_across_frames=False)
+        while filled < expected and (got := reader.readinto(target[filled:])):
+            filled += got
+        past = len(reader.read(1))  # reads to the frame's end, where zstd checks its checksum
     except zstandard.ZstdError:
         raise InputError(
             where, "compressed data is damaged or truncated (zstd refused it)"
         ) from None
-    if len(out) != expected:
-        raise InputError(where, f"inflates to {len(out)} bytes, the header needs {expected}")
+    if filled != expected or past:
+        size = f"more than {expected}" if past else str(filled)
+        raise InputError(where, f"inflates to {size} bytes, the header needs {expected}")
     return out
 
 
@@ -379,36 +394,40 @@ def decode_compact_arrays(
     base_q: Mapping[str, np.ndarray] | None = None,
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Decode planned slots: (arrays in their native dtypes, quantised integers (C, N) by name,
-    in whichever integer dtype decoded them)."""
+    in whichever integer dtype decoded them). Temporaries come from `DECODE_SCRATCH`; what is
+    returned is allocated afresh."""
     view = memoryview(payload).cast("B")
     arrays: dict[str, np.ndarray] = {}
     quantised: dict[str, np.ndarray] = {}
-    for index, slot in enumerate(slots):
-        raw = _inflate(slot, index, view[slot.offset : slot.offset + slot.nbytes])
-        count = math.prod(slot.shape)
-        if slot.coding == "raw":
-            native = slot.dtype.newbyteorder("=")
-            values = _unplanes(raw, count, slot.width)  # native-order integers of the bytes
-            arrays[slot.name] = values.view(native).reshape(slot.shape)
-            continue
-        n, c = slot.shape[0], slot.components
-        if slot.layout is not None:
-            q = decode_cells(slot.layout, index, raw, n)
-        else:
-            stored = _unplanes(raw, count, slot.width).reshape(c, n)
-            q = _predicted(slot, index, stored, base_q or {})
-        _check_range(slot, index, q)
-        arrays[slot.name] = _dequantised(slot, q)
-        quantised[slot.name] = q
+    with DECODE_SCRATCH.lease() as scratch:
+        for index, slot in enumerate(slots):
+            section = view[slot.offset : slot.offset + slot.nbytes]
+            raw = _inflate(slot, index, section, scratch.array(slot.raw_size, np.uint8))
+            count = math.prod(slot.shape)
+            if slot.coding == "raw":
+                native = slot.dtype.newbyteorder("=")
+                values = _unplanes(raw, count, slot.width)  # native-order integers of the bytes
+                arrays[slot.name] = values.view(native).reshape(slot.shape)
+                continue
+            n, c = slot.shape[0], slot.components
+            if slot.layout is not None:
+                q = decode_cells(slot.layout, index, raw, n, scratch)
+            else:
+                keep = slot.predict == "none"  # the stored values are the integers themselves
+                stored = _unplanes(raw, count, slot.width, None if keep else scratch).reshape(c, n)
+                q = _predicted(slot, index, stored, base_q or {}, scratch)
+            _check_range(slot, index, q)
+            arrays[slot.name] = _dequantised(slot, q, scratch)
+            quantised[slot.name] = q
     return arrays, quantised
 
 
-def _dequantised(slot: CompactSlot, q: np.ndarray) -> np.ndarray:
+def _dequantised(slot: CompactSlot, q: np.ndarray, scratch: Lease) -> np.ndarray:
     """lo + q * step per component, in float64 (exact for q: within the bounds, so below 2^52),
     then in the slot's dtype and shape."""
     n, c = slot.shape[0], slot.components
     decoded = np.empty((n, c), slot.dtype.newbyteorder("="))
-    wide = np.empty(n, np.float64)
+    wide = scratch.array(n, np.float64)
     for k in range(c):  # the sum in float64, rounded once into the output's column
         np.multiply(q[k], slot.step, out=wide)
         np.add(wide, slot.lo[k], out=decoded[:, k], casting="unsafe")
@@ -416,15 +435,19 @@ def _dequantised(slot: CompactSlot, q: np.ndarray) -> np.ndarray:
 
 
 def _predicted(
-    slot: CompactSlot, index: int, stored: np.ndarray, base_q: Mapping[str, np.ndarray]
+    slot: CompactSlot,
+    index: int,
+    stored: np.ndarray,
+    base_q: Mapping[str, np.ndarray],
+    scratch: Lease,
 ) -> np.ndarray:
-    """The quantised integers (c, n): as stored (``none``) or int64."""
+    """The quantised integers (c, n): as stored (``none``) or as running or frame sums."""
     if slot.predict == "none":
         # Only 8-byte values can reach 2^52.
         if slot.width == 8 and stored.size and int(stored.max()) >= MAX_Q:
             raise InputError(f"arrays[{index}]", "holds a value beyond 2^52")
         return stored
-    residual = _unzigzag(stored)
+    residual = _unzigzag(stored, scratch)
     if slot.predict == "particle":
         return _prefix_sum(residual, (int(stored.max()) + 1) // 2 if stored.size else 0)
     base = base_q.get(slot.name)
@@ -448,9 +471,10 @@ def _prefix_sum(residual: np.ndarray, largest: int | None = None) -> np.ndarray:
     (a bound on |residual|) times n stays below 2^31, so no sum can wrap; else in int64, where
     every sum up to the first one outside the bounds is exact (a value below 2^52 plus one
     residual) and `_check_range` refuses that one; 8-byte residuals wrap as the encoder's
-    integers would."""
+    integers would. Summed in place in the widened copy (no cast buffer of numpy's own)."""
     narrow = largest is not None and residual.shape[1] * largest < 2**31
-    return np.cumsum(residual, axis=1, dtype=np.int32 if narrow else np.int64)
+    sums = residual.astype(np.int32 if narrow else np.int64)
+    return np.cumsum(sums, axis=1, out=sums)
 
 
 def _check_range(slot: CompactSlot, index: int, q: np.ndarray) -> None:

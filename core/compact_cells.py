@@ -19,8 +19,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from sphrender.core.errors import InputError, show
+from sphrender.core.scratch import Lease
 
 __all__ = ["CELLS", "CellLayout", "cells_layout", "decode_cells", "encode_cells"]
 
@@ -95,15 +97,20 @@ def _planes(values: np.ndarray, width: int) -> bytes:
     return planes.tobytes()
 
 
-def _unplanes(data: memoryview, count: int, width: int) -> np.ndarray:
+def _unplanes(data: memoryview, count: int, width: int, scratch: Lease | None) -> np.ndarray:
     planes = np.frombuffer(data, np.uint8, count * width).reshape(width, count)
     if width == 1:
         return planes[0]  # a view of the section: nothing to combine
-    values = planes[width - 1].astype(f"=u{width}")
+    values = _empty(scratch, count, np.dtype(f"=u{width}"))
+    values[...] = planes[width - 1]
     for b in range(width - 2, -1, -1):
         values <<= 8
         values |= planes[b]
     return values
+
+
+def _empty(scratch: Lease | None, shape: int, dtype: npt.DTypeLike) -> np.ndarray:
+    return np.empty(shape, dtype) if scratch is None else scratch.array(shape, dtype)
 
 
 def _width(top: int) -> int:
@@ -173,33 +180,56 @@ def encode_cells(q: np.ndarray, cell_bits: int) -> tuple[np.ndarray, dict[str, A
     return order, spec, b"".join(sections)
 
 
-def decode_cells(layout: CellLayout, index: int, raw: bytes, particles: int) -> np.ndarray:
+def decode_cells(
+    layout: CellLayout, index: int, raw: Any, particles: int, scratch: Lease | None = None
+) -> np.ndarray:
     """The quantised positions (3, N) of an inflated ``cells`` section, in the order sent: int32
     where every cell number and coordinate fits 31 bits, else int64; every value is checked
-    except against the upper bounds (the caller's range check)."""
+    except against the upper bounds (the caller's range check). Temporaries from `scratch`
+    when given; the result is allocated afresh."""
     where = f"arrays[{index}]"
     view = memoryview(raw)
     m, k = layout.cells, layout.cell_bits
-    gaps = _unplanes(view, m, layout.width)
+    gaps = _unplanes(view, m, layout.width, scratch)
     at = m * layout.width
     total_bits = sum(layout.grid_bits)
     if m and float(gaps.sum(dtype=np.float64)) >= 2.0**total_bits:
         raise InputError(f"{where}.cells", f"gaps sum past the grid's {total_bits} bits")
     narrow = total_bits <= 31 and max(layout.grid_bits) + k <= 31
     dtype = np.int32 if narrow else np.int64
-    number = np.cumsum(gaps, dtype=dtype)  # below 2^total_bits (checked): no wrap
     if m < particles:
-        counts = _unplanes(view[at:], m, layout.count_width)
+        counts = _unplanes(view[at:], m, layout.count_width, scratch)
         at += m * layout.count_width
         if counts.min() < 1 or int(counts.sum(dtype=np.uint64)) != particles:
             raise InputError(
                 f"{where}.cells", f"counts must each be >= 1 and sum to {particles} particles"
             )
-        number = np.repeat(number, counts)
-    offsets = _unplanes(view[at:], 3 * particles, layout.offset_width).reshape(3, particles)
+        number = _spread(gaps, counts, particles, dtype, scratch)  # sums checked: no wrap
+    else:
+        number = np.cumsum(gaps, dtype=dtype, out=_empty(scratch, m, dtype))
+    offsets = _unplanes(view[at:], 3 * particles, layout.offset_width, scratch)
+    offsets = offsets.reshape(3, particles)
     if particles and int(offsets.max()) >> k:
         raise InputError(f"{where}.cell_bits", f"an offset is not below 2^{k}")
     return _coordinates(number, offsets, layout.grid_bits, k, dtype)
+
+
+def _spread(
+    gaps: np.ndarray, counts: np.ndarray, particles: int, dtype: Any, scratch: Lease | None
+) -> np.ndarray:
+    """Each particle's cell number (the gaps' running sum, once per particle in the cell): each
+    cell's gap at its first particle, 0 elsewhere, summed. `counts` (each >= 1) sum to
+    `particles`."""
+    starts = _empty(scratch, counts.size - 1, np.int64)
+    starts[...] = counts[:-1]  # widened first: a cumsum into another dtype casts a copy
+    np.cumsum(starts, out=starts)
+    steps = _empty(scratch, gaps.size, dtype)
+    steps[...] = gaps  # widened once: assigning the gaps through `starts` would cast a copy
+    number = _empty(scratch, particles, dtype)
+    number[...] = 0
+    number[starts] = steps[1:]
+    number[0] = steps[0]
+    return np.cumsum(number, dtype=dtype, out=number)
 
 
 def _coordinates(

@@ -277,6 +277,58 @@ def _unordered_error(decoded: np.ndarray, original: np.ndarray) -> float:
     return float(np.abs(distance).max())
 
 
+#: Decode timings in a process set up as the service's (server/service/heap.py): its transport
+#: threads decode with every block from 128 KiB in a mapping of its own.
+_SERVICE_DECODE = """
+import json, resource, sys, time
+sys.path.insert(0, sys.argv[1])
+from sphrender.server.service.heap import configure_malloc
+assert configure_malloc()
+from benchmarks.studies.wire import DAM_RADIUS, dam_sequence
+from sphrender.core.compact import CompactDecoder
+from sphrender.core.compact_encoder import CompactEncoder
+copies, count, fraction = int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
+frames = dam_sequence(copies)[:count]
+encoder = CompactEncoder(position_error=fraction * DAM_RADIUS)
+messages = [encoder.encode(i, frame) for i, frame in enumerate(frames)]
+decoder, cpu, faults = CompactDecoder(), [], []
+for header, payload in messages:
+    held, best = (decoder.base_id, decoder.base_q), float("inf")
+    for _ in range(3):
+        decoder.base_id, decoder.base_q = held
+        before, start = resource.getrusage(resource.RUSAGE_SELF).ru_minflt, time.process_time()
+        decoder.decode(header, payload, max_particles=10**8)
+        best = min(best, time.process_time() - start)
+        after = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    cpu.append(best * 1e3)
+    faults.append(after - before)
+later = sorted(zip(cpu[1:], faults[1:]))
+print(json.dumps({"particles": len(frames[0]["positions"]), "cpu_ms": later[len(later) // 2][0],
+                  "faults": later[len(later) // 2][1]}))
+"""
+
+
+@dataclass(frozen=True)
+class ServiceDecode:
+    particles: int
+    cpu_ms: float  # median over the frames after the first of the best of 3 decodes
+    faults: int  # the minor page faults of that decode
+
+
+def service_decode(copies: int, frames: int, fraction: float) -> ServiceDecode:
+    """The session decode of `dam_sequence(copies)[:frames]` at the bound `fraction` x r, timed
+    in a child process with the service's malloc settings."""
+    import json
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[2]
+    args = [str(root), str(copies), str(frames), str(fraction)]
+    done = subprocess.run([sys.executable, "-c", _SERVICE_DECODE, *args], capture_output=True,
+                          text=True, timeout=1800, check=True)  # fmt: skip
+    return ServiceDecode(**json.loads(done.stdout))
+
+
 def decoded_positions(frame: Frame, error: float) -> np.ndarray:
     """`frame`'s positions through the compact encoding at the bound `error` (sent order)."""
     encoder = CompactEncoder(position_error=error)

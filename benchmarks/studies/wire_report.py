@@ -15,11 +15,13 @@ from benchmarks.studies.wire import (
     FRACTIONS,
     SPATTER_RADIUS,
     CodecRow,
+    ServiceDecode,
     _best_ms,
     codec_rows,
     dam_sequence,
     image_change,
     peer_rows,
+    service_decode,
     spatter_sequence,
 )
 from sphrender.core.compact_encoder import CompactEncoder
@@ -60,6 +62,11 @@ def wire_section(*, quick: bool, link: bool, log: Callable[[str], None]) -> list
         del big
         rows += codec_rows("spatter", spatter_sequence(1_000_000, 4), SPATTER_RADIUS, (0.01,), 1)
     lines += _codec_table(rows)
+    log("wire: decode as the service runs it")
+    service = [service_decode(3, len(dam), 0.01)]
+    if not quick:
+        service.append(service_decode(31, 4, 0.01))
+    lines += _service_table(service)
     log("wire: peers")
     lines += _peer_table(dam[4]["positions"], rows)
     log("wire: image change")
@@ -67,7 +74,7 @@ def wire_section(*, quick: bool, link: bool, log: Callable[[str], None]) -> list
     if link:
         log("wire: rate-limited link")
         lines += _link_table(dam)
-    lines += ["", *_verdicts(rows), ""]
+    lines += ["", *_verdicts(rows, service), ""]
     return lines
 
 
@@ -104,6 +111,23 @@ def _codec_table(rows: list[CodecRow]) -> list[str]:
             f"{row.encode_ms:.1f} | {row.decode_ms:.1f} | {per:.1f} | {per_cpu:.1f} | "
             f"{row.max_error_r:.4f} |"
         )
+    return [*lines, ""]
+
+
+def _service_table(rows: list[ServiceDecode]) -> list[str]:
+    lines = [
+        "The same decodes in a process set up as the service (server/service/heap.py: every "
+        "block from 128 KiB in a mapping of its own, so that resident memory stays flat): what "
+        "a decode returns (the arrays, and the integers kept for the next frame) faults its "
+        "pages in, ~2.4 us each on this VM; its temporaries come from a pool "
+        "(core/scratch.py). Dam break, r/100, in a session:",
+        "",
+        "| particles | decode CPU ms per 100k | page faults a frame |",
+        "|---:|---:|---:|",
+    ]
+    for row in rows:
+        per = row.cpu_ms * 100_000 / row.particles
+        lines.append(f"| {row.particles:,} | {per:.1f} | {row.faults:,} |")
     return [*lines, ""]
 
 
@@ -223,10 +247,11 @@ def _fps_verdict(rows: list[LinkRow]) -> str:
     )
 
 
-def _verdicts(rows: list[CodecRow]) -> list[str]:
+def _verdicts(rows: list[CodecRow], service: list[ServiceDecode]) -> list[str]:
     dam = [r for r in rows if r.sequence == "dam break" and r.fraction == 0.01]
     per100k = max(r.decode_ms * 100_000 / r.particles for r in dam)
     cpu100k = max(r.decode_cpu_ms * 100_000 / r.particles for r in dam)
+    in_service = max(r.cpu_ms * 100_000 / r.particles for r in service)
     return [
         f"* positions <= 3 B/particle at r/100 on dam-break frames in a session: "
         f"{'met' if all(r.positions_bpp <= 3 for r in dam) else 'not met'} "
@@ -234,8 +259,10 @@ def _verdicts(rows: list[CodecRow]) -> list[str]:
         f"* whole frame <= 5 B/particle: "
         f"{'met' if all(r.frame_bpp <= 5 for r in dam) else 'not met'} "
         f"({', '.join(f'{r.frame_bpp:.2f}' for r in dam)})",
-        f"* decode <= 2 ms per 100k particles: {'met' if cpu100k <= 2 else 'not met'} "
-        f"(worst {cpu100k:.1f} ms of CPU time, {per100k:.1f} ms of wall time on this shared CPU)",
+        f"* decode <= 2 ms per 100k particles: "
+        f"{'met' if max(cpu100k, in_service) <= 2 else 'not met'} (worst {in_service:.1f} ms "
+        f"of CPU time as the service decodes; {cpu100k:.1f} ms of CPU time, {per100k:.1f} ms "
+        f"of wall time in this process)",
     ]
 
 
