@@ -40,7 +40,7 @@ import zstandard
 from sphrender.core.compact_cells import CELLS, CellLayout, cells_layout, decode_cells
 from sphrender.core.errors import InputError, show
 from sphrender.core.protocol import plan_frame_arrays
-from sphrender.core.scratch import DECODE_SCRATCH, Lease
+from sphrender.core.scratch import DECODE_SCRATCH, Allocate, Lease
 
 __all__ = [
     "ENCODING",
@@ -260,11 +260,10 @@ def _planes(values: np.ndarray, width: int) -> bytes:
     return planes.tobytes()
 
 
-def _unplanes(data: Any, count: int, width: int, scratch: Lease | None = None) -> np.ndarray:
-    """Byte planes -> values as unsigned integers `width` bytes wide (in `scratch` if given)."""
+def _unplanes(data: Any, count: int, width: int, allocate: Allocate = np.empty) -> np.ndarray:
+    """Byte planes -> values as unsigned integers `width` bytes wide (in `allocate`'s array)."""
     planes = np.frombuffer(data, np.uint8, count * width).reshape(width, count)
-    kind = np.dtype(f"=u{width}")
-    values = np.empty(count, kind) if scratch is None else scratch.array(count, kind)
+    values = allocate(count, np.dtype(f"=u{width}"))
     values[...] = planes[width - 1]
     for b in range(width - 2, -1, -1):  # shifts, not a strided transpose: contiguous rows
         values <<= 8
@@ -299,10 +298,14 @@ def _width_for(top: int) -> int:
 @dataclass
 class CompactDecoder:
     """Decodes compact FRAMEs of one session, holding the last frame's quantised integers for
-    ``predict: frame`` (transport threads only; one decoder per session)."""
+    ``predict: frame`` (transport threads only; one decoder per session). A decoder that is not
+    to `hold` them (one frame, as over HTTP) keeps nothing."""
 
     base_id: int | None = None
     base_q: dict[str, np.ndarray] = field(default_factory=dict)
+    hold: bool = True
+    #: The pooled buffers behind `base_q`, given back once the next frame no longer needs them.
+    _held: Lease | None = field(default=None, repr=False, compare=False)
 
     def decode(
         self,
@@ -312,20 +315,37 @@ class CompactDecoder:
         max_particles: int,
     ) -> dict[str, np.ndarray]:
         """The frame's arrays; on any error the held base is dropped (the client resends full)."""
-        held_id, held_q = self.base_id, self.base_q
-        self.base_id, self.base_q = None, {}
-        slots, _count = plan_compact_arrays(
-            header, memoryview(payload).nbytes, max_particles=max_particles
-        )
-        if any(slot.predict in ("frame", "motion") for slot in slots):
-            _check_base(header.get("base"), held_id)
-        elif "base" in header:
-            raise InputError("base", "is only for frames with an array predicted from a frame")
-        arrays, quantised = decode_compact_arrays(slots, payload, held_q)
-        frame_id = header.get("id")
-        self.base_id = frame_id if isinstance(frame_id, int) else None
-        self.base_q = quantised
+        held_id, held_q, held = self.base_id, self.base_q, self._held
+        self.base_id, self.base_q, self._held = None, {}, None
+        kept = DECODE_SCRATCH.hold() if self.hold else None
+        try:
+            slots, _count = plan_compact_arrays(
+                header, memoryview(payload).nbytes, max_particles=max_particles
+            )
+            if any(slot.predict in ("frame", "motion") for slot in slots):
+                _check_base(header.get("base"), held_id)
+            elif "base" in header:
+                raise InputError("base", "is only for frames with an array predicted from a frame")
+            arrays, quantised = decode_compact_arrays(slots, payload, held_q, kept)
+        except BaseException:
+            if kept is not None:
+                kept.release()
+            raise
+        finally:
+            if held is not None:
+                held.release()
+        if kept is not None:
+            frame_id = header.get("id")
+            self.base_id = frame_id if isinstance(frame_id, int) else None
+            self.base_q, self._held = quantised, kept
         return arrays
+
+    def forget(self) -> None:
+        """Hold no frame (its buffers go back to the pool)."""
+        held, self._held = self._held, None
+        self.base_id, self.base_q = None, {}
+        if held is not None:
+            held.release()
 
 
 def _check_base(base: Any, held: int | None) -> None:
@@ -392,10 +412,12 @@ def decode_compact_arrays(
     slots: list[CompactSlot],
     payload: bytes | bytearray | memoryview,
     base_q: Mapping[str, np.ndarray] | None = None,
+    kept: Lease | None = None,
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Decode planned slots: (arrays in their native dtypes, quantised integers (C, N) by name,
-    in whichever integer dtype decoded them). Temporaries come from `DECODE_SCRATCH`; what is
-    returned is allocated afresh."""
+    in whichever integer dtype decoded them). Temporaries come from `DECODE_SCRATCH`, the
+    integers from `kept` when given (else afresh), the arrays afresh."""
+    keep: Allocate = np.empty if kept is None else kept.array
     view = memoryview(payload).cast("B")
     arrays: dict[str, np.ndarray] = {}
     quantised: dict[str, np.ndarray] = {}
@@ -411,11 +433,14 @@ def decode_compact_arrays(
                 continue
             n, c = slot.shape[0], slot.components
             if slot.layout is not None:
-                q = decode_cells(slot.layout, index, raw, n, scratch)
+                q = decode_cells(slot.layout, index, raw, n, scratch, keep)
+            elif slot.predict == "none":  # the stored values are the integers themselves
+                q = _unplanes(raw, count, slot.width, keep).reshape(c, n)
+                if slot.width == 8 and q.size and int(q.max()) >= MAX_Q:
+                    raise InputError(f"arrays[{index}]", "holds a value beyond 2^52")
             else:
-                keep = slot.predict == "none"  # the stored values are the integers themselves
-                stored = _unplanes(raw, count, slot.width, None if keep else scratch).reshape(c, n)
-                q = _predicted(slot, index, stored, base_q or {}, scratch)
+                stored = _unplanes(raw, count, slot.width, scratch.array).reshape(c, n)
+                q = _predicted(slot, index, stored, base_q or {}, scratch, keep)
             _check_range(slot, index, q)
             arrays[slot.name] = _dequantised(slot, q, scratch)
             quantised[slot.name] = q
@@ -440,16 +465,14 @@ def _predicted(
     stored: np.ndarray,
     base_q: Mapping[str, np.ndarray],
     scratch: Lease,
+    keep: Allocate,
 ) -> np.ndarray:
-    """The quantised integers (c, n): as stored (``none``) or as running or frame sums."""
-    if slot.predict == "none":
-        # Only 8-byte values can reach 2^52.
-        if slot.width == 8 and stored.size and int(stored.max()) >= MAX_Q:
-            raise InputError(f"arrays[{index}]", "holds a value beyond 2^52")
-        return stored
+    """The quantised integers (c, n) of a predicted array, as running or frame sums in an
+    array from `keep`."""
     residual = _unzigzag(stored, scratch)
     if slot.predict == "particle":
-        return _prefix_sum(residual, (int(stored.max()) + 1) // 2 if stored.size else 0)
+        largest = (int(stored.max()) + 1) // 2 if stored.size else 0
+        return _prefix_sum(residual, keep, largest)
     base = base_q.get(slot.name)
     if base is None or base.shape != residual.shape:
         have = "none" if base is None else f"{base.shape[1]} particles"
@@ -459,21 +482,26 @@ def _predicted(
             f"frame; it has {have}; send this frame in full",
         )
     # motion: each particle moved as the one before it, plus s
-    moved = _prefix_sum(residual) if slot.predict == "motion" else residual.astype(np.int64)
+    if slot.predict == "motion":
+        moved = _prefix_sum(residual, keep)
+    else:
+        moved = keep(residual.shape, np.int64)
+        moved[...] = residual
     # The base's integers are below 2^52 (their dtype may be uint64): the sums stay exact up to
     # the first value outside the bounds.
     np.add(moved, base, out=moved, casting="unsafe")
     return moved
 
 
-def _prefix_sum(residual: np.ndarray, largest: int | None = None) -> np.ndarray:
+def _prefix_sum(residual: np.ndarray, keep: Allocate, largest: int | None = None) -> np.ndarray:
     """Running sums of signed residuals (c, n) along the particles: in int32 when `largest`
     (a bound on |residual|) times n stays below 2^31, so no sum can wrap; else in int64, where
     every sum up to the first one outside the bounds is exact (a value below 2^52 plus one
     residual) and `_check_range` refuses that one; 8-byte residuals wrap as the encoder's
     integers would. Summed in place in the widened copy (no cast buffer of numpy's own)."""
     narrow = largest is not None and residual.shape[1] * largest < 2**31
-    sums = residual.astype(np.int32 if narrow else np.int64)
+    sums = keep(residual.shape, np.int32 if narrow else np.int64)
+    sums[...] = residual
     return np.cumsum(sums, axis=1, out=sums)
 
 

@@ -22,7 +22,7 @@ import numpy as np
 import numpy.typing as npt
 
 from sphrender.core.errors import InputError, show
-from sphrender.core.scratch import Lease
+from sphrender.core.scratch import Allocate, Lease
 
 __all__ = ["CELLS", "CellLayout", "cells_layout", "decode_cells", "encode_cells"]
 
@@ -181,12 +181,17 @@ def encode_cells(q: np.ndarray, cell_bits: int) -> tuple[np.ndarray, dict[str, A
 
 
 def decode_cells(
-    layout: CellLayout, index: int, raw: Any, particles: int, scratch: Lease | None = None
+    layout: CellLayout,
+    index: int,
+    raw: Any,
+    particles: int,
+    scratch: Lease | None = None,
+    keep: Allocate = np.empty,
 ) -> np.ndarray:
     """The quantised positions (3, N) of an inflated ``cells`` section, in the order sent: int32
     where every cell number and coordinate fits 31 bits, else int64; every value is checked
     except against the upper bounds (the caller's range check). Temporaries from `scratch`
-    when given; the result is allocated afresh."""
+    when given, the result from `keep`."""
     where = f"arrays[{index}]"
     view = memoryview(raw)
     m, k = layout.cells, layout.cell_bits
@@ -211,7 +216,7 @@ def decode_cells(
     offsets = offsets.reshape(3, particles)
     if particles and int(offsets.max()) >> k:
         raise InputError(f"{where}.cell_bits", f"an offset is not below 2^{k}")
-    return _coordinates(number, offsets, layout.grid_bits, k, dtype)
+    return _coordinates(number, offsets, layout.grid_bits, k, keep((3, particles), dtype))
 
 
 def _spread(
@@ -237,12 +242,11 @@ def _coordinates(
     offsets: np.ndarray,
     grid_bits: tuple[int, int, int],
     cell_bits: int,
-    dtype: type[np.signedinteger[Any]],
+    q: np.ndarray,
 ) -> np.ndarray:
     """Each particle's cell coordinate per axis (shifted and masked out of its cell number),
-    times 2^cell_bits, plus its offset in the cell."""
+    times 2^cell_bits, plus its offset in the cell, into `q` (3, N)."""
     by, bz = grid_bits[1], grid_bits[2]
-    q = np.empty((3, number.size), dtype)
     for axis, (shift, mask) in enumerate(((by + bz, -1), (bz, (1 << by) - 1), (0, (1 << bz) - 1))):
         row = q[axis]
         if shift:

@@ -79,7 +79,7 @@ class FrameDecoder:
 
     def forget(self) -> None:
         """Hold no previous frame (after a raw frame, or a frame refused from its header)."""
-        self.compact.base_id, self.compact.base_q = None, {}
+        self.compact.forget()
 
     def decode(
         self,
@@ -143,4 +143,5 @@ def decode_frame_body(
         )
     admit(scene_json, plan.count, plan.names)
     payload = view[PREFIX_SIZE + header_len :]
-    return FrameDecoder().decode(header, payload, max_particles=max_particles)
+    one_frame = FrameDecoder(CompactDecoder(hold=False))
+    return one_frame.decode(header, payload, max_particles=max_particles)

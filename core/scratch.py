@@ -5,7 +5,7 @@ more is a mapping of its own whose pages fault in on first touch and go back to 
 freed. A decoder that makes a dozen such temporaries per frame pays those faults on every frame.
 A `ScratchPool` keeps the buffers its leases return (at most `max_bytes` in all, the largest
 dropped first) and hands them out again; a `Lease` gives back everything it took when its
-``with`` block ends. Nothing taken from a lease may outlive the block.
+``with`` block ends, or when released. Nothing taken from a lease may be used after that.
 """
 
 from __future__ import annotations
@@ -14,15 +14,21 @@ import math
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["DECODE_SCRATCH", "Lease", "ScratchPool"]
+__all__ = ["DECODE_SCRATCH", "Allocate", "Lease", "ScratchPool"]
 
 #: Below this, malloc's heaps serve a block without a mapping of its own: not worth pooling.
 MIN_POOLED_BYTES = 64 << 10
+
+
+class Allocate(Protocol):
+    """Where an array comes from: `np.empty` or a lease's `Lease.array`."""
+
+    def __call__(self, shape: Any, dtype: npt.DTypeLike, /) -> np.ndarray[Any, Any]: ...
 
 
 class ScratchPool:
@@ -40,11 +46,17 @@ class ScratchPool:
 
     @contextmanager
     def lease(self) -> Iterator[Lease]:
+        """A lease that gives its buffers back when the ``with`` block ends."""
         lease = Lease(self)
         try:
             yield lease
         finally:
-            self._give(lease.taken)
+            lease.release()
+
+    def hold(self) -> Lease:
+        """A lease the caller ends with `Lease.release` (or never: its buffers are then freed
+        with the last array that views them)."""
+        return Lease(self)
 
     def _take(self, nbytes: int) -> npt.NDArray[np.uint8]:
         """The smallest free buffer of at least `nbytes`, else a new one."""
@@ -64,22 +76,27 @@ class ScratchPool:
 
 
 class Lease:
-    """Arrays from one pool for the length of a ``with`` block."""
+    """Arrays from one pool, valid until the lease is released."""
 
     def __init__(self, pool: ScratchPool) -> None:
         self._pool = pool
         self.taken: list[npt.NDArray[np.uint8]] = []
 
-    def array(self, shape: int | tuple[int, ...], dtype: npt.DTypeLike) -> np.ndarray[Any, Any]:
+    def array(self, shape: Any, dtype: npt.DTypeLike, /) -> np.ndarray[Any, Any]:
         """An uninitialised C-contiguous array, valid until the lease ends."""
         kind = np.dtype(dtype)
-        dims = (shape,) if isinstance(shape, int) else shape
+        dims = (int(shape),) if np.ndim(shape) == 0 else tuple(int(d) for d in shape)
         nbytes = math.prod(dims) * kind.itemsize
         if nbytes < MIN_POOLED_BYTES:
             return np.empty(dims, kind)
         buffer = self._pool._take(nbytes)
         self.taken.append(buffer)
         return buffer[:nbytes].view(kind).reshape(dims)
+
+    def release(self) -> None:
+        """Give every buffer back; arrays taken from this lease must no longer be used."""
+        taken, self.taken = self.taken, []
+        self._pool._give(taken)
 
 
 #: The compact decoder's temporaries: a 100k-particle frame's take about 5 MB, a 1M one's 50.
