@@ -52,7 +52,19 @@ SETTINGS: dict[str, Setting] = {
     "fast": preset_setting("fast"),
     "balanced": preset_setting("balanced"),
     "crease30": Setting("balanced + crease test 30°", {"quality": {"crease_angle": 30.0}}),
+    "guide": Setting("balanced + normal guide 35-60°", {"quality": {"normal_guide": 35.0}}),
 }
+
+
+def _guide_setting(text: str) -> Setting:
+    """`guide:KEY=VALUE:...`: balanced with the normal guide on (35-60 deg unless given),
+    quality.normal_guide_KEY (or normal_guide itself for KEY `angle`) set to each VALUE."""
+    quality: dict[str, float] = {"normal_guide": 35.0}
+    for item in text.split(":")[1:]:
+        key, value = item.split("=")
+        name = "normal_guide" if key == "angle" else f"normal_guide_{key}"
+        quality[name] = int(value) if key == "passes" else float(value)
+    return Setting(f"balanced + {text}", {"quality": quality})
 
 
 @dataclass(frozen=True)
@@ -185,7 +197,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--demo", type=Path, default=None)
     parser.add_argument("--error-maps", type=Path, default=None)
     args = parser.parse_args(argv)
-    settings = [SETTINGS[name] for name in args.settings.split(",")]
+    settings = [
+        _guide_setting(name) if name.startswith("guide:") else SETTINGS[name]
+        for name in args.settings.split(",")
+    ]
     with GLContext() as gl:
         renderer = SurfaceRenderer(gl)
         try:

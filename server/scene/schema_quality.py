@@ -172,6 +172,24 @@ class QualityConfig:
         high=90.0,
         unit="degrees",
     )
+    normal_guide: float = bench_spec(
+        0.0,
+        "separable narrow_range: each tap weighted by 1 - smoothstep(this, + normal_guide_width "
+        "deg) of the turn between the pilot's normals at centre and tap, each 1-D pass a weighted "
+        "line fit (faces stay flat up to a box edge); 0: off",
+    )
+    normal_guide_width: float = bench_spec(25.0, "normal_guide: degrees from weight 1 to 0")
+    normal_guide_pilot: float = bench_spec(
+        1.0, "normal_guide: the pilot's Gaussian sigma (the splat's depth), in projected radii"
+    )
+    normal_guide_turn: float = bench_spec(
+        0.0,
+        "normal_guide: the turn tolerated grows by the tap's offset over this many particle "
+        "radii (a sphere of that radius passes); 0: off",
+    )
+    normal_guide_passes: int = bench_spec(
+        0, "normal_guide: the 1-D passes (from the first) whose taps it weights; 0: all"
+    )
     normal_stencil: float = spec(
         1.0,
         "normals from a central difference over +-this many projected radii (1 px to "

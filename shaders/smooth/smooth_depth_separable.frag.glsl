@@ -23,9 +23,20 @@
 #define IMAGE_BORDER 0
 // 1: the narrow range's crease test (quality.crease_angle) is compiled in.
 #define CREASE_TEST 0
+// The narrow range's normal guide (quality.normal_guide): 0 off; 1 a tap's weight times
+// 1 - smoothstep of the angle between the pilot normals at the centre and the tap, the result
+// a weighted line fit (image_border_taps.glsl); 2 as 1, the angle limits widened by the tap's
+// distance over quality.normal_guide_turn radii.
+#define NORMAL_GUIDE 0
 
+#if NORMAL_GUIDE
+// The taps' values are the pilot normals (guide_normals.frag.glsl), the guide the depth.
+#define PACKED_VALUE 1
+#define STRIDED_VALUE 1
+#else
 // The depth is its own guide (common/packed_taps.glsl).
 #define PACKED_VALUE 0
+#endif
 
 #include "common/depth_filter_params.glsl"
 #include "common/gaussian_steps.glsl"
@@ -40,6 +51,17 @@ uniform float u_sigma_scale;
 uniform float u_nr_pair_limit;
 // The crease test's turn limit on this pass: tan(quality.crease_angle); negative: off.
 uniform float u_crease_limit;
+#if NORMAL_GUIDE
+uniform sampler2D u_guide_normals;  // packed, encoded (guide_normals.frag.glsl)
+// NORMAL_GUIDE 1: cosines of the angles where the weight starts to fall and reaches 0;
+// 2: those angles (radians), and the turn tolerated per scene unit of tap offset.
+uniform vec2 u_guide_limits;
+uniform float u_guide_turn;
+uniform float u_guide_on;  // 1: this pass weights its taps; 0: plain weights (still fitted)
+vec4 g_normal_x;  // the centre's pilot normal, per lane
+vec4 g_normal_y;
+vec4 g_normal_z;
+#endif
 
 layout(location = 0) out vec4 out_packed_depth;
 
@@ -154,7 +176,39 @@ void spatial_taps(vec4 w, bvec4 in_reach, vec4 za, vec4 zb, out vec4 wa, out vec
 
 #include "common/border_fit.glsl"
 
-#if IMAGE_BORDER
+#if NORMAL_GUIDE
+// Decodes four lanes of guide_normals.frag.glsl's normals (three 8-bit components per float).
+void guide_normal_decode(vec4 v, out vec4 nx, out vec4 ny, out vec4 nz) {
+    vec4 a = floor(v / 65536.0);
+    vec4 rest = v - a * 65536.0;
+    vec4 b = floor(rest / 256.0);
+    vec4 c = rest - b * 256.0;
+    nx = a / 127.5 - 1.0;
+    ny = b / 127.5 - 1.0;
+    nz = c / 127.5 - 1.0;
+}
+
+// The guide's weight of the taps at offset k whose encoded pilot normals are `encoded`:
+// 1 - smoothstep over the angle between them and the centre's (a box edge is cut, a slow turn
+// passes).
+vec4 guide_weight(vec4 encoded, float k) {
+    vec4 nx;
+    vec4 ny;
+    vec4 nz;
+    guide_normal_decode(encoded, nx, ny, nz);
+    vec4 cosine = clamp(nx * g_normal_x + ny * g_normal_y + nz * g_normal_z, -1.0, 1.0);
+#if NORMAL_GUIDE == 1
+    vec4 g = smoothstep(vec4(u_guide_limits.y), vec4(u_guide_limits.x), cosine);
+#else
+    vec4 turn = u_guide_turn * (k * g_center / u_px_per_unit);
+    vec4 angle = acos(cosine);
+    vec4 g = 1.0 - smoothstep(u_guide_limits.x + turn, u_guide_limits.y + turn, angle);
+#endif
+    return mix(vec4(1.0), g, u_guide_on);
+}
+#endif
+
+#if IMAGE_BORDER || NORMAL_GUIDE
 #include "image_border_taps.glsl"
 #else
 // The taps at offsets +k (za) and -k (zb) of the four pixels (the value arguments repeat them).
@@ -254,20 +308,31 @@ void main() {
 #endif
     int radius = int(max(max(g_reach.x, g_reach.y), max(g_reach.z, g_reach.w)));
 
-#if IMAGE_BORDER
+#if IMAGE_BORDER || NORMAL_GUIDE
     start_image_border(texel);
 #endif
     int dense = min(radius, u_kernel_max_px);
+#if NORMAL_GUIDE
+    vec4 centre_normal = fetch_packed(u_guide_normals, texel);
+    guide_normal_decode(centre_normal, g_normal_x, g_normal_y, g_normal_z);
+    walk_packed_taps(u_packed_depth, u_guide_normals, texel, zc, centre_normal, dense);
+#else
     walk_packed_taps(u_packed_depth, u_packed_depth, texel, zc, zc, dense);
+#endif
     // every pixel out to the cap (along rows, whole texels: to the next multiple of 4), then
     // the spread taps (close-ups; kernel_reach)
     int dense_end = AXIS == 0 ? (dense + 3) / 4 * 4 : dense;
     if (radius > dense_end) {
         gaussian_spread(sigma, float(dense_end), float(stride));
+#if NORMAL_GUIDE
+        walk_strided_valued_taps(u_packed_depth, u_guide_normals, texel, dense_end + stride,
+                                 radius, stride);
+#else
         walk_strided_taps(u_packed_depth, texel, dense_end + stride, radius, stride);
+#endif
     }
     vec4 smoothed = g_sum / g_weight_sum;
-#if IMAGE_BORDER
+#if IMAGE_BORDER || NORMAL_GUIDE
     smoothed = image_border_fit(smoothed);
 #endif
 #if FILTER == FILTER_NARROW_RANGE

@@ -41,6 +41,7 @@ from sphrender.server.scene import QualityConfig
 
 SEPARABLE_SHADER = "smooth/smooth_depth_separable.frag.glsl"
 TWO_D_SHADER = "smooth/smooth_depth.frag.glsl"
+GUIDE_NORMALS_SHADER = "smooth/guide_normals.frag.glsl"
 PACK_SHADER = "common/image_pack.frag.glsl"
 UNPACK_SHADER = "common/image_unpack.frag.glsl"
 _FILTER_DEFINES = {"gaussian": 0, "bilateral": 1, "narrow_range": 2}
@@ -59,10 +60,23 @@ class _SmoothTargets:
             target.release()
 
 
+class _GuideTargets:
+    """quality.normal_guide's pilot: two packed targets."""
+
+    def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
+        self.packed = [Target.float(ctx, ((size[0] + 3) // 4, size[1]), 4) for _ in range(2)]
+
+    def release(self) -> None:
+        for target in self.packed:
+            target.release()
+
+
 class SmoothPass:
     def __init__(self, context: PassContext) -> None:
         self._context = context
         self._targets = PerSize(lambda size: _SmoothTargets(context.gl.ctx, size))
+        # quality.normal_guide: the pilot's two packed targets, per image size
+        self._guide_targets = PerSize(lambda size: _GuideTargets(context.gl.ctx, size))
         self._gaps = GapPass(context)  # quality.close_gaps, before the filter (passes/gaps.py)
 
     def run(
@@ -152,16 +166,26 @@ class SmoothPass:
         packed[0].fbo.use()
         draw(pack)
         defines = {**defines, "CREASE_TEST": int(quality.crease_angle > 0.0)}
+        samplers = None
+        if quality.normal_guide > 0.0 and quality.filter == "narrow_range":
+            guide = self._guide(depth.size, packed[0].texture, uniforms, quality, packed_scissor,
+                                margin_px)
+            guide.use(1)
+            defines["NORMAL_GUIDE"] = 2 if quality.normal_guide_turn > 0.0 else 1
+            samplers = {"u_packed_depth": 0, "u_guide_normals": 1}
         draws = {
-            axis: self._axis_draws(defines, uniforms, axis, depth.size, packed_scissor, margin_px)
+            axis: self._axis_draws(
+                defines, uniforms, axis, depth.size, packed_scissor, margin_px, samplers
+            )
             for axis in (0, 1)
         }
         read_index = 0
         passes = separable_passes(quality.iterations, quality.last_pass_sigma, quality.destreak)
         pair_limits = pair_limits_per_pass(len(passes), quality, uniforms.particle_radius)
         crease_limits = crease_limits_per_pass(len(passes), quality)
-        for (axis, sigma_scale), pair_limit, crease_limit in zip(
-            passes, pair_limits, crease_limits, strict=True
+        guide_passes = quality.normal_guide_passes or len(passes)
+        for index, ((axis, sigma_scale), pair_limit, crease_limit) in enumerate(
+            zip(passes, pair_limits, crease_limits, strict=True)
         ):
             packed[read_index].texture.use(0)
             fbo = packed[1 - read_index].fbo
@@ -169,6 +193,9 @@ class SmoothPass:
                 set_if_used(program, "u_sigma_scale", sigma_scale)
                 set_if_used(program, "u_nr_pair_limit", pair_limit)
                 set_if_used(program, "u_crease_limit", crease_limit)
+                if samplers is not None:
+                    _set_guide_uniforms(program, quality, uniforms.particle_radius)
+                    set_if_used(program, "u_guide_on", float(index < guide_passes))
                 set_scissor(fbo, scissor)
                 fbo.use()
                 draw(program)
@@ -184,6 +211,48 @@ class SmoothPass:
         set_scissor(result.fbo, None)
         return result.texture
 
+    def _guide(
+        self,
+        size: tuple[int, int],
+        packed_depth: moderngl.Texture,
+        uniforms: _FilterUniforms,
+        quality: QualityConfig,
+        packed_scissor: ScreenBox | None,
+        margin_px: int,
+    ) -> moderngl.Texture:
+        """quality.normal_guide's pilot normals: the packed splat `packed_depth` through a
+        Gaussian of sigma normal_guide_pilot projected radii (rows, then columns; background
+        excluded), then its view-space normals (guide_normals.frag.glsl), packed and encoded."""
+        programs, draw = self._context.programs, self._context.fullscreen.draw
+        targets = self._guide_targets.get(size).packed
+        for target in targets:
+            clear_and_scissor(target.fbo, packed_scissor)
+        defines = {"FILTER": _FILTER_DEFINES["gaussian"], "KERNEL_SIZE": 0}
+        sigma_scale = quality.normal_guide_pilot / quality.kernel_scale
+        source = packed_depth
+        for axis, target in zip((0, 1), targets, strict=True):
+            source.use(0)
+            for program, scissor in self._axis_draws(
+                defines, uniforms, axis, size, packed_scissor, margin_px
+            ):
+                set_if_used(program, "u_sigma_scale", sigma_scale)
+                set_scissor(target.fbo, scissor)
+                target.fbo.use()
+                draw(program)
+            set_scissor(target.fbo, packed_scissor)
+            source = target.texture
+        normals = programs.get(
+            FULLSCREEN_VERT, GUIDE_NORMALS_SHADER, samplers={"u_packed_depth": 0}
+        )
+        set_if_used(normals, "u_image_size_px", size)
+        set_if_used(normals, "u_px_per_unit", uniforms.px_per_unit)
+        source.use(0)
+        targets[0].fbo.use()
+        draw(normals)
+        for target in targets:
+            set_scissor(target.fbo, None)
+        return targets[0].texture
+
     def _axis_draws(
         self,
         defines: dict[str, int],
@@ -192,6 +261,7 @@ class SmoothPass:
         image_px: tuple[int, int],
         scissor: ScreenBox | None,
         margin_px: int,
+        samplers: dict[str, int] | None = None,
     ) -> list[tuple[moderngl.Program, ScreenBox | None]]:
         """The draws of one 1-D pass along `axis`, each a program and the packed texels it
         covers (`scissor`: the screen box's, None = all). A kernel goes one-sided past the
@@ -202,7 +272,9 @@ class SmoothPass:
 
         def program(border: int) -> moderngl.Program:
             variant = {**defines, "AXIS": axis, "IMAGE_BORDER": border}
-            chosen = programs.get(FULLSCREEN_VERT, SEPARABLE_SHADER, variant, {"u_packed_depth": 0})
+            chosen = programs.get(
+                FULLSCREEN_VERT, SEPARABLE_SHADER, variant, samplers or {"u_packed_depth": 0}
+            )
             uniforms.set(chosen)
             set_if_used(chosen, "u_image_size_px", image_px)
             return chosen
@@ -216,6 +288,7 @@ class SmoothPass:
 
     def release(self) -> None:
         self._targets.release()
+        self._guide_targets.release()
         self._gaps.release()
 
 
@@ -276,6 +349,18 @@ def crease_limits_per_pass(count: int, quality: QualityConfig) -> list[float]:
     return [CREASE_TEST_OFF] + [math.tan(math.radians(quality.crease_angle))] * (count - 1)
 
 
+def _set_guide_uniforms(program: moderngl.Program, quality: QualityConfig, radius: float) -> None:
+    """quality.normal_guide's limits: cosines (NORMAL_GUIDE 1) or radians (2, with the turn
+    tolerated per scene unit of tap offset)."""
+    low = math.radians(quality.normal_guide)
+    high = math.radians(quality.normal_guide + quality.normal_guide_width)
+    if quality.normal_guide_turn > 0.0:
+        set_if_used(program, "u_guide_limits", (low, high))
+        set_if_used(program, "u_guide_turn", 1.0 / (quality.normal_guide_turn * radius))
+    else:
+        set_if_used(program, "u_guide_limits", (math.cos(low), math.cos(high)))
+
+
 class _FilterUniforms:
     """The uniforms of `common/depth_filter_params.glsl`, lengths in particle radii resolved;
     set on a program only when one of their inputs changed."""
@@ -288,6 +373,10 @@ class _FilterUniforms:
     @property
     def particle_radius(self) -> float:
         return self._key[1]
+
+    @property
+    def px_per_unit(self) -> float:
+        return self._key[0]
 
     def set(self, program: moderngl.Program) -> None:
         # The compiler drops the uniforms a filter never reads; set_if_used skips those.
