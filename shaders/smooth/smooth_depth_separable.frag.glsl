@@ -188,10 +188,11 @@ void guide_normal_decode(vec4 v, out vec4 nx, out vec4 ny, out vec4 nz) {
     nz = c / 127.5 - 1.0;
 }
 
-// The guide's weight of the taps at offset k whose encoded pilot normals are `encoded`:
-// 1 - smoothstep over the angle between them and the centre's (a box edge is cut, a slow turn
-// passes).
-vec4 guide_weight(vec4 encoded, float k) {
+// The guide's weight of the taps at offset k, depth z, whose encoded pilot normals are
+// `encoded`: 1 - smoothstep over the angle between them and the centre's (a box edge is cut, a
+// slow turn passes); NORMAL_GUIDE 2 widens the limits by the turn of a sphere of radius
+// 1 / u_guide_turn over the distance in space from the centre to the tap.
+vec4 guide_weight(vec4 encoded, vec4 z, float k) {
     vec4 nx;
     vec4 ny;
     vec4 nz;
@@ -200,7 +201,8 @@ vec4 guide_weight(vec4 encoded, float k) {
 #if NORMAL_GUIDE == 1
     vec4 g = smoothstep(vec4(u_guide_limits.y), vec4(u_guide_limits.x), cosine);
 #else
-    vec4 turn = u_guide_turn * (k * g_center / u_px_per_unit);
+    vec4 lateral = k * g_center / u_px_per_unit;
+    vec4 turn = u_guide_turn * sqrt(lateral * lateral + (z - g_center) * (z - g_center));
     vec4 angle = acos(cosine);
     vec4 g = 1.0 - smoothstep(u_guide_limits.x + turn, u_guide_limits.y + turn, angle);
 #endif
