@@ -59,11 +59,13 @@ SETTINGS: dict[str, Setting] = {
 def _guide_setting(text: str) -> Setting:
     """`guide:KEY=VALUE:...`: balanced with the normal guide on (35-60 deg unless given),
     quality.normal_guide_KEY (or normal_guide itself for KEY `angle`) set to each VALUE."""
-    quality: dict[str, float] = {"normal_guide": 35.0}
+    quality: dict[str, float | bool] = {"normal_guide": 35.0}
     for item in text.split(":")[1:]:
         key, value = item.split("=")
         name = "normal_guide" if key == "angle" else f"normal_guide_{key}"
         quality[name] = int(value) if key == "passes" else float(value)
+        if key == "fit":
+            quality[name] = value == "1"
     return Setting(f"balanced + {text}", {"quality": quality})
 
 

@@ -122,7 +122,7 @@ vec4 image_border_fit(vec4 mean) {
     vec4 low = inverse_depth(g_upper);
     vec4 high = inverse_depth(min(g_lower, g_lower_clamp));
 #if NORMAL_GUIDE
-    bvec4 one_sided = bvec4(true);  // the guide's weights are seldom symmetric
+    bvec4 one_sided = bvec4(u_guide_fit);  // the guide's weights are seldom symmetric
 #else
     bvec4 one_sided = notEqual(g_k_sum, vec4(0.0));  // only an image end unpairs a tap
 #endif

@@ -58,9 +58,16 @@ uniform sampler2D u_guide_normals;  // packed, encoded (guide_normals.frag.glsl)
 uniform vec2 u_guide_limits;
 uniform float u_guide_turn;
 uniform float u_guide_on;  // 1: this pass weights its taps; 0: plain weights (still fitted)
+// The facing (the cosine between the pilot normal and the centre's view ray) below which a
+// tap is not cut (a silhouette's rounded rim), and where the cut is whole; x > y: always cut.
+uniform vec2 u_guide_facing;
+uniform bool u_guide_fit;  // the line fit (else the weighted mean)
 vec4 g_normal_x;  // the centre's pilot normal, per lane
 vec4 g_normal_y;
 vec4 g_normal_z;
+vec4 g_view_x;  // the centre's unit view ray, per lane (toward the eye)
+vec4 g_view_y;
+vec4 g_view_z;
 #endif
 
 layout(location = 0) out vec4 out_packed_depth;
@@ -206,7 +213,25 @@ vec4 guide_weight(vec4 encoded, vec4 z, float k) {
     vec4 angle = acos(cosine);
     vec4 g = 1.0 - smoothstep(u_guide_limits.x + turn, u_guide_limits.y + turn, angle);
 #endif
-    return mix(vec4(1.0), g, u_guide_on);
+    vec4 facing = min(nx * g_view_x + ny * g_view_y + nz * g_view_z,
+                      g_normal_x * g_view_x + g_normal_y * g_view_y + g_normal_z * g_view_z);
+    vec4 cut = u_guide_facing.x > u_guide_facing.y
+                   ? vec4(1.0)
+                   : smoothstep(vec4(u_guide_facing.x), vec4(u_guide_facing.y), facing);
+    return mix(vec4(1.0), g, u_guide_on * cut);
+}
+
+// Sets the lanes' unit view rays (toward the eye, the view space of guide_normals.frag.glsl;
+// u_image_size_px: common/border_fit.glsl).
+void guide_view_rays(ivec2 texel) {
+    vec2 centre = 0.5 * vec2(u_image_size_px);
+    vec4 px = vec4(float(4 * texel.x)) + vec4(0.0, 1.0, 2.0, 3.0);
+    vec4 x = (px + 0.5 - centre.x) / u_px_per_unit;
+    float y = (float(texel.y) + 0.5 - centre.y) / u_px_per_unit;
+    vec4 inv_len = inversesqrt(x * x + y * y + 1.0);
+    g_view_x = -x * inv_len;
+    g_view_y = vec4(-y) * inv_len;
+    g_view_z = -inv_len;
 }
 #endif
 
@@ -317,6 +342,7 @@ void main() {
 #if NORMAL_GUIDE
     vec4 centre_normal = fetch_packed(u_guide_normals, texel);
     guide_normal_decode(centre_normal, g_normal_x, g_normal_y, g_normal_z);
+    guide_view_rays(texel);
     walk_packed_taps(u_packed_depth, u_guide_normals, texel, zc, centre_normal, dense);
 #else
     walk_packed_taps(u_packed_depth, u_packed_depth, texel, zc, zc, dense);
