@@ -195,6 +195,9 @@ class QualityConfig:
     normal_guide_fit: bool = bench_spec(
         True, "normal_guide: each 1-D pass a weighted line fit (else the weighted mean)"
     )
+    normal_guide_rims: bool = bench_spec(
+        False, "normal_guide: background ends a kernel as the image's end does (one-sided, fitted)"
+    )
     normal_guide_passes: int = bench_spec(
         0, "normal_guide: the 1-D passes (from the first) whose taps it weights; 0: all"
     )

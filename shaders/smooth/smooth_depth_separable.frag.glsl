@@ -62,6 +62,7 @@ uniform float u_guide_on;  // 1: this pass weights its taps; 0: plain weights (s
 // tap is not cut (a silhouette's rounded rim), and where the cut is whole; x > y: always cut.
 uniform vec2 u_guide_facing;
 uniform bool u_guide_fit;  // the line fit (else the weighted mean)
+uniform bool u_guide_rims;  // background ends a kernel (one-sided), as the image's end does
 vec4 g_normal_x;  // the centre's pilot normal, per lane
 vec4 g_normal_y;
 vec4 g_normal_z;

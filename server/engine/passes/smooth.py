@@ -355,6 +355,7 @@ def _set_guide_uniforms(program: moderngl.Program, quality: QualityConfig, radiu
     facing = quality.normal_guide_facing
     set_if_used(program, "u_guide_facing", (facing, facing + 0.2) if facing > 0.0 else (1.0, 0.0))
     set_if_used(program, "u_guide_fit", quality.normal_guide_fit)
+    set_if_used(program, "u_guide_rims", quality.normal_guide_rims)
     low = math.radians(quality.normal_guide)
     high = math.radians(quality.normal_guide + quality.normal_guide_width)
     if quality.normal_guide_turn > 0.0:
