@@ -198,6 +198,11 @@ class QualityConfig:
     normal_guide_rims: bool = bench_spec(
         False, "normal_guide: background ends a kernel as the image's end does (one-sided, fitted)"
     )
+    normal_guide_convex: float = bench_spec(
+        0.0,
+        "normal_guide: only convex turns are cut, wholly where the tap lies behind the centre's "
+        "pilot tangent plane by twice this angle (deg; none below it); 0: any turn",
+    )
     normal_guide_passes: int = bench_spec(
         0, "normal_guide: the 1-D passes (from the first) whose taps it weights; 0: all"
     )

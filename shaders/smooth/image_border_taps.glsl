@@ -71,8 +71,8 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     za = narrow_range_sample(za, use_a);
     zb = narrow_range_sample(zb, use_b);
 #if NORMAL_GUIDE
-    vec4 wa = mix(vec4(0.0), w * guide_weight(value_a, za, kf), use_a);
-    vec4 wb = mix(vec4(0.0), w * guide_weight(value_b, zb, kf), use_b);
+    vec4 wa = mix(vec4(0.0), w * guide_weight(value_a, za, kf, kf), use_a);
+    vec4 wb = mix(vec4(0.0), w * guide_weight(value_b, zb, kf, -kf), use_b);
     vec4 ua = inverse_depth(za);
     vec4 ub = inverse_depth(zb);
     g_sum += wa * ua + wb * ub;

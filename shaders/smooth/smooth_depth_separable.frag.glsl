@@ -63,12 +63,17 @@ uniform float u_guide_on;  // 1: this pass weights its taps; 0: plain weights (s
 uniform vec2 u_guide_facing;
 uniform bool u_guide_fit;  // the line fit (else the weighted mean)
 uniform bool u_guide_rims;  // background ends a kernel (one-sided), as the image's end does
+// Only a convex turn is cut: the cut grows from 0 to whole as the tap lies behind the centre's
+// pilot tangent plane by x to y (sine of the angle seen from the centre); x > y: any turn.
+uniform vec2 u_guide_convex;
 vec4 g_normal_x;  // the centre's pilot normal, per lane
 vec4 g_normal_y;
 vec4 g_normal_z;
 vec4 g_view_x;  // the centre's unit view ray, per lane (toward the eye)
 vec4 g_view_y;
 vec4 g_view_z;
+vec4 g_ray_x;   // the centre's view position over its depth
+float g_ray_y;
 #endif
 
 layout(location = 0) out vec4 out_packed_depth;
@@ -200,7 +205,7 @@ void guide_normal_decode(vec4 v, out vec4 nx, out vec4 ny, out vec4 nz) {
 // `encoded`: 1 - smoothstep over the angle between them and the centre's (a box edge is cut, a
 // slow turn passes); NORMAL_GUIDE 2 widens the limits by the turn of a sphere of radius
 // 1 / u_guide_turn over the distance in space from the centre to the tap.
-vec4 guide_weight(vec4 encoded, vec4 z, float k) {
+vec4 guide_weight(vec4 encoded, vec4 z, float k, float signed_k) {
     vec4 nx;
     vec4 ny;
     vec4 nz;
@@ -219,6 +224,16 @@ vec4 guide_weight(vec4 encoded, vec4 z, float k) {
     vec4 cut = u_guide_facing.x > u_guide_facing.y
                    ? vec4(1.0)
                    : smoothstep(vec4(u_guide_facing.x), vec4(u_guide_facing.y), facing);
+    if (u_guide_convex.x <= u_guide_convex.y) {
+        // the tap's position less the centre's (view space; the centre's is g_ray z_centre)
+        float shift = signed_k / u_px_per_unit;
+        vec4 dx = (g_ray_x + (AXIS == 0 ? shift : 0.0)) * z - g_ray_x * g_center;
+        vec4 dy = (g_ray_y + (AXIS == 1 ? shift : 0.0)) * z - g_ray_y * g_center;
+        vec4 dz = z - g_center;
+        vec4 behind = -(g_normal_x * dx + g_normal_y * dy + g_normal_z * dz)
+                      * inversesqrt(max(dx * dx + dy * dy + dz * dz, vec4(1e-30)));
+        cut *= smoothstep(vec4(u_guide_convex.x), vec4(u_guide_convex.y), behind);
+    }
     return mix(vec4(1.0), g, u_guide_on * cut);
 }
 
@@ -229,6 +244,8 @@ void guide_view_rays(ivec2 texel) {
     vec4 px = vec4(float(4 * texel.x)) + vec4(0.0, 1.0, 2.0, 3.0);
     vec4 x = (px + 0.5 - centre.x) / u_px_per_unit;
     float y = (float(texel.y) + 0.5 - centre.y) / u_px_per_unit;
+    g_ray_x = x;
+    g_ray_y = y;
     vec4 inv_len = inversesqrt(x * x + y * y + 1.0);
     g_view_x = -x * inv_len;
     g_view_y = vec4(-y) * inv_len;
