@@ -203,6 +203,9 @@ class QualityConfig:
         "normal_guide: only convex turns are cut, wholly where the tap lies behind the centre's "
         "pilot tangent plane by twice this angle (deg; none below it); 0: any turn",
     )
+    normal_guide_concave: float = bench_spec(
+        0.0, "normal_guide_convex: the share of the cut kept on concave turns (0: none)"
+    )
     normal_guide_passes: int = bench_spec(
         0, "normal_guide: the 1-D passes (from the first) whose taps it weights; 0: all"
     )

@@ -66,6 +66,7 @@ uniform bool u_guide_rims;  // background ends a kernel (one-sided), as the imag
 // Only a convex turn is cut: the cut grows from 0 to whole as the tap lies behind the centre's
 // pilot tangent plane by x to y (sine of the angle seen from the centre); x > y: any turn.
 uniform vec2 u_guide_convex;
+uniform float u_guide_concave;  // the share of the cut kept where the turn is concave
 vec4 g_normal_x;  // the centre's pilot normal, per lane
 vec4 g_normal_y;
 vec4 g_normal_z;
@@ -232,7 +233,8 @@ vec4 guide_weight(vec4 encoded, vec4 z, float k, float signed_k) {
         vec4 dz = z - g_center;
         vec4 behind = -(g_normal_x * dx + g_normal_y * dy + g_normal_z * dz)
                       * inversesqrt(max(dx * dx + dy * dy + dz * dz, vec4(1e-30)));
-        cut *= smoothstep(vec4(u_guide_convex.x), vec4(u_guide_convex.y), behind);
+        cut *= mix(vec4(u_guide_concave), vec4(1.0),
+                   smoothstep(vec4(u_guide_convex.x), vec4(u_guide_convex.y), behind));
     }
     return mix(vec4(1.0), g, u_guide_on * cut);
 }

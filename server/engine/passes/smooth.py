@@ -360,6 +360,7 @@ def _set_guide_uniforms(program: moderngl.Program, quality: QualityConfig, radiu
         "u_guide_convex",
         (math.sin(convex), math.sin(2.0 * convex)) if convex > 0.0 else (1.0, 0.0),
     )
+    set_if_used(program, "u_guide_concave", quality.normal_guide_concave)
     set_if_used(program, "u_guide_fit", quality.normal_guide_fit)
     set_if_used(program, "u_guide_rims", quality.normal_guide_rims)
     low = math.radians(quality.normal_guide)
