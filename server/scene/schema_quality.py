@@ -187,11 +187,6 @@ class QualityConfig:
         "normal_guide: the turn tolerated grows by the tap's offset over this many particle "
         "radii (a sphere of that radius passes); 0: off",
     )
-    normal_guide_facing: float = bench_spec(
-        0.0,
-        "normal_guide: no cut where the pilot faces the eye (cosine, at centre or tap) by less "
-        "than this, a whole cut from this + 0.2 (a silhouette's rounded rim); 0: cut everywhere",
-    )
     normal_guide_fit: bool = bench_spec(
         True, "normal_guide: each 1-D pass a weighted line fit (else the weighted mean)"
     )

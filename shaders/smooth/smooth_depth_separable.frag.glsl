@@ -54,13 +54,10 @@ uniform float u_crease_limit;
 #if NORMAL_GUIDE
 uniform sampler2D u_guide_normals;  // packed, encoded (guide_normals.frag.glsl)
 // NORMAL_GUIDE 1: cosines of the angles where the weight starts to fall and reaches 0;
-// 2: those angles (radians), and the turn tolerated per scene unit of tap offset.
+// 2: those angles (radians), and the turn tolerated per scene unit of distance to the tap.
 uniform vec2 u_guide_limits;
 uniform float u_guide_turn;
 uniform float u_guide_on;  // 1: this pass weights its taps; 0: plain weights (still fitted)
-// The facing (the cosine between the pilot normal and the centre's view ray) below which a
-// tap is not cut (a silhouette's rounded rim), and where the cut is whole; x > y: always cut.
-uniform vec2 u_guide_facing;
 uniform bool u_guide_fit;  // the line fit (else the weighted mean)
 uniform bool u_guide_rims;  // background ends a kernel (one-sided), as the image's end does
 // Only a convex turn is cut: the cut grows from 0 to whole as the tap lies behind the centre's
@@ -70,9 +67,6 @@ uniform float u_guide_concave;  // the share of the cut kept where the turn is c
 vec4 g_normal_x;  // the centre's pilot normal, per lane
 vec4 g_normal_y;
 vec4 g_normal_z;
-vec4 g_view_x;  // the centre's unit view ray, per lane (toward the eye)
-vec4 g_view_y;
-vec4 g_view_z;
 vec4 g_ray_x;   // the centre's view position over its depth
 float g_ray_y;
 #endif
@@ -211,47 +205,45 @@ vec4 guide_weight(vec4 encoded, vec4 z, float k, float signed_k) {
     vec4 ny;
     vec4 nz;
     guide_normal_decode(encoded, nx, ny, nz);
-    vec4 cosine = clamp(nx * g_normal_x + ny * g_normal_y + nz * g_normal_z, -1.0, 1.0);
+    vec4 cosine = nx * g_normal_x + ny * g_normal_y + nz * g_normal_z;
 #if NORMAL_GUIDE == 1
     vec4 g = smoothstep(vec4(u_guide_limits.y), vec4(u_guide_limits.x), cosine);
-#else
-    vec4 lateral = k * g_center / u_px_per_unit;
-    vec4 turn = u_guide_turn * sqrt(lateral * lateral + (z - g_center) * (z - g_center));
-    vec4 angle = acos(cosine);
-    vec4 g = 1.0 - smoothstep(u_guide_limits.x + turn, u_guide_limits.y + turn, angle);
+    bool convex = u_guide_convex.x <= u_guide_convex.y;
+    if (!convex) {
+        return mix(vec4(1.0), g, u_guide_on);
+    }
 #endif
-    vec4 facing = min(nx * g_view_x + ny * g_view_y + nz * g_view_z,
-                      g_normal_x * g_view_x + g_normal_y * g_view_y + g_normal_z * g_view_z);
-    vec4 cut = u_guide_facing.x > u_guide_facing.y
-                   ? vec4(1.0)
-                   : smoothstep(vec4(u_guide_facing.x), vec4(u_guide_facing.y), facing);
+    // the tap's position less the centre's (view space; the centre's is g_ray z_centre)
+    float shift = signed_k / u_px_per_unit;
+    vec4 dx = (g_ray_x + (AXIS == 0 ? shift : 0.0)) * z - g_ray_x * g_center;
+    vec4 dy = (g_ray_y + (AXIS == 1 ? shift : 0.0)) * z - g_ray_y * g_center;
+    vec4 dz = z - g_center;
+    vec4 distance2 = max(dx * dx + dy * dy + dz * dz, vec4(1e-30));
+    vec4 inverse_distance = inversesqrt(distance2);
+#if NORMAL_GUIDE == 2
+    // the angle's square as 2 (1 - cos) (within 5% up to 60 degrees), against the limits
+    // widened by the turn tolerated over the distance
+    vec4 turn = u_guide_turn * (distance2 * inverse_distance);
+    vec4 low = u_guide_limits.x + turn;
+    vec4 high = u_guide_limits.y + turn;
+    vec4 g = 1.0 - smoothstep(low * low, high * high, 2.0 - 2.0 * cosine);
+#endif
+    vec4 cut = vec4(1.0);
     if (u_guide_convex.x <= u_guide_convex.y) {
-        // the tap's position less the centre's (view space; the centre's is g_ray z_centre)
-        float shift = signed_k / u_px_per_unit;
-        vec4 dx = (g_ray_x + (AXIS == 0 ? shift : 0.0)) * z - g_ray_x * g_center;
-        vec4 dy = (g_ray_y + (AXIS == 1 ? shift : 0.0)) * z - g_ray_y * g_center;
-        vec4 dz = z - g_center;
-        vec4 behind = -(g_normal_x * dx + g_normal_y * dy + g_normal_z * dz)
-                      * inversesqrt(max(dx * dx + dy * dy + dz * dz, vec4(1e-30)));
-        cut *= mix(vec4(u_guide_concave), vec4(1.0),
-                   smoothstep(vec4(u_guide_convex.x), vec4(u_guide_convex.y), behind));
+        vec4 behind = -(g_normal_x * dx + g_normal_y * dy + g_normal_z * dz) * inverse_distance;
+        cut = mix(vec4(u_guide_concave), vec4(1.0),
+                  smoothstep(vec4(u_guide_convex.x), vec4(u_guide_convex.y), behind));
     }
     return mix(vec4(1.0), g, u_guide_on * cut);
 }
 
-// Sets the lanes' unit view rays (toward the eye, the view space of guide_normals.frag.glsl;
+// Sets the lanes' view positions over their depth (the view space of guide_normals.frag.glsl;
 // u_image_size_px: common/border_fit.glsl).
 void guide_view_rays(ivec2 texel) {
     vec2 centre = 0.5 * vec2(u_image_size_px);
     vec4 px = vec4(float(4 * texel.x)) + vec4(0.0, 1.0, 2.0, 3.0);
-    vec4 x = (px + 0.5 - centre.x) / u_px_per_unit;
-    float y = (float(texel.y) + 0.5 - centre.y) / u_px_per_unit;
-    g_ray_x = x;
-    g_ray_y = y;
-    vec4 inv_len = inversesqrt(x * x + y * y + 1.0);
-    g_view_x = -x * inv_len;
-    g_view_y = vec4(-y) * inv_len;
-    g_view_z = -inv_len;
+    g_ray_x = (px + 0.5 - centre.x) / u_px_per_unit;
+    g_ray_y = (float(texel.y) + 0.5 - centre.y) / u_px_per_unit;
 }
 #endif
 

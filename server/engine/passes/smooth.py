@@ -352,8 +352,6 @@ def crease_limits_per_pass(count: int, quality: QualityConfig) -> list[float]:
 def _set_guide_uniforms(program: moderngl.Program, quality: QualityConfig, radius: float) -> None:
     """quality.normal_guide's limits: cosines (NORMAL_GUIDE 1) or radians (2, with the turn
     tolerated per scene unit of tap offset)."""
-    facing = quality.normal_guide_facing
-    set_if_used(program, "u_guide_facing", (facing, facing + 0.2) if facing > 0.0 else (1.0, 0.0))
     convex = math.radians(quality.normal_guide_convex)
     set_if_used(
         program,
