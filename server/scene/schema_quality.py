@@ -184,22 +184,16 @@ class QualityConfig:
     )
     normal_guide_turn: float = bench_spec(
         0.0,
-        "normal_guide: the turn tolerated grows by the tap's offset over this many particle "
-        "radii (a sphere of that radius passes); 0: off",
+        "normal_guide: the turn of a sphere of this many particle radii over the distance to "
+        "the tap is tolerated (taken off in squares); 0: off",
     )
     normal_guide_fit: bool = bench_spec(
         True, "normal_guide: each 1-D pass a weighted line fit (else the weighted mean)"
-    )
-    normal_guide_rims: bool = bench_spec(
-        False, "normal_guide: background ends a kernel as the image's end does (one-sided, fitted)"
     )
     normal_guide_convex: float = bench_spec(
         0.0,
         "normal_guide: only convex turns are cut, wholly where the tap lies behind the centre's "
         "pilot tangent plane by twice this angle (deg; none below it); 0: any turn",
-    )
-    normal_guide_concave: float = bench_spec(
-        0.0, "normal_guide_convex: the share of the cut kept on concave turns (0: none)"
     )
     normal_guide_passes: int = bench_spec(
         0, "normal_guide: the 1-D passes (from the first) whose taps it weights; 0: all"

@@ -50,11 +50,6 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     bvec4 in_reach = lessThanEqual(vec4(kf), g_reach);
     bvec4 out_a = lessThan(g_room_ahead, vec4(kf));
     bvec4 out_b = lessThan(g_room_behind, vec4(kf));
-#if NORMAL_GUIDE
-    // u_guide_rims: background ends a kernel as the image's end does (one-sided, fitted)
-    out_a = either(out_a, both(bvec4(u_guide_rims), lessThanEqual(za, vec4(0.0))));
-    out_b = either(out_b, both(bvec4(u_guide_rims), lessThanEqual(zb, vec4(0.0))));
-#endif
     bvec4 valid_a = both(greaterThan(za, vec4(0.0)), lessThanEqual(za, g_upper));
     bvec4 valid_b = both(greaterThan(zb, vec4(0.0)), lessThanEqual(zb, g_upper));
     bvec4 use_a = both(both(in_reach, not(out_a)), both(valid_a, either(valid_b, out_b)));
@@ -71,8 +66,8 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     za = narrow_range_sample(za, use_a);
     zb = narrow_range_sample(zb, use_b);
 #if NORMAL_GUIDE
-    vec4 wa = mix(vec4(0.0), w * guide_weight(value_a, za, kf, kf), use_a);
-    vec4 wb = mix(vec4(0.0), w * guide_weight(value_b, zb, kf, -kf), use_b);
+    vec4 wa = mix(vec4(0.0), w * guide_weight(value_a, za, kf), use_a);
+    vec4 wb = mix(vec4(0.0), w * guide_weight(value_b, zb, -kf), use_b);
     vec4 ua = inverse_depth(za);
     vec4 ub = inverse_depth(zb);
     g_sum += wa * ua + wb * ub;

@@ -24,9 +24,9 @@
 // 1: the narrow range's crease test (quality.crease_angle) is compiled in.
 #define CREASE_TEST 0
 // The narrow range's normal guide (quality.normal_guide): 0 off; 1 a tap's weight times
-// 1 - smoothstep of the angle between the pilot normals at the centre and the tap, the result
-// a weighted line fit (image_border_taps.glsl); 2 as 1, the angle limits widened by the tap's
-// distance over quality.normal_guide_turn radii.
+// 1 - smoothstep of the turn between the pilot normals at the centre and the tap (less a
+// sphere's turn over the distance, normal_guide_turn), the result a weighted line fit
+// (image_border_taps.glsl); 2 as 1, cutting convex turns only (normal_guide_convex).
 #define NORMAL_GUIDE 0
 
 #if NORMAL_GUIDE
@@ -53,22 +53,22 @@ uniform float u_nr_pair_limit;
 uniform float u_crease_limit;
 #if NORMAL_GUIDE
 uniform sampler2D u_guide_normals;  // packed, encoded (guide_normals.frag.glsl)
-// NORMAL_GUIDE 1: cosines of the angles where the weight starts to fall and reaches 0;
-// 2: those angles (radians), and the turn tolerated per scene unit of distance to the tap.
-uniform vec2 u_guide_limits;
-uniform float u_guide_turn;
+// The cut's ramp over the squared turn less the squared turn tolerated: t = x * scale + offset
+// (0 at the lower limit, 1 at the upper); the tolerated turn's square per squared scene unit
+// of distance to the tap; the convex ramp over the sine of the tap's angle behind the centre's
+// pilot tangent plane (NORMAL_GUIDE 2).
+uniform vec2 u_guide_ramp;
+uniform float u_guide_turn2;
+uniform vec2 u_guide_convex;
 uniform float u_guide_on;  // 1: this pass weights its taps; 0: plain weights (still fitted)
 uniform bool u_guide_fit;  // the line fit (else the weighted mean)
-uniform bool u_guide_rims;  // background ends a kernel (one-sided), as the image's end does
-// Only a convex turn is cut: the cut grows from 0 to whole as the tap lies behind the centre's
-// pilot tangent plane by x to y (sine of the angle seen from the centre); x > y: any turn.
-uniform vec2 u_guide_convex;
-uniform float u_guide_concave;  // the share of the cut kept where the turn is concave
 vec4 g_normal_x;  // the centre's pilot normal, per lane
 vec4 g_normal_y;
 vec4 g_normal_z;
-vec4 g_ray_x;   // the centre's view position over its depth
+vec4 g_ray_x;     // the centre's view position over its depth
 float g_ray_y;
+vec4 g_normal_ray;   // dot(centre normal, (g_ray_x, g_ray_y, 1))
+vec4 g_normal_axis;  // the centre normal's component along AXIS
 #endif
 
 layout(location = 0) out vec4 out_packed_depth;
@@ -196,54 +196,41 @@ void guide_normal_decode(vec4 v, out vec4 nx, out vec4 ny, out vec4 nz) {
     nz = c / 127.5 - 1.0;
 }
 
-// The guide's weight of the taps at offset k, depth z, whose encoded pilot normals are
-// `encoded`: 1 - smoothstep over the angle between them and the centre's (a box edge is cut, a
-// slow turn passes); NORMAL_GUIDE 2 widens the limits by the turn of a sphere of radius
-// 1 / u_guide_turn over the distance in space from the centre to the tap.
-vec4 guide_weight(vec4 encoded, vec4 z, float k, float signed_k) {
+// The guide's weight of the tap at signed offset k, depth z, whose encoded pilot normal is
+// `encoded`: 1 - smoothstep over the turn between it and the centre's (a box edge is cut, a
+// slow turn passes), the turn's square taken as 2 (1 - cos) (within 10% up to 60 degrees).
+vec4 guide_weight(vec4 encoded, vec4 z, float signed_k) {
     vec4 nx;
     vec4 ny;
     vec4 nz;
     guide_normal_decode(encoded, nx, ny, nz);
-    vec4 cosine = nx * g_normal_x + ny * g_normal_y + nz * g_normal_z;
-#if NORMAL_GUIDE == 1
-    vec4 g = smoothstep(vec4(u_guide_limits.y), vec4(u_guide_limits.x), cosine);
-    bool convex = u_guide_convex.x <= u_guide_convex.y;
-    if (!convex) {
-        return mix(vec4(1.0), g, u_guide_on);
-    }
-#endif
-    // the tap's position less the centre's (view space; the centre's is g_ray z_centre)
+    vec4 turn2 = 2.0 - 2.0 * (nx * g_normal_x + ny * g_normal_y + nz * g_normal_z);
+    // the tap's view position less the centre's
     float shift = signed_k / u_px_per_unit;
-    vec4 dx = (g_ray_x + (AXIS == 0 ? shift : 0.0)) * z - g_ray_x * g_center;
-    vec4 dy = (g_ray_y + (AXIS == 1 ? shift : 0.0)) * z - g_ray_y * g_center;
     vec4 dz = z - g_center;
-    vec4 distance2 = max(dx * dx + dy * dy + dz * dz, vec4(1e-30));
-    vec4 inverse_distance = inversesqrt(distance2);
+    vec4 dx = g_ray_x * dz + (AXIS == 0 ? shift : 0.0) * z;
+    vec4 dy = g_ray_y * dz + (AXIS == 1 ? shift : 0.0) * z;
+    vec4 distance2 = dx * dx + dy * dy + dz * dz;
+    vec4 t = clamp((turn2 - u_guide_turn2 * distance2) * u_guide_ramp.x + u_guide_ramp.y, 0.0, 1.0);
+    vec4 cut = t * t * (3.0 - 2.0 * t);
 #if NORMAL_GUIDE == 2
-    // the angle's square as 2 (1 - cos) (within 5% up to 60 degrees), against the limits
-    // widened by the turn tolerated over the distance
-    vec4 turn = u_guide_turn * (distance2 * inverse_distance);
-    vec4 low = u_guide_limits.x + turn;
-    vec4 high = u_guide_limits.y + turn;
-    vec4 g = 1.0 - smoothstep(low * low, high * high, 2.0 - 2.0 * cosine);
+    vec4 behind = -(dz * g_normal_ray + (shift * z) * g_normal_axis)
+                  * inversesqrt(max(distance2, vec4(1e-30)));
+    vec4 c = clamp(behind * u_guide_convex.x + u_guide_convex.y, 0.0, 1.0);
+    cut *= c * c * (3.0 - 2.0 * c);
 #endif
-    vec4 cut = vec4(1.0);
-    if (u_guide_convex.x <= u_guide_convex.y) {
-        vec4 behind = -(g_normal_x * dx + g_normal_y * dy + g_normal_z * dz) * inverse_distance;
-        cut = mix(vec4(u_guide_concave), vec4(1.0),
-                  smoothstep(vec4(u_guide_convex.x), vec4(u_guide_convex.y), behind));
-    }
-    return mix(vec4(1.0), g, u_guide_on * cut);
+    return 1.0 - u_guide_on * cut;
 }
 
 // Sets the lanes' view positions over their depth (the view space of guide_normals.frag.glsl;
-// u_image_size_px: common/border_fit.glsl).
-void guide_view_rays(ivec2 texel) {
+// u_image_size_px: common/border_fit.glsl) and what guide_weight needs of the centre normals.
+void guide_start(ivec2 texel) {
     vec2 centre = 0.5 * vec2(u_image_size_px);
     vec4 px = vec4(float(4 * texel.x)) + vec4(0.0, 1.0, 2.0, 3.0);
     g_ray_x = (px + 0.5 - centre.x) / u_px_per_unit;
     g_ray_y = (float(texel.y) + 0.5 - centre.y) / u_px_per_unit;
+    g_normal_ray = g_normal_x * g_ray_x + g_normal_y * g_ray_y + g_normal_z;
+    g_normal_axis = AXIS == 0 ? g_normal_x : g_normal_y;
 }
 #endif
 
@@ -354,7 +341,7 @@ void main() {
 #if NORMAL_GUIDE
     vec4 centre_normal = fetch_packed(u_guide_normals, texel);
     guide_normal_decode(centre_normal, g_normal_x, g_normal_y, g_normal_z);
-    guide_view_rays(texel);
+    guide_start(texel);
     walk_packed_taps(u_packed_depth, u_guide_normals, texel, zc, centre_normal, dense);
 #else
     walk_packed_taps(u_packed_depth, u_packed_depth, texel, zc, zc, dense);

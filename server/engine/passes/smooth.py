@@ -171,7 +171,7 @@ class SmoothPass:
             guide = self._guide(depth.size, packed[0].texture, uniforms, quality, packed_scissor,
                                 margin_px)
             guide.use(1)
-            defines["NORMAL_GUIDE"] = 2 if quality.normal_guide_turn > 0.0 else 1
+            defines["NORMAL_GUIDE"] = 2 if quality.normal_guide_convex > 0.0 else 1
             samplers = {"u_packed_depth": 0, "u_guide_normals": 1}
         draws = {
             axis: self._axis_draws(
@@ -350,24 +350,18 @@ def crease_limits_per_pass(count: int, quality: QualityConfig) -> list[float]:
 
 
 def _set_guide_uniforms(program: moderngl.Program, quality: QualityConfig, radius: float) -> None:
-    """quality.normal_guide's limits: cosines (NORMAL_GUIDE 1) or radians (2, with the turn
-    tolerated per scene unit of tap offset)."""
+    """quality.normal_guide's limits as ramps (smooth_depth_separable.frag.glsl guide_weight)."""
+    low2 = math.radians(quality.normal_guide) ** 2
+    high2 = math.radians(quality.normal_guide + quality.normal_guide_width) ** 2
+    scale = 1.0 / (high2 - low2)
+    set_if_used(program, "u_guide_ramp", (scale, -low2 * scale))
+    turn = quality.normal_guide_turn * radius
+    set_if_used(program, "u_guide_turn2", 1.0 / turn**2 if turn > 0.0 else 0.0)
     convex = math.radians(quality.normal_guide_convex)
-    set_if_used(
-        program,
-        "u_guide_convex",
-        (math.sin(convex), math.sin(2.0 * convex)) if convex > 0.0 else (1.0, 0.0),
-    )
-    set_if_used(program, "u_guide_concave", quality.normal_guide_concave)
+    if convex > 0.0:
+        low, high = math.sin(convex), math.sin(2.0 * convex)
+        set_if_used(program, "u_guide_convex", (1.0 / (high - low), -low / (high - low)))
     set_if_used(program, "u_guide_fit", quality.normal_guide_fit)
-    set_if_used(program, "u_guide_rims", quality.normal_guide_rims)
-    low = math.radians(quality.normal_guide)
-    high = math.radians(quality.normal_guide + quality.normal_guide_width)
-    if quality.normal_guide_turn > 0.0:
-        set_if_used(program, "u_guide_limits", (low, high))
-        set_if_used(program, "u_guide_turn", 1.0 / (quality.normal_guide_turn * radius))
-    else:
-        set_if_used(program, "u_guide_limits", (math.cos(low), math.cos(high)))
 
 
 class _FilterUniforms:
