@@ -195,6 +195,11 @@ class QualityConfig:
         "normal_guide: only convex turns are cut, wholly where the tap lies behind the centre's "
         "pilot tangent plane by twice this angle (deg; none below it); 0: any turn",
     )
+    normal_guide_tangent: bool = bench_spec(
+        False,
+        "normal_guide_convex and _turn on the centre's pilot tangent plane: the tap normal's tilt "
+        "towards the tap, the offset's length along the plane (else the taps' depths)",
+    )
     normal_guide_passes: int = bench_spec(
         0, "normal_guide: the 1-D passes (from the first) whose taps it weights; 0: all"
     )

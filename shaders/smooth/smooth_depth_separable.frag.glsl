@@ -69,6 +69,9 @@ vec4 g_ray_x;     // the centre's view position over its depth
 float g_ray_y;
 vec4 g_normal_ray;   // dot(centre normal, (g_ray_x, g_ray_y, 1))
 vec4 g_normal_axis;  // the centre normal's component along AXIS
+vec4 g_tangent_axis;    // NORMAL_GUIDE 3: the centre's pilot tangent along +AXIS: its AXIS
+vec4 g_tangent_z;       // and z components,
+vec4 g_tangent_scale2;  // and its squared length in scene units per pixel of offset
 #endif
 
 layout(location = 0) out vec4 out_packed_depth;
@@ -205,6 +208,17 @@ vec4 guide_weight(vec4 encoded, vec4 z, float signed_k) {
     vec4 nz;
     guide_normal_decode(encoded, nx, ny, nz);
     vec4 turn2 = 2.0 - 2.0 * (nx * g_normal_x + ny * g_normal_y + nz * g_normal_z);
+#if NORMAL_GUIDE == 3
+    // on the centre's pilot tangent plane: the distance to the tap, and the tap normal's tilt
+    // towards it (positive: the surface turns away, convex)
+    vec4 tolerated2 = u_guide_turn2 * (signed_k * signed_k) * g_tangent_scale2;
+    vec4 t = clamp((turn2 - tolerated2) * u_guide_ramp.x + u_guide_ramp.y, 0.0, 1.0);
+    vec4 cut = t * t * (3.0 - 2.0 * t);
+    vec4 tilt = sign(signed_k) * ((AXIS == 0 ? nx : ny) * g_tangent_axis + nz * g_tangent_z);
+    vec4 c = clamp(tilt * u_guide_convex.x + u_guide_convex.y, 0.0, 1.0);
+    cut *= c * c * (3.0 - 2.0 * c);
+    return 1.0 - u_guide_on * cut;
+#else
     // the tap's view position less the centre's
     float shift = signed_k / u_px_per_unit;
     vec4 dz = z - g_center;
@@ -220,6 +234,7 @@ vec4 guide_weight(vec4 encoded, vec4 z, float signed_k) {
     cut *= c * c * (3.0 - 2.0 * c);
 #endif
     return 1.0 - u_guide_on * cut;
+#endif
 }
 
 // Sets the lanes' view positions over their depth (the view space of guide_normals.frag.glsl;
@@ -231,6 +246,14 @@ void guide_start(ivec2 texel) {
     g_ray_y = (float(texel.y) + 0.5 - centre.y) / u_px_per_unit;
     g_normal_ray = g_normal_x * g_ray_x + g_normal_y * g_ray_y + g_normal_z;
     g_normal_axis = AXIS == 0 ? g_normal_x : g_normal_y;
+    // the unit tangent (n_z, 0, -n_x) / |.| (AXIS 0) turned to point along +AXIS
+    vec4 facing = max(abs(g_normal_z), vec4(0.05));
+    vec4 inverse_length = inversesqrt(g_normal_z * g_normal_z + g_normal_axis * g_normal_axis);
+    g_tangent_axis = facing * inverse_length;
+    g_tangent_z = -sign(g_normal_z) * g_normal_axis * inverse_length;
+    // a pixel of offset along AXIS is z / f across, 1 / (|n_z| |tangent|) times that along it
+    vec4 across = g_center / u_px_per_unit;
+    g_tangent_scale2 = across * across / (facing * facing * inverse_length * inverse_length);
 }
 #endif
 

@@ -171,7 +171,9 @@ class SmoothPass:
             guide = self._guide(depth.size, packed[0].texture, uniforms, quality, packed_scissor,
                                 margin_px)
             guide.use(1)
-            defines["NORMAL_GUIDE"] = 2 if quality.normal_guide_convex > 0.0 else 1
+            defines["NORMAL_GUIDE"] = (
+                (3 if quality.normal_guide_tangent else 2) if quality.normal_guide_convex > 0.0 else 1
+            )
             samplers = {"u_packed_depth": 0, "u_guide_normals": 1}
         draws = {
             axis: self._axis_draws(
