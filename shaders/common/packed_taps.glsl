@@ -148,7 +148,8 @@ void walk_strided_valued_taps(sampler2D image, sampler2D value_image, ivec2 texe
     }
 #else
     for (int k = first; k <= radius; k += stride) {
-        tap_pair(k, fetch_packed(image, texel + ivec2(0, k)), fetch_packed(image, texel - ivec2(0, k)),
+        tap_pair(k, fetch_packed(image, texel + ivec2(0, k)),
+                 fetch_packed(image, texel - ivec2(0, k)),
                  fetch_packed(value_image, texel + ivec2(0, k)),
                  fetch_packed(value_image, texel - ivec2(0, k)));
     }

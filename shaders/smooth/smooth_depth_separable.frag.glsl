@@ -26,7 +26,8 @@
 // The narrow range's normal guide (quality.normal_guide): 0 off; 1 a tap's weight times
 // 1 - smoothstep of the turn between the pilot normals at the centre and the tap (less a
 // sphere's turn over the distance, normal_guide_turn), the result a weighted line fit
-// (image_border_taps.glsl); 2 as 1, cutting convex turns only (normal_guide_convex).
+// (image_border_taps.glsl); 2 as 1, cutting convex turns only (normal_guide_convex), told by
+// the taps' depths; 3 as 2, told on the centre's pilot tangent plane (normal_guide_tangent).
 #define NORMAL_GUIDE 0
 
 #if NORMAL_GUIDE
@@ -56,7 +57,7 @@ uniform sampler2D u_guide_normals;  // packed, encoded (guide_normals.frag.glsl)
 // The cut's ramp over the squared turn less the squared turn tolerated: t = x * scale + offset
 // (0 at the lower limit, 1 at the upper); the tolerated turn's square per squared scene unit
 // of distance to the tap; the convex ramp over the sine of the tap's angle behind the centre's
-// pilot tangent plane (NORMAL_GUIDE 2).
+// pilot tangent plane (NORMAL_GUIDE 2) or of the tap normal's tilt towards the tap (3).
 uniform vec2 u_guide_ramp;
 uniform float u_guide_turn2;
 uniform vec2 u_guide_convex;
@@ -225,7 +226,8 @@ vec4 guide_weight(vec4 encoded, vec4 z, float signed_k) {
     vec4 dx = g_ray_x * dz + (AXIS == 0 ? shift : 0.0) * z;
     vec4 dy = g_ray_y * dz + (AXIS == 1 ? shift : 0.0) * z;
     vec4 distance2 = dx * dx + dy * dy + dz * dz;
-    vec4 t = clamp((turn2 - u_guide_turn2 * distance2) * u_guide_ramp.x + u_guide_ramp.y, 0.0, 1.0);
+    vec4 excess = turn2 - u_guide_turn2 * distance2;
+    vec4 t = clamp(excess * u_guide_ramp.x + u_guide_ramp.y, 0.0, 1.0);
     vec4 cut = t * t * (3.0 - 2.0 * t);
 #if NORMAL_GUIDE == 2
     vec4 behind = -(dz * g_normal_ray + (shift * z) * g_normal_axis)

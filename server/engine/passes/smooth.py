@@ -168,12 +168,11 @@ class SmoothPass:
         defines = {**defines, "CREASE_TEST": int(quality.crease_angle > 0.0)}
         samplers = None
         if quality.normal_guide > 0.0 and quality.filter == "narrow_range":
-            guide = self._guide(depth.size, packed[0].texture, uniforms, quality, packed_scissor,
-                                margin_px)
-            guide.use(1)
-            defines["NORMAL_GUIDE"] = (
-                (3 if quality.normal_guide_tangent else 2) if quality.normal_guide_convex > 0.0 else 1
+            guide = self._guide(
+                depth.size, packed[0].texture, uniforms, quality, packed_scissor, margin_px
             )
+            guide.use(1)
+            defines["NORMAL_GUIDE"] = _guide_define(quality)
             samplers = {"u_packed_depth": 0, "u_guide_normals": 1}
         draws = {
             axis: self._axis_draws(
@@ -349,6 +348,14 @@ def crease_limits_per_pass(count: int, quality: QualityConfig) -> list[float]:
     if quality.crease_angle <= 0.0:
         return [CREASE_TEST_OFF] * count
     return [CREASE_TEST_OFF] + [math.tan(math.radians(quality.crease_angle))] * (count - 1)
+
+
+def _guide_define(quality: QualityConfig) -> int:
+    """smooth_depth_separable.frag.glsl's NORMAL_GUIDE for quality.normal_guide (on): 1 any
+    turn cut, 2 convex turns (the taps' depths), 3 convex turns (the pilot's tangent plane)."""
+    if quality.normal_guide_convex <= 0.0:
+        return 1
+    return 3 if quality.normal_guide_tangent else 2
 
 
 def _set_guide_uniforms(program: moderngl.Program, quality: QualityConfig, radius: float) -> None:
