@@ -4,7 +4,8 @@ metrics), plus a fluid block pressed against a solid wall, with the frame and sm
 times against the first setting's, measured interleaved in the same run.
 
     .venv/bin/python benchmarks/studies/crease_2d.py [--scenes ball,slab,...]
-        [--settings fast,balanced,crease30] [--frames 1] [--demo OUT] [--error-maps OUT]
+        [--settings fast,balanced,crease30,guide,guide:KEY=VALUE:...] [--frames 1]
+        [--demo OUT] [--error-maps OUT]
 
 `--demo OUT` also renders the demo's bead (configs/demo.toml, 960x540) with each setting to
 OUT/demo-<i>.png (streaks and a sawtooth rim show there, not in the errors); `--error-maps OUT`
@@ -52,13 +53,25 @@ SETTINGS: dict[str, Setting] = {
     "fast": preset_setting("fast"),
     "balanced": preset_setting("balanced"),
     "crease30": Setting("balanced + crease test 30°", {"quality": {"crease_angle": 30.0}}),
-    "guide": Setting("balanced + normal guide 35-60°", {"quality": {"normal_guide": 35.0}}),
+    "guide": Setting(
+        "balanced + normal guide",
+        {
+            "quality": {
+                "normal_guide": 6.0,
+                "normal_guide_width": 12.0,
+                "normal_guide_pilot": 1.5,
+                "normal_guide_turn": 12.0,
+                "normal_guide_convex": 12.0,
+            }
+        },
+    ),
 }
 
 
 def _guide_setting(text: str) -> Setting:
-    """`guide:KEY=VALUE:...`: balanced with the normal guide on (35-60 deg unless given),
-    quality.normal_guide_KEY (or normal_guide itself for KEY `angle`) set to each VALUE."""
+    """`guide:KEY=VALUE:...`: balanced with the normal guide on (from 35 deg unless given),
+    quality.normal_guide_KEY (or normal_guide itself for KEY `angle`) set to each VALUE, e.g.
+    guide:angle=6:width=12:pilot=1.5:turn=12:convex=12 (the `guide` setting)."""
     quality: dict[str, float | bool] = {"normal_guide": 35.0}
     for item in text.split(":")[1:]:
         key, value = item.split("=")
