@@ -107,6 +107,7 @@ def test_a_bench_only_key_is_refused_in_a_scene_and_read_by_the_bench(key: str) 
         "normal_guide_fit": False,
         "normal_guide_convex": 6.0,
         "normal_guide_tangent": True,
+        "normal_guide_rim": 2.0,
         "normal_guide_passes": 2,
     }[key]
     with pytest.raises(InputError) as exc:
@@ -125,6 +126,7 @@ def test_bench_only_keys_are_exactly_these() -> None:
         "normal_guide_fit",
         "normal_guide_passes",
         "normal_guide_pilot",
+        "normal_guide_rim",
         "normal_guide_tangent",
         "normal_guide_turn",
         "normal_guide_width",

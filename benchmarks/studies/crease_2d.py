@@ -57,11 +57,12 @@ SETTINGS: dict[str, Setting] = {
         "balanced + normal guide",
         {
             "quality": {
-                "normal_guide": 6.0,
+                "normal_guide": 8.0,
                 "normal_guide_width": 12.0,
-                "normal_guide_pilot": 1.5,
-                "normal_guide_turn": 12.0,
-                "normal_guide_convex": 12.0,
+                "normal_guide_pilot": 1.7,
+                "normal_guide_turn": 11.0,
+                "normal_guide_convex": 8.0,
+                "normal_guide_rim": 3.0,
             }
         },
     ),
@@ -71,7 +72,7 @@ SETTINGS: dict[str, Setting] = {
 def _guide_setting(text: str) -> Setting:
     """`guide:KEY=VALUE:...`: balanced with the normal guide on (from 35 deg unless given),
     quality.normal_guide_KEY (or normal_guide itself for KEY `angle`) set to each VALUE, e.g.
-    guide:angle=6:width=12:pilot=1.5:turn=12:convex=12 (the `guide` setting)."""
+    guide:angle=8:width=12:pilot=1.7:turn=11:convex=8:rim=3 (the `guide` setting)."""
     quality: dict[str, float | bool] = {"normal_guide": 35.0}
     for item in text.split(":")[1:]:
         key, value = item.split("=")
@@ -234,7 +235,7 @@ def _print_rows(scene: str, rows: list[Row]) -> None:
     first = rows[0]
     for row in rows:
         print(
-            f"{scene:9} {row.setting:30} {row.normal_mean_deg:6.2f} / {row.normal_p95_deg:6.2f}  "
+            f"{scene:9} {row.setting:30} {row.normal_mean_deg:8.4f} / {row.normal_p95_deg:8.4f}  "
             f"frame {row.frame_ms:7.1f} ms ({row.frame_ms / first.frame_ms:4.2f}x)  smooth "
             f"{row.smooth_ms:6.1f} ms ({row.smooth_ms / max(first.smooth_ms, 1e-9):4.2f}x)",
             flush=True,

@@ -195,6 +195,11 @@ class QualityConfig:
         "normal_guide: only convex turns are cut, wholly where the tap lies behind the centre's "
         "pilot tangent plane by twice this angle (deg; none below it); 0: any turn",
     )
+    normal_guide_rim: float = bench_spec(
+        0.0,
+        "normal_guide: no cut at pixels with background within this many projected radii (a "
+        "silhouette's pilot is one-sided); 0: cut everywhere",
+    )
     normal_guide_tangent: bool = bench_spec(
         False,
         "normal_guide_convex and _turn on the centre's pilot tangent plane: the tap normal's tilt "

@@ -2,13 +2,18 @@
 // The normal guide's pilot normals (quality.normal_guide, passes/smooth.py): per pixel the view
 // space normal of a packed eye-depth image (the pilot: the splat smoothed at about one projected
 // radius), facing the eye, encoded for smooth_depth_separable.frag.glsl (guide_normal_decode).
-// In and out packed: texel (x, y) holds pixels 4x .. 4x+3 of row y in .xyzw; 0 = background.
+// In and out packed: texel (x, y) holds pixels 4x .. 4x+3 of row y in .xyzw; 0 = background;
+// negative: a rim pixel (u_rim_radii).
 
 #include "common/packed_image.glsl"
 
 uniform sampler2D u_packed_depth;
 uniform ivec2 u_image_size_px;  // the unpacked image
 uniform float u_px_per_unit;    // (H / 2) / tan(fov_y / 2)
+uniform float u_particle_radius;
+// Pixels with background within this many projected radii (8 directions) are rim pixels,
+// encoded negative (the guide cuts no tap of theirs); 0: none.
+uniform float u_rim_radii;
 
 layout(location = 0) out vec4 out_packed_normals;
 
@@ -36,6 +41,24 @@ vec3 axis_difference(vec3 minus, vec3 centre, vec3 plus, bool has_minus, bool ha
         return centre - minus;
     }
     return vec3(0.0);
+}
+
+// Whether the pixel at (px, py) is background (or outside the image).
+bool background_at(int px, int py) {
+    if (px < 0 || py < 0 || px >= u_image_size_px.x || py >= u_image_size_px.y) {
+        return true;
+    }
+    return texelFetch(u_packed_depth, ivec2(px >> 2, py), 0)[px & 3] <= 0.0;
+}
+
+// Whether background lies `reach` pixels away in one of eight directions.
+bool near_rim(int px, int py, float reach) {
+    int d = int(ceil(reach));
+    int e = int(ceil(0.7071 * reach));
+    return background_at(px + d, py) || background_at(px - d, py) || background_at(px, py + d)
+           || background_at(px, py - d) || background_at(px + e, py + e)
+           || background_at(px - e, py + e) || background_at(px + e, py - e)
+           || background_at(px - e, py - e);
 }
 
 // Three components of 8 bits each in one float (exact below 2^24).
@@ -78,6 +101,10 @@ void main() {
         n = len > 0.0 ? n / len : -normalize(centre);
         n = dot(n, centre) > 0.0 ? -n : n;  // facing the eye
         result[i] = encode(n);
+        float rim_px = u_rim_radii * u_particle_radius * u_px_per_unit / z;
+        if (u_rim_radii > 0.0 && near_rim(4 * texel.x + i, texel.y, rim_px)) {
+            result[i] = -result[i];
+        }
     }
     out_packed_normals = result;
 }

@@ -70,6 +70,7 @@ vec4 g_ray_x;     // the centre's view position over its depth
 float g_ray_y;
 vec4 g_normal_ray;   // dot(centre normal, (g_ray_x, g_ray_y, 1))
 vec4 g_normal_axis;  // the centre normal's component along AXIS
+vec4 g_guide_on;     // u_guide_on, 0 where the centre is a rim pixel
 vec4 g_tangent_axis;    // NORMAL_GUIDE 3: the centre's pilot tangent along +AXIS: its AXIS
 vec4 g_tangent_z;       // and z components,
 vec4 g_tangent_scale2;  // and its squared length in scene units per pixel of offset
@@ -191,6 +192,7 @@ void spatial_taps(vec4 w, bvec4 in_reach, vec4 za, vec4 zb, out vec4 wa, out vec
 #if NORMAL_GUIDE
 // Decodes four lanes of guide_normals.frag.glsl's normals (three 8-bit components per float).
 void guide_normal_decode(vec4 v, out vec4 nx, out vec4 ny, out vec4 nz) {
+    v = abs(v);  // negative: a rim pixel
     vec4 a = floor(v / 65536.0);
     vec4 rest = v - a * 65536.0;
     vec4 b = floor(rest / 256.0);
@@ -218,7 +220,7 @@ vec4 guide_weight(vec4 encoded, vec4 z, float signed_k) {
     vec4 tilt = sign(signed_k) * ((AXIS == 0 ? nx : ny) * g_tangent_axis + nz * g_tangent_z);
     vec4 c = clamp(tilt * u_guide_convex.x + u_guide_convex.y, 0.0, 1.0);
     cut *= c * c * (3.0 - 2.0 * c);
-    return 1.0 - u_guide_on * cut;
+    return 1.0 - g_guide_on * cut;
 #else
     // the tap's view position less the centre's
     float shift = signed_k / u_px_per_unit;
@@ -235,7 +237,7 @@ vec4 guide_weight(vec4 encoded, vec4 z, float signed_k) {
     vec4 c = clamp(behind * u_guide_convex.x + u_guide_convex.y, 0.0, 1.0);
     cut *= c * c * (3.0 - 2.0 * c);
 #endif
-    return 1.0 - u_guide_on * cut;
+    return 1.0 - g_guide_on * cut;
 #endif
 }
 
@@ -366,6 +368,7 @@ void main() {
 #if NORMAL_GUIDE
     vec4 centre_normal = fetch_packed(u_guide_normals, texel);
     guide_normal_decode(centre_normal, g_normal_x, g_normal_y, g_normal_z);
+    g_guide_on = mix(vec4(u_guide_on), vec4(0.0), lessThan(centre_normal, vec4(0.0)));
     guide_start(texel);
     walk_packed_taps(u_packed_depth, u_guide_normals, texel, zc, centre_normal, dense);
 #else

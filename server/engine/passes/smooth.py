@@ -247,6 +247,8 @@ class SmoothPass:
         )
         set_if_used(normals, "u_image_size_px", size)
         set_if_used(normals, "u_px_per_unit", uniforms.px_per_unit)
+        set_if_used(normals, "u_particle_radius", uniforms.particle_radius)
+        set_if_used(normals, "u_rim_radii", quality.normal_guide_rim)
         source.use(0)
         targets[0].fbo.use()
         draw(normals)
