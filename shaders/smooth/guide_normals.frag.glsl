@@ -43,10 +43,11 @@ vec3 axis_difference(vec3 minus, vec3 centre, vec3 plus, bool has_minus, bool ha
     return vec3(0.0);
 }
 
-// Whether the pixel at (px, py) is background (or outside the image).
+// Whether the pixel at (px, py) is background (past the image's end: not; the kernels go on
+// one-sided there, image_border_taps.glsl).
 bool background_at(int px, int py) {
     if (px < 0 || py < 0 || px >= u_image_size_px.x || py >= u_image_size_px.y) {
-        return true;
+        return false;
     }
     return texelFetch(u_packed_depth, ivec2(px >> 2, py), 0)[px & 3] <= 0.0;
 }
