@@ -430,13 +430,17 @@ def test_crease_test_keeps_a_ridge_and_smooths_the_faces(renderer: SurfaceRender
     assert errors["on"][faces].mean() <= errors["off"][faces].mean() + 0.01
 
 
-#: The normal guide as measured in benchmarks/studies/crease_2d.py (quality.normal_guide).
-GUIDED = {
-    "normal_guide": 8.0,
-    "normal_guide_width": 15.0,
-    "normal_guide_pilot": 1.5,
-    "normal_guide_turn": 10.0,
-}
+def guided(quality: QualityConfig, convex: float) -> QualityConfig:
+    """`quality` with a normal guide like the one benchmarks/studies/crease_2d.py measured
+    (quality.normal_guide), cutting convex turns only from `convex` deg (0: any turn)."""
+    return replace(
+        quality,
+        normal_guide=8.0,
+        normal_guide_width=15.0,
+        normal_guide_pilot=1.5,
+        normal_guide_turn=10.0,
+        normal_guide_convex=convex,
+    )
 
 
 @pytest.mark.parametrize("convex", [0.0, 6.0])
@@ -450,7 +454,7 @@ def test_normal_guide_keeps_a_ridge_and_smooths_the_faces(
     bound +0.01 r)."""
     truth, depth = ridge()
     off = QualityConfig(filter="narrow_range", iterations=2, close_gaps=0.0)
-    on = replace(off, **GUIDED, normal_guide_convex=convex)
+    on = guided(off, convex)
     errors = {}
     for name, quality in (("on", on), ("off", off)):
         smoothed = SinglePasses(renderer).filter_depth_image(
@@ -477,7 +481,7 @@ def test_normal_guide_leaves_a_plane_alone(renderer: SurfaceRenderer) -> None:
         SinglePasses(renderer).filter_depth_image(
             depth, particle_radius=RADIUS, px_per_unit=PX_PER_UNIT, quality=quality
         )
-        for quality in (off, replace(off, **GUIDED, normal_guide_convex=6.0))
+        for quality in (off, guided(off, 6.0))
     ]
     inner = np.s_[8:22, 8:32]
     assert np.abs(results[0] - results[1])[inner].max() < 1e-3 * RADIUS
