@@ -210,7 +210,11 @@ vec4 guide_weight(vec4 encoded, vec4 z, float signed_k) {
     vec4 ny;
     vec4 nz;
     guide_normal_decode(encoded, nx, ny, nz);
-    vec4 turn2 = 2.0 - 2.0 * (nx * g_normal_x + ny * g_normal_y + nz * g_normal_z);
+    // the decoded normals are unit within the 8-bit steps only: renormalized, or a normal
+    // would turn from itself by up to 9 degrees
+    vec4 inverse_norm = inversesqrt(max(nx * nx + ny * ny + nz * nz, vec4(1e-6)));
+    vec4 cosine = (nx * g_normal_x + ny * g_normal_y + nz * g_normal_z) * inverse_norm;
+    vec4 turn2 = 2.0 - 2.0 * cosine;
 #if NORMAL_GUIDE == 3
     // on the centre's pilot tangent plane: the distance to the tap, and the tap normal's tilt
     // towards it (positive: the surface turns away, convex)
@@ -368,6 +372,11 @@ void main() {
 #if NORMAL_GUIDE
     vec4 centre_normal = fetch_packed(u_guide_normals, texel);
     guide_normal_decode(centre_normal, g_normal_x, g_normal_y, g_normal_z);
+    vec4 centre_norm = inversesqrt(max(g_normal_x * g_normal_x + g_normal_y * g_normal_y
+                                       + g_normal_z * g_normal_z, vec4(1e-6)));
+    g_normal_x *= centre_norm;
+    g_normal_y *= centre_norm;
+    g_normal_z *= centre_norm;
     g_guide_on = mix(vec4(u_guide_on), vec4(0.0), lessThan(centre_normal, vec4(0.0)));
     guide_start(texel);
     walk_packed_taps(u_packed_depth, u_guide_normals, texel, zc, centre_normal, dense);
