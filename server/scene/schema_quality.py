@@ -200,6 +200,14 @@ class QualityConfig:
         "normal_guide: no cut at pixels with background within this many projected radii (a "
         "silhouette's pilot is one-sided); 0: cut everywhere",
     )
+    normal_guide_flat: float = bench_spec(
+        0.0,
+        "normal_guide: a tap is cut only where the pilot is flat past it, away from the centre "
+        "(normals at 1, 2, 3 times this many projected radii on agree); 0: off",
+    )
+    normal_guide_flat_angle: float = bench_spec(
+        10.0, "normal_guide_flat: the largest angle between those normals, degrees"
+    )
     normal_guide_tangent: bool = bench_spec(
         False,
         "normal_guide_convex and _turn on the centre's pilot tangent plane: the tap normal's tilt "

@@ -30,6 +30,10 @@
 // the taps' depths; 3 as 2, told on the centre's pilot tangent plane (normal_guide_tangent).
 #define NORMAL_GUIDE 0
 
+// 1: the guide's normals carry guide_flat.frag.glsl's flags: a tap is cut only where the pilot
+// is flat past it (away from the centre).
+#define GUIDE_FLAT 0
+
 #if NORMAL_GUIDE
 // The taps' values are the pilot normals (guide_normals.frag.glsl), the guide the depth.
 #define PACKED_VALUE 1
@@ -193,6 +197,17 @@ void spatial_taps(vec4 w, bvec4 in_reach, vec4 za, vec4 zb, out vec4 wa, out vec
 // Decodes four lanes of guide_normals.frag.glsl's normals (three 8-bit components per float).
 void guide_normal_decode(vec4 v, out vec4 nx, out vec4 ny, out vec4 nz) {
     v = abs(v);  // negative: a rim pixel
+#if GUIDE_FLAT
+    // guide_flat.frag.glsl's: 7 bits a component under two flag bits
+    v -= floor(v / 2097152.0) * 2097152.0;
+    vec4 a = floor(v / 16384.0);
+    vec4 rest = v - a * 16384.0;
+    vec4 b = floor(rest / 128.0);
+    vec4 c = rest - b * 128.0;
+    nx = a / 63.5 - 1.0;
+    ny = b / 63.5 - 1.0;
+    nz = c / 63.5 - 1.0;
+#else
     vec4 a = floor(v / 65536.0);
     vec4 rest = v - a * 65536.0;
     vec4 b = floor(rest / 256.0);
@@ -200,7 +215,19 @@ void guide_normal_decode(vec4 v, out vec4 nx, out vec4 ny, out vec4 nz) {
     nx = a / 127.5 - 1.0;
     ny = b / 127.5 - 1.0;
     nz = c / 127.5 - 1.0;
+#endif
 }
+
+#if GUIDE_FLAT
+// 1 where guide_flat.frag.glsl found the pilot flat past the tap, away from the centre (the
+// tap at +k: its +AXIS flag; at -k: its -AXIS flag).
+vec4 guide_flat_past(vec4 encoded, float signed_k) {
+    vec4 flags = floor(abs(encoded) / 2097152.0);  // 0..3
+    vec4 minus = floor(flags / 2.0);
+    vec4 plus = flags - 2.0 * minus;
+    return signed_k > 0.0 ? plus : minus;
+}
+#endif
 
 // The guide's weight of the tap at signed offset k, depth z, whose encoded pilot normal is
 // `encoded`: 1 - smoothstep over the turn between it and the centre's (a box edge is cut, a
@@ -240,6 +267,9 @@ vec4 guide_weight(vec4 encoded, vec4 z, float signed_k) {
                   * inversesqrt(max(distance2, vec4(1e-30)));
     vec4 c = clamp(behind * u_guide_convex.x + u_guide_convex.y, 0.0, 1.0);
     cut *= c * c * (3.0 - 2.0 * c);
+#endif
+#if GUIDE_FLAT
+    cut *= guide_flat_past(encoded, signed_k);
 #endif
     return 1.0 - g_guide_on * cut;
 #endif

@@ -42,6 +42,7 @@ from sphrender.server.scene import QualityConfig
 SEPARABLE_SHADER = "smooth/smooth_depth_separable.frag.glsl"
 TWO_D_SHADER = "smooth/smooth_depth.frag.glsl"
 GUIDE_NORMALS_SHADER = "smooth/guide_normals.frag.glsl"
+GUIDE_FLAT_SHADER = "smooth/guide_flat.frag.glsl"
 PACK_SHADER = "common/image_pack.frag.glsl"
 UNPACK_SHADER = "common/image_unpack.frag.glsl"
 _FILTER_DEFINES = {"gaussian": 0, "bilateral": 1, "narrow_range": 2}
@@ -61,10 +62,11 @@ class _SmoothTargets:
 
 
 class _GuideTargets:
-    """quality.normal_guide's pilot: two packed targets."""
+    """quality.normal_guide's pilot: four packed targets (the pilot's two passes, then its
+    normals, and with normal_guide_flat the flagged normals of each axis)."""
 
     def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
-        self.packed = [Target.float(ctx, ((size[0] + 3) // 4, size[1]), 4) for _ in range(2)]
+        self.packed = [Target.float(ctx, ((size[0] + 3) // 4, size[1]), 4) for _ in range(4)]
 
     def release(self) -> None:
         for target in self.packed:
@@ -171,8 +173,8 @@ class SmoothPass:
             guide = self._guide(
                 depth.size, packed[0].texture, uniforms, quality, packed_scissor, margin_px
             )
-            guide.use(1)
             defines["NORMAL_GUIDE"] = _guide_define(quality)
+            defines["GUIDE_FLAT"] = int(quality.normal_guide_flat > 0.0)
             samplers = {"u_packed_depth": 0, "u_guide_normals": 1}
         draws = {
             axis: self._axis_draws(
@@ -189,6 +191,8 @@ class SmoothPass:
             zip(passes, pair_limits, crease_limits, strict=True)
         ):
             packed[read_index].texture.use(0)
+            if samplers is not None:
+                guide[axis].use(1)
             fbo = packed[1 - read_index].fbo
             for program, scissor in draws[axis]:
                 set_if_used(program, "u_sigma_scale", sigma_scale)
@@ -220,10 +224,12 @@ class SmoothPass:
         quality: QualityConfig,
         packed_scissor: ScreenBox | None,
         margin_px: int,
-    ) -> moderngl.Texture:
-        """quality.normal_guide's pilot normals: the packed splat `packed_depth` through a
-        Gaussian of sigma normal_guide_pilot projected radii (rows, then columns; background
-        excluded), then its view-space normals (guide_normals.frag.glsl), packed and encoded."""
+    ) -> dict[int, moderngl.Texture]:
+        """quality.normal_guide's pilot normals for the passes along each axis: the packed
+        splat `packed_depth` through a Gaussian of sigma normal_guide_pilot projected radii
+        (rows, then columns; background excluded), then its view-space normals
+        (guide_normals.frag.glsl), packed and encoded; with normal_guide_flat, flagged per axis
+        (guide_flat.frag.glsl)."""
         programs, draw = self._context.programs, self._context.fullscreen.draw
         targets = self._guide_targets.get(size).packed
         for target in targets:
@@ -231,7 +237,7 @@ class SmoothPass:
         defines = {"FILTER": _FILTER_DEFINES["gaussian"], "KERNEL_SIZE": 0}
         sigma_scale = quality.normal_guide_pilot / quality.kernel_scale
         source = packed_depth
-        for axis, target in zip((0, 1), targets, strict=True):
+        for axis, target in zip((0, 1), targets[:2], strict=True):
             source.use(0)
             for program, scissor in self._axis_draws(
                 defines, uniforms, axis, size, packed_scissor, margin_px
@@ -252,9 +258,30 @@ class SmoothPass:
         source.use(0)
         targets[0].fbo.use()
         draw(normals)
+        result = {0: targets[0].texture, 1: targets[0].texture}
+        if quality.normal_guide_flat > 0.0:
+            targets[0].texture.use(0)
+            source.use(1)
+            for axis, target in zip((0, 1), targets[2:], strict=True):
+                flat = programs.get(
+                    FULLSCREEN_VERT,
+                    GUIDE_FLAT_SHADER,
+                    {"AXIS": axis},
+                    samplers={"u_guide_normals": 0, "u_packed_depth": 1},
+                )
+                set_if_used(flat, "u_image_size_px", size)
+                set_if_used(flat, "u_px_per_unit", uniforms.px_per_unit)
+                set_if_used(flat, "u_particle_radius", uniforms.particle_radius)
+                set_if_used(flat, "u_flat_radii", quality.normal_guide_flat)
+                set_if_used(
+                    flat, "u_flat_cos", math.cos(math.radians(quality.normal_guide_flat_angle))
+                )
+                target.fbo.use()
+                draw(flat)
+                result[axis] = target.texture
         for target in targets:
             set_scissor(target.fbo, None)
-        return targets[0].texture
+        return result
 
     def _axis_draws(
         self,
