@@ -107,6 +107,8 @@ def test_a_bench_only_key_is_refused_in_a_scene_and_read_by_the_bench(key: str) 
         "normal_guide_fit": False,
         "normal_guide_convex": 6.0,
         "normal_guide_tangent": True,
+        "normal_guide_flat": 1.5,
+        "normal_guide_flat_angle": 20.0,
         "normal_guide_rim": 2.0,
         "normal_guide_passes": 2,
     }[key]
@@ -124,6 +126,8 @@ def test_bench_only_keys_are_exactly_these() -> None:
         "normal_guide",
         "normal_guide_convex",
         "normal_guide_fit",
+        "normal_guide_flat",
+        "normal_guide_flat_angle",
         "normal_guide_passes",
         "normal_guide_pilot",
         "normal_guide_rim",

@@ -63,6 +63,8 @@ SETTINGS: dict[str, Setting] = {
                 "normal_guide_turn": 11.0,
                 "normal_guide_convex": 8.0,
                 "normal_guide_rim": 3.0,
+                "normal_guide_flat": 1.25,
+                "normal_guide_flat_angle": 25.0,
             }
         },
     ),
@@ -72,7 +74,8 @@ SETTINGS: dict[str, Setting] = {
 def _guide_setting(text: str) -> Setting:
     """`guide:KEY=VALUE:...`: balanced with the normal guide on (from 35 deg unless given),
     quality.normal_guide_KEY (or normal_guide itself for KEY `angle`) set to each VALUE, e.g.
-    guide:angle=8:width=12:pilot=1.7:turn=11:convex=8:rim=3 (the `guide` setting)."""
+    guide:angle=8:width=12:pilot=1.7:turn=11:convex=8:rim=3:flat=1.25:flat_angle=25 (the
+    `guide` setting)."""
     quality: dict[str, float | bool] = {"normal_guide": 35.0}
     for item in text.split(":")[1:]:
         key, value = item.split("=")
