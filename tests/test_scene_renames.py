@@ -97,7 +97,21 @@ def test_a_removed_key_is_refused_naming_it(section: str, key: str) -> None:
 
 @pytest.mark.parametrize("key", BENCH_ONLY)
 def test_a_bench_only_key_is_refused_in_a_scene_and_read_by_the_bench(key: str) -> None:
-    value = {"occlusion_culling": False, "normal_rules": "hard"}[key]
+    value = {
+        "occlusion_culling": False,
+        "normal_rules": "hard",
+        "normal_guide": 8.0,
+        "normal_guide_width": 15.0,
+        "normal_guide_pilot": 1.5,
+        "normal_guide_turn": 10.0,
+        "normal_guide_fit": False,
+        "normal_guide_convex": 6.0,
+        "normal_guide_tangent": True,
+        "normal_guide_flat": 1.5,
+        "normal_guide_flat_angle": 20.0,
+        "normal_guide_rim": 2.0,
+        "normal_guide_passes": 2,
+    }[key]
     with pytest.raises(InputError) as exc:
         scene_from_dict({"quality": {key: value}})
     assert exc.value.field == f"quality.{key}"
@@ -108,7 +122,21 @@ def test_a_bench_only_key_is_refused_in_a_scene_and_read_by_the_bench(key: str) 
 
 
 def test_bench_only_keys_are_exactly_these() -> None:
-    assert sorted(BENCH_ONLY) == ["normal_rules", "occlusion_culling"]
+    assert sorted(BENCH_ONLY) == [
+        "normal_guide",
+        "normal_guide_convex",
+        "normal_guide_fit",
+        "normal_guide_flat",
+        "normal_guide_flat_angle",
+        "normal_guide_passes",
+        "normal_guide_pilot",
+        "normal_guide_rim",
+        "normal_guide_tangent",
+        "normal_guide_turn",
+        "normal_guide_width",
+        "normal_rules",
+        "occlusion_culling",
+    ]
 
 
 def test_the_json_schema_shows_no_old_removed_or_bench_only_key() -> None:

@@ -4,7 +4,8 @@ metrics), plus a fluid block pressed against a solid wall, with the frame and sm
 times against the first setting's, measured interleaved in the same run.
 
     .venv/bin/python benchmarks/studies/crease_2d.py [--scenes ball,slab,...]
-        [--settings fast,balanced,crease30] [--frames 1] [--demo OUT] [--error-maps OUT]
+        [--settings fast,balanced,crease30,guide,guide:KEY=VALUE:...] [--frames 1]
+        [--demo OUT] [--error-maps OUT]
 
 `--demo OUT` also renders the demo's bead (configs/demo.toml, 960x540) with each setting to
 OUT/demo-<i>.png (streaks and a sawtooth rim show there, not in the errors); `--error-maps OUT`
@@ -52,7 +53,37 @@ SETTINGS: dict[str, Setting] = {
     "fast": preset_setting("fast"),
     "balanced": preset_setting("balanced"),
     "crease30": Setting("balanced + crease test 30°", {"quality": {"crease_angle": 30.0}}),
+    "guide": Setting(
+        "balanced + normal guide",
+        {
+            "quality": {
+                "normal_guide": 8.0,
+                "normal_guide_width": 12.0,
+                "normal_guide_pilot": 1.7,
+                "normal_guide_turn": 11.0,
+                "normal_guide_convex": 8.0,
+                "normal_guide_rim": 3.0,
+                "normal_guide_flat": 1.25,
+                "normal_guide_flat_angle": 25.0,
+            }
+        },
+    ),
 }
+
+
+def _guide_setting(text: str) -> Setting:
+    """`guide:KEY=VALUE:...`: balanced with the normal guide on (from 35 deg unless given),
+    quality.normal_guide_KEY (or normal_guide itself for KEY `angle`) set to each VALUE, e.g.
+    guide:angle=8:width=12:pilot=1.7:turn=11:convex=8:rim=3:flat=1.25:flat_angle=25 (the
+    `guide` setting)."""
+    quality: dict[str, float | bool] = {"normal_guide": 35.0}
+    for item in text.split(":")[1:]:
+        key, value = item.split("=")
+        name = "normal_guide" if key == "angle" else f"normal_guide_{key}"
+        quality[name] = int(value) if key == "passes" else float(value)
+        if key in ("fit", "tangent"):
+            quality[name] = value == "1"
+    return Setting(f"balanced + {text}", {"quality": quality})
 
 
 @dataclass(frozen=True)
@@ -185,7 +216,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--demo", type=Path, default=None)
     parser.add_argument("--error-maps", type=Path, default=None)
     args = parser.parse_args(argv)
-    settings = [SETTINGS[name] for name in args.settings.split(",")]
+    settings = [
+        _guide_setting(name) if name.startswith("guide:") else SETTINGS[name]
+        for name in args.settings.split(",")
+    ]
     with GLContext() as gl:
         renderer = SurfaceRenderer(gl)
         try:
@@ -204,7 +238,7 @@ def _print_rows(scene: str, rows: list[Row]) -> None:
     first = rows[0]
     for row in rows:
         print(
-            f"{scene:9} {row.setting:30} {row.normal_mean_deg:6.2f} / {row.normal_p95_deg:6.2f}  "
+            f"{scene:9} {row.setting:30} {row.normal_mean_deg:8.4f} / {row.normal_p95_deg:8.4f}  "
             f"frame {row.frame_ms:7.1f} ms ({row.frame_ms / first.frame_ms:4.2f}x)  smooth "
             f"{row.smooth_ms:6.1f} ms ({row.smooth_ms / max(first.smooth_ms, 1e-9):4.2f}x)",
             flush=True,

@@ -172,6 +172,50 @@ class QualityConfig:
         high=90.0,
         unit="degrees",
     )
+    normal_guide: float = bench_spec(
+        0.0,
+        "separable narrow_range: each tap weighted by 1 - smoothstep(this, + normal_guide_width "
+        "deg) of the turn between the pilot's normals at centre and tap, each 1-D pass a weighted "
+        "line fit (faces stay flat up to a box edge); 0: off",
+    )
+    normal_guide_width: float = bench_spec(25.0, "normal_guide: degrees from weight 1 to 0")
+    normal_guide_pilot: float = bench_spec(
+        1.0, "normal_guide: the pilot's Gaussian sigma (the splat's depth), in projected radii"
+    )
+    normal_guide_turn: float = bench_spec(
+        0.0,
+        "normal_guide: the turn of a sphere of this many particle radii over the distance to "
+        "the tap is tolerated (taken off in squares); 0: off",
+    )
+    normal_guide_fit: bool = bench_spec(
+        True, "normal_guide: each 1-D pass a weighted line fit (else the weighted mean)"
+    )
+    normal_guide_convex: float = bench_spec(
+        0.0,
+        "normal_guide: only convex turns are cut, wholly where the tap lies behind the centre's "
+        "pilot tangent plane by twice this angle (deg; none below it); 0: any turn",
+    )
+    normal_guide_rim: float = bench_spec(
+        0.0,
+        "normal_guide: no cut at pixels with background within this many projected radii (a "
+        "silhouette's pilot is one-sided); 0: cut everywhere",
+    )
+    normal_guide_flat: float = bench_spec(
+        0.0,
+        "normal_guide: a tap is cut only where the pilot is flat past it, away from the centre "
+        "(normals at 1, 2, 3 times this many projected radii on agree); 0: off",
+    )
+    normal_guide_flat_angle: float = bench_spec(
+        10.0, "normal_guide_flat: the largest angle between those normals, degrees"
+    )
+    normal_guide_tangent: bool = bench_spec(
+        False,
+        "normal_guide_convex and _turn on the centre's pilot tangent plane: the tap normal's tilt "
+        "towards the tap, the offset's length along the plane (else the taps' depths)",
+    )
+    normal_guide_passes: int = bench_spec(
+        0, "normal_guide: the 1-D passes (from the first) whose taps it weights; 0: all"
+    )
     normal_stencil: float = spec(
         1.0,
         "normals from a central difference over +-this many projected radii (1 px to "

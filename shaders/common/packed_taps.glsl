@@ -111,3 +111,48 @@ void walk_strided_taps(sampler2D image, ivec2 texel, int first, int radius, int 
 #endif
 }
 #endif
+
+#ifdef STRIDED_VALUE
+// walk_strided_taps with a separate value image (PACKED_VALUE), read alike.
+void walk_strided_valued_taps(sampler2D image, sampler2D value_image, ivec2 texel, int first,
+                              int radius, int stride) {
+#if AXIS == 0
+    int window = first >> 2;
+    vec4 ahead = fetch_packed(image, texel + ivec2(window, 0));
+    vec4 ahead_next = fetch_packed(image, texel + ivec2(window + 1, 0));
+    vec4 behind = fetch_packed(image, texel - ivec2(window, 0));
+    vec4 behind_next = fetch_packed(image, texel - ivec2(window + 1, 0));
+    vec4 value_ahead = fetch_packed(value_image, texel + ivec2(window, 0));
+    vec4 value_ahead_next = fetch_packed(value_image, texel + ivec2(window + 1, 0));
+    vec4 value_behind = fetch_packed(value_image, texel - ivec2(window, 0));
+    vec4 value_behind_next = fetch_packed(value_image, texel - ivec2(window + 1, 0));
+    for (int k = first; k <= radius; k += stride) {
+        int s = k >> 2;
+        if (s != window) {
+            window = s;
+            ahead = ahead_next;
+            behind = behind_next;
+            ahead_next = fetch_packed(image, texel + ivec2(s + 1, 0));
+            behind_next = fetch_packed(image, texel - ivec2(s + 1, 0));
+            value_ahead = value_ahead_next;
+            value_behind = value_behind_next;
+            value_ahead_next = fetch_packed(value_image, texel + ivec2(s + 1, 0));
+            value_behind_next = fetch_packed(value_image, texel - ivec2(s + 1, 0));
+        }
+        int j = k & 3;
+        vec4 za = j == 0 ? ahead : ahead_by(j, ahead, ahead_next);
+        vec4 zb = j == 0 ? behind : behind_by(j, behind, behind_next);
+        vec4 va = j == 0 ? value_ahead : ahead_by(j, value_ahead, value_ahead_next);
+        vec4 vb = j == 0 ? value_behind : behind_by(j, value_behind, value_behind_next);
+        tap_pair(k, za, zb, va, vb);
+    }
+#else
+    for (int k = first; k <= radius; k += stride) {
+        tap_pair(k, fetch_packed(image, texel + ivec2(0, k)),
+                 fetch_packed(image, texel - ivec2(0, k)),
+                 fetch_packed(value_image, texel + ivec2(0, k)),
+                 fetch_packed(value_image, texel - ivec2(0, k)));
+    }
+#endif
+}
+#endif

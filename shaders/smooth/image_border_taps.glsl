@@ -9,6 +9,9 @@
 // (exact on a plane), depths for the others (as they average), kept within the values taken.
 // passes/smooth.py draws this variant only within kernel_max_px of the image's ends; wherever
 // no tap crosses an end it adds what the packed walk's tap_pair adds, bit for bit.
+// With the narrow range's normal guide (NORMAL_GUIDE) every draw uses it: the guide weighs the
+// two taps of a pair apart (the value arguments are the taps' encoded pilot normals), and the
+// same line fit keeps a face flat where it leaves the kernel one-sided.
 
 #include "common/border_fit.glsl"
 
@@ -39,7 +42,8 @@ void start_image_border(ivec2 texel) {
 #if FILTER == FILTER_NARROW_RANGE
 // The narrow range's tap_pair (smooth_depth_separable.frag.glsl) where the pair may straddle an
 // image end: a side is taken with its mirror as there, or alone when the mirror lies past the
-// end. Walked by common/packed_taps.glsl like the other (the value arguments are unused).
+// end. Walked by common/packed_taps.glsl like the other (the value arguments are unused
+// without NORMAL_GUIDE).
 void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     vec4 w = gaussian_next();
     float kf = float(k);
@@ -61,6 +65,14 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     use_b = both(use_b, kept);
     za = narrow_range_sample(za, use_a);
     zb = narrow_range_sample(zb, use_b);
+#if NORMAL_GUIDE
+    vec4 wa = mix(vec4(0.0), w * guide_weight(value_a, za, kf), use_a);
+    vec4 wb = mix(vec4(0.0), w * guide_weight(value_b, zb, -kf), use_b);
+    vec4 ua = inverse_depth(za);
+    vec4 ub = inverse_depth(zb);
+    g_sum += wa * ua + wb * ub;
+    g_weight_sum += wa + wb;
+#else
     vec4 wa = mix(vec4(0.0), w, use_a);
     vec4 wb = mix(vec4(0.0), w, use_b);
     // A pair adds what tap_pair adds, bit for bit.
@@ -69,6 +81,7 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     vec4 ub = inverse_depth(zb);
     g_sum += mix(wa * ua + wb * ub, w * (ua + ub), pair);
     g_weight_sum += mix(wa + wb, 2.0 * w, pair);
+#endif
     g_k_sum += kf * (wa - wb);
     g_kk_sum += kf * kf * (wa + wb);
     vec4 uc = inverse_depth(g_center);
@@ -108,7 +121,11 @@ vec4 image_border_fit(vec4 mean) {
     vec4 centre = inverse_depth(g_center);
     vec4 low = inverse_depth(g_upper);
     vec4 high = inverse_depth(min(g_lower, g_lower_clamp));
+#if NORMAL_GUIDE
+    bvec4 one_sided = bvec4(u_guide_fit);  // the guide's weights are seldom symmetric
+#else
     bvec4 one_sided = notEqual(g_k_sum, vec4(0.0));  // only an image end unpairs a tap
+#endif
 #else
     vec4 centre = g_center;
     vec4 low = 2.0 * g_min_taken - g_max_taken;  // the range taken, widened by its width:

@@ -41,6 +41,8 @@ from sphrender.server.scene import QualityConfig
 
 SEPARABLE_SHADER = "smooth/smooth_depth_separable.frag.glsl"
 TWO_D_SHADER = "smooth/smooth_depth.frag.glsl"
+GUIDE_NORMALS_SHADER = "smooth/guide_normals.frag.glsl"
+GUIDE_FLAT_SHADER = "smooth/guide_flat.frag.glsl"
 PACK_SHADER = "common/image_pack.frag.glsl"
 UNPACK_SHADER = "common/image_unpack.frag.glsl"
 _FILTER_DEFINES = {"gaussian": 0, "bilateral": 1, "narrow_range": 2}
@@ -59,10 +61,24 @@ class _SmoothTargets:
             target.release()
 
 
+class _GuideTargets:
+    """quality.normal_guide's pilot: four packed targets (the pilot's two passes, then its
+    normals, and with normal_guide_flat the flagged normals of each axis)."""
+
+    def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
+        self.packed = [Target.float(ctx, ((size[0] + 3) // 4, size[1]), 4) for _ in range(4)]
+
+    def release(self) -> None:
+        for target in self.packed:
+            target.release()
+
+
 class SmoothPass:
     def __init__(self, context: PassContext) -> None:
         self._context = context
         self._targets = PerSize(lambda size: _SmoothTargets(context.gl.ctx, size))
+        # quality.normal_guide: the pilot's two packed targets, per image size
+        self._guide_targets = PerSize(lambda size: _GuideTargets(context.gl.ctx, size))
         self._gaps = GapPass(context)  # quality.close_gaps, before the filter (passes/gaps.py)
 
     def run(
@@ -152,23 +168,39 @@ class SmoothPass:
         packed[0].fbo.use()
         draw(pack)
         defines = {**defines, "CREASE_TEST": int(quality.crease_angle > 0.0)}
+        samplers = None
+        if quality.normal_guide > 0.0 and quality.filter == "narrow_range":
+            guide = self._guide(
+                depth.size, packed[0].texture, uniforms, quality, packed_scissor, margin_px
+            )
+            defines["NORMAL_GUIDE"] = _guide_define(quality)
+            defines["GUIDE_FLAT"] = int(quality.normal_guide_flat > 0.0)
+            samplers = {"u_packed_depth": 0, "u_guide_normals": 1}
         draws = {
-            axis: self._axis_draws(defines, uniforms, axis, depth.size, packed_scissor, margin_px)
+            axis: self._axis_draws(
+                defines, uniforms, axis, depth.size, packed_scissor, margin_px, samplers
+            )
             for axis in (0, 1)
         }
         read_index = 0
         passes = separable_passes(quality.iterations, quality.last_pass_sigma, quality.destreak)
         pair_limits = pair_limits_per_pass(len(passes), quality, uniforms.particle_radius)
         crease_limits = crease_limits_per_pass(len(passes), quality)
-        for (axis, sigma_scale), pair_limit, crease_limit in zip(
-            passes, pair_limits, crease_limits, strict=True
+        guide_passes = quality.normal_guide_passes or len(passes)
+        for index, ((axis, sigma_scale), pair_limit, crease_limit) in enumerate(
+            zip(passes, pair_limits, crease_limits, strict=True)
         ):
             packed[read_index].texture.use(0)
+            if samplers is not None:
+                guide[axis].use(1)
             fbo = packed[1 - read_index].fbo
             for program, scissor in draws[axis]:
                 set_if_used(program, "u_sigma_scale", sigma_scale)
                 set_if_used(program, "u_nr_pair_limit", pair_limit)
                 set_if_used(program, "u_crease_limit", crease_limit)
+                if samplers is not None:
+                    _set_guide_uniforms(program, quality, uniforms.particle_radius)
+                    set_if_used(program, "u_guide_on", float(index < guide_passes))
                 set_scissor(fbo, scissor)
                 fbo.use()
                 draw(program)
@@ -184,6 +216,73 @@ class SmoothPass:
         set_scissor(result.fbo, None)
         return result.texture
 
+    def _guide(
+        self,
+        size: tuple[int, int],
+        packed_depth: moderngl.Texture,
+        uniforms: _FilterUniforms,
+        quality: QualityConfig,
+        packed_scissor: ScreenBox | None,
+        margin_px: int,
+    ) -> dict[int, moderngl.Texture]:
+        """quality.normal_guide's pilot normals for the passes along each axis: the packed
+        splat `packed_depth` through a Gaussian of sigma normal_guide_pilot projected radii
+        (rows, then columns; background excluded), then its view-space normals
+        (guide_normals.frag.glsl), packed and encoded; with normal_guide_flat, flagged per axis
+        (guide_flat.frag.glsl)."""
+        programs, draw = self._context.programs, self._context.fullscreen.draw
+        targets = self._guide_targets.get(size).packed
+        for target in targets:
+            clear_and_scissor(target.fbo, packed_scissor)
+        defines = {"FILTER": _FILTER_DEFINES["gaussian"], "KERNEL_SIZE": 0}
+        sigma_scale = quality.normal_guide_pilot / quality.kernel_scale
+        source = packed_depth
+        for axis, target in zip((0, 1), targets[:2], strict=True):
+            source.use(0)
+            for program, scissor in self._axis_draws(
+                defines, uniforms, axis, size, packed_scissor, margin_px
+            ):
+                set_if_used(program, "u_sigma_scale", sigma_scale)
+                set_scissor(target.fbo, scissor)
+                target.fbo.use()
+                draw(program)
+            set_scissor(target.fbo, packed_scissor)
+            source = target.texture
+        normals = programs.get(
+            FULLSCREEN_VERT, GUIDE_NORMALS_SHADER, samplers={"u_packed_depth": 0}
+        )
+        set_if_used(normals, "u_image_size_px", size)
+        set_if_used(normals, "u_px_per_unit", uniforms.px_per_unit)
+        set_if_used(normals, "u_particle_radius", uniforms.particle_radius)
+        set_if_used(normals, "u_rim_radii", quality.normal_guide_rim)
+        source.use(0)
+        targets[0].fbo.use()
+        draw(normals)
+        result = {0: targets[0].texture, 1: targets[0].texture}
+        if quality.normal_guide_flat > 0.0:
+            targets[0].texture.use(0)
+            source.use(1)
+            for axis, target in zip((0, 1), targets[2:], strict=True):
+                flat = programs.get(
+                    FULLSCREEN_VERT,
+                    GUIDE_FLAT_SHADER,
+                    {"AXIS": axis},
+                    samplers={"u_guide_normals": 0, "u_packed_depth": 1},
+                )
+                set_if_used(flat, "u_image_size_px", size)
+                set_if_used(flat, "u_px_per_unit", uniforms.px_per_unit)
+                set_if_used(flat, "u_particle_radius", uniforms.particle_radius)
+                set_if_used(flat, "u_flat_radii", quality.normal_guide_flat)
+                set_if_used(
+                    flat, "u_flat_cos", math.cos(math.radians(quality.normal_guide_flat_angle))
+                )
+                target.fbo.use()
+                draw(flat)
+                result[axis] = target.texture
+        for target in targets:
+            set_scissor(target.fbo, None)
+        return result
+
     def _axis_draws(
         self,
         defines: dict[str, int],
@@ -192,6 +291,7 @@ class SmoothPass:
         image_px: tuple[int, int],
         scissor: ScreenBox | None,
         margin_px: int,
+        samplers: dict[str, int] | None = None,
     ) -> list[tuple[moderngl.Program, ScreenBox | None]]:
         """The draws of one 1-D pass along `axis`, each a program and the packed texels it
         covers (`scissor`: the screen box's, None = all). A kernel goes one-sided past the
@@ -202,7 +302,9 @@ class SmoothPass:
 
         def program(border: int) -> moderngl.Program:
             variant = {**defines, "AXIS": axis, "IMAGE_BORDER": border}
-            chosen = programs.get(FULLSCREEN_VERT, SEPARABLE_SHADER, variant, {"u_packed_depth": 0})
+            chosen = programs.get(
+                FULLSCREEN_VERT, SEPARABLE_SHADER, variant, samplers or {"u_packed_depth": 0}
+            )
             uniforms.set(chosen)
             set_if_used(chosen, "u_image_size_px", image_px)
             return chosen
@@ -216,6 +318,7 @@ class SmoothPass:
 
     def release(self) -> None:
         self._targets.release()
+        self._guide_targets.release()
         self._gaps.release()
 
 
@@ -276,6 +379,29 @@ def crease_limits_per_pass(count: int, quality: QualityConfig) -> list[float]:
     return [CREASE_TEST_OFF] + [math.tan(math.radians(quality.crease_angle))] * (count - 1)
 
 
+def _guide_define(quality: QualityConfig) -> int:
+    """smooth_depth_separable.frag.glsl's NORMAL_GUIDE for quality.normal_guide (on): 1 any
+    turn cut, 2 convex turns (the taps' depths), 3 convex turns (the pilot's tangent plane)."""
+    if quality.normal_guide_convex <= 0.0:
+        return 1
+    return 3 if quality.normal_guide_tangent else 2
+
+
+def _set_guide_uniforms(program: moderngl.Program, quality: QualityConfig, radius: float) -> None:
+    """quality.normal_guide's limits as ramps (smooth_depth_separable.frag.glsl guide_weight)."""
+    low2 = math.radians(quality.normal_guide) ** 2
+    high2 = math.radians(quality.normal_guide + quality.normal_guide_width) ** 2
+    scale = 1.0 / (high2 - low2)
+    set_if_used(program, "u_guide_ramp", (scale, -low2 * scale))
+    turn = quality.normal_guide_turn * radius
+    set_if_used(program, "u_guide_turn2", 1.0 / turn**2 if turn > 0.0 else 0.0)
+    convex = math.radians(quality.normal_guide_convex)
+    if convex > 0.0:
+        low, high = math.sin(convex), math.sin(2.0 * convex)
+        set_if_used(program, "u_guide_convex", (1.0 / (high - low), -low / (high - low)))
+    set_if_used(program, "u_guide_fit", quality.normal_guide_fit)
+
+
 class _FilterUniforms:
     """The uniforms of `common/depth_filter_params.glsl`, lengths in particle radii resolved;
     set on a program only when one of their inputs changed."""
@@ -288,6 +414,10 @@ class _FilterUniforms:
     @property
     def particle_radius(self) -> float:
         return self._key[1]
+
+    @property
+    def px_per_unit(self) -> float:
+        return self._key[0]
 
     def set(self, program: moderngl.Program) -> None:
         # The compiler drops the uniforms a filter never reads; set_if_used skips those.
