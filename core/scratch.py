@@ -21,7 +21,7 @@ import numpy.typing as npt
 
 __all__ = ["DECODE_SCRATCH", "Allocate", "Lease", "ScratchPool"]
 
-#: Below this, malloc's heaps serve a block without a mapping of its own: not worth pooling.
+#: Smaller blocks come cheaply from malloc's heaps (the service maps blocks from 128 KiB on).
 MIN_POOLED_BYTES = 64 << 10
 
 
@@ -99,5 +99,6 @@ class Lease:
         self._pool._give(taken)
 
 
-#: The compact decoder's temporaries: a 100k-particle frame's take about 5 MB, a 1M one's 50.
+#: The compact decoder's temporaries and sessions' kept integers: about 8 MB for a session of
+#: 100k-particle frames, 80 MB for 1M (past the cap, the largest are freed, not kept).
 DECODE_SCRATCH = ScratchPool(max_bytes=64 << 20)
