@@ -338,6 +338,46 @@ def decoded_positions(frame: Frame, error: float) -> np.ndarray:
     return CompactDecoder().decode(header, payload, max_particles=10**8)["positions"]
 
 
+def truth_change(frame: Frame, radius: float, camera: dict[str, Any],
+                 fractions: tuple[float, ...], size: tuple[int, int] = (256, 160),
+                 ) -> list[tuple[float, float]]:  # fmt: skip
+    """(mean°, p99°) per bound (fractions of `radius`): the bench's reference surface
+    (splashsurf, server/bench/mesh_reference.py) reconstructed from the decoded positions against
+    the one from the float32 input, rasterised with `camera`, over the pixels both cover."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from sphrender.server.bench.mesh_reference import rasterise, reconstruct
+    from sphrender.server.engine.geometry.camera import Camera
+    from sphrender.server.engine.gpu.gl_context import GLContext
+    from sphrender.server.engine.gpu.programs import ProgramCache
+    from sphrender.server.scene import scene_from_dict
+
+    image = {"width": size[0], "height": size[1]}
+    scene = scene_from_dict({"image": image, "camera": camera, "particles": {"radius": radius}})
+    view = Camera.from_config(scene.camera, *size)
+    sent = frame["positions"].astype(np.float32).astype(np.float64)
+    meshes = [reconstruct(sent, radius)]
+    meshes += [reconstruct(decoded_positions(frame, f * radius), radius) for f in fractions]
+
+    def draw() -> list:
+        with GLContext() as gl:
+            programs = ProgramCache(gl)
+            try:
+                return [rasterise(gl, programs, mesh, view) for mesh in meshes]
+            finally:
+                programs.release()
+
+    with ThreadPoolExecutor(1) as pool:  # a thread of its own: the caller may hold a context
+        reference, *decoded = pool.submit(draw).result()
+    out = []
+    for truth in decoded:
+        both = reference.hit & truth.hit
+        cosine = np.clip(np.einsum("ij,ij->i", reference.normals[both], truth.normals[both]), -1, 1)
+        angles = np.degrees(np.arccos(cosine))
+        out.append((float(angles.mean()), float(np.percentile(angles, 99))))
+    return out
+
+
 def image_change(frames: list[Frame], radius: float, camera: dict[str, Any],
                  fractions: tuple[float, ...], size: tuple[int, int] = (256, 160),
                  ) -> list[tuple[float, float, float, float, float]]:  # fmt: skip

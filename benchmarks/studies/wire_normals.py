@@ -23,11 +23,10 @@ import numpy as np
 
 from benchmarks.studies.wire import (
     DAM_RADIUS,
-    Frame,
     codec_rows,
     dam_sequence,
-    decoded_positions,
     image_change,
+    truth_change,
 )
 from benchmarks.studies.wire_report import DAM_CAMERA
 
@@ -42,7 +41,7 @@ def main() -> None:
     assert dam is not None, "needs ../shared/data"
     one = [{k: v[: len(v) // 3] for k, v in frame.items()} for frame in dam]
     changes = image_change(one, DAM_RADIUS, DAM_CAMERA, FRACTIONS)
-    truth = truth_change(one[len(one) // 2], FRACTIONS)
+    truth = truth_change(one[len(one) // 2], DAM_RADIUS, DAM_CAMERA, FRACTIONS)
     rows = {r.fraction: r for r in codec_rows("dam break", dam, DAM_RADIUS, FRACTIONS, 1)}
     print("| bound | predicted mean° | measured mean° | p99° | truth's own mean° | truth p99° | "
           "positions B/particle | frame B/particle |")  # fmt: skip
@@ -62,46 +61,6 @@ def main() -> None:
     print(f"\nfit: mean° = {math.exp(intercept):.1f} x (b/r)^{slope:.2f}; {TARGET_DEG}° at "
           f"b = r/{1 / bound:.0f}; positions {size:.2f} B/particle, frame {frame:.2f} "
           f"(interpolated in log b)")  # fmt: skip
-
-
-def truth_change(frame: Frame, fractions: tuple[float, ...],
-                 size: tuple[int, int] = (256, 160)) -> list[tuple[float, float]]:  # fmt: skip
-    """(mean°, p99°) per bound: the reference surface's normals reconstructed from the decoded
-    positions against those from the float32 input, over the pixels both meshes cover."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    from sphrender.server.bench.mesh_reference import rasterise, reconstruct
-    from sphrender.server.engine.geometry.camera import Camera
-    from sphrender.server.engine.gpu.gl_context import GLContext
-    from sphrender.server.engine.gpu.programs import ProgramCache
-    from sphrender.server.scene import scene_from_dict
-
-    image = {"width": size[0], "height": size[1]}
-    scene = scene_from_dict(
-        {"image": image, "camera": DAM_CAMERA, "particles": {"radius": DAM_RADIUS}}
-    )
-    camera = Camera.from_config(scene.camera, *size)
-    sent = frame["positions"].astype(np.float32).astype(np.float64)
-    meshes = [reconstruct(sent, DAM_RADIUS)]
-    meshes += [reconstruct(decoded_positions(frame, f * DAM_RADIUS), DAM_RADIUS) for f in fractions]
-
-    def draw() -> list:
-        with GLContext() as gl:
-            programs = ProgramCache(gl)
-            try:
-                return [rasterise(gl, programs, mesh, camera) for mesh in meshes]
-            finally:
-                programs.release()
-
-    with ThreadPoolExecutor(1) as pool:  # a thread of its own: the caller may hold a context
-        reference, *decoded = pool.submit(draw).result()
-    out = []
-    for truth in decoded:
-        both = reference.hit & truth.hit
-        cosine = np.clip(np.einsum("ij,ij->i", reference.normals[both], truth.normals[both]), -1, 1)
-        angles = np.degrees(np.arccos(cosine))
-        out.append((float(angles.mean()), float(np.percentile(angles, 99))))
-    return out
 
 
 if __name__ == "__main__":
