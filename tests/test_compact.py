@@ -197,6 +197,17 @@ def test_truncated_and_corrupted_payloads_are_refused() -> None:
     assert refused(garbage, b"\x00" * len(payload)).startswith("arrays[0].bytes: ")
 
 
+def test_bytes_after_an_arrays_zstd_frame_are_refused() -> None:
+    """`bytes` is the length of the array's zstd frame (PROTOCOL.md 4.7): a section that holds
+    more (junk, or a second frame) is refused naming the array, not silently cut."""
+    header, payload = encoded()
+    first = header["arrays"][0]["bytes"]
+    for extra in (b"\x00\x01\x02", payload[:first]):
+        longer = edited(header, 0, bytes=first + len(extra))
+        message = refused(longer, payload[:first] + extra + payload[first:])
+        assert message.startswith("arrays[0].bytes: "), message
+
+
 def test_sizes_that_lie_are_refused_before_inflating() -> None:
     header, payload = encoded()
     # The header's width says fewer bytes than the zstd frame holds (and the reverse).
