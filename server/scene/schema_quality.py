@@ -213,6 +213,11 @@ class QualityConfig:
         "normal_guide_convex and _turn on the centre's pilot tangent plane: the tap normal's tilt "
         "towards the tap, the offset's length along the plane (else the taps' depths)",
     )
+    normal_guide_limits: bool = bench_spec(
+        False,
+        "normal_guide: the rule evaluated once, on the pilot, into per-pixel one-sided limits "
+        "(the distance to the first tap it cuts); the passes weigh a tap by its offset alone",
+    )
     normal_guide_passes: int = bench_spec(
         0, "normal_guide: the 1-D passes (from the first) whose taps it weights; 0: all"
     )

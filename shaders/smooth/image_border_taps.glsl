@@ -66,8 +66,13 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     za = narrow_range_sample(za, use_a);
     zb = narrow_range_sample(zb, use_b);
 #if NORMAL_GUIDE
+#if GUIDE_LIMITS
+    vec4 wa = mix(vec4(0.0), w * guide_limit_weight(kf), use_a);
+    vec4 wb = mix(vec4(0.0), w * guide_limit_weight(-kf), use_b);
+#else
     vec4 wa = mix(vec4(0.0), w * guide_weight(value_a, za, kf), use_a);
     vec4 wb = mix(vec4(0.0), w * guide_weight(value_b, zb, -kf), use_b);
+#endif
     vec4 ua = inverse_depth(za);
     vec4 ub = inverse_depth(zb);
     g_sum += wa * ua + wb * ub;
