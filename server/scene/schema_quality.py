@@ -218,6 +218,9 @@ class QualityConfig:
         "normal_guide: the rule evaluated once, on the pilot, into per-pixel one-sided limits "
         "(the distance to the first tap it cuts); the passes weigh a tap by its offset alone",
     )
+    normal_guide_limit_cut: float = bench_spec(
+        0.5, "normal_guide_limits: the least cut of a tap that sets the limit"
+    )
     normal_guide_passes: int = bench_spec(
         0, "normal_guide: the 1-D passes (from the first) whose taps it weights; 0: all"
     )

@@ -29,6 +29,7 @@ uniform float u_guide_turn2;
 uniform vec2 u_guide_convex;
 uniform float u_reach_radii;   // the farthest reach of any pass, in projected radii
 uniform int u_reach_max_px;    // ... and at most this many pixels
+uniform float u_limit_cut;     // the cut that sets a limit (1/2)
 
 layout(location = 0) out vec4 out_packed_limits;
 
@@ -101,7 +102,7 @@ vec4 cut_at(vec4 encoded, vec4 z, vec4 k) {
 // The limit so far, lowered by the taps at distances `distance` (per lane; the tap is taken
 // only within 1 .. reach) of cut `cut`.
 vec4 lowered(vec4 limit, vec4 cut, vec4 distance, vec4 reach) {
-    bvec4 counts = both(both(greaterThanEqual(cut, vec4(0.5)),
+    bvec4 counts = both(both(greaterThanEqual(cut, vec4(u_limit_cut)),
                              greaterThanEqual(distance, vec4(1.0))),
                         lessThanEqual(distance, reach));
     return min(limit, mix(vec4(NO_LIMIT), distance + 0.5 - cut, counts));

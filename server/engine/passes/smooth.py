@@ -311,6 +311,7 @@ class SmoothPass:
                 _set_guide_uniforms(limits, quality, uniforms.particle_radius)
                 set_if_used(limits, "u_reach_radii", 3.0 * quality.kernel_scale * reach_scale)
                 set_if_used(limits, "u_reach_max_px", quality.kernel_max_px)
+                set_if_used(limits, "u_limit_cut", quality.normal_guide_limit_cut)
                 target.fbo.use()
                 draw(limits)
                 result[axis] = target.texture
