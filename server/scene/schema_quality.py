@@ -218,6 +218,11 @@ class QualityConfig:
         "normal_guide: the rule evaluated once, on the pilot, into per-pixel one-sided limits "
         "(the distance to the first tap it cuts); the passes weigh a tap by its offset alone",
     )
+    normal_guide_flat_own: bool = bench_spec(
+        False,
+        "normal_guide_flat: the flat run past the tap must also agree with the tap's own pilot "
+        "normal",
+    )
     normal_guide_limit_cut: float = bench_spec(
         0.5, "normal_guide_limits: the least cut of a tap that sets the limit"
     )

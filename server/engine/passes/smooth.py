@@ -281,7 +281,7 @@ class SmoothPass:
                 flat = programs.get(
                     FULLSCREEN_VERT,
                     GUIDE_FLAT_SHADER,
-                    {"AXIS": axis},
+                    {"AXIS": axis, "FLAT_OWN": int(quality.normal_guide_flat_own)},
                     samplers={"u_guide_normals": 0, "u_packed_depth": 1},
                 )
                 set_if_used(flat, "u_image_size_px", size)
