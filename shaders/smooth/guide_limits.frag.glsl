@@ -11,7 +11,8 @@
 // each at most 4095.
 
 #define AXIS 0
-// As smooth_depth_separable.frag.glsl's: 2 convex turns only, told by the taps' depths.
+// As smooth_depth_separable.frag.glsl's: 1 any turn cut; 2 convex turns only, told by the
+// taps' (pilot) depths; 3 told by the tap normal's tilt towards the tap.
 #define NORMAL_GUIDE 2
 // 1: the normals carry guide_flat.frag.glsl's flags (a tap is cut only where the pilot is
 // flat past it).
@@ -43,6 +44,8 @@ vec4 g_ray_x;      // the lanes' view position over their depth
 float g_ray_y;
 vec4 g_normal_ray;
 vec4 g_normal_axis;
+vec4 g_tangent_axis;  // NORMAL_GUIDE 3: the centre's unit pilot tangent along +AXIS
+vec4 g_tangent_z;
 
 void decode(vec4 v, out vec4 nx, out vec4 ny, out vec4 nz) {
     v = abs(v);
@@ -89,6 +92,11 @@ vec4 cut_at(vec4 encoded, vec4 z, vec4 k) {
                   * inversesqrt(max(distance2, vec4(1e-30)));
     vec4 c = clamp(behind * u_guide_convex.x + u_guide_convex.y, 0.0, 1.0);
     cut *= c * c * (3.0 - 2.0 * c);
+#elif NORMAL_GUIDE == 3
+    // the tap normal along the centre's tangent towards the tap (positive: convex)
+    vec4 tilt = sign(k) * ((AXIS == 0 ? nx : ny) * g_tangent_axis + nz * g_tangent_z);
+    vec4 c = clamp(tilt * u_guide_convex.x + u_guide_convex.y, 0.0, 1.0);
+    cut *= c * c * (3.0 - 2.0 * c);
 #endif
 #if GUIDE_FLAT
     vec4 flags = floor(abs(encoded) / 2097152.0);  // +AXIS: bit 0, -AXIS: bit 1
@@ -99,13 +107,14 @@ vec4 cut_at(vec4 encoded, vec4 z, vec4 k) {
     return mix(vec4(0.0), cut, greaterThan(z, vec4(0.0)));
 }
 
-// The limit so far, lowered by the taps at distances `distance` (per lane; the tap is taken
-// only within 1 .. reach) of cut `cut`.
+// The limit so far, lowered by the taps at distances `distance` on the side walked (per lane;
+// the tap is taken only at distances 1 .. reach) of cut `cut`.
 vec4 lowered(vec4 limit, vec4 cut, vec4 distance, vec4 reach) {
+    vec4 candidate = distance + 0.5 - cut;
     bvec4 counts = both(both(greaterThanEqual(cut, vec4(u_limit_cut)),
                              greaterThanEqual(distance, vec4(1.0))),
-                        lessThanEqual(distance, reach));
-    return min(limit, mix(vec4(NO_LIMIT), distance + 0.5 - cut, counts));
+                        both(lessThanEqual(distance, reach), lessThan(candidate, limit)));
+    return min(limit, mix(vec4(NO_LIMIT), candidate, counts));
 }
 
 // Whether no tap from distance `next` on can lower any lane's limit (each at least
@@ -131,6 +140,10 @@ void main() {
     g_ray_y = (float(texel.y) + 0.5 - centre.y) / u_px_per_unit;
     g_normal_ray = g_normal_x * g_ray_x + g_normal_y * g_ray_y + g_normal_z;
     g_normal_axis = AXIS == 0 ? g_normal_x : g_normal_y;
+    vec4 inverse_length = inversesqrt(max(g_normal_z * g_normal_z
+                                          + g_normal_axis * g_normal_axis, vec4(1e-12)));
+    g_tangent_axis = abs(g_normal_z) * inverse_length;
+    g_tangent_z = -sign(g_normal_z) * g_normal_axis * inverse_length;
     vec4 z = mix(vec4(1.0), g_center, surface);
     vec4 reach = min(ceil(u_reach_radii * u_particle_radius * u_px_per_unit / z),
                      vec4(float(u_reach_max_px)));
@@ -170,8 +183,9 @@ void main() {
     for (int k = 1; k <= radius && texel.y + k < u_image_size_px.y; ++k) {
         ivec2 at = texel + ivec2(0, k);
         vec4 kk = vec4(float(k));
-        plus = lowered(plus, cut_at(texelFetch(u_guide_normals, at, 0),
-                                    texelFetch(u_packed_depth, at, 0), kk), kk, reach);
+        vec4 depths = texelFetch(u_packed_depth, at, 0);
+        plus = lowered(plus, cut_at(texelFetch(u_guide_normals, at, 0), depths, kk), kk,
+                       reach);
         if (done(plus, kk + 1.0, reach)) {
             break;
         }
@@ -179,8 +193,9 @@ void main() {
     for (int k = 1; k <= radius && texel.y - k >= 0; ++k) {
         ivec2 at = texel - ivec2(0, k);
         vec4 kk = vec4(float(k));
-        minus = lowered(minus, cut_at(texelFetch(u_guide_normals, at, 0),
-                                      texelFetch(u_packed_depth, at, 0), -kk), kk, reach);
+        vec4 depths = texelFetch(u_packed_depth, at, 0);
+        minus = lowered(minus, cut_at(texelFetch(u_guide_normals, at, 0), depths, -kk), kk,
+                        reach);
         if (done(minus, kk + 1.0, reach)) {
             break;
         }
