@@ -223,6 +223,15 @@ class QualityConfig:
         "normal_guide_flat: the flat run past the tap must also agree with the tap's own pilot "
         "normal",
     )
+    normal_guide_convex_relative: bool = bench_spec(
+        False,
+        "normal_guide_limits, normal_guide_convex by the taps' depths: the convex ramp over the "
+        "chord's sine behind the tangent plane divided by the turn (radians)",
+    )
+    normal_guide_limits_skip: bool = bench_spec(
+        False,
+        "normal_guide_limits: every other tap tested, and the one between where that sets a limit",
+    )
     normal_guide_limit_cut: float = bench_spec(
         0.5, "normal_guide_limits: the least cut of a tap that sets the limit"
     )

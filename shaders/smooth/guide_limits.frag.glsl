@@ -17,6 +17,12 @@
 // 1: the normals carry guide_flat.frag.glsl's flags (a tap is cut only where the pilot is
 // flat past it).
 #define GUIDE_FLAT 0
+// 1: NORMAL_GUIDE 2's convex ramp over the chord's sine behind the tangent plane divided by
+// the turn (the pilot rounds a box edge, so its chords lie behind by about half the turn).
+#define CONVEX_RELATIVE 0
+// 1: every other tap is tested, and the tap between where that lowers a limit (the pilot is
+// smooth over a few pixels, so a cut seldom rises and falls again within two).
+#define LIMIT_SKIP 0
 
 #include "common/packed_image.glsl"
 
@@ -90,6 +96,10 @@ vec4 cut_at(vec4 encoded, vec4 z, vec4 k) {
 #if NORMAL_GUIDE == 2
     vec4 behind = -(dz * g_normal_ray + (shift * z) * g_normal_axis)
                   * inversesqrt(max(distance2, vec4(1e-30)));
+#if CONVEX_RELATIVE
+    // the chord's sine behind the tangent plane over the turn (about 1/2 on a rounded edge)
+    behind *= inversesqrt(max(turn2, vec4(1e-6)));
+#endif
     vec4 c = clamp(behind * u_guide_convex.x + u_guide_convex.y, 0.0, 1.0);
     cut *= c * c * (3.0 - 2.0 * c);
 #elif NORMAL_GUIDE == 3
@@ -121,6 +131,44 @@ vec4 lowered(vec4 limit, vec4 cut, vec4 distance, vec4 reach) {
 // next - 1/2) or lies within its reach.
 bool done(vec4 limit, vec4 next, vec4 reach) {
     return all(either(lessThanEqual(limit, next - 0.5), greaterThan(next, reach)));
+}
+
+// AXIS 1: the limit along the column on side `side` (+-1).
+vec4 column_limit(ivec2 texel, int side, int radius, vec4 reach) {
+    vec4 limit = vec4(NO_LIMIT);
+    int room = side > 0 ? u_image_size_px.y - 1 - texel.y : texel.y;  // rows to the end
+#if LIMIT_SKIP
+    for (int k = 2; k <= radius + 1 && k - 1 <= room; k += 2) {
+        vec4 before = limit;
+        if (k <= room) {
+            ivec2 at = texel + ivec2(0, side * k);
+            limit = lowered(limit, cut_at(texelFetch(u_guide_normals, at, 0),
+                                          texelFetch(u_packed_depth, at, 0),
+                                          vec4(float(side * k))), vec4(float(k)), reach);
+        }
+        if (k > room || any(lessThan(limit, before))) {
+            ivec2 at = texel + ivec2(0, side * (k - 1));
+            limit = lowered(limit, cut_at(texelFetch(u_guide_normals, at, 0),
+                                          texelFetch(u_packed_depth, at, 0),
+                                          vec4(float(side * (k - 1)))), vec4(float(k - 1)),
+                            reach);
+        }
+        if (done(limit, vec4(float(k + 1)), reach)) {
+            break;
+        }
+    }
+#else
+    for (int k = 1; k <= radius && k <= room; ++k) {
+        ivec2 at = texel + ivec2(0, side * k);
+        limit = lowered(limit, cut_at(texelFetch(u_guide_normals, at, 0),
+                                      texelFetch(u_packed_depth, at, 0), vec4(float(side * k))),
+                        vec4(float(k)), reach);
+        if (done(limit, vec4(float(k + 1)), reach)) {
+            break;
+        }
+    }
+#endif
+    return limit;
 }
 
 void main() {
@@ -159,10 +207,24 @@ void main() {
     for (int s = 0; s <= steps && texel.x + s < texels; ++s) {
         vec4 codes = texelFetch(u_guide_normals, texel + ivec2(s, 0), 0);
         vec4 depths = texelFetch(u_packed_depth, texel + ivec2(s, 0), 0);
+#if LIMIT_SKIP
+        vec4 before = plus;
+        for (int j = 1; j < 4; j += 2) {
+            vec4 k = vec4(float(4 * s + j)) - lane;
+            plus = lowered(plus, cut_at(vec4(codes[j]), vec4(depths[j]), k), k, reach);
+        }
+        if (any(lessThan(plus, before))) {
+            for (int j = 0; j < 4; j += 2) {
+                vec4 k = vec4(float(4 * s + j)) - lane;
+                plus = lowered(plus, cut_at(vec4(codes[j]), vec4(depths[j]), k), k, reach);
+            }
+        }
+#else
         for (int j = 0; j < 4; ++j) {
             vec4 k = vec4(float(4 * s + j)) - lane;
             plus = lowered(plus, cut_at(vec4(codes[j]), vec4(depths[j]), k), k, reach);
         }
+#endif
         // every lane's limit lies short of this texel's nearest tap: none further counts
         if (done(plus, vec4(float(4 * s + 4)) - lane, reach)) {
             break;
@@ -171,35 +233,31 @@ void main() {
     for (int s = 0; s <= steps && texel.x - s >= 0; ++s) {
         vec4 codes = texelFetch(u_guide_normals, texel - ivec2(s, 0), 0);
         vec4 depths = texelFetch(u_packed_depth, texel - ivec2(s, 0), 0);
+#if LIMIT_SKIP
+        vec4 before = minus;
+        for (int j = 1; j < 4; j += 2) {
+            vec4 k = vec4(float(4 * s - j)) + lane;  // the distance behind
+            minus = lowered(minus, cut_at(vec4(codes[j]), vec4(depths[j]), -k), k, reach);
+        }
+        if (any(lessThan(minus, before))) {
+            for (int j = 0; j < 4; j += 2) {
+                vec4 k = vec4(float(4 * s - j)) + lane;
+                minus = lowered(minus, cut_at(vec4(codes[j]), vec4(depths[j]), -k), k, reach);
+            }
+        }
+#else
         for (int j = 0; j < 4; ++j) {
             vec4 k = vec4(float(4 * s - j)) + lane;  // the distance behind
             minus = lowered(minus, cut_at(vec4(codes[j]), vec4(depths[j]), -k), k, reach);
         }
+#endif
         if (done(minus, vec4(float(4 * s + 1)) + lane, reach)) {
             break;
         }
     }
 #else
-    for (int k = 1; k <= radius && texel.y + k < u_image_size_px.y; ++k) {
-        ivec2 at = texel + ivec2(0, k);
-        vec4 kk = vec4(float(k));
-        vec4 depths = texelFetch(u_packed_depth, at, 0);
-        plus = lowered(plus, cut_at(texelFetch(u_guide_normals, at, 0), depths, kk), kk,
-                       reach);
-        if (done(plus, kk + 1.0, reach)) {
-            break;
-        }
-    }
-    for (int k = 1; k <= radius && texel.y - k >= 0; ++k) {
-        ivec2 at = texel - ivec2(0, k);
-        vec4 kk = vec4(float(k));
-        vec4 depths = texelFetch(u_packed_depth, at, 0);
-        minus = lowered(minus, cut_at(texelFetch(u_guide_normals, at, 0), depths, -kk), kk,
-                        reach);
-        if (done(minus, kk + 1.0, reach)) {
-            break;
-        }
-    }
+    plus = column_limit(texel, 1, radius, reach);
+    minus = column_limit(texel, -1, radius, reach);
 #endif
     vec4 code_plus = min(floor(plus * 8.0 + 0.5), vec4(4095.0));
     vec4 code_minus = min(floor(minus * 8.0 + 0.5), vec4(4095.0));

@@ -302,7 +302,13 @@ class SmoothPass:
                 limits = programs.get(
                     FULLSCREEN_VERT,
                     GUIDE_LIMITS_SHADER,
-                    {"AXIS": axis, "NORMAL_GUIDE": _guide_define(quality), "GUIDE_FLAT": flat},
+                    {
+                        "AXIS": axis,
+                        "NORMAL_GUIDE": _guide_define(quality),
+                        "GUIDE_FLAT": flat,
+                        "CONVEX_RELATIVE": int(quality.normal_guide_convex_relative),
+                        "LIMIT_SKIP": int(quality.normal_guide_limits_skip),
+                    },
                     samplers={"u_guide_normals": 0, "u_packed_depth": 1},
                 )
                 set_if_used(limits, "u_image_size_px", size)
