@@ -97,7 +97,15 @@ def _guide_setting(text: str) -> Setting:
         key, value = item.split("=")
         name = "normal_guide" if key == "angle" else f"normal_guide_{key}"
         quality[name] = int(value) if key == "passes" else float(value)
-        if key in ("fit", "tangent", "limits", "flat_own", "convex_relative", "limits_skip"):
+        if key in (
+            "fit",
+            "tangent",
+            "limits",
+            "flat_own",
+            "convex_relative",
+            "limits_skip",
+            "half",
+        ):
             quality[name] = value == "1"
     return Setting(f"balanced + {text}", {"quality": quality})
 

@@ -36,6 +36,9 @@
 // 1: the guide's rule was evaluated once, on the pilot, into per-pixel one-sided limits
 // (guide_limits.frag.glsl, u_guide_limits): a tap is weighed by its offset against them alone.
 #define GUIDE_LIMITS 0
+// 1: those limits are at half the image's size (quality.normal_guide_half): texel (x, y) holds
+// half-size pixels 4x .. 4x+3 of row y, in half-size pixels.
+#define GUIDE_HALF 0
 
 #if NORMAL_GUIDE && !GUIDE_LIMITS
 // The taps' values are the pilot normals (guide_normals.frag.glsl), the guide the depth.
@@ -418,10 +421,18 @@ void main() {
 #endif
     int dense = min(radius, u_kernel_max_px);
 #if NORMAL_GUIDE && GUIDE_LIMITS
+#if GUIDE_HALF
+    // pixels 4x .. 4x+3 are half-size pixels 2x, 2x, 2x+1, 2x+1 of row y / 2
+    vec4 halved = texelFetch(u_guide_limits, ivec2(texel.x >> 1, texel.y >> 1), 0);
+    vec4 limits = (texel.x & 1) == 0 ? halved.xxyy : halved.zzww;
+    float limit_scale = 2.0 / 8.0;
+#else
     vec4 limits = fetch_packed(u_guide_limits, texel);
+    float limit_scale = 1.0 / 8.0;
+#endif
     vec4 code_plus = floor(limits / 4096.0);
-    g_limit_plus = code_plus / 8.0;
-    g_limit_minus = (limits - code_plus * 4096.0) / 8.0;
+    g_limit_plus = code_plus * limit_scale;
+    g_limit_minus = (limits - code_plus * 4096.0) * limit_scale;
     g_guide_on = vec4(u_guide_on);
     walk_packed_taps(u_packed_depth, u_packed_depth, texel, zc, zc, dense);
 #elif NORMAL_GUIDE

@@ -44,6 +44,7 @@ TWO_D_SHADER = "smooth/smooth_depth.frag.glsl"
 GUIDE_NORMALS_SHADER = "smooth/guide_normals.frag.glsl"
 GUIDE_FLAT_SHADER = "smooth/guide_flat.frag.glsl"
 GUIDE_LIMITS_SHADER = "smooth/guide_limits.frag.glsl"
+GUIDE_DOWNSAMPLE_SHADER = "smooth/guide_downsample.frag.glsl"
 PACK_SHADER = "common/image_pack.frag.glsl"
 UNPACK_SHADER = "common/image_unpack.frag.glsl"
 _FILTER_DEFINES = {"gaussian": 0, "bilateral": 1, "narrow_range": 2}
@@ -68,7 +69,7 @@ class _GuideTargets:
     normal_guide_limits the limits of each axis)."""
 
     def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
-        self.packed = [Target.float(ctx, ((size[0] + 3) // 4, size[1]), 4) for _ in range(6)]
+        self.packed = [Target.float(ctx, ((size[0] + 3) // 4, size[1]), 4) for _ in range(7)]
 
     def release(self) -> None:
         for target in self.packed:
@@ -175,7 +176,7 @@ class SmoothPass:
         if quality.normal_guide > 0.0 and quality.filter == "narrow_range":
             reach_scale = max(scale for _, scale in passes)
             guide = self._guide(
-                depth.size,
+                depth,
                 packed[0].texture,
                 uniforms,
                 quality,
@@ -186,6 +187,7 @@ class SmoothPass:
             defines["NORMAL_GUIDE"] = _guide_define(quality)
             if quality.normal_guide_limits:
                 defines["GUIDE_LIMITS"] = 1
+                defines["GUIDE_HALF"] = int(quality.normal_guide_half)
                 samplers = {"u_packed_depth": 0, "u_guide_limits": 1}
             else:
                 defines["GUIDE_FLAT"] = int(quality.normal_guide_flat > 0.0)
@@ -231,7 +233,7 @@ class SmoothPass:
 
     def _guide(
         self,
-        size: tuple[int, int],
+        depth: moderngl.Texture,
         packed_depth: moderngl.Texture,
         uniforms: _FilterUniforms,
         quality: QualityConfig,
@@ -244,11 +246,29 @@ class SmoothPass:
         (rows, then columns; background excluded), then its view-space normals
         (guide_normals.frag.glsl), packed and encoded; with normal_guide_flat, flagged per axis
         (guide_flat.frag.glsl); with normal_guide_limits, the rule's one-sided limits per axis
-        out to `reach_scale` times the kernel's reach (guide_limits.frag.glsl)."""
+        out to `reach_scale` times the kernel's reach (guide_limits.frag.glsl); with
+        normal_guide_half (and the limits) all of it at half the image's size, from the plain
+        `depth` halved (guide_downsample.frag.glsl)."""
         programs, draw = self._context.programs, self._context.fullscreen.draw
+        size = depth.size
+        half = quality.normal_guide_limits and quality.normal_guide_half
+        if half:
+            size = ((size[0] + 1) // 2, (size[1] + 1) // 2)
+            uniforms = _FilterUniforms(
+                0.5 * uniforms.px_per_unit, uniforms.particle_radius, quality
+            )
+            packed_scissor = None
         targets = self._guide_targets.get(size).packed
         for target in targets:
             clear_and_scissor(target.fbo, packed_scissor)
+        if half:
+            downsample = programs.get(
+                FULLSCREEN_VERT, GUIDE_DOWNSAMPLE_SHADER, samplers={"u_image": 0}
+            )
+            depth.use(0)
+            targets[6].fbo.use()
+            draw(downsample)
+            packed_depth = targets[6].texture
         defines = {"FILTER": _FILTER_DEFINES["gaussian"], "KERNEL_SIZE": 0}
         sigma_scale = quality.normal_guide_pilot / quality.kernel_scale
         source = packed_depth
@@ -297,7 +317,7 @@ class SmoothPass:
         if quality.normal_guide_limits:
             source.use(1)
             flat = int(quality.normal_guide_flat > 0.0)
-            for axis, target in zip((0, 1), targets[4:], strict=True):
+            for axis, target in zip((0, 1), targets[4:6], strict=True):
                 result[axis].use(0)
                 limits = programs.get(
                     FULLSCREEN_VERT,
@@ -316,7 +336,11 @@ class SmoothPass:
                 set_if_used(limits, "u_particle_radius", uniforms.particle_radius)
                 _set_guide_uniforms(limits, quality, uniforms.particle_radius)
                 set_if_used(limits, "u_reach_radii", 3.0 * quality.kernel_scale * reach_scale)
-                set_if_used(limits, "u_reach_max_px", quality.kernel_max_px)
+                set_if_used(
+                    limits,
+                    "u_reach_max_px",
+                    quality.kernel_max_px // 2 if half else quality.kernel_max_px,
+                )
                 set_if_used(limits, "u_limit_cut", quality.normal_guide_limit_cut)
                 target.fbo.use()
                 draw(limits)
