@@ -464,6 +464,8 @@ def guided(
         (6.0, 1.25, True, {"normal_guide_limits_skip": True}),
         (6.0, 1.25, True, {"normal_guide_convex_relative": True}),
         (6.0, 1.25, True, {"normal_guide_tangent": True}),
+        (6.0, 1.25, True, {"normal_guide_half": True, "normal_guide_limits_skip": True}),
+        (6.0, 1.25, True, {"normal_guide_half": True, "normal_guide_convex_relative": True}),
     ],
 )
 def test_normal_guide_keeps_a_ridge_and_smooths_the_faces(
@@ -489,13 +491,19 @@ def test_normal_guide_keeps_a_ridge_and_smooths_the_faces(
         errors[name] = np.abs(smoothed - truth)[:, 8:32] / RADIUS  # clear of the image's ends
     near = slice(12, 18)
     faces = np.r_[0:7, 23:30]
+    print(extra, limits, errors["on"][near].mean(), errors["on"][faces].mean())
     assert errors["on"][near].mean() < 0.25 * errors["off"][near].mean()
     assert errors["on"][faces].mean() <= errors["off"][faces].mean() + 0.01
 
 
 @pytest.mark.parametrize(
     ("limits", "extra"),
-    [(False, {}), (True, {}), (True, {"normal_guide_limits_skip": True})],
+    [
+        (False, {}),
+        (True, {}),
+        (True, {"normal_guide_limits_skip": True}),
+        (True, {"normal_guide_half": True}),
+    ],
 )
 def test_normal_guide_leaves_a_plane_alone(
     renderer: SurfaceRenderer, limits: bool, extra: dict[str, bool]

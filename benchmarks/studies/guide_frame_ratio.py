@@ -2,7 +2,8 @@
 does (the bench's jittered-lattice ball, ~100k particles, 1280x720, one frame per setting per
 cycle, wall time of `SurfaceRenderer.render`): balanced, balanced + the guide
 (benchmarks/studies/crease_2d.py's `guide`), and the guide as one-sided limits
-(`normal_guide_limits`, with and without `normal_guide_limits_skip`).
+(`normal_guide_limits`, with and without `normal_guide_limits_skip`, at half size:
+`normal_guide_half`, and with `normal_guide_convex_relative`).
 
     .venv/bin/python benchmarks/studies/guide_frame_ratio.py [--cycles 10]
 
@@ -36,6 +37,11 @@ GUIDE = {
     "normal_guide_flat": 1.25,
     "normal_guide_flat_angle": 25.0,
 }
+LIMITS_HALF = {
+    "normal_guide_limits": True,
+    "normal_guide_limits_skip": True,
+    "normal_guide_half": True,
+}
 SETTINGS = {
     "balanced": scene_for("balanced", {}),
     "balanced + guide": scene_for("balanced", {"quality": GUIDE}),
@@ -43,6 +49,14 @@ SETTINGS = {
     "guide, limits, skip": scene_for(
         "balanced",
         {"quality": {**GUIDE, "normal_guide_limits": True, "normal_guide_limits_skip": True}},
+    ),
+    "guide, limits, skip, half": scene_for(
+        "balanced",
+        {"quality": {**GUIDE, **LIMITS_HALF}},
+    ),
+    "guide, ..., half, relative": scene_for(
+        "balanced",
+        {"quality": {**GUIDE, **LIMITS_HALF, "normal_guide_convex_relative": True}},
     ),
 }
 
@@ -72,7 +86,7 @@ def main() -> None:
     for name, values in times.items():
         per_cycle = statistics.median(a / b for a, b in zip(values, base, strict=True))
         print(
-            f"{name:22} median {statistics.median(values):7.1f} ms  ratio of medians "
+            f"{name:27} median {statistics.median(values):7.1f} ms  ratio of medians "
             f"{statistics.median(values) / statistics.median(base):.3f}  median per-cycle "
             f"ratio {per_cycle:.3f}"
         )
