@@ -75,8 +75,9 @@ uniform float u_guide_on;  // 1: this pass weights its taps; 0: plain weights (s
 uniform bool u_guide_fit;  // the line fit (else the weighted mean)
 #if GUIDE_LIMITS
 uniform sampler2D u_guide_limits;  // packed (guide_limits.frag.glsl)
-vec4 g_limit_plus;   // the lanes' limits along +AXIS and -AXIS, pixels
-vec4 g_limit_minus;
+vec4 g_limit_plus;   // the lanes' limits along +AXIS and -AXIS, pixels (3e4 where
+vec4 g_limit_minus;  // u_guide_on is 0)
+vec4 g_inverse_centre;  // 1 / the centre's depth
 #endif
 vec4 g_normal_x;  // the centre's pilot normal, per lane
 vec4 g_normal_y;
@@ -434,6 +435,9 @@ void main() {
     g_limit_plus = code_plus * limit_scale;
     g_limit_minus = (limits - code_plus * 4096.0) * limit_scale;
     g_guide_on = vec4(u_guide_on);
+    g_limit_plus = mix(vec4(3e4), g_limit_plus, g_guide_on);
+    g_limit_minus = mix(vec4(3e4), g_limit_minus, g_guide_on);
+    g_inverse_centre = inverse_depth(g_center);
     walk_packed_taps(u_packed_depth, u_packed_depth, texel, zc, zc, dense);
 #elif NORMAL_GUIDE
     vec4 centre_normal = fetch_packed(u_guide_normals, texel);
