@@ -431,7 +431,11 @@ def test_crease_test_keeps_a_ridge_and_smooths_the_faces(renderer: SurfaceRender
 
 
 def guided(
-    quality: QualityConfig, convex: float, flat: float = 0.0, limits: bool = False, **extra: bool
+    quality: QualityConfig,
+    convex: float,
+    flat: float = 0.0,
+    limits: bool = False,
+    **extra: bool | int,
 ) -> QualityConfig:
     """`quality` with a normal guide like the one benchmarks/studies/crease_2d.py measured
     (quality.normal_guide), cutting convex turns only from `convex` deg (0: any turn), and only
@@ -464,12 +468,16 @@ def guided(
         (6.0, 1.25, True, {"normal_guide_limits_skip": True}),
         (6.0, 1.25, True, {"normal_guide_convex_relative": True}),
         (6.0, 1.25, True, {"normal_guide_tangent": True}),
-        (6.0, 1.25, True, {"normal_guide_half": True, "normal_guide_limits_skip": True}),
-        (6.0, 1.25, True, {"normal_guide_half": True, "normal_guide_convex_relative": True}),
+        (6.0, 1.25, True, {"normal_guide_downscale": 2, "normal_guide_limits_skip": True}),
+        (6.0, 1.25, True, {"normal_guide_downscale": 2, "normal_guide_convex_relative": True}),
     ],
 )
 def test_normal_guide_keeps_a_ridge_and_smooths_the_faces(
-    renderer: SurfaceRenderer, convex: float, flat: float, limits: bool, extra: dict[str, bool]
+    renderer: SurfaceRenderer,
+    convex: float,
+    flat: float,
+    limits: bool,
+    extra: dict[str, bool | int],
 ) -> None:
     """quality.normal_guide: taps whose pilot normal turns from the centre's are cut and each
     1-D pass fits a line, so the rows within 3 px of the ridge stay near their true depth:
@@ -502,11 +510,12 @@ def test_normal_guide_keeps_a_ridge_and_smooths_the_faces(
         (False, {}),
         (True, {}),
         (True, {"normal_guide_limits_skip": True}),
-        (True, {"normal_guide_half": True}),
+        (True, {"normal_guide_downscale": 2}),
+        (True, {"normal_guide_downscale": 4}),
     ],
 )
 def test_normal_guide_leaves_a_plane_alone(
-    renderer: SurfaceRenderer, limits: bool, extra: dict[str, bool]
+    renderer: SurfaceRenderer, limits: bool, extra: dict[str, bool | int]
 ) -> None:
     """On a noisy tilted plane no pilot normal turns past the guide's limit, the weights stay
     symmetric and the line fit is the mean: the result is the guide-less one within 1e-3 r

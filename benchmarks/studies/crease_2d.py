@@ -96,7 +96,7 @@ def _guide_setting(text: str) -> Setting:
     for item in text.split(":")[1:]:
         key, value = item.split("=")
         name = "normal_guide" if key == "angle" else f"normal_guide_{key}"
-        quality[name] = int(value) if key == "passes" else float(value)
+        quality[name] = int(value) if key in ("passes", "downscale") else float(value)
         if key in (
             "fit",
             "tangent",
@@ -104,7 +104,6 @@ def _guide_setting(text: str) -> Setting:
             "flat_own",
             "convex_relative",
             "limits_skip",
-            "half",
         ):
             quality[name] = value == "1"
     return Setting(f"balanced + {text}", {"quality": quality})

@@ -2,8 +2,8 @@
 does (the bench's jittered-lattice ball, ~100k particles, 1280x720, one frame per setting per
 cycle, wall time of `SurfaceRenderer.render`): balanced, balanced + the guide
 (benchmarks/studies/crease_2d.py's `guide`), and the guide as one-sided limits
-(`normal_guide_limits`, with and without `normal_guide_limits_skip`, at half size:
-`normal_guide_half`, and with `normal_guide_convex_relative`).
+(`normal_guide_limits`, with and without `normal_guide_limits_skip`, at half and quarter size:
+`normal_guide_downscale`, and with `normal_guide_convex_relative`).
 
     .venv/bin/python benchmarks/studies/guide_frame_ratio.py [--cycles 10]
 
@@ -40,7 +40,7 @@ GUIDE = {
 LIMITS_HALF = {
     "normal_guide_limits": True,
     "normal_guide_limits_skip": True,
-    "normal_guide_half": True,
+    "normal_guide_downscale": 2,
 }
 SETTINGS = {
     "balanced": scene_for("balanced", {}),
@@ -57,6 +57,17 @@ SETTINGS = {
     "guide, ..., half, relative": scene_for(
         "balanced",
         {"quality": {**GUIDE, **LIMITS_HALF, "normal_guide_convex_relative": True}},
+    ),
+    "guide, ..., quarter, relative": scene_for(
+        "balanced",
+        {
+            "quality": {
+                **GUIDE,
+                **LIMITS_HALF,
+                "normal_guide_downscale": 4,
+                "normal_guide_convex_relative": True,
+            }
+        },
     ),
 }
 
@@ -86,7 +97,7 @@ def main() -> None:
     for name, values in times.items():
         per_cycle = statistics.median(a / b for a, b in zip(values, base, strict=True))
         print(
-            f"{name:27} median {statistics.median(values):7.1f} ms  ratio of medians "
+            f"{name:30} median {statistics.median(values):7.1f} ms  ratio of medians "
             f"{statistics.median(values) / statistics.median(base):.3f}  median per-cycle "
             f"ratio {per_cycle:.3f}"
         )

@@ -232,9 +232,10 @@ class QualityConfig:
         False,
         "normal_guide_limits: every other tap tested, and the one between where that sets a limit",
     )
-    normal_guide_half: bool = bench_spec(
-        False,
-        "normal_guide_limits: the pilot, its normals, flags and limits at half the image's size",
+    normal_guide_downscale: int = bench_spec(
+        1,
+        "normal_guide_limits: the pilot, its normals, flags and limits at 1 / this of the "
+        "image's size along each axis (1, 2 or 4)",
     )
     normal_guide_limit_cut: float = bench_spec(
         0.5, "normal_guide_limits: the least cut of a tap that sets the limit"

@@ -36,9 +36,9 @@
 // 1: the guide's rule was evaluated once, on the pilot, into per-pixel one-sided limits
 // (guide_limits.frag.glsl, u_guide_limits): a tap is weighed by its offset against them alone.
 #define GUIDE_LIMITS 0
-// 1: those limits are at half the image's size (quality.normal_guide_half): texel (x, y) holds
-// half-size pixels 4x .. 4x+3 of row y, in half-size pixels.
-#define GUIDE_HALF 0
+// Those limits are at 1 / GUIDE_SCALE of the image's size (quality.normal_guide_downscale):
+// texel (x, y) holds reduced pixels 4x .. 4x+3 of row y, in reduced pixels.
+#define GUIDE_SCALE 1
 
 #if NORMAL_GUIDE && !GUIDE_LIMITS
 // The taps' values are the pilot normals (guide_normals.frag.glsl), the guide the depth.
@@ -422,11 +422,16 @@ void main() {
 #endif
     int dense = min(radius, u_kernel_max_px);
 #if NORMAL_GUIDE && GUIDE_LIMITS
-#if GUIDE_HALF
-    // pixels 4x .. 4x+3 are half-size pixels 2x, 2x, 2x+1, 2x+1 of row y / 2
-    vec4 halved = texelFetch(u_guide_limits, ivec2(texel.x >> 1, texel.y >> 1), 0);
-    vec4 limits = (texel.x & 1) == 0 ? halved.xxyy : halved.zzww;
-    float limit_scale = 2.0 / 8.0;
+#if GUIDE_SCALE > 1
+    // pixels 4x .. 4x+3 are reduced pixels (4x + i) / GUIDE_SCALE of row y / GUIDE_SCALE, all
+    // in one reduced texel
+    int first = 4 * texel.x / GUIDE_SCALE;
+    vec4 reduced = texelFetch(u_guide_limits, ivec2(first >> 2, texel.y / GUIDE_SCALE), 0);
+    vec4 limits;
+    for (int i = 0; i < 4; ++i) {
+        limits[i] = reduced[((4 * texel.x + i) / GUIDE_SCALE) & 3];
+    }
+    float limit_scale = float(GUIDE_SCALE) / 8.0;
 #else
     vec4 limits = fetch_packed(u_guide_limits, texel);
     float limit_scale = 1.0 / 8.0;

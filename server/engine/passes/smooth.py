@@ -187,7 +187,7 @@ class SmoothPass:
             defines["NORMAL_GUIDE"] = _guide_define(quality)
             if quality.normal_guide_limits:
                 defines["GUIDE_LIMITS"] = 1
-                defines["GUIDE_HALF"] = int(quality.normal_guide_half)
+                defines["GUIDE_SCALE"] = _guide_scale(quality)
                 samplers = {"u_packed_depth": 0, "u_guide_limits": 1}
             else:
                 defines["GUIDE_FLAT"] = int(quality.normal_guide_flat > 0.0)
@@ -247,23 +247,23 @@ class SmoothPass:
         (guide_normals.frag.glsl), packed and encoded; with normal_guide_flat, flagged per axis
         (guide_flat.frag.glsl); with normal_guide_limits, the rule's one-sided limits per axis
         out to `reach_scale` times the kernel's reach (guide_limits.frag.glsl); with
-        normal_guide_half (and the limits) all of it at half the image's size, from the plain
-        `depth` halved (guide_downsample.frag.glsl)."""
+        normal_guide_downscale (and the limits) all of it at that fraction of the image's size,
+        from the plain `depth` reduced (guide_downsample.frag.glsl)."""
         programs, draw = self._context.programs, self._context.fullscreen.draw
         size = depth.size
-        half = quality.normal_guide_limits and quality.normal_guide_half
-        if half:
-            size = ((size[0] + 1) // 2, (size[1] + 1) // 2)
+        scale = _guide_scale(quality)
+        if scale > 1:
+            size = ((size[0] + scale - 1) // scale, (size[1] + scale - 1) // scale)
             uniforms = _FilterUniforms(
-                0.5 * uniforms.px_per_unit, uniforms.particle_radius, quality
+                uniforms.px_per_unit / scale, uniforms.particle_radius, quality
             )
             packed_scissor = None
         targets = self._guide_targets.get(size).packed
         for target in targets:
             clear_and_scissor(target.fbo, packed_scissor)
-        if half:
+        if scale > 1:
             downsample = programs.get(
-                FULLSCREEN_VERT, GUIDE_DOWNSAMPLE_SHADER, samplers={"u_image": 0}
+                FULLSCREEN_VERT, GUIDE_DOWNSAMPLE_SHADER, {"SCALE": scale}, {"u_image": 0}
             )
             depth.use(0)
             targets[6].fbo.use()
@@ -339,7 +339,7 @@ class SmoothPass:
                 set_if_used(
                     limits,
                     "u_reach_max_px",
-                    quality.kernel_max_px // 2 if half else quality.kernel_max_px,
+                    quality.kernel_max_px // scale,
                 )
                 set_if_used(limits, "u_limit_cut", quality.normal_guide_limit_cut)
                 target.fbo.use()
@@ -451,6 +451,13 @@ def _guide_define(quality: QualityConfig) -> int:
     if quality.normal_guide_convex <= 0.0:
         return 1
     return 3 if quality.normal_guide_tangent else 2
+
+
+def _guide_scale(quality: QualityConfig) -> int:
+    """The normal guide's downscale (quality.normal_guide_downscale, with the limits only)."""
+    if not quality.normal_guide_limits:
+        return 1
+    return max(1, quality.normal_guide_downscale)
 
 
 def _set_guide_uniforms(program: moderngl.Program, quality: QualityConfig, radius: float) -> None:
