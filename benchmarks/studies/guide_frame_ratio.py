@@ -58,6 +58,10 @@ SETTINGS = {
         "balanced",
         {"quality": {**GUIDE, **LIMITS_HALF, "normal_guide_convex_relative": True}},
     ),
+    "guide, limits, skip, quarter": scene_for(
+        "balanced",
+        {"quality": {**GUIDE, **LIMITS_HALF, "normal_guide_downscale": 4}},
+    ),
     "guide, ..., quarter, relative": scene_for(
         "balanced",
         {
