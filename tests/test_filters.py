@@ -430,10 +430,18 @@ def test_crease_test_keeps_a_ridge_and_smooths_the_faces(renderer: SurfaceRender
     assert errors["on"][faces].mean() <= errors["off"][faces].mean() + 0.01
 
 
-def guided(quality: QualityConfig, convex: float, flat: float = 0.0) -> QualityConfig:
+def guided(
+    quality: QualityConfig,
+    convex: float,
+    flat: float = 0.0,
+    limits: bool = False,
+    **extra: bool | int,
+) -> QualityConfig:
     """`quality` with a normal guide like the one benchmarks/studies/crease_2d.py measured
     (quality.normal_guide), cutting convex turns only from `convex` deg (0: any turn), and only
-    where the pilot is flat past the tap at `flat` projected radii (0: anywhere)."""
+    where the pilot is flat past the tap at `flat` projected radii (0: anywhere); with `limits`
+    the rule evaluated once into one-sided limits (quality.normal_guide_limits); `extra`: more
+    quality.normal_guide_* fields by their full names."""
     return replace(
         quality,
         normal_guide=8.0,
@@ -443,21 +451,45 @@ def guided(quality: QualityConfig, convex: float, flat: float = 0.0) -> QualityC
         normal_guide_convex=convex,
         normal_guide_flat=flat,
         normal_guide_flat_angle=25.0,
+        normal_guide_limits=limits,
+        **extra,
     )
 
 
-@pytest.mark.parametrize(("convex", "flat"), [(0.0, 0.0), (6.0, 0.0), (6.0, 1.25)])
+@pytest.mark.parametrize(
+    ("convex", "flat", "limits", "extra"),
+    [
+        (0.0, 0.0, False, {}),
+        (6.0, 0.0, False, {}),
+        (6.0, 1.25, False, {}),
+        (6.0, 1.25, False, {"normal_guide_flat_own": True}),
+        (0.0, 0.0, True, {}),
+        (6.0, 1.25, True, {}),
+        (6.0, 1.25, True, {"normal_guide_limits_skip": True}),
+        (6.0, 1.25, True, {"normal_guide_convex_relative": True}),
+        (6.0, 1.25, True, {"normal_guide_tangent": True}),
+        (6.0, 1.25, True, {"normal_guide_downscale": 2, "normal_guide_limits_skip": True}),
+        (6.0, 1.25, True, {"normal_guide_downscale": 2, "normal_guide_convex_relative": True}),
+    ],
+)
 def test_normal_guide_keeps_a_ridge_and_smooths_the_faces(
-    renderer: SurfaceRenderer, convex: float, flat: float
+    renderer: SurfaceRenderer,
+    convex: float,
+    flat: float,
+    limits: bool,
+    extra: dict[str, bool | int],
 ) -> None:
     """quality.normal_guide: taps whose pilot normal turns from the centre's are cut and each
     1-D pass fits a line, so the rows within 3 px of the ridge stay near their true depth:
     0.03 r mean error (0.11 r cutting convex turns only, the same with the flat-past rule
-    too), 1.25 r without the guide (measured; bound 0.25x). Far from it the faces' noise is
-    smoothed as without (0.026 against 0.023 r; bound +0.01 r)."""
+    too, and with the flat run agreeing with the tap's normal; with the one-sided limits 0.03 r,
+    0.06 r convex only with the flat-past rule, alike testing every other tap, 0.03 r with the
+    convex ramp relative to the turn or on the tangent plane, 0.12 r at half size),
+    1.25 r without the guide (measured; bound 0.25x). Far from it the faces'
+    noise is smoothed as without (0.026 against 0.023 r; bound +0.01 r)."""
     truth, depth = ridge()
     off = QualityConfig(filter="narrow_range", iterations=2, close_gaps=0.0)
-    on = guided(off, convex, flat)
+    on = guided(off, convex, flat, limits, **extra)
     errors = {}
     for name, quality in (("on", on), ("off", off)):
         smoothed = SinglePasses(renderer).filter_depth_image(
@@ -471,7 +503,19 @@ def test_normal_guide_keeps_a_ridge_and_smooths_the_faces(
     assert errors["on"][faces].mean() <= errors["off"][faces].mean() + 0.01
 
 
-def test_normal_guide_leaves_a_plane_alone(renderer: SurfaceRenderer) -> None:
+@pytest.mark.parametrize(
+    ("limits", "extra"),
+    [
+        (False, {}),
+        (True, {}),
+        (True, {"normal_guide_limits_skip": True}),
+        (True, {"normal_guide_downscale": 2}),
+        (True, {"normal_guide_downscale": 4}),
+    ],
+)
+def test_normal_guide_leaves_a_plane_alone(
+    renderer: SurfaceRenderer, limits: bool, extra: dict[str, bool | int]
+) -> None:
     """On a noisy tilted plane no pilot normal turns past the guide's limit, the weights stay
     symmetric and the line fit is the mean: the result is the guide-less one within 1e-3 r
     (measured 1e-4 r: the float32 sums' order)."""
@@ -484,7 +528,7 @@ def test_normal_guide_leaves_a_plane_alone(renderer: SurfaceRenderer) -> None:
         SinglePasses(renderer).filter_depth_image(
             depth, particle_radius=RADIUS, px_per_unit=PX_PER_UNIT, quality=quality
         )
-        for quality in (off, guided(off, 6.0, 1.25))
+        for quality in (off, guided(off, 6.0, 1.25, limits, **extra))
     ]
     inner = np.s_[8:22, 8:32]
     assert np.abs(results[0] - results[1])[inner].max() < 1e-3 * RADIUS

@@ -111,6 +111,12 @@ def test_a_bench_only_key_is_refused_in_a_scene_and_read_by_the_bench(key: str) 
         "normal_guide_flat_angle": 20.0,
         "normal_guide_rim": 2.0,
         "normal_guide_passes": 2,
+        "normal_guide_limits": True,
+        "normal_guide_flat_own": True,
+        "normal_guide_convex_relative": True,
+        "normal_guide_limits_skip": True,
+        "normal_guide_downscale": 4,
+        "normal_guide_limit_cut": 0.25,
     }[key]
     with pytest.raises(InputError) as exc:
         scene_from_dict({"quality": {key: value}})
@@ -125,9 +131,15 @@ def test_bench_only_keys_are_exactly_these() -> None:
     assert sorted(BENCH_ONLY) == [
         "normal_guide",
         "normal_guide_convex",
+        "normal_guide_convex_relative",
+        "normal_guide_downscale",
         "normal_guide_fit",
         "normal_guide_flat",
         "normal_guide_flat_angle",
+        "normal_guide_flat_own",
+        "normal_guide_limit_cut",
+        "normal_guide_limits",
+        "normal_guide_limits_skip",
         "normal_guide_passes",
         "normal_guide_pilot",
         "normal_guide_rim",

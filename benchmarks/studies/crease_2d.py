@@ -4,7 +4,7 @@ metrics), plus a fluid block pressed against a solid wall, with the frame and sm
 times against the first setting's, measured interleaved in the same run.
 
     .venv/bin/python benchmarks/studies/crease_2d.py [--scenes ball,slab,...]
-        [--settings fast,balanced,crease30,guide,guide:KEY=VALUE:...] [--frames 1]
+        [--settings fast,balanced,crease30,guide,guidelim,guidelim4,guide:KEY=VALUE:...] [--frames 1]
         [--demo OUT] [--error-maps OUT]
 
 `--demo OUT` also renders the demo's bead (configs/demo.toml, 960x540) with each setting to
@@ -68,6 +68,41 @@ SETTINGS: dict[str, Setting] = {
             }
         },
     ),
+    "guidelim": Setting(
+        "balanced + guide, limits",
+        {
+            "quality": {
+                "normal_guide": 8.0,
+                "normal_guide_width": 12.0,
+                "normal_guide_pilot": 1.7,
+                "normal_guide_turn": 11.0,
+                "normal_guide_convex": 8.0,
+                "normal_guide_rim": 3.0,
+                "normal_guide_flat": 1.25,
+                "normal_guide_flat_angle": 25.0,
+                "normal_guide_limits": True,
+            }
+        },
+    ),
+    "guidelim4": Setting(
+        "balanced + guide, limits, quarter, relative",
+        {
+            "quality": {
+                "normal_guide": 8.0,
+                "normal_guide_width": 12.0,
+                "normal_guide_pilot": 1.7,
+                "normal_guide_turn": 11.0,
+                "normal_guide_convex": 8.0,
+                "normal_guide_rim": 3.0,
+                "normal_guide_flat": 1.25,
+                "normal_guide_flat_angle": 25.0,
+                "normal_guide_limits": True,
+                "normal_guide_limits_skip": True,
+                "normal_guide_downscale": 4,
+                "normal_guide_convex_relative": True,
+            }
+        },
+    ),
 }
 
 
@@ -80,8 +115,15 @@ def _guide_setting(text: str) -> Setting:
     for item in text.split(":")[1:]:
         key, value = item.split("=")
         name = "normal_guide" if key == "angle" else f"normal_guide_{key}"
-        quality[name] = int(value) if key == "passes" else float(value)
-        if key in ("fit", "tangent"):
+        quality[name] = int(value) if key in ("passes", "downscale") else float(value)
+        if key in (
+            "fit",
+            "tangent",
+            "limits",
+            "flat_own",
+            "convex_relative",
+            "limits_skip",
+        ):
             quality[name] = value == "1"
     return Setting(f"balanced + {text}", {"quality": quality})
 

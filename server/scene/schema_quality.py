@@ -213,6 +213,33 @@ class QualityConfig:
         "normal_guide_convex and _turn on the centre's pilot tangent plane: the tap normal's tilt "
         "towards the tap, the offset's length along the plane (else the taps' depths)",
     )
+    normal_guide_limits: bool = bench_spec(
+        False,
+        "normal_guide: the rule evaluated once, on the pilot, into per-pixel one-sided limits "
+        "(the distance to the first tap it cuts); the passes weigh a tap by its offset alone",
+    )
+    normal_guide_flat_own: bool = bench_spec(
+        False,
+        "normal_guide_flat: the flat run past the tap must also agree with the tap's own pilot "
+        "normal",
+    )
+    normal_guide_convex_relative: bool = bench_spec(
+        False,
+        "normal_guide_limits, normal_guide_convex by the taps' depths: the convex ramp over the "
+        "chord's sine behind the tangent plane divided by the turn (radians)",
+    )
+    normal_guide_limits_skip: bool = bench_spec(
+        False,
+        "normal_guide_limits: every other tap tested, and the one between where that sets a limit",
+    )
+    normal_guide_downscale: int = bench_spec(
+        1,
+        "normal_guide_limits: the pilot, its normals, flags and limits at 1 / this of the "
+        "image's size along each axis (1, 2 or 4)",
+    )
+    normal_guide_limit_cut: float = bench_spec(
+        0.5, "normal_guide_limits: the least cut of a tap that sets the limit"
+    )
     normal_guide_passes: int = bench_spec(
         0, "normal_guide: the 1-D passes (from the first) whose taps it weights; 0: all"
     )

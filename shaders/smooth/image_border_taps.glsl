@@ -39,7 +39,33 @@ void start_image_border(ivec2 texel) {
 #endif
 }
 
-#if FILTER == FILTER_NARROW_RANGE
+#if FILTER == FILTER_NARROW_RANGE && NORMAL_GUIDE && GUIDE_LIMITS && !IMAGE_BORDER
+// The guide's one-sided limits away from the image's ends: the pair is taken as the packed
+// walk's tap_pair takes it (no tap lies past an end), each side weighed by its limit, and the
+// fit's sums added (the same sums as the general one below, fewer operations).
+void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
+    vec4 w = gaussian_next();
+    float kf = float(k);
+    bvec4 in_reach = lessThanEqual(vec4(kf), g_reach);
+    bvec4 valid_a = both(greaterThan(za, vec4(0.0)), lessThanEqual(za, g_upper));
+    bvec4 valid_b = both(greaterThan(zb, vec4(0.0)), lessThanEqual(zb, g_upper));
+    bvec4 accept = both(both(in_reach, both(valid_a, valid_b)), pair_kept(za, zb, kf));
+    za = narrow_range_sample(za, accept);
+    zb = narrow_range_sample(zb, accept);
+    vec4 wa = mix(vec4(0.0), w * clamp(g_limit_plus - (kf - 0.5), 0.0, 1.0), accept);
+    vec4 wb = mix(vec4(0.0), w * clamp(g_limit_minus - (kf - 0.5), 0.0, 1.0), accept);
+    vec4 ua = inverse_depth(za);
+    vec4 ub = inverse_depth(zb);
+    g_sum += wa * ua + wb * ub;
+    vec4 da = ua - g_inverse_centre;
+    vec4 db = ub - g_inverse_centre;
+    g_weight_sum += wa + wb;
+    g_k_sum += kf * (wa - wb);
+    g_kk_sum += kf * kf * (wa + wb);
+    g_kd_sum += kf * (wa * da - wb * db);
+}
+
+#elif FILTER == FILTER_NARROW_RANGE
 // The narrow range's tap_pair (smooth_depth_separable.frag.glsl) where the pair may straddle an
 // image end: a side is taken with its mirror as there, or alone when the mirror lies past the
 // end. Walked by common/packed_taps.glsl like the other (the value arguments are unused
@@ -66,8 +92,13 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     za = narrow_range_sample(za, use_a);
     zb = narrow_range_sample(zb, use_b);
 #if NORMAL_GUIDE
+#if GUIDE_LIMITS
+    vec4 wa = mix(vec4(0.0), w * guide_limit_weight(kf), use_a);
+    vec4 wb = mix(vec4(0.0), w * guide_limit_weight(-kf), use_b);
+#else
     vec4 wa = mix(vec4(0.0), w * guide_weight(value_a, za, kf), use_a);
     vec4 wb = mix(vec4(0.0), w * guide_weight(value_b, zb, -kf), use_b);
+#endif
     vec4 ua = inverse_depth(za);
     vec4 ub = inverse_depth(zb);
     g_sum += wa * ua + wb * ub;

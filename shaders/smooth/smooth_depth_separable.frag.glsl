@@ -33,8 +33,14 @@
 // 1: the guide's normals carry guide_flat.frag.glsl's flags: a tap is cut only where the pilot
 // is flat past it (away from the centre).
 #define GUIDE_FLAT 0
+// 1: the guide's rule was evaluated once, on the pilot, into per-pixel one-sided limits
+// (guide_limits.frag.glsl, u_guide_limits): a tap is weighed by its offset against them alone.
+#define GUIDE_LIMITS 0
+// Those limits are at 1 / GUIDE_SCALE of the image's size (quality.normal_guide_downscale):
+// texel (x, y) holds reduced pixels 4x .. 4x+3 of row y, in reduced pixels.
+#define GUIDE_SCALE 1
 
-#if NORMAL_GUIDE
+#if NORMAL_GUIDE && !GUIDE_LIMITS
 // The taps' values are the pilot normals (guide_normals.frag.glsl), the guide the depth.
 #define PACKED_VALUE 1
 #define STRIDED_VALUE 1
@@ -67,6 +73,12 @@ uniform float u_guide_turn2;
 uniform vec2 u_guide_convex;
 uniform float u_guide_on;  // 1: this pass weights its taps; 0: plain weights (still fitted)
 uniform bool u_guide_fit;  // the line fit (else the weighted mean)
+#if GUIDE_LIMITS
+uniform sampler2D u_guide_limits;  // packed (guide_limits.frag.glsl)
+vec4 g_limit_plus;   // the lanes' limits along +AXIS and -AXIS, pixels (3e4 where
+vec4 g_limit_minus;  // u_guide_on is 0)
+vec4 g_inverse_centre;  // 1 / the centre's depth
+#endif
 vec4 g_normal_x;  // the centre's pilot normal, per lane
 vec4 g_normal_y;
 vec4 g_normal_z;
@@ -275,6 +287,16 @@ vec4 guide_weight(vec4 encoded, vec4 z, float signed_k) {
 #endif
 }
 
+#if GUIDE_LIMITS
+// The guide's weight of the taps at signed offset k: 1 within the lanes' limit on that side,
+// falling to 0 over the pixel past it (guide_limits.frag.glsl).
+vec4 guide_limit_weight(float signed_k) {
+    vec4 limit = signed_k > 0.0 ? g_limit_plus : g_limit_minus;
+    vec4 w = clamp(limit - abs(signed_k) + 0.5, 0.0, 1.0);
+    return 1.0 - g_guide_on * (1.0 - w);
+}
+#endif
+
 // Sets the lanes' view positions over their depth (the view space of guide_normals.frag.glsl;
 // u_image_size_px: common/border_fit.glsl) and what guide_weight needs of the centre normals.
 void guide_start(ivec2 texel) {
@@ -399,7 +421,30 @@ void main() {
     start_image_border(texel);
 #endif
     int dense = min(radius, u_kernel_max_px);
-#if NORMAL_GUIDE
+#if NORMAL_GUIDE && GUIDE_LIMITS
+#if GUIDE_SCALE > 1
+    // pixels 4x .. 4x+3 are reduced pixels (4x + i) / GUIDE_SCALE of row y / GUIDE_SCALE, all
+    // in one reduced texel
+    int first = 4 * texel.x / GUIDE_SCALE;
+    vec4 reduced = texelFetch(u_guide_limits, ivec2(first >> 2, texel.y / GUIDE_SCALE), 0);
+    vec4 limits;
+    for (int i = 0; i < 4; ++i) {
+        limits[i] = reduced[((4 * texel.x + i) / GUIDE_SCALE) & 3];
+    }
+    float limit_scale = float(GUIDE_SCALE) / 8.0;
+#else
+    vec4 limits = fetch_packed(u_guide_limits, texel);
+    float limit_scale = 1.0 / 8.0;
+#endif
+    vec4 code_plus = floor(limits / 4096.0);
+    g_limit_plus = code_plus * limit_scale;
+    g_limit_minus = (limits - code_plus * 4096.0) * limit_scale;
+    g_guide_on = vec4(u_guide_on);
+    g_limit_plus = mix(vec4(3e4), g_limit_plus, g_guide_on);
+    g_limit_minus = mix(vec4(3e4), g_limit_minus, g_guide_on);
+    g_inverse_centre = inverse_depth(g_center);
+    walk_packed_taps(u_packed_depth, u_packed_depth, texel, zc, zc, dense);
+#elif NORMAL_GUIDE
     vec4 centre_normal = fetch_packed(u_guide_normals, texel);
     guide_normal_decode(centre_normal, g_normal_x, g_normal_y, g_normal_z);
     vec4 centre_norm = inversesqrt(max(g_normal_x * g_normal_x + g_normal_y * g_normal_y
@@ -418,7 +463,7 @@ void main() {
     int dense_end = AXIS == 0 ? (dense + 3) / 4 * 4 : dense;
     if (radius > dense_end) {
         gaussian_spread(sigma, float(dense_end), float(stride));
-#if NORMAL_GUIDE
+#if NORMAL_GUIDE && !GUIDE_LIMITS
         walk_strided_valued_taps(u_packed_depth, u_guide_normals, texel, dense_end + stride,
                                  radius, stride);
 #else

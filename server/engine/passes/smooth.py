@@ -43,6 +43,8 @@ SEPARABLE_SHADER = "smooth/smooth_depth_separable.frag.glsl"
 TWO_D_SHADER = "smooth/smooth_depth.frag.glsl"
 GUIDE_NORMALS_SHADER = "smooth/guide_normals.frag.glsl"
 GUIDE_FLAT_SHADER = "smooth/guide_flat.frag.glsl"
+GUIDE_LIMITS_SHADER = "smooth/guide_limits.frag.glsl"
+GUIDE_DOWNSAMPLE_SHADER = "smooth/guide_downsample.frag.glsl"
 PACK_SHADER = "common/image_pack.frag.glsl"
 UNPACK_SHADER = "common/image_unpack.frag.glsl"
 _FILTER_DEFINES = {"gaussian": 0, "bilateral": 1, "narrow_range": 2}
@@ -62,11 +64,12 @@ class _SmoothTargets:
 
 
 class _GuideTargets:
-    """quality.normal_guide's pilot: four packed targets (the pilot's two passes, then its
-    normals, and with normal_guide_flat the flagged normals of each axis)."""
+    """quality.normal_guide's pilot: six packed targets (the pilot's two passes, then its
+    normals, with normal_guide_flat the flagged normals of each axis, and with
+    normal_guide_limits the limits of each axis)."""
 
     def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
-        self.packed = [Target.float(ctx, ((size[0] + 3) // 4, size[1]), 4) for _ in range(4)]
+        self.packed = [Target.float(ctx, ((size[0] + 3) // 4, size[1]), 4) for _ in range(7)]
 
     def release(self) -> None:
         for target in self.packed:
@@ -169,13 +172,26 @@ class SmoothPass:
         draw(pack)
         defines = {**defines, "CREASE_TEST": int(quality.crease_angle > 0.0)}
         samplers = None
+        passes = separable_passes(quality.iterations, quality.last_pass_sigma, quality.destreak)
         if quality.normal_guide > 0.0 and quality.filter == "narrow_range":
+            reach_scale = max(scale for _, scale in passes)
             guide = self._guide(
-                depth.size, packed[0].texture, uniforms, quality, packed_scissor, margin_px
+                depth,
+                packed[0].texture,
+                uniforms,
+                quality,
+                packed_scissor,
+                margin_px,
+                reach_scale,
             )
             defines["NORMAL_GUIDE"] = _guide_define(quality)
-            defines["GUIDE_FLAT"] = int(quality.normal_guide_flat > 0.0)
-            samplers = {"u_packed_depth": 0, "u_guide_normals": 1}
+            if quality.normal_guide_limits:
+                defines["GUIDE_LIMITS"] = 1
+                defines["GUIDE_SCALE"] = _guide_scale(quality)
+                samplers = {"u_packed_depth": 0, "u_guide_limits": 1}
+            else:
+                defines["GUIDE_FLAT"] = int(quality.normal_guide_flat > 0.0)
+                samplers = {"u_packed_depth": 0, "u_guide_normals": 1}
         draws = {
             axis: self._axis_draws(
                 defines, uniforms, axis, depth.size, packed_scissor, margin_px, samplers
@@ -183,7 +199,6 @@ class SmoothPass:
             for axis in (0, 1)
         }
         read_index = 0
-        passes = separable_passes(quality.iterations, quality.last_pass_sigma, quality.destreak)
         pair_limits = pair_limits_per_pass(len(passes), quality, uniforms.particle_radius)
         crease_limits = crease_limits_per_pass(len(passes), quality)
         guide_passes = quality.normal_guide_passes or len(passes)
@@ -218,22 +233,42 @@ class SmoothPass:
 
     def _guide(
         self,
-        size: tuple[int, int],
+        depth: moderngl.Texture,
         packed_depth: moderngl.Texture,
         uniforms: _FilterUniforms,
         quality: QualityConfig,
         packed_scissor: ScreenBox | None,
         margin_px: int,
+        reach_scale: float,
     ) -> dict[int, moderngl.Texture]:
         """quality.normal_guide's pilot normals for the passes along each axis: the packed
         splat `packed_depth` through a Gaussian of sigma normal_guide_pilot projected radii
         (rows, then columns; background excluded), then its view-space normals
         (guide_normals.frag.glsl), packed and encoded; with normal_guide_flat, flagged per axis
-        (guide_flat.frag.glsl)."""
+        (guide_flat.frag.glsl); with normal_guide_limits, the rule's one-sided limits per axis
+        out to `reach_scale` times the kernel's reach (guide_limits.frag.glsl); with
+        normal_guide_downscale (and the limits) all of it at that fraction of the image's size,
+        from the plain `depth` reduced (guide_downsample.frag.glsl)."""
         programs, draw = self._context.programs, self._context.fullscreen.draw
+        size = depth.size
+        scale = _guide_scale(quality)
+        if scale > 1:
+            size = ((size[0] + scale - 1) // scale, (size[1] + scale - 1) // scale)
+            uniforms = _FilterUniforms(
+                uniforms.px_per_unit / scale, uniforms.particle_radius, quality
+            )
+            packed_scissor = None
         targets = self._guide_targets.get(size).packed
         for target in targets:
             clear_and_scissor(target.fbo, packed_scissor)
+        if scale > 1:
+            downsample = programs.get(
+                FULLSCREEN_VERT, GUIDE_DOWNSAMPLE_SHADER, {"SCALE": scale}, {"u_image": 0}
+            )
+            depth.use(0)
+            targets[6].fbo.use()
+            draw(downsample)
+            packed_depth = targets[6].texture
         defines = {"FILTER": _FILTER_DEFINES["gaussian"], "KERNEL_SIZE": 0}
         sigma_scale = quality.normal_guide_pilot / quality.kernel_scale
         source = packed_depth
@@ -262,11 +297,11 @@ class SmoothPass:
         if quality.normal_guide_flat > 0.0:
             targets[0].texture.use(0)
             source.use(1)
-            for axis, target in zip((0, 1), targets[2:], strict=True):
+            for axis, target in zip((0, 1), targets[2:4], strict=True):
                 flat = programs.get(
                     FULLSCREEN_VERT,
                     GUIDE_FLAT_SHADER,
-                    {"AXIS": axis},
+                    {"AXIS": axis, "FLAT_OWN": int(quality.normal_guide_flat_own)},
                     samplers={"u_guide_normals": 0, "u_packed_depth": 1},
                 )
                 set_if_used(flat, "u_image_size_px", size)
@@ -278,6 +313,37 @@ class SmoothPass:
                 )
                 target.fbo.use()
                 draw(flat)
+                result[axis] = target.texture
+        if quality.normal_guide_limits:
+            source.use(1)
+            flat = int(quality.normal_guide_flat > 0.0)
+            for axis, target in zip((0, 1), targets[4:6], strict=True):
+                result[axis].use(0)
+                limits = programs.get(
+                    FULLSCREEN_VERT,
+                    GUIDE_LIMITS_SHADER,
+                    {
+                        "AXIS": axis,
+                        "NORMAL_GUIDE": _guide_define(quality),
+                        "GUIDE_FLAT": flat,
+                        "CONVEX_RELATIVE": int(quality.normal_guide_convex_relative),
+                        "LIMIT_SKIP": int(quality.normal_guide_limits_skip),
+                    },
+                    samplers={"u_guide_normals": 0, "u_packed_depth": 1},
+                )
+                set_if_used(limits, "u_image_size_px", size)
+                set_if_used(limits, "u_px_per_unit", uniforms.px_per_unit)
+                set_if_used(limits, "u_particle_radius", uniforms.particle_radius)
+                _set_guide_uniforms(limits, quality, uniforms.particle_radius)
+                set_if_used(limits, "u_reach_radii", 3.0 * quality.kernel_scale * reach_scale)
+                set_if_used(
+                    limits,
+                    "u_reach_max_px",
+                    quality.kernel_max_px // scale,
+                )
+                set_if_used(limits, "u_limit_cut", quality.normal_guide_limit_cut)
+                target.fbo.use()
+                draw(limits)
                 result[axis] = target.texture
         for target in targets:
             set_scissor(target.fbo, None)
@@ -385,6 +451,13 @@ def _guide_define(quality: QualityConfig) -> int:
     if quality.normal_guide_convex <= 0.0:
         return 1
     return 3 if quality.normal_guide_tangent else 2
+
+
+def _guide_scale(quality: QualityConfig) -> int:
+    """The normal guide's downscale (quality.normal_guide_downscale, with the limits only)."""
+    if not quality.normal_guide_limits:
+        return 1
+    return max(1, quality.normal_guide_downscale)
 
 
 def _set_guide_uniforms(program: moderngl.Program, quality: QualityConfig, radius: float) -> None:

@@ -1,0 +1,265 @@
+#version 330 core
+// The normal guide's one-sided limits (quality.normal_guide_limits, passes/smooth.py): per
+// pixel, for the 1-D passes along AXIS, how far its kernel may reach along +AXIS and along
+// -AXIS before the guide cuts. The guide's rule (smooth_depth_separable.frag.glsl
+// guide_weight) is evaluated once here, on the pilot (its normals and its depth), for the taps
+// out to the farthest reach of any pass; the first tap whose cut c reaches 1/2, at offset k,
+// sets the limit k + 1/2 - c, so a pass weighs the tap at offset k by
+// clamp(limit - k + 1/2, 0, 1) (1 - c at that tap, 1 before it, 0 past it). No cut: the
+// largest code (no limit); a rim pixel cuts nothing. Out, packed like the depth (texel (x, y):
+// pixels 4x .. 4x+3 of row y in .xyzw): round(8 limit_plus) * 4096 + round(8 limit_minus),
+// each at most 4095.
+
+#define AXIS 0
+// As smooth_depth_separable.frag.glsl's: 1 any turn cut; 2 convex turns only, told by the
+// taps' (pilot) depths; 3 told by the tap normal's tilt towards the tap.
+#define NORMAL_GUIDE 2
+// 1: the normals carry guide_flat.frag.glsl's flags (a tap is cut only where the pilot is
+// flat past it).
+#define GUIDE_FLAT 0
+// 1: NORMAL_GUIDE 2's convex ramp over the chord's sine behind the tangent plane divided by
+// the turn (the pilot rounds a box edge, so its chords lie behind by about half the turn).
+#define CONVEX_RELATIVE 0
+// 1: every other tap is tested, and the tap between where that lowers a limit (the pilot is
+// smooth over a few pixels, so a cut seldom rises and falls again within two).
+#define LIMIT_SKIP 0
+
+#include "common/packed_image.glsl"
+
+uniform sampler2D u_guide_normals;  // encoded (guide_normals / guide_flat.frag.glsl)
+uniform sampler2D u_packed_depth;   // the pilot's depth
+uniform ivec2 u_image_size_px;
+uniform float u_px_per_unit;
+uniform float u_particle_radius;
+uniform vec2 u_guide_ramp;     // as smooth_depth_separable.frag.glsl's
+uniform float u_guide_turn2;
+uniform vec2 u_guide_convex;
+uniform float u_reach_radii;   // the farthest reach of any pass, in projected radii
+uniform int u_reach_max_px;    // ... and at most this many pixels
+uniform float u_limit_cut;     // the cut that sets a limit (1/2)
+
+layout(location = 0) out vec4 out_packed_limits;
+
+const float NO_LIMIT = 4095.0 / 8.0;
+
+vec4 g_center;     // the pilot's depth at the lanes
+vec4 g_normal_x;   // the lanes' pilot normals, unit
+vec4 g_normal_y;
+vec4 g_normal_z;
+vec4 g_ray_x;      // the lanes' view position over their depth
+float g_ray_y;
+vec4 g_normal_ray;
+vec4 g_normal_axis;
+vec4 g_tangent_axis;  // NORMAL_GUIDE 3: the centre's unit pilot tangent along +AXIS
+vec4 g_tangent_z;
+
+void decode(vec4 v, out vec4 nx, out vec4 ny, out vec4 nz) {
+    v = abs(v);
+#if GUIDE_FLAT
+    v -= floor(v / 2097152.0) * 2097152.0;
+    vec4 a = floor(v / 16384.0);
+    vec4 rest = v - a * 16384.0;
+    vec4 b = floor(rest / 128.0);
+    nx = a / 63.5 - 1.0;
+    ny = b / 63.5 - 1.0;
+    nz = (rest - b * 128.0) / 63.5 - 1.0;
+#else
+    vec4 a = floor(v / 65536.0);
+    vec4 rest = v - a * 65536.0;
+    vec4 b = floor(rest / 256.0);
+    nx = a / 127.5 - 1.0;
+    ny = b / 127.5 - 1.0;
+    nz = (rest - b * 256.0) / 127.5 - 1.0;
+#endif
+    vec4 inverse_norm = inversesqrt(max(nx * nx + ny * ny + nz * nz, vec4(1e-6)));
+    nx *= inverse_norm;
+    ny *= inverse_norm;
+    nz *= inverse_norm;
+}
+
+// The guide's cut (0..1) of taps at signed offsets k (per lane) whose encoded pilot normals
+// are `encoded` and pilot depths z: smooth_depth_separable.frag.glsl guide_weight's 1 - w.
+vec4 cut_at(vec4 encoded, vec4 z, vec4 k) {
+    vec4 nx;
+    vec4 ny;
+    vec4 nz;
+    decode(encoded, nx, ny, nz);
+    vec4 turn2 = 2.0 - 2.0 * (nx * g_normal_x + ny * g_normal_y + nz * g_normal_z);
+    vec4 shift = k / u_px_per_unit;
+    vec4 dz = z - g_center;
+    vec4 dx = g_ray_x * dz + (AXIS == 0 ? shift : vec4(0.0)) * z;
+    vec4 dy = g_ray_y * dz + (AXIS == 1 ? shift : vec4(0.0)) * z;
+    vec4 distance2 = dx * dx + dy * dy + dz * dz;
+    vec4 t = clamp((turn2 - u_guide_turn2 * distance2) * u_guide_ramp.x + u_guide_ramp.y,
+                   0.0, 1.0);
+    vec4 cut = t * t * (3.0 - 2.0 * t);
+#if NORMAL_GUIDE == 2
+    vec4 behind = -(dz * g_normal_ray + (shift * z) * g_normal_axis)
+                  * inversesqrt(max(distance2, vec4(1e-30)));
+#if CONVEX_RELATIVE
+    // the chord's sine behind the tangent plane over the turn (about 1/2 on a rounded edge)
+    behind *= inversesqrt(max(turn2, vec4(1e-6)));
+#endif
+    vec4 c = clamp(behind * u_guide_convex.x + u_guide_convex.y, 0.0, 1.0);
+    cut *= c * c * (3.0 - 2.0 * c);
+#elif NORMAL_GUIDE == 3
+    // the tap normal along the centre's tangent towards the tap (positive: convex)
+    vec4 tilt = sign(k) * ((AXIS == 0 ? nx : ny) * g_tangent_axis + nz * g_tangent_z);
+    vec4 c = clamp(tilt * u_guide_convex.x + u_guide_convex.y, 0.0, 1.0);
+    cut *= c * c * (3.0 - 2.0 * c);
+#endif
+#if GUIDE_FLAT
+    vec4 flags = floor(abs(encoded) / 2097152.0);  // +AXIS: bit 0, -AXIS: bit 1
+    vec4 minus = floor(flags / 2.0);
+    cut *= mix(minus, flags - 2.0 * minus, greaterThan(k, vec4(0.0)));
+#endif
+    // background taps are never taken
+    return mix(vec4(0.0), cut, greaterThan(z, vec4(0.0)));
+}
+
+// The limit so far, lowered by the taps at distances `distance` on the side walked (per lane;
+// the tap is taken only at distances 1 .. reach) of cut `cut`.
+vec4 lowered(vec4 limit, vec4 cut, vec4 distance, vec4 reach) {
+    vec4 candidate = distance + 0.5 - cut;
+    bvec4 counts = both(both(greaterThanEqual(cut, vec4(u_limit_cut)),
+                             greaterThanEqual(distance, vec4(1.0))),
+                        both(lessThanEqual(distance, reach), lessThan(candidate, limit)));
+    return min(limit, mix(vec4(NO_LIMIT), candidate, counts));
+}
+
+// Whether no tap from distance `next` on can lower any lane's limit (each at least
+// next - 1/2) or lies within its reach.
+bool done(vec4 limit, vec4 next, vec4 reach) {
+    return all(either(lessThanEqual(limit, next - 0.5), greaterThan(next, reach)));
+}
+
+// AXIS 1: the limit along the column on side `side` (+-1).
+vec4 column_limit(ivec2 texel, int side, int radius, vec4 reach) {
+    vec4 limit = vec4(NO_LIMIT);
+    int room = side > 0 ? u_image_size_px.y - 1 - texel.y : texel.y;  // rows to the end
+#if LIMIT_SKIP
+    for (int k = 2; k <= radius + 1 && k - 1 <= room; k += 2) {
+        vec4 before = limit;
+        if (k <= room) {
+            ivec2 at = texel + ivec2(0, side * k);
+            limit = lowered(limit, cut_at(texelFetch(u_guide_normals, at, 0),
+                                          texelFetch(u_packed_depth, at, 0),
+                                          vec4(float(side * k))), vec4(float(k)), reach);
+        }
+        if (k > room || any(lessThan(limit, before))) {
+            ivec2 at = texel + ivec2(0, side * (k - 1));
+            limit = lowered(limit, cut_at(texelFetch(u_guide_normals, at, 0),
+                                          texelFetch(u_packed_depth, at, 0),
+                                          vec4(float(side * (k - 1)))), vec4(float(k - 1)),
+                            reach);
+        }
+        if (done(limit, vec4(float(k + 1)), reach)) {
+            break;
+        }
+    }
+#else
+    for (int k = 1; k <= radius && k <= room; ++k) {
+        ivec2 at = texel + ivec2(0, side * k);
+        limit = lowered(limit, cut_at(texelFetch(u_guide_normals, at, 0),
+                                      texelFetch(u_packed_depth, at, 0), vec4(float(side * k))),
+                        vec4(float(k)), reach);
+        if (done(limit, vec4(float(k + 1)), reach)) {
+            break;
+        }
+    }
+#endif
+    return limit;
+}
+
+void main() {
+    ivec2 texel = ivec2(gl_FragCoord.xy);
+    vec4 encoded = fetch_packed(u_guide_normals, texel);
+    g_center = fetch_packed(u_packed_depth, texel);
+    bvec4 surface = greaterThan(g_center, vec4(0.0));
+    bvec4 cuts = both(surface, greaterThan(encoded, vec4(0.0)));  // a rim pixel cuts nothing
+    if (!any(cuts)) {
+        out_packed_limits = vec4(4095.0 * 4096.0 + 4095.0);
+        return;
+    }
+    decode(encoded, g_normal_x, g_normal_y, g_normal_z);
+    vec2 centre = 0.5 * vec2(u_image_size_px);
+    vec4 px = vec4(float(4 * texel.x)) + vec4(0.0, 1.0, 2.0, 3.0);
+    g_ray_x = (px + 0.5 - centre.x) / u_px_per_unit;
+    g_ray_y = (float(texel.y) + 0.5 - centre.y) / u_px_per_unit;
+    g_normal_ray = g_normal_x * g_ray_x + g_normal_y * g_ray_y + g_normal_z;
+    g_normal_axis = AXIS == 0 ? g_normal_x : g_normal_y;
+    vec4 inverse_length = inversesqrt(max(g_normal_z * g_normal_z
+                                          + g_normal_axis * g_normal_axis, vec4(1e-12)));
+    g_tangent_axis = abs(g_normal_z) * inverse_length;
+    g_tangent_z = -sign(g_normal_z) * g_normal_axis * inverse_length;
+    vec4 z = mix(vec4(1.0), g_center, surface);
+    vec4 reach = min(ceil(u_reach_radii * u_particle_radius * u_px_per_unit / z),
+                     vec4(float(u_reach_max_px)));
+    reach = mix(vec4(0.0), reach, cuts);
+    int radius = int(max(max(reach.x, reach.y), max(reach.z, reach.w)));
+    vec4 plus = vec4(NO_LIMIT);
+    vec4 minus = vec4(NO_LIMIT);
+    vec4 lane = vec4(0.0, 1.0, 2.0, 3.0);
+#if AXIS == 0
+    int texels = (u_image_size_px.x + 3) / 4;
+    int steps = (radius + 3) / 4 + 1;
+    // along the row, a texel at a time: its four pixels at distance 4 s + j - lane
+    for (int s = 0; s <= steps && texel.x + s < texels; ++s) {
+        vec4 codes = texelFetch(u_guide_normals, texel + ivec2(s, 0), 0);
+        vec4 depths = texelFetch(u_packed_depth, texel + ivec2(s, 0), 0);
+#if LIMIT_SKIP
+        vec4 before = plus;
+        for (int j = 1; j < 4; j += 2) {
+            vec4 k = vec4(float(4 * s + j)) - lane;
+            plus = lowered(plus, cut_at(vec4(codes[j]), vec4(depths[j]), k), k, reach);
+        }
+        if (any(lessThan(plus, before))) {
+            for (int j = 0; j < 4; j += 2) {
+                vec4 k = vec4(float(4 * s + j)) - lane;
+                plus = lowered(plus, cut_at(vec4(codes[j]), vec4(depths[j]), k), k, reach);
+            }
+        }
+#else
+        for (int j = 0; j < 4; ++j) {
+            vec4 k = vec4(float(4 * s + j)) - lane;
+            plus = lowered(plus, cut_at(vec4(codes[j]), vec4(depths[j]), k), k, reach);
+        }
+#endif
+        // every lane's limit lies short of this texel's nearest tap: none further counts
+        if (done(plus, vec4(float(4 * s + 4)) - lane, reach)) {
+            break;
+        }
+    }
+    for (int s = 0; s <= steps && texel.x - s >= 0; ++s) {
+        vec4 codes = texelFetch(u_guide_normals, texel - ivec2(s, 0), 0);
+        vec4 depths = texelFetch(u_packed_depth, texel - ivec2(s, 0), 0);
+#if LIMIT_SKIP
+        vec4 before = minus;
+        for (int j = 1; j < 4; j += 2) {
+            vec4 k = vec4(float(4 * s - j)) + lane;  // the distance behind
+            minus = lowered(minus, cut_at(vec4(codes[j]), vec4(depths[j]), -k), k, reach);
+        }
+        if (any(lessThan(minus, before))) {
+            for (int j = 0; j < 4; j += 2) {
+                vec4 k = vec4(float(4 * s - j)) + lane;
+                minus = lowered(minus, cut_at(vec4(codes[j]), vec4(depths[j]), -k), k, reach);
+            }
+        }
+#else
+        for (int j = 0; j < 4; ++j) {
+            vec4 k = vec4(float(4 * s - j)) + lane;  // the distance behind
+            minus = lowered(minus, cut_at(vec4(codes[j]), vec4(depths[j]), -k), k, reach);
+        }
+#endif
+        if (done(minus, vec4(float(4 * s + 1)) + lane, reach)) {
+            break;
+        }
+    }
+#else
+    plus = column_limit(texel, 1, radius, reach);
+    minus = column_limit(texel, -1, radius, reach);
+#endif
+    vec4 code_plus = min(floor(plus * 8.0 + 0.5), vec4(4095.0));
+    vec4 code_minus = min(floor(minus * 8.0 + 0.5), vec4(4095.0));
+    out_packed_limits = code_plus * 4096.0 + code_minus;
+}
