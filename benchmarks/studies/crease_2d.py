@@ -4,8 +4,8 @@ metrics), plus a fluid block pressed against a solid wall, with the frame and sm
 times against the first setting's, measured interleaved in the same run.
 
     .venv/bin/python benchmarks/studies/crease_2d.py [--scenes ball,slab,...]
-        [--settings fast,balanced,crease30,guide,guidelim,guidelim4,guide:KEY=VALUE:...] [--frames 1]
-        [--demo OUT] [--error-maps OUT]
+        [--settings fast,balanced,crease30,guide,guidelim,guidelim4,guide:KEY=VALUE:...]
+        [--frames 1] [--demo OUT] [--error-maps OUT]
 
 `--demo OUT` also renders the demo's bead (configs/demo.toml, 960x540) with each setting to
 OUT/demo-<i>.png (streaks and a sawtooth rim show there, not in the errors); `--error-maps OUT`
