@@ -10,6 +10,7 @@ for every filter and image below, so this test can fail; measured 1.6e-2 at the 
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -435,7 +436,7 @@ def guided(
     convex: float,
     flat: float = 0.0,
     limits: bool = False,
-    **extra: bool | int,
+    **extra: Any,
 ) -> QualityConfig:
     """`quality` with a normal guide like the one benchmarks/studies/crease_2d.py measured
     (quality.normal_guide), cutting convex turns only from `convex` deg (0: any turn), and only

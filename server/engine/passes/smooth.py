@@ -316,7 +316,7 @@ class SmoothPass:
                 result[axis] = target.texture
         if quality.normal_guide_limits:
             source.use(1)
-            flat = int(quality.normal_guide_flat > 0.0)
+            flagged = int(quality.normal_guide_flat > 0.0)
             for axis, target in zip((0, 1), targets[4:6], strict=True):
                 result[axis].use(0)
                 limits = programs.get(
@@ -325,7 +325,7 @@ class SmoothPass:
                     {
                         "AXIS": axis,
                         "NORMAL_GUIDE": _guide_define(quality),
-                        "GUIDE_FLAT": flat,
+                        "GUIDE_FLAT": flagged,
                         "CONVEX_RELATIVE": int(quality.normal_guide_convex_relative),
                         "LIMIT_SKIP": int(quality.normal_guide_limits_skip),
                     },
