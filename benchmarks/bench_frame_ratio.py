@@ -25,7 +25,7 @@ import statistics
 import time
 from typing import Any
 
-from sphrender.core.frame import make_frame
+from sphrender.core.frame import ParticleFrame, make_frame
 from sphrender.server.bench.surface_bench import PLAIN_SMOOTHING
 from sphrender.server.bench.sweep import bench_scene_from_dict
 from sphrender.server.content.lattice import jittered_lattice_ball
@@ -63,6 +63,35 @@ SETTINGS = {
 }
 
 
+def interleaved_ms(
+    renderer: SurfaceRenderer, frame: ParticleFrame, settings: dict[str, Scene], cycles: int
+) -> dict[str, list[float]]:
+    """Wall ms of `frame` rendered with each setting in turn, one frame each per cycle, after
+    two warm-up frames each (programs, targets, IBL caches)."""
+    for scene in settings.values():
+        renderer.render(frame, scene)
+        renderer.render(frame, scene)
+    times: dict[str, list[float]] = {name: [] for name in settings}
+    for _ in range(cycles):
+        for name, scene in settings.items():
+            start = time.perf_counter()
+            renderer.render(frame, scene)
+            times[name].append((time.perf_counter() - start) * 1e3)
+    return times
+
+
+def print_ratios(times: dict[str, list[float]], base: str, width: int = 26) -> None:
+    """Per setting: the median, the ratio of medians to `base`'s and the median per-cycle ratio."""
+    reference = times[base]
+    for name, values in times.items():
+        per_cycle = statistics.median(a / b for a, b in zip(values, reference, strict=True))
+        print(
+            f"{name:{width}} median {statistics.median(values):7.1f} ms  ratio of medians "
+            f"{statistics.median(values) / statistics.median(reference):.3f}  median per-cycle "
+            f"ratio {per_cycle:.3f}"
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cycles", type=int, default=20)
@@ -77,27 +106,12 @@ def main() -> None:
                 params = SphParameters.from_scene(SETTINGS["balanced (default)"], 0.01)
                 densities = renderer.sph_engine().density(positions, params)
                 frame = make_frame(positions, densities=densities)
-            for scene in SETTINGS.values():  # warm-up: programs, targets, IBL caches
-                renderer.render(frame, scene)
-                renderer.render(frame, scene)
-            times: dict[str, list[float]] = {name: [] for name in SETTINGS}
-            for _ in range(args.cycles):
-                for name, scene in SETTINGS.items():
-                    start = time.perf_counter()
-                    renderer.render(frame, scene)
-                    times[name].append((time.perf_counter() - start) * 1e3)
+            times = interleaved_ms(renderer, frame, SETTINGS, args.cycles)
         finally:
             renderer.release()
-    base = times["plain smoothing"]
     with_densities = ", with densities" if args.densities else ""
     print(f"{gl.renderer}; {frame.count} particles{with_densities}, 1280x720, {args.cycles} cycles")
-    for name, values in times.items():
-        per_cycle = statistics.median(a / b for a, b in zip(values, base, strict=True))
-        print(
-            f"{name:26} median {statistics.median(values):7.1f} ms  ratio of medians "
-            f"{statistics.median(values) / statistics.median(base):.3f}  median per-cycle "
-            f"ratio {per_cycle:.3f}"
-        )
+    print_ratios(times, "plain smoothing")
 
 
 if __name__ == "__main__":

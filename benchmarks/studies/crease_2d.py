@@ -49,59 +49,36 @@ from sphrender.server.engine.renderer import SurfaceRenderer
 F64 = npt.NDArray[np.float64]
 WIDTH, HEIGHT = 1280, 720
 
+#: The normal guide as measured (quality.normal_guide*, bench-only fields).
+GUIDE: dict[str, float | bool | int] = {
+    "normal_guide": 8.0,
+    "normal_guide_width": 12.0,
+    "normal_guide_pilot": 1.7,
+    "normal_guide_turn": 11.0,
+    "normal_guide_convex": 8.0,
+    "normal_guide_rim": 3.0,
+    "normal_guide_flat": 1.25,
+    "normal_guide_flat_angle": 25.0,
+}
+#: The guide as one-sided limits, every other tap, at a quarter of the image, relative convexity.
+GUIDE_LIMITS_QUARTER: dict[str, float | bool | int] = {
+    **GUIDE,
+    "normal_guide_limits": True,
+    "normal_guide_limits_skip": True,
+    "normal_guide_downscale": 4,
+    "normal_guide_convex_relative": True,
+}
+
 SETTINGS: dict[str, Setting] = {
     "fast": preset_setting("fast"),
     "balanced": preset_setting("balanced"),
     "crease30": Setting("balanced + crease test 30°", {"quality": {"crease_angle": 30.0}}),
-    "guide": Setting(
-        "balanced + normal guide",
-        {
-            "quality": {
-                "normal_guide": 8.0,
-                "normal_guide_width": 12.0,
-                "normal_guide_pilot": 1.7,
-                "normal_guide_turn": 11.0,
-                "normal_guide_convex": 8.0,
-                "normal_guide_rim": 3.0,
-                "normal_guide_flat": 1.25,
-                "normal_guide_flat_angle": 25.0,
-            }
-        },
-    ),
+    "guide": Setting("balanced + normal guide", {"quality": GUIDE}),
     "guidelim": Setting(
-        "balanced + guide, limits",
-        {
-            "quality": {
-                "normal_guide": 8.0,
-                "normal_guide_width": 12.0,
-                "normal_guide_pilot": 1.7,
-                "normal_guide_turn": 11.0,
-                "normal_guide_convex": 8.0,
-                "normal_guide_rim": 3.0,
-                "normal_guide_flat": 1.25,
-                "normal_guide_flat_angle": 25.0,
-                "normal_guide_limits": True,
-            }
-        },
+        "balanced + guide, limits", {"quality": {**GUIDE, "normal_guide_limits": True}}
     ),
     "guidelim4": Setting(
-        "balanced + guide, limits, quarter, relative",
-        {
-            "quality": {
-                "normal_guide": 8.0,
-                "normal_guide_width": 12.0,
-                "normal_guide_pilot": 1.7,
-                "normal_guide_turn": 11.0,
-                "normal_guide_convex": 8.0,
-                "normal_guide_rim": 3.0,
-                "normal_guide_flat": 1.25,
-                "normal_guide_flat_angle": 25.0,
-                "normal_guide_limits": True,
-                "normal_guide_limits_skip": True,
-                "normal_guide_downscale": 4,
-                "normal_guide_convex_relative": True,
-            }
-        },
+        "balanced + guide, limits, quarter, relative", {"quality": GUIDE_LIMITS_QUARTER}
     ),
 }
 

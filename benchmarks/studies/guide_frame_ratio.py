@@ -13,31 +13,21 @@ STUDIES.md "The normal guide as per-pixel one-sided limits" has the results.
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench_frame_ratio import scene_for
+from bench_frame_ratio import interleaved_ms, print_ratios, scene_for
 
 from sphrender.core.frame import make_frame
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
+from studies.crease_2d import GUIDE, GUIDE_LIMITS_QUARTER
 
-GUIDE = {
-    "normal_guide": 8.0,
-    "normal_guide_width": 12.0,
-    "normal_guide_pilot": 1.7,
-    "normal_guide_turn": 11.0,
-    "normal_guide_convex": 8.0,
-    "normal_guide_rim": 3.0,
-    "normal_guide_flat": 1.25,
-    "normal_guide_flat_angle": 25.0,
-}
 LIMITS_HALF = {
+    **GUIDE,
     "normal_guide_limits": True,
     "normal_guide_limits_skip": True,
     "normal_guide_downscale": 2,
@@ -50,29 +40,14 @@ SETTINGS = {
         "balanced",
         {"quality": {**GUIDE, "normal_guide_limits": True, "normal_guide_limits_skip": True}},
     ),
-    "guide, limits, skip, half": scene_for(
-        "balanced",
-        {"quality": {**GUIDE, **LIMITS_HALF}},
-    ),
+    "guide, limits, skip, half": scene_for("balanced", {"quality": LIMITS_HALF}),
     "guide, ..., half, relative": scene_for(
-        "balanced",
-        {"quality": {**GUIDE, **LIMITS_HALF, "normal_guide_convex_relative": True}},
+        "balanced", {"quality": {**LIMITS_HALF, "normal_guide_convex_relative": True}}
     ),
     "guide, limits, skip, quarter": scene_for(
-        "balanced",
-        {"quality": {**GUIDE, **LIMITS_HALF, "normal_guide_downscale": 4}},
+        "balanced", {"quality": {**LIMITS_HALF, "normal_guide_downscale": 4}}
     ),
-    "guide, ..., quarter, relative": scene_for(
-        "balanced",
-        {
-            "quality": {
-                **GUIDE,
-                **LIMITS_HALF,
-                "normal_guide_downscale": 4,
-                "normal_guide_convex_relative": True,
-            }
-        },
-    ),
+    "guide, ..., quarter, relative": scene_for("balanced", {"quality": GUIDE_LIMITS_QUARTER}),
 }
 
 
@@ -85,26 +60,11 @@ def main() -> None:
         renderer = SurfaceRenderer(gl)
         try:
             frame = make_frame(positions)
-            for scene in SETTINGS.values():  # warm-up: programs, targets, IBL caches
-                renderer.render(frame, scene)
-                renderer.render(frame, scene)
-            times: dict[str, list[float]] = {name: [] for name in SETTINGS}
-            for _ in range(args.cycles):
-                for name, scene in SETTINGS.items():
-                    start = time.perf_counter()
-                    renderer.render(frame, scene)
-                    times[name].append((time.perf_counter() - start) * 1e3)
+            times = interleaved_ms(renderer, frame, SETTINGS, args.cycles)
         finally:
             renderer.release()
-    base = times["balanced"]
     print(f"{gl.renderer}; {frame.count} particles, 1280x720, {args.cycles} cycles")
-    for name, values in times.items():
-        per_cycle = statistics.median(a / b for a, b in zip(values, base, strict=True))
-        print(
-            f"{name:30} median {statistics.median(values):7.1f} ms  ratio of medians "
-            f"{statistics.median(values) / statistics.median(base):.3f}  median per-cycle "
-            f"ratio {per_cycle:.3f}"
-        )
+    print_ratios(times, "balanced", width=30)
 
 
 if __name__ == "__main__":
