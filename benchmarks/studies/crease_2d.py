@@ -4,7 +4,7 @@ metrics), plus a fluid block pressed against a solid wall, with the frame and sm
 times against the first setting's, measured interleaved in the same run.
 
     .venv/bin/python benchmarks/studies/crease_2d.py [--scenes ball,slab,...]
-        [--settings fast,balanced,crease30,guide,guidelim,guidelim4,guide:KEY=VALUE:...]
+        [--settings fast,balanced,noguide,crease30,guide,guidelim4,guide:KEY=VALUE:...]
         [--frames 1] [--demo OUT] [--error-maps OUT]
 
 `--demo OUT` also renders the demo's bead (configs/demo.toml, 960x540) with each setting to
@@ -49,7 +49,7 @@ from sphrender.server.engine.renderer import SurfaceRenderer
 F64 = npt.NDArray[np.float64]
 WIDTH, HEIGHT = 1280, 720
 
-#: The normal guide as measured (quality.normal_guide*, bench-only fields).
+#: The normal guide evaluated per tap, at full size (quality.normal_guide*, bench-only fields).
 GUIDE: dict[str, float | bool | int] = {
     "normal_guide": 8.0,
     "normal_guide_width": 12.0,
@@ -59,8 +59,13 @@ GUIDE: dict[str, float | bool | int] = {
     "normal_guide_rim": 3.0,
     "normal_guide_flat": 1.25,
     "normal_guide_flat_angle": 25.0,
+    "normal_guide_limits": False,
+    "normal_guide_limits_skip": False,
+    "normal_guide_downscale": 1,
+    "normal_guide_convex_relative": False,
 }
-#: The guide as one-sided limits, every other tap, at a quarter of the image, relative convexity.
+#: The guide as one-sided limits, every other tap, at a quarter of the image, relative convexity,
+#: with the flat test of 1.25 r / 25 deg.
 GUIDE_LIMITS_QUARTER: dict[str, float | bool | int] = {
     **GUIDE,
     "normal_guide_limits": True,
@@ -72,6 +77,7 @@ GUIDE_LIMITS_QUARTER: dict[str, float | bool | int] = {
 SETTINGS: dict[str, Setting] = {
     "fast": preset_setting("fast"),
     "balanced": preset_setting("balanced"),
+    "noguide": Setting("balanced, no normal guide", {"quality": {"normal_guide": 0.0}}),
     "crease30": Setting("balanced + crease test 30°", {"quality": {"crease_angle": 30.0}}),
     "guide": Setting("balanced + normal guide", {"quality": GUIDE}),
     "guidelim": Setting(
@@ -84,11 +90,10 @@ SETTINGS: dict[str, Setting] = {
 
 
 def _guide_setting(text: str) -> Setting:
-    """`guide:KEY=VALUE:...`: balanced with the normal guide on (from 35 deg unless given),
-    quality.normal_guide_KEY (or normal_guide itself for KEY `angle`) set to each VALUE, e.g.
-    guide:angle=8:width=12:pilot=1.7:turn=11:convex=8:rim=3:flat=1.25:flat_angle=25 (the
-    `guide` setting)."""
-    quality: dict[str, float | bool] = {"normal_guide": 35.0}
+    """`guide:KEY=VALUE:...`: balanced with quality.normal_guide_KEY (or normal_guide itself for
+    KEY `angle`) set to each VALUE, e.g. guide:flat=1.25:flat_angle=25 (the guide's flat test
+    before it was adopted)."""
+    quality: dict[str, float | bool] = {}
     for item in text.split(":")[1:]:
         key, value = item.split("=")
         name = "normal_guide" if key == "angle" else f"normal_guide_{key}"

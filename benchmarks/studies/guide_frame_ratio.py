@@ -1,9 +1,8 @@
-"""The normal guide's frame time against balanced's, interleaved as benchmarks/bench_frame_ratio.py
-does (the bench's jittered-lattice ball, ~100k particles, 1280x720, one frame per setting per
-cycle, wall time of `SurfaceRenderer.render`): balanced, balanced + the guide
-(benchmarks/studies/crease_2d.py's `guide`), and the guide as one-sided limits
-(`normal_guide_limits`, with and without `normal_guide_limits_skip`, at half and quarter size:
-`normal_guide_downscale`, and with `normal_guide_convex_relative`).
+"""The normal guide's frame time, interleaved as benchmarks/bench_frame_ratio.py does (the
+bench's jittered-lattice ball, ~100k particles, 1280x720, one frame per setting per cycle, wall
+time of `SurfaceRenderer.render`): balanced without the guide (the default before it), balanced
+(the guide as per-pixel limits at a quarter of the image) and the guide evaluated per tap at full
+size (benchmarks/studies/crease_2d.py's `guide`), as ratios to the first.
 
     .venv/bin/python benchmarks/studies/guide_frame_ratio.py [--cycles 10]
 
@@ -24,30 +23,12 @@ from sphrender.core.frame import make_frame
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
-from studies.crease_2d import GUIDE, GUIDE_LIMITS_QUARTER
+from studies.crease_2d import GUIDE
 
-LIMITS_HALF = {
-    **GUIDE,
-    "normal_guide_limits": True,
-    "normal_guide_limits_skip": True,
-    "normal_guide_downscale": 2,
-}
 SETTINGS = {
+    "balanced, no guide": scene_for("balanced", {"quality": {"normal_guide": 0.0}}),
     "balanced": scene_for("balanced", {}),
-    "balanced + guide": scene_for("balanced", {"quality": GUIDE}),
-    "guide, limits": scene_for("balanced", {"quality": {**GUIDE, "normal_guide_limits": True}}),
-    "guide, limits, skip": scene_for(
-        "balanced",
-        {"quality": {**GUIDE, "normal_guide_limits": True, "normal_guide_limits_skip": True}},
-    ),
-    "guide, limits, skip, half": scene_for("balanced", {"quality": LIMITS_HALF}),
-    "guide, ..., half, relative": scene_for(
-        "balanced", {"quality": {**LIMITS_HALF, "normal_guide_convex_relative": True}}
-    ),
-    "guide, limits, skip, quarter": scene_for(
-        "balanced", {"quality": {**LIMITS_HALF, "normal_guide_downscale": 4}}
-    ),
-    "guide, ..., quarter, relative": scene_for("balanced", {"quality": GUIDE_LIMITS_QUARTER}),
+    "balanced + guide per tap": scene_for("balanced", {"quality": GUIDE}),
 }
 
 
@@ -64,7 +45,7 @@ def main() -> None:
         finally:
             renderer.release()
     print(f"{gl.renderer}; {frame.count} particles, 1280x720, {args.cycles} cycles")
-    print_ratios(times, "balanced", width=30)
+    print_ratios(times, "balanced, no guide", width=30)
 
 
 if __name__ == "__main__":

@@ -172,18 +172,21 @@ class QualityConfig:
         high=90.0,
         unit="degrees",
     )
-    normal_guide: float = bench_spec(
-        0.0,
-        "separable narrow_range: each tap weighted by 1 - smoothstep(this, + normal_guide_width "
-        "deg) of the turn between the pilot's normals at centre and tap, each 1-D pass a weighted "
-        "line fit (faces stay flat up to a box edge); 0: off",
+    normal_guide: float = spec(
+        8.0,
+        "separable narrow_range: a kernel stops at a convex edge where a smoothed copy of the "
+        "surface turns by more than this between faces flat past it (boxes, plates, fluid against "
+        "a wall keep their edges); 0: off. Presets: fast 0, balanced 8, best 8",
+        low=0.0,
+        high=90.0,
+        unit="degrees",
     )
-    normal_guide_width: float = bench_spec(25.0, "normal_guide: degrees from weight 1 to 0")
+    normal_guide_width: float = bench_spec(12.0, "normal_guide: degrees from weight 1 to 0")
     normal_guide_pilot: float = bench_spec(
-        1.0, "normal_guide: the pilot's Gaussian sigma (the splat's depth), in projected radii"
+        1.7, "normal_guide: the pilot's Gaussian sigma (the splat's depth), in projected radii"
     )
     normal_guide_turn: float = bench_spec(
-        0.0,
+        11.0,
         "normal_guide: the turn of a sphere of this many particle radii over the distance to "
         "the tap is tolerated (taken off in squares); 0: off",
     )
@@ -191,22 +194,22 @@ class QualityConfig:
         True, "normal_guide: each 1-D pass a weighted line fit (else the weighted mean)"
     )
     normal_guide_convex: float = bench_spec(
-        0.0,
+        8.0,
         "normal_guide: only convex turns are cut, wholly where the tap lies behind the centre's "
         "pilot tangent plane by twice this angle (deg; none below it); 0: any turn",
     )
     normal_guide_rim: float = bench_spec(
-        0.0,
+        3.0,
         "normal_guide: no cut at pixels with background within this many projected radii (a "
         "silhouette's pilot is one-sided); 0: cut everywhere",
     )
     normal_guide_flat: float = bench_spec(
-        0.0,
+        2.5,
         "normal_guide: a tap is cut only where the pilot is flat past it, away from the centre "
         "(normals at 1, 2, 3 times this many projected radii on agree); 0: off",
     )
     normal_guide_flat_angle: float = bench_spec(
-        10.0, "normal_guide_flat: the largest angle between those normals, degrees"
+        12.0, "normal_guide_flat: the largest angle between those normals, degrees"
     )
     normal_guide_tangent: bool = bench_spec(
         False,
@@ -214,7 +217,7 @@ class QualityConfig:
         "towards the tap, the offset's length along the plane (else the taps' depths)",
     )
     normal_guide_limits: bool = bench_spec(
-        False,
+        True,
         "normal_guide: the rule evaluated once, on the pilot, into per-pixel one-sided limits "
         "(the distance to the first tap it cuts); the passes weigh a tap by its offset alone",
     )
@@ -224,16 +227,16 @@ class QualityConfig:
         "normal",
     )
     normal_guide_convex_relative: bool = bench_spec(
-        False,
+        True,
         "normal_guide_limits, normal_guide_convex by the taps' depths: the convex ramp over the "
         "chord's sine behind the tangent plane divided by the turn (radians)",
     )
     normal_guide_limits_skip: bool = bench_spec(
-        False,
+        True,
         "normal_guide_limits: every other tap tested, and the one between where that sets a limit",
     )
     normal_guide_downscale: int = bench_spec(
-        1,
+        4,
         "normal_guide_limits: the pilot, its normals, flags and limits at 1 / this of the "
         "image's size along each axis (1, 2 or 4)",
     )

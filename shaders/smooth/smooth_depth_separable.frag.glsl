@@ -432,6 +432,10 @@ void main() {
         limits[i] = reduced[((4 * texel.x + i) / GUIDE_SCALE) & 3];
     }
     float limit_scale = float(GUIDE_SCALE) / 8.0;
+    // a reduced limit runs from its block's centre: each pixel's own runs from where it lies
+    ivec4 along = AXIS == 0 ? ivec4(4 * texel.x) + ivec4(0, 1, 2, 3) : ivec4(texel.y);
+    vec4 block_offset = vec4(along - (along / GUIDE_SCALE) * GUIDE_SCALE)
+                        + 0.5 - 0.5 * float(GUIDE_SCALE);
 #else
     vec4 limits = fetch_packed(u_guide_limits, texel);
     float limit_scale = 1.0 / 8.0;
@@ -439,6 +443,10 @@ void main() {
     vec4 code_plus = floor(limits / 4096.0);
     g_limit_plus = code_plus * limit_scale;
     g_limit_minus = (limits - code_plus * 4096.0) * limit_scale;
+#if GUIDE_SCALE > 1
+    g_limit_plus -= block_offset;
+    g_limit_minus += block_offset;
+#endif
     g_guide_on = vec4(u_guide_on);
     g_limit_plus = mix(vec4(3e4), g_limit_plus, g_guide_on);
     g_limit_minus = mix(vec4(3e4), g_limit_minus, g_guide_on);
