@@ -377,6 +377,51 @@ vec4 kernel_reach(ivec2 texel, vec4 sigma, bvec4 surface, out int stride) {
     return min(reach, vec4(cap * float(stride)));
 }
 
+#if NORMAL_GUIDE && GUIDE_LIMITS && GUIDE_SCALE > 1
+// The limits of reduced pixel `reduced` (clamped to the reduced image) in full pixels, each
+// measured from the full pixel `offset` pixels past its block's centre along +AXIS.
+void reduced_limits(ivec2 reduced, float offset, out float plus, out float minus) {
+    ivec2 size = ivec2((u_image_size_px + GUIDE_SCALE - 1) / GUIDE_SCALE);
+    reduced = clamp(reduced, ivec2(0), size - 1);
+    float code = texelFetch(u_guide_limits, ivec2(reduced.x >> 2, reduced.y), 0)[reduced.x & 3];
+    float code_plus = floor(code / 4096.0);
+    float code_minus = code - code_plus * 4096.0;
+    float scale = float(GUIDE_SCALE) / 8.0;
+    plus = code_plus >= 4095.0 ? 3e4 : code_plus * scale - offset;
+    minus = code_minus >= 4095.0 ? 3e4 : code_minus * scale + offset;
+}
+
+// Two limits' blend by `f`, or the nearer one's where either is no limit (the ends of a crease).
+float blend_limits(float a, float b, float f) {
+    return max(a, b) >= 3e4 ? (f < 0.5 ? a : b) : mix(a, b, f);
+}
+
+// g_limit_plus / g_limit_minus from the reduced limits: along AXIS the lane's own block, its
+// offset from the block's centre taken off; across AXIS blended between the two nearest
+// reduced rows (AXIS 0) or columns (AXIS 1), so a slanted crease does not step every block.
+void guide_limits_scaled(ivec2 texel) {
+    for (int i = 0; i < 4; ++i) {
+        ivec2 pixel = ivec2(4 * texel.x + i, texel.y);
+        int along = AXIS == 0 ? pixel.x : pixel.y;
+        float across = (float(AXIS == 0 ? pixel.y : pixel.x) + 0.5) / float(GUIDE_SCALE) - 0.5;
+        float offset = float(along - (along / GUIDE_SCALE) * GUIDE_SCALE)
+                       + 0.5 - 0.5 * float(GUIDE_SCALE);
+        int first = int(floor(across));
+        float f = across - float(first);
+        ivec2 a = AXIS == 0 ? ivec2(along / GUIDE_SCALE, first) : ivec2(first, along / GUIDE_SCALE);
+        ivec2 b = a + (AXIS == 0 ? ivec2(0, 1) : ivec2(1, 0));
+        float plus_a;
+        float minus_a;
+        float plus_b;
+        float minus_b;
+        reduced_limits(a, offset, plus_a, minus_a);
+        reduced_limits(b, offset, plus_b, minus_b);
+        g_limit_plus[i] = blend_limits(plus_a, plus_b, f);
+        g_limit_minus[i] = blend_limits(minus_a, minus_b, f);
+    }
+}
+#endif
+
 void main() {
     ivec2 texel = ivec2(gl_FragCoord.xy);
     vec4 zc = fetch_packed(u_packed_depth, texel);
@@ -423,29 +468,13 @@ void main() {
     int dense = min(radius, u_kernel_max_px);
 #if NORMAL_GUIDE && GUIDE_LIMITS
 #if GUIDE_SCALE > 1
-    // pixels 4x .. 4x+3 are reduced pixels (4x + i) / GUIDE_SCALE of row y / GUIDE_SCALE, all
-    // in one reduced texel
-    int first = 4 * texel.x / GUIDE_SCALE;
-    vec4 reduced = texelFetch(u_guide_limits, ivec2(first >> 2, texel.y / GUIDE_SCALE), 0);
-    vec4 limits;
-    for (int i = 0; i < 4; ++i) {
-        limits[i] = reduced[((4 * texel.x + i) / GUIDE_SCALE) & 3];
-    }
-    float limit_scale = float(GUIDE_SCALE) / 8.0;
-    // a reduced limit runs from its block's centre: each pixel's own runs from where it lies
-    ivec4 along = AXIS == 0 ? ivec4(4 * texel.x) + ivec4(0, 1, 2, 3) : ivec4(texel.y);
-    vec4 block_offset = vec4(along - (along / GUIDE_SCALE) * GUIDE_SCALE)
-                        + 0.5 - 0.5 * float(GUIDE_SCALE);
+    guide_limits_scaled(texel);
 #else
     vec4 limits = fetch_packed(u_guide_limits, texel);
     float limit_scale = 1.0 / 8.0;
-#endif
     vec4 code_plus = floor(limits / 4096.0);
     g_limit_plus = code_plus * limit_scale;
     g_limit_minus = (limits - code_plus * 4096.0) * limit_scale;
-#if GUIDE_SCALE > 1
-    g_limit_plus -= block_offset;
-    g_limit_minus += block_offset;
 #endif
     g_guide_on = vec4(u_guide_on);
     g_limit_plus = mix(vec4(3e4), g_limit_plus, g_guide_on);
