@@ -100,23 +100,6 @@ def test_a_bench_only_key_is_refused_in_a_scene_and_read_by_the_bench(key: str) 
     value = {
         "occlusion_culling": False,
         "normal_rules": "hard",
-        "normal_guide": 8.0,
-        "normal_guide_width": 15.0,
-        "normal_guide_pilot": 1.5,
-        "normal_guide_turn": 10.0,
-        "normal_guide_fit": False,
-        "normal_guide_convex": 6.0,
-        "normal_guide_tangent": True,
-        "normal_guide_flat": 1.5,
-        "normal_guide_flat_angle": 20.0,
-        "normal_guide_rim": 2.0,
-        "normal_guide_passes": 2,
-        "normal_guide_limits": True,
-        "normal_guide_flat_own": True,
-        "normal_guide_convex_relative": True,
-        "normal_guide_limits_skip": True,
-        "normal_guide_downscale": 4,
-        "normal_guide_limit_cut": 0.25,
     }[key]
     with pytest.raises(InputError) as exc:
         scene_from_dict({"quality": {key: value}})
@@ -129,23 +112,6 @@ def test_a_bench_only_key_is_refused_in_a_scene_and_read_by_the_bench(key: str) 
 
 def test_bench_only_keys_are_exactly_these() -> None:
     assert sorted(BENCH_ONLY) == [
-        "normal_guide",
-        "normal_guide_convex",
-        "normal_guide_convex_relative",
-        "normal_guide_downscale",
-        "normal_guide_fit",
-        "normal_guide_flat",
-        "normal_guide_flat_angle",
-        "normal_guide_flat_own",
-        "normal_guide_limit_cut",
-        "normal_guide_limits",
-        "normal_guide_limits_skip",
-        "normal_guide_passes",
-        "normal_guide_pilot",
-        "normal_guide_rim",
-        "normal_guide_tangent",
-        "normal_guide_turn",
-        "normal_guide_width",
         "normal_rules",
         "occlusion_culling",
     ]

@@ -4,7 +4,7 @@ metrics), plus a fluid block pressed against a solid wall, with the frame and sm
 times against the first setting's, measured interleaved in the same run.
 
     .venv/bin/python benchmarks/studies/crease_2d.py [--scenes ball,slab,...]
-        [--settings fast,balanced,noguide,crease30,guide,guidelim4,guide:KEY=VALUE:...]
+        [--settings fast,balanced,noguide,crease30]
         [--frames 1] [--demo OUT] [--error-maps OUT]
 
 `--demo OUT` also renders the demo's bead (configs/demo.toml, 960x540) with each setting to
@@ -49,65 +49,12 @@ from sphrender.server.engine.renderer import SurfaceRenderer
 F64 = npt.NDArray[np.float64]
 WIDTH, HEIGHT = 1280, 720
 
-#: The normal guide evaluated per tap, at full size (quality.normal_guide*, bench-only fields).
-GUIDE: dict[str, float | bool | int] = {
-    "normal_guide": 8.0,
-    "normal_guide_width": 12.0,
-    "normal_guide_pilot": 1.7,
-    "normal_guide_turn": 11.0,
-    "normal_guide_convex": 8.0,
-    "normal_guide_rim": 3.0,
-    "normal_guide_flat": 1.25,
-    "normal_guide_flat_angle": 25.0,
-    "normal_guide_limits": False,
-    "normal_guide_limits_skip": False,
-    "normal_guide_downscale": 1,
-    "normal_guide_convex_relative": False,
-}
-#: The guide as one-sided limits, every other tap, at a quarter of the image, relative convexity,
-#: with the flat test of 1.25 r / 25 deg.
-GUIDE_LIMITS_QUARTER: dict[str, float | bool | int] = {
-    **GUIDE,
-    "normal_guide_limits": True,
-    "normal_guide_limits_skip": True,
-    "normal_guide_downscale": 4,
-    "normal_guide_convex_relative": True,
-}
-
 SETTINGS: dict[str, Setting] = {
     "fast": preset_setting("fast"),
     "balanced": preset_setting("balanced"),
     "noguide": Setting("balanced, no normal guide", {"quality": {"normal_guide": 0.0}}),
     "crease30": Setting("balanced + crease test 30°", {"quality": {"crease_angle": 30.0}}),
-    "guide": Setting("balanced + normal guide", {"quality": GUIDE}),
-    "guidelim": Setting(
-        "balanced + guide, limits", {"quality": {**GUIDE, "normal_guide_limits": True}}
-    ),
-    "guidelim4": Setting(
-        "balanced + guide, limits, quarter, relative", {"quality": GUIDE_LIMITS_QUARTER}
-    ),
 }
-
-
-def _guide_setting(text: str) -> Setting:
-    """`guide:KEY=VALUE:...`: balanced with quality.normal_guide_KEY (or normal_guide itself for
-    KEY `angle`) set to each VALUE, e.g. guide:flat=1.25:flat_angle=25 (the guide's flat test
-    before it was adopted)."""
-    quality: dict[str, float | bool] = {}
-    for item in text.split(":")[1:]:
-        key, value = item.split("=")
-        name = "normal_guide" if key == "angle" else f"normal_guide_{key}"
-        quality[name] = int(value) if key in ("passes", "downscale") else float(value)
-        if key in (
-            "fit",
-            "tangent",
-            "limits",
-            "flat_own",
-            "convex_relative",
-            "limits_skip",
-        ):
-            quality[name] = value == "1"
-    return Setting(f"balanced + {text}", {"quality": quality})
 
 
 @dataclass(frozen=True)
@@ -240,10 +187,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--demo", type=Path, default=None)
     parser.add_argument("--error-maps", type=Path, default=None)
     args = parser.parse_args(argv)
-    settings = [
-        _guide_setting(name) if name.startswith("guide:") else SETTINGS[name]
-        for name in args.settings.split(",")
-    ]
+    settings = [SETTINGS[name] for name in args.settings.split(",")]
     with GLContext() as gl:
         renderer = SurfaceRenderer(gl)
         try:

@@ -1,8 +1,7 @@
 """The normal guide's frame time, interleaved as benchmarks/bench_frame_ratio.py does (the
 bench's jittered-lattice ball, ~100k particles, 1280x720, one frame per setting per cycle, wall
-time of `SurfaceRenderer.render`): balanced without the guide (the default before it), balanced
-(the guide as per-pixel limits at a quarter of the image) and the guide evaluated per tap at full
-size (benchmarks/studies/crease_2d.py's `guide`), as ratios to the first.
+time of `SurfaceRenderer.render`): balanced without the guide (the default before it) and
+balanced (the guide as per-pixel limits at a quarter of the image), as a ratio to the first.
 
     .venv/bin/python benchmarks/studies/guide_frame_ratio.py [--cycles 10]
 
@@ -23,12 +22,10 @@ from sphrender.core.frame import make_frame
 from sphrender.server.content.lattice import jittered_lattice_ball
 from sphrender.server.engine.gpu.gl_context import GLContext
 from sphrender.server.engine.renderer import SurfaceRenderer
-from studies.crease_2d import GUIDE
 
 SETTINGS = {
     "balanced, no guide": scene_for("balanced", {"quality": {"normal_guide": 0.0}}),
     "balanced": scene_for("balanced", {}),
-    "balanced + guide per tap": scene_for("balanced", {"quality": GUIDE}),
 }
 
 

@@ -1,10 +1,10 @@
 #version 330 core
-// The normal guide at reduced size (quality.normal_guide_downscale, passes/smooth.py): the eye
+// The normal guide at reduced size (quality.normal_guide, passes/smooth.py GUIDE_SCALE): the eye
 // depth (one float per texel, 0 = background) reduced SCALE times along both axes and packed
 // (common/packed_image.glsl): texel (x, y) holds reduced pixels 4x .. 4x+3 of row y, each the
 // mean of the surface among its SCALE x SCALE full-size pixels (0 where none is surface).
 
-#define SCALE 2
+#define SCALE 4
 
 uniform sampler2D u_image;
 

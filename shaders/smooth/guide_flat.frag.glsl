@@ -1,15 +1,12 @@
 #version 330 core
-// The normal guide's flat-beyond flags (quality.normal_guide_flat, passes/smooth.py), for the
+// The normal guide's flat-beyond flags (quality.normal_guide, passes/smooth.py), for the
 // 1-D passes along AXIS: per pixel, whether the pilot surface is flat past it in +AXIS and in
 // -AXIS (the pilot normals at 1, 2 and 3 times u_flat_radii projected radii on agree within
 // u_flat_cos; background there is no evidence). Out: guide_normals.frag.glsl's normal in 7 bits a
 // component, + 2^21 (flat along +AXIS) + 2^22 (flat along -AXIS), negative for a rim pixel
-// (decoded by smooth_depth_separable.frag.glsl, GUIDE_FLAT). Packed in and out.
+// (decoded by guide_limits.frag.glsl). Packed in and out.
 
 #define AXIS 0
-// 1: the flat run past a pixel must also agree with the pixel's own pilot normal (the run is
-// its own face: a convex cap meeting a flat plate is no box edge).
-#define FLAT_OWN 0
 
 #include "common/packed_image.glsl"
 
@@ -45,18 +42,13 @@ bool agree(vec3 a, vec3 b) {
 }
 
 // Whether the pilot is flat past (px, py) in direction `step` (unit along AXIS) at `reach` px.
-bool flat_past(vec3 n0, int px, int py, ivec2 step, float reach) {
+bool flat_past(int px, int py, ivec2 step, float reach) {
     ivec2 p = ivec2(px, py);
     vec3 n1 = normal_at(p.x + int(round(reach)) * step.x, p.y + int(round(reach)) * step.y);
     vec3 n2 = normal_at(p.x + int(round(2.0 * reach)) * step.x,
                         p.y + int(round(2.0 * reach)) * step.y);
     vec3 n3 = normal_at(p.x + int(round(3.0 * reach)) * step.x,
                         p.y + int(round(3.0 * reach)) * step.y);
-#if FLAT_OWN
-    if (!agree(n0, n1)) {
-        return false;
-    }
-#endif
     return agree(n1, n2) && agree(n2, n3) && agree(n1, n3);
 }
 
@@ -74,8 +66,8 @@ void main() {
         int px = 4 * texel.x + i;
         vec3 n = normal_at(px, texel.y);
         float reach = max(u_flat_radii * u_particle_radius * u_px_per_unit / depth[i], 1.0);
-        float flags = (flat_past(n, px, texel.y, step, reach) ? 2097152.0 : 0.0)
-                      + (flat_past(n, px, texel.y, -step, reach) ? 4194304.0 : 0.0);
+        float flags = (flat_past(px, texel.y, step, reach) ? 2097152.0 : 0.0)
+                      + (flat_past(px, texel.y, -step, reach) ? 4194304.0 : 0.0);
         vec3 q = floor((n * 0.5 + 0.5) * 127.0 + 0.5);
         float code = q.x * 16384.0 + q.y * 128.0 + q.z + flags;
         result[i] = v < 0.0 ? -code : code;

@@ -1,37 +1,30 @@
 #version 330 core
-// The normal guide's one-sided limits (quality.normal_guide_limits, passes/smooth.py): per
-// pixel, for the 1-D passes along AXIS, how far its kernel may reach along +AXIS and along
-// -AXIS before the guide cuts. The guide's rule (smooth_depth_separable.frag.glsl
-// guide_weight) is evaluated once here, on the pilot (its normals and its depth), for the taps
-// out to the farthest reach of any pass; the first tap whose cut c reaches 1/2, at offset k,
-// sets the limit k + 1/2 - c, so a pass weighs the tap at offset k by
-// clamp(limit - k + 1/2, 0, 1) (1 - c at that tap, 1 before it, 0 past it). No cut: the
-// largest code (no limit); a rim pixel cuts nothing. Out, packed like the depth (texel (x, y):
-// pixels 4x .. 4x+3 of row y in .xyzw): round(8 limit_plus) * 4096 + round(8 limit_minus),
-// each at most 4095.
+// The normal guide's one-sided limits (quality.normal_guide, passes/smooth.py), at the guide's
+// reduced size: per pixel, for the 1-D passes along AXIS, how far its kernel may reach along
+// +AXIS and along -AXIS before the guide cuts. The guide's rule (cut_at) is evaluated on the
+// pilot (its normals and its depth) for the taps out to the farthest reach of any pass; the
+// first tap whose cut c reaches u_limit_cut, at offset k, sets the limit k + 1/2 - c, so a pass
+// weighs the tap at offset k by clamp(limit - k + 1/2, 0, 1) (smooth_depth_separable.frag.glsl
+// guide_limit_weight: 1 - c at that tap, 1 before it, 0 past it). Every other tap is tested,
+// and the tap between where that lowers a limit (the pilot is smooth over a few pixels, so a
+// cut seldom rises and falls again within two). No cut: the largest code (no limit); a rim
+// pixel cuts nothing. Out, packed like the depth (texel (x, y): pixels 4x .. 4x+3 of row y in
+// .xyzw): round(8 limit_plus) * 4096 + round(8 limit_minus), each at most 4095.
 
 #define AXIS 0
-// As smooth_depth_separable.frag.glsl's: 1 any turn cut; 2 convex turns only, told by the
-// taps' (pilot) depths; 3 told by the tap normal's tilt towards the tap.
-#define NORMAL_GUIDE 2
-// 1: the normals carry guide_flat.frag.glsl's flags (a tap is cut only where the pilot is
-// flat past it).
-#define GUIDE_FLAT 0
-// 1: NORMAL_GUIDE 2's convex ramp over the chord's sine behind the tangent plane divided by
-// the turn (the pilot rounds a box edge, so its chords lie behind by about half the turn).
-#define CONVEX_RELATIVE 0
-// 1: every other tap is tested, and the tap between where that lowers a limit (the pilot is
-// smooth over a few pixels, so a cut seldom rises and falls again within two).
-#define LIMIT_SKIP 0
 
 #include "common/packed_image.glsl"
 
-uniform sampler2D u_guide_normals;  // encoded (guide_normals / guide_flat.frag.glsl)
+uniform sampler2D u_guide_normals;  // encoded and flagged (guide_flat.frag.glsl)
 uniform sampler2D u_packed_depth;   // the pilot's depth
 uniform ivec2 u_image_size_px;
 uniform float u_px_per_unit;
 uniform float u_particle_radius;
-uniform vec2 u_guide_ramp;     // as smooth_depth_separable.frag.glsl's
+// The cut's ramp over the squared turn less the squared turn tolerated: t = x * scale + offset
+// (0 at quality.normal_guide, 1 at the upper limit); the tolerated turn's square per squared
+// scene unit of distance to the tap; the convex ramp over the chord's sine behind the centre's
+// pilot tangent plane over the turn (passes/smooth.py _set_guide_uniforms).
+uniform vec2 u_guide_ramp;
 uniform float u_guide_turn2;
 uniform vec2 u_guide_convex;
 uniform float u_reach_radii;   // the farthest reach of any pass, in projected radii
@@ -50,12 +43,10 @@ vec4 g_ray_x;      // the lanes' view position over their depth
 float g_ray_y;
 vec4 g_normal_ray;
 vec4 g_normal_axis;
-vec4 g_tangent_axis;  // NORMAL_GUIDE 3: the centre's unit pilot tangent along +AXIS
-vec4 g_tangent_z;
 
+// guide_flat.frag.glsl's normal (7 bits a component under two flag bits), unit.
 void decode(vec4 v, out vec4 nx, out vec4 ny, out vec4 nz) {
-    v = abs(v);
-#if GUIDE_FLAT
+    v = abs(v);  // negative: a rim pixel
     v -= floor(v / 2097152.0) * 2097152.0;
     vec4 a = floor(v / 16384.0);
     vec4 rest = v - a * 16384.0;
@@ -63,14 +54,6 @@ void decode(vec4 v, out vec4 nx, out vec4 ny, out vec4 nz) {
     nx = a / 63.5 - 1.0;
     ny = b / 63.5 - 1.0;
     nz = (rest - b * 128.0) / 63.5 - 1.0;
-#else
-    vec4 a = floor(v / 65536.0);
-    vec4 rest = v - a * 65536.0;
-    vec4 b = floor(rest / 256.0);
-    nx = a / 127.5 - 1.0;
-    ny = b / 127.5 - 1.0;
-    nz = (rest - b * 256.0) / 127.5 - 1.0;
-#endif
     vec4 inverse_norm = inversesqrt(max(nx * nx + ny * ny + nz * nz, vec4(1e-6)));
     nx *= inverse_norm;
     ny *= inverse_norm;
@@ -78,7 +61,10 @@ void decode(vec4 v, out vec4 nx, out vec4 ny, out vec4 nz) {
 }
 
 // The guide's cut (0..1) of taps at signed offsets k (per lane) whose encoded pilot normals
-// are `encoded` and pilot depths z: smooth_depth_separable.frag.glsl guide_weight's 1 - w.
+// are `encoded` and pilot depths z: 1 - smoothstep over the turn between the pilot normals at
+// the centre and the tap (its square taken as 2 (1 - cos)), less a sphere's turn over the
+// distance in space to the tap (a box edge is cut, a slow turn passes); only where the tap
+// lies behind the centre's pilot tangent plane (a convex turn) and the pilot is flat past it.
 vec4 cut_at(vec4 encoded, vec4 z, vec4 k) {
     vec4 nx;
     vec4 ny;
@@ -93,26 +79,15 @@ vec4 cut_at(vec4 encoded, vec4 z, vec4 k) {
     vec4 t = clamp((turn2 - u_guide_turn2 * distance2) * u_guide_ramp.x + u_guide_ramp.y,
                    0.0, 1.0);
     vec4 cut = t * t * (3.0 - 2.0 * t);
-#if NORMAL_GUIDE == 2
     vec4 behind = -(dz * g_normal_ray + (shift * z) * g_normal_axis)
                   * inversesqrt(max(distance2, vec4(1e-30)));
-#if CONVEX_RELATIVE
     // the chord's sine behind the tangent plane over the turn (about 1/2 on a rounded edge)
     behind *= inversesqrt(max(turn2, vec4(1e-6)));
-#endif
     vec4 c = clamp(behind * u_guide_convex.x + u_guide_convex.y, 0.0, 1.0);
     cut *= c * c * (3.0 - 2.0 * c);
-#elif NORMAL_GUIDE == 3
-    // the tap normal along the centre's tangent towards the tap (positive: convex)
-    vec4 tilt = sign(k) * ((AXIS == 0 ? nx : ny) * g_tangent_axis + nz * g_tangent_z);
-    vec4 c = clamp(tilt * u_guide_convex.x + u_guide_convex.y, 0.0, 1.0);
-    cut *= c * c * (3.0 - 2.0 * c);
-#endif
-#if GUIDE_FLAT
     vec4 flags = floor(abs(encoded) / 2097152.0);  // +AXIS: bit 0, -AXIS: bit 1
     vec4 minus = floor(flags / 2.0);
     cut *= mix(minus, flags - 2.0 * minus, greaterThan(k, vec4(0.0)));
-#endif
     // background taps are never taken
     return mix(vec4(0.0), cut, greaterThan(z, vec4(0.0)));
 }
@@ -137,7 +112,6 @@ bool done(vec4 limit, vec4 next, vec4 reach) {
 vec4 column_limit(ivec2 texel, int side, int radius, vec4 reach) {
     vec4 limit = vec4(NO_LIMIT);
     int room = side > 0 ? u_image_size_px.y - 1 - texel.y : texel.y;  // rows to the end
-#if LIMIT_SKIP
     for (int k = 2; k <= radius + 1 && k - 1 <= room; k += 2) {
         vec4 before = limit;
         if (k <= room) {
@@ -157,17 +131,6 @@ vec4 column_limit(ivec2 texel, int side, int radius, vec4 reach) {
             break;
         }
     }
-#else
-    for (int k = 1; k <= radius && k <= room; ++k) {
-        ivec2 at = texel + ivec2(0, side * k);
-        limit = lowered(limit, cut_at(texelFetch(u_guide_normals, at, 0),
-                                      texelFetch(u_packed_depth, at, 0), vec4(float(side * k))),
-                        vec4(float(k)), reach);
-        if (done(limit, vec4(float(k + 1)), reach)) {
-            break;
-        }
-    }
-#endif
     return limit;
 }
 
@@ -188,10 +151,6 @@ void main() {
     g_ray_y = (float(texel.y) + 0.5 - centre.y) / u_px_per_unit;
     g_normal_ray = g_normal_x * g_ray_x + g_normal_y * g_ray_y + g_normal_z;
     g_normal_axis = AXIS == 0 ? g_normal_x : g_normal_y;
-    vec4 inverse_length = inversesqrt(max(g_normal_z * g_normal_z
-                                          + g_normal_axis * g_normal_axis, vec4(1e-12)));
-    g_tangent_axis = abs(g_normal_z) * inverse_length;
-    g_tangent_z = -sign(g_normal_z) * g_normal_axis * inverse_length;
     vec4 z = mix(vec4(1.0), g_center, surface);
     vec4 reach = min(ceil(u_reach_radii * u_particle_radius * u_px_per_unit / z),
                      vec4(float(u_reach_max_px)));
@@ -207,7 +166,6 @@ void main() {
     for (int s = 0; s <= steps && texel.x + s < texels; ++s) {
         vec4 codes = texelFetch(u_guide_normals, texel + ivec2(s, 0), 0);
         vec4 depths = texelFetch(u_packed_depth, texel + ivec2(s, 0), 0);
-#if LIMIT_SKIP
         vec4 before = plus;
         for (int j = 1; j < 4; j += 2) {
             vec4 k = vec4(float(4 * s + j)) - lane;
@@ -219,12 +177,6 @@ void main() {
                 plus = lowered(plus, cut_at(vec4(codes[j]), vec4(depths[j]), k), k, reach);
             }
         }
-#else
-        for (int j = 0; j < 4; ++j) {
-            vec4 k = vec4(float(4 * s + j)) - lane;
-            plus = lowered(plus, cut_at(vec4(codes[j]), vec4(depths[j]), k), k, reach);
-        }
-#endif
         // every lane's limit lies short of this texel's nearest tap: none further counts
         if (done(plus, vec4(float(4 * s + 4)) - lane, reach)) {
             break;
@@ -233,7 +185,6 @@ void main() {
     for (int s = 0; s <= steps && texel.x - s >= 0; ++s) {
         vec4 codes = texelFetch(u_guide_normals, texel - ivec2(s, 0), 0);
         vec4 depths = texelFetch(u_packed_depth, texel - ivec2(s, 0), 0);
-#if LIMIT_SKIP
         vec4 before = minus;
         for (int j = 1; j < 4; j += 2) {
             vec4 k = vec4(float(4 * s - j)) + lane;  // the distance behind
@@ -245,12 +196,6 @@ void main() {
                 minus = lowered(minus, cut_at(vec4(codes[j]), vec4(depths[j]), -k), k, reach);
             }
         }
-#else
-        for (int j = 0; j < 4; ++j) {
-            vec4 k = vec4(float(4 * s - j)) + lane;  // the distance behind
-            minus = lowered(minus, cut_at(vec4(codes[j]), vec4(depths[j]), -k), k, reach);
-        }
-#endif
         if (done(minus, vec4(float(4 * s + 1)) + lane, reach)) {
             break;
         }

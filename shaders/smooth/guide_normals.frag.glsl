@@ -1,7 +1,7 @@
 #version 330 core
 // The normal guide's pilot normals (quality.normal_guide, passes/smooth.py): per pixel the view
 // space normal of a packed eye-depth image (the pilot: the splat smoothed at about one projected
-// radius), facing the eye, encoded for smooth_depth_separable.frag.glsl (guide_normal_decode).
+// radius), facing the eye, encoded for guide_flat.frag.glsl.
 // In and out packed: texel (x, y) holds pixels 4x .. 4x+3 of row y in .xyzw; 0 = background;
 // negative: a rim pixel (u_rim_radii).
 

@@ -9,9 +9,9 @@
 // (exact on a plane), depths for the others (as they average), kept within the values taken.
 // passes/smooth.py draws this variant only within kernel_max_px of the image's ends; wherever
 // no tap crosses an end it adds what the packed walk's tap_pair adds, bit for bit.
-// With the narrow range's normal guide (NORMAL_GUIDE) every draw uses it: the guide weighs the
-// two taps of a pair apart (the value arguments are the taps' encoded pilot normals), and the
-// same line fit keeps a face flat where it leaves the kernel one-sided.
+// With the narrow range's normal guide (NORMAL_GUIDE) every draw uses it: the guide's one-sided
+// limits weigh the two taps of a pair apart, and the same line fit keeps a face flat where they
+// leave the kernel one-sided.
 
 #include "common/border_fit.glsl"
 
@@ -39,7 +39,7 @@ void start_image_border(ivec2 texel) {
 #endif
 }
 
-#if FILTER == FILTER_NARROW_RANGE && NORMAL_GUIDE && GUIDE_LIMITS && !IMAGE_BORDER
+#if FILTER == FILTER_NARROW_RANGE && NORMAL_GUIDE && !IMAGE_BORDER
 // The guide's one-sided limits away from the image's ends: the pair is taken as the packed
 // walk's tap_pair takes it (no tap lies past an end), each side weighed by its limit, and the
 // fit's sums added (the same sums as the general one below, fewer operations).
@@ -68,8 +68,7 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
 #elif FILTER == FILTER_NARROW_RANGE
 // The narrow range's tap_pair (smooth_depth_separable.frag.glsl) where the pair may straddle an
 // image end: a side is taken with its mirror as there, or alone when the mirror lies past the
-// end. Walked by common/packed_taps.glsl like the other (the value arguments are unused
-// without NORMAL_GUIDE).
+// end. Walked by common/packed_taps.glsl like the other (the value arguments are unused).
 void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     vec4 w = gaussian_next();
     float kf = float(k);
@@ -92,13 +91,8 @@ void tap_pair(int k, vec4 za, vec4 zb, vec4 value_a, vec4 value_b) {
     za = narrow_range_sample(za, use_a);
     zb = narrow_range_sample(zb, use_b);
 #if NORMAL_GUIDE
-#if GUIDE_LIMITS
     vec4 wa = mix(vec4(0.0), w * guide_limit_weight(kf), use_a);
     vec4 wb = mix(vec4(0.0), w * guide_limit_weight(-kf), use_b);
-#else
-    vec4 wa = mix(vec4(0.0), w * guide_weight(value_a, za, kf), use_a);
-    vec4 wb = mix(vec4(0.0), w * guide_weight(value_b, zb, -kf), use_b);
-#endif
     vec4 ua = inverse_depth(za);
     vec4 ub = inverse_depth(zb);
     g_sum += wa * ua + wb * ub;
@@ -153,7 +147,7 @@ vec4 image_border_fit(vec4 mean) {
     vec4 low = inverse_depth(g_upper);
     vec4 high = inverse_depth(min(g_lower, g_lower_clamp));
 #if NORMAL_GUIDE
-    bvec4 one_sided = bvec4(u_guide_fit);  // the guide's weights are seldom symmetric
+    bvec4 one_sided = bvec4(true);  // the guide's weights are seldom symmetric
 #else
     bvec4 one_sided = notEqual(g_k_sum, vec4(0.0));  // only an image end unpairs a tap
 #endif

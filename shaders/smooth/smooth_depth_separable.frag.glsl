@@ -23,31 +23,16 @@
 #define IMAGE_BORDER 0
 // 1: the narrow range's crease test (quality.crease_angle) is compiled in.
 #define CREASE_TEST 0
-// The narrow range's normal guide (quality.normal_guide): 0 off; 1 a tap's weight times
-// 1 - smoothstep of the turn between the pilot normals at the centre and the tap (less a
-// sphere's turn over the distance, normal_guide_turn), the result a weighted line fit
-// (image_border_taps.glsl); 2 as 1, cutting convex turns only (normal_guide_convex), told by
-// the taps' depths; 3 as 2, told on the centre's pilot tangent plane (normal_guide_tangent).
+// 1: the narrow range's normal guide (quality.normal_guide): a tap is weighed by its offset
+// against the centre's one-sided limits (guide_limits.frag.glsl, u_guide_limits), and the
+// result is a weighted line fit (image_border_taps.glsl).
 #define NORMAL_GUIDE 0
-
-// 1: the guide's normals carry guide_flat.frag.glsl's flags: a tap is cut only where the pilot
-// is flat past it (away from the centre).
-#define GUIDE_FLAT 0
-// 1: the guide's rule was evaluated once, on the pilot, into per-pixel one-sided limits
-// (guide_limits.frag.glsl, u_guide_limits): a tap is weighed by its offset against them alone.
-#define GUIDE_LIMITS 0
-// Those limits are at 1 / GUIDE_SCALE of the image's size (quality.normal_guide_downscale):
+// Those limits are at 1 / GUIDE_SCALE of the image's size (passes/smooth.py GUIDE_SCALE):
 // texel (x, y) holds reduced pixels 4x .. 4x+3 of row y, in reduced pixels.
-#define GUIDE_SCALE 1
+#define GUIDE_SCALE 4
 
-#if NORMAL_GUIDE && !GUIDE_LIMITS
-// The taps' values are the pilot normals (guide_normals.frag.glsl), the guide the depth.
-#define PACKED_VALUE 1
-#define STRIDED_VALUE 1
-#else
 // The depth is its own guide (common/packed_taps.glsl).
 #define PACKED_VALUE 0
-#endif
 
 #include "common/depth_filter_params.glsl"
 #include "common/gaussian_steps.glsl"
@@ -63,33 +48,10 @@ uniform float u_nr_pair_limit;
 // The crease test's turn limit on this pass: tan(quality.crease_angle); negative: off.
 uniform float u_crease_limit;
 #if NORMAL_GUIDE
-uniform sampler2D u_guide_normals;  // packed, encoded (guide_normals.frag.glsl)
-// The cut's ramp over the squared turn less the squared turn tolerated: t = x * scale + offset
-// (0 at the lower limit, 1 at the upper); the tolerated turn's square per squared scene unit
-// of distance to the tap; the convex ramp over the sine of the tap's angle behind the centre's
-// pilot tangent plane (NORMAL_GUIDE 2) or of the tap normal's tilt towards the tap (3).
-uniform vec2 u_guide_ramp;
-uniform float u_guide_turn2;
-uniform vec2 u_guide_convex;
-uniform float u_guide_on;  // 1: this pass weights its taps; 0: plain weights (still fitted)
-uniform bool u_guide_fit;  // the line fit (else the weighted mean)
-#if GUIDE_LIMITS
 uniform sampler2D u_guide_limits;  // packed (guide_limits.frag.glsl)
-vec4 g_limit_plus;   // the lanes' limits along +AXIS and -AXIS, pixels (3e4 where
-vec4 g_limit_minus;  // u_guide_on is 0)
+vec4 g_limit_plus;   // the lanes' limits along +AXIS and -AXIS, pixels
+vec4 g_limit_minus;
 vec4 g_inverse_centre;  // 1 / the centre's depth
-#endif
-vec4 g_normal_x;  // the centre's pilot normal, per lane
-vec4 g_normal_y;
-vec4 g_normal_z;
-vec4 g_ray_x;     // the centre's view position over its depth
-float g_ray_y;
-vec4 g_normal_ray;   // dot(centre normal, (g_ray_x, g_ray_y, 1))
-vec4 g_normal_axis;  // the centre normal's component along AXIS
-vec4 g_guide_on;     // u_guide_on, 0 where the centre is a rim pixel
-vec4 g_tangent_axis;    // NORMAL_GUIDE 3: the centre's pilot tangent along +AXIS: its AXIS
-vec4 g_tangent_z;       // and z components,
-vec4 g_tangent_scale2;  // and its squared length in scene units per pixel of offset
 #endif
 
 layout(location = 0) out vec4 out_packed_depth;
@@ -206,114 +168,11 @@ void spatial_taps(vec4 w, bvec4 in_reach, vec4 za, vec4 zb, out vec4 wa, out vec
 #include "common/border_fit.glsl"
 
 #if NORMAL_GUIDE
-// Decodes four lanes of guide_normals.frag.glsl's normals (three 8-bit components per float).
-void guide_normal_decode(vec4 v, out vec4 nx, out vec4 ny, out vec4 nz) {
-    v = abs(v);  // negative: a rim pixel
-#if GUIDE_FLAT
-    // guide_flat.frag.glsl's: 7 bits a component under two flag bits
-    v -= floor(v / 2097152.0) * 2097152.0;
-    vec4 a = floor(v / 16384.0);
-    vec4 rest = v - a * 16384.0;
-    vec4 b = floor(rest / 128.0);
-    vec4 c = rest - b * 128.0;
-    nx = a / 63.5 - 1.0;
-    ny = b / 63.5 - 1.0;
-    nz = c / 63.5 - 1.0;
-#else
-    vec4 a = floor(v / 65536.0);
-    vec4 rest = v - a * 65536.0;
-    vec4 b = floor(rest / 256.0);
-    vec4 c = rest - b * 256.0;
-    nx = a / 127.5 - 1.0;
-    ny = b / 127.5 - 1.0;
-    nz = c / 127.5 - 1.0;
-#endif
-}
-
-#if GUIDE_FLAT
-// 1 where guide_flat.frag.glsl found the pilot flat past the tap, away from the centre (the
-// tap at +k: its +AXIS flag; at -k: its -AXIS flag).
-vec4 guide_flat_past(vec4 encoded, float signed_k) {
-    vec4 flags = floor(abs(encoded) / 2097152.0);  // 0..3
-    vec4 minus = floor(flags / 2.0);
-    vec4 plus = flags - 2.0 * minus;
-    return signed_k > 0.0 ? plus : minus;
-}
-#endif
-
-// The guide's weight of the tap at signed offset k, depth z, whose encoded pilot normal is
-// `encoded`: 1 - smoothstep over the turn between it and the centre's (a box edge is cut, a
-// slow turn passes), the turn's square taken as 2 (1 - cos) (within 10% up to 60 degrees).
-vec4 guide_weight(vec4 encoded, vec4 z, float signed_k) {
-    vec4 nx;
-    vec4 ny;
-    vec4 nz;
-    guide_normal_decode(encoded, nx, ny, nz);
-    // the decoded normals are unit within the 8-bit steps only: renormalized, or a normal
-    // would turn from itself by up to 9 degrees
-    vec4 inverse_norm = inversesqrt(max(nx * nx + ny * ny + nz * nz, vec4(1e-6)));
-    vec4 cosine = (nx * g_normal_x + ny * g_normal_y + nz * g_normal_z) * inverse_norm;
-    vec4 turn2 = 2.0 - 2.0 * cosine;
-#if NORMAL_GUIDE == 3
-    // on the centre's pilot tangent plane: the distance to the tap, and the tap normal's tilt
-    // towards it (positive: the surface turns away, convex)
-    vec4 tolerated2 = u_guide_turn2 * (signed_k * signed_k) * g_tangent_scale2;
-    vec4 t = clamp((turn2 - tolerated2) * u_guide_ramp.x + u_guide_ramp.y, 0.0, 1.0);
-    vec4 cut = t * t * (3.0 - 2.0 * t);
-    vec4 tilt = sign(signed_k) * ((AXIS == 0 ? nx : ny) * g_tangent_axis + nz * g_tangent_z);
-    vec4 c = clamp(tilt * u_guide_convex.x + u_guide_convex.y, 0.0, 1.0);
-    cut *= c * c * (3.0 - 2.0 * c);
-    return 1.0 - g_guide_on * cut;
-#else
-    // the tap's view position less the centre's
-    float shift = signed_k / u_px_per_unit;
-    vec4 dz = z - g_center;
-    vec4 dx = g_ray_x * dz + (AXIS == 0 ? shift : 0.0) * z;
-    vec4 dy = g_ray_y * dz + (AXIS == 1 ? shift : 0.0) * z;
-    vec4 distance2 = dx * dx + dy * dy + dz * dz;
-    vec4 excess = turn2 - u_guide_turn2 * distance2;
-    vec4 t = clamp(excess * u_guide_ramp.x + u_guide_ramp.y, 0.0, 1.0);
-    vec4 cut = t * t * (3.0 - 2.0 * t);
-#if NORMAL_GUIDE == 2
-    vec4 behind = -(dz * g_normal_ray + (shift * z) * g_normal_axis)
-                  * inversesqrt(max(distance2, vec4(1e-30)));
-    vec4 c = clamp(behind * u_guide_convex.x + u_guide_convex.y, 0.0, 1.0);
-    cut *= c * c * (3.0 - 2.0 * c);
-#endif
-#if GUIDE_FLAT
-    cut *= guide_flat_past(encoded, signed_k);
-#endif
-    return 1.0 - g_guide_on * cut;
-#endif
-}
-
-#if GUIDE_LIMITS
 // The guide's weight of the taps at signed offset k: 1 within the lanes' limit on that side,
 // falling to 0 over the pixel past it (guide_limits.frag.glsl).
 vec4 guide_limit_weight(float signed_k) {
     vec4 limit = signed_k > 0.0 ? g_limit_plus : g_limit_minus;
-    vec4 w = clamp(limit - abs(signed_k) + 0.5, 0.0, 1.0);
-    return 1.0 - g_guide_on * (1.0 - w);
-}
-#endif
-
-// Sets the lanes' view positions over their depth (the view space of guide_normals.frag.glsl;
-// u_image_size_px: common/border_fit.glsl) and what guide_weight needs of the centre normals.
-void guide_start(ivec2 texel) {
-    vec2 centre = 0.5 * vec2(u_image_size_px);
-    vec4 px = vec4(float(4 * texel.x)) + vec4(0.0, 1.0, 2.0, 3.0);
-    g_ray_x = (px + 0.5 - centre.x) / u_px_per_unit;
-    g_ray_y = (float(texel.y) + 0.5 - centre.y) / u_px_per_unit;
-    g_normal_ray = g_normal_x * g_ray_x + g_normal_y * g_ray_y + g_normal_z;
-    g_normal_axis = AXIS == 0 ? g_normal_x : g_normal_y;
-    // the unit tangent (n_z, 0, -n_x) / |.| (AXIS 0) turned to point along +AXIS
-    vec4 facing = max(abs(g_normal_z), vec4(0.05));
-    vec4 inverse_length = inversesqrt(g_normal_z * g_normal_z + g_normal_axis * g_normal_axis);
-    g_tangent_axis = facing * inverse_length;
-    g_tangent_z = -sign(g_normal_z) * g_normal_axis * inverse_length;
-    // a pixel of offset along AXIS is z / f across, 1 / (|n_z| |tangent|) times that along it
-    vec4 across = g_center / u_px_per_unit;
-    g_tangent_scale2 = across * across / (facing * facing * inverse_length * inverse_length);
+    return clamp(limit - abs(signed_k) + 0.5, 0.0, 1.0);
 }
 #endif
 
@@ -377,7 +236,7 @@ vec4 kernel_reach(ivec2 texel, vec4 sigma, bvec4 surface, out int stride) {
     return min(reach, vec4(cap * float(stride)));
 }
 
-#if NORMAL_GUIDE && GUIDE_LIMITS && GUIDE_SCALE > 1
+#if NORMAL_GUIDE
 // The limits of reduced pixel `reduced` (clamped to the reduced image) in full pixels, each
 // measured from the full pixel `offset` pixels past its block's centre along +AXIS.
 void reduced_limits(ivec2 reduced, float offset, out float plus, out float minus) {
@@ -466,46 +325,17 @@ void main() {
     start_image_border(texel);
 #endif
     int dense = min(radius, u_kernel_max_px);
-#if NORMAL_GUIDE && GUIDE_LIMITS
-#if GUIDE_SCALE > 1
+#if NORMAL_GUIDE
     guide_limits_scaled(texel);
-#else
-    vec4 limits = fetch_packed(u_guide_limits, texel);
-    float limit_scale = 1.0 / 8.0;
-    vec4 code_plus = floor(limits / 4096.0);
-    g_limit_plus = code_plus * limit_scale;
-    g_limit_minus = (limits - code_plus * 4096.0) * limit_scale;
-#endif
-    g_guide_on = vec4(u_guide_on);
-    g_limit_plus = mix(vec4(3e4), g_limit_plus, g_guide_on);
-    g_limit_minus = mix(vec4(3e4), g_limit_minus, g_guide_on);
     g_inverse_centre = inverse_depth(g_center);
-    walk_packed_taps(u_packed_depth, u_packed_depth, texel, zc, zc, dense);
-#elif NORMAL_GUIDE
-    vec4 centre_normal = fetch_packed(u_guide_normals, texel);
-    guide_normal_decode(centre_normal, g_normal_x, g_normal_y, g_normal_z);
-    vec4 centre_norm = inversesqrt(max(g_normal_x * g_normal_x + g_normal_y * g_normal_y
-                                       + g_normal_z * g_normal_z, vec4(1e-6)));
-    g_normal_x *= centre_norm;
-    g_normal_y *= centre_norm;
-    g_normal_z *= centre_norm;
-    g_guide_on = mix(vec4(u_guide_on), vec4(0.0), lessThan(centre_normal, vec4(0.0)));
-    guide_start(texel);
-    walk_packed_taps(u_packed_depth, u_guide_normals, texel, zc, centre_normal, dense);
-#else
-    walk_packed_taps(u_packed_depth, u_packed_depth, texel, zc, zc, dense);
 #endif
+    walk_packed_taps(u_packed_depth, u_packed_depth, texel, zc, zc, dense);
     // every pixel out to the cap (along rows, whole texels: to the next multiple of 4), then
     // the spread taps (close-ups; kernel_reach)
     int dense_end = AXIS == 0 ? (dense + 3) / 4 * 4 : dense;
     if (radius > dense_end) {
         gaussian_spread(sigma, float(dense_end), float(stride));
-#if NORMAL_GUIDE && !GUIDE_LIMITS
-        walk_strided_valued_taps(u_packed_depth, u_guide_normals, texel, dense_end + stride,
-                                 radius, stride);
-#else
         walk_strided_taps(u_packed_depth, texel, dense_end + stride, radius, stride);
-#endif
     }
     vec4 smoothed = g_sum / g_weight_sum;
 #if IMAGE_BORDER || NORMAL_GUIDE

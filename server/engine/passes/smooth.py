@@ -12,13 +12,17 @@ RGBA32F texel: pack, the 1-D passes, unpack; one fetch serves four pixels.
 The narrow range averages inverse depth. Where a kernel reaches past the image's end it goes on
 one-sided and fits a line through the taps inside; a 1-D pass draws that variant (IMAGE_BORDER)
 only over the strips within kernel_max_px of the ends (`_axis_draws`). After the filter, the
-gap pass closes the pinholes left (`GapPass.close_again`).
+gap pass closes the pinholes left (`GapPass.close_again`). With `normal_guide` the separable
+narrow range's kernels stop at convex edges between flat faces: a smoothed pilot at
+1 / GUIDE_SCALE of the image gives each pixel one-sided limits per axis (`SmoothPass._guide`,
+`shaders/smooth/guide_*.frag.glsl`).
 
 Shaders: `shaders/smooth/smooth_depth_separable.frag.glsl` (1-D, packed; taps walked by
 `common/packed_taps.glsl`; `smooth/image_border_taps.glsl` its variant at the image's ends),
 `shaders/smooth/smooth_depth.frag.glsl` (2-D), `common/image_pack`
 and `common/image_unpack`; uniforms shared by both in `common/depth_filter_params.glsl`.
-Owns: two plain ping-pong targets and two packed ones, per image size.
+Owns: two plain ping-pong targets and two packed ones, per image size, and the guide's seven
+packed targets at its reduced size.
 """
 
 from __future__ import annotations
@@ -50,6 +54,28 @@ UNPACK_SHADER = "common/image_unpack.frag.glsl"
 _FILTER_DEFINES = {"gaussian": 0, "bilateral": 1, "narrow_range": 2}
 _KERNEL_SIZE_DEFINES = {"projected_radius": 0, "depth_falloff": 1}
 
+# The normal guide's rule (quality.normal_guide; SmoothPass._guide):
+#: The pilot's Gaussian sigma over the splat's depth, in projected particle radii.
+GUIDE_PILOT_RADII = 1.7
+#: The cut's ramp: turn (degrees) past quality.normal_guide from no cut to a whole one.
+GUIDE_WIDTH_DEG = 12.0
+#: The turn of a sphere of this many particle radii over the distance to a tap is tolerated.
+GUIDE_TURN_RADII = 11.0
+#: Only convex turns are cut: the chord's angle (degrees, over the turn) behind the centre's
+#: pilot tangent plane where the cut begins; whole at twice it.
+GUIDE_CONVEX_DEG = 8.0
+#: No cut at pixels with background within this many projected radii (a one-sided pilot).
+GUIDE_RIM_RADII = 3.0
+#: A tap is cut only where the pilot normals at 1, 2, 3 times this many projected radii past
+#: it (away from the centre) agree: the face beyond is flat.
+GUIDE_FLAT_RADII = 2.5
+#: ... within this angle, degrees.
+GUIDE_FLAT_DEG = 12.0
+#: The least cut (0..1) of a tap that sets a one-sided limit.
+GUIDE_LIMIT_CUT = 0.5
+#: The pilot, its normals, flags and limits at 1 / this of the image's size along each axis.
+GUIDE_SCALE = 4
+
 
 class _SmoothTargets:
     def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
@@ -64,9 +90,9 @@ class _SmoothTargets:
 
 
 class _GuideTargets:
-    """quality.normal_guide's pilot: six packed targets (the pilot's two passes, then its
-    normals, with normal_guide_flat the flagged normals of each axis, and with
-    normal_guide_limits the limits of each axis)."""
+    """quality.normal_guide's seven packed targets at the guide's reduced size: the pilot's
+    two passes (then its normals), the flagged normals and the limits of each axis, and the
+    reduced splat."""
 
     def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
         self.packed = [Target.float(ctx, ((size[0] + 3) // 4, size[1]), 4) for _ in range(7)]
@@ -80,7 +106,7 @@ class SmoothPass:
     def __init__(self, context: PassContext) -> None:
         self._context = context
         self._targets = PerSize(lambda size: _SmoothTargets(context.gl.ctx, size))
-        # quality.normal_guide: the pilot's two packed targets, per image size
+        # quality.normal_guide: its packed targets, per image size
         self._guide_targets = PerSize(lambda size: _GuideTargets(context.gl.ctx, size))
         self._gaps = GapPass(context)  # quality.close_gaps, before the filter (passes/gaps.py)
 
@@ -175,23 +201,10 @@ class SmoothPass:
         passes = separable_passes(quality.iterations, quality.last_pass_sigma, quality.destreak)
         if quality.normal_guide > 0.0 and quality.filter == "narrow_range":
             reach_scale = max(scale for _, scale in passes)
-            guide = self._guide(
-                depth,
-                packed[0].texture,
-                uniforms,
-                quality,
-                packed_scissor,
-                margin_px,
-                reach_scale,
-            )
-            defines["NORMAL_GUIDE"] = _guide_define(quality)
-            if quality.normal_guide_limits:
-                defines["GUIDE_LIMITS"] = 1
-                defines["GUIDE_SCALE"] = _guide_scale(quality)
-                samplers = {"u_packed_depth": 0, "u_guide_limits": 1}
-            else:
-                defines["GUIDE_FLAT"] = int(quality.normal_guide_flat > 0.0)
-                samplers = {"u_packed_depth": 0, "u_guide_normals": 1}
+            guide = self._guide(depth, uniforms, quality, margin_px, reach_scale)
+            defines["NORMAL_GUIDE"] = 1
+            defines["GUIDE_SCALE"] = GUIDE_SCALE
+            samplers = {"u_packed_depth": 0, "u_guide_limits": 1}
         draws = {
             axis: self._axis_draws(
                 defines, uniforms, axis, depth.size, packed_scissor, margin_px, samplers
@@ -201,9 +214,8 @@ class SmoothPass:
         read_index = 0
         pair_limits = pair_limits_per_pass(len(passes), quality, uniforms.particle_radius)
         crease_limits = crease_limits_per_pass(len(passes), quality)
-        guide_passes = quality.normal_guide_passes or len(passes)
-        for index, ((axis, sigma_scale), pair_limit, crease_limit) in enumerate(
-            zip(passes, pair_limits, crease_limits, strict=True)
+        for (axis, sigma_scale), pair_limit, crease_limit in zip(
+            passes, pair_limits, crease_limits, strict=True
         ):
             packed[read_index].texture.use(0)
             if samplers is not None:
@@ -213,9 +225,6 @@ class SmoothPass:
                 set_if_used(program, "u_sigma_scale", sigma_scale)
                 set_if_used(program, "u_nr_pair_limit", pair_limit)
                 set_if_used(program, "u_crease_limit", crease_limit)
-                if samplers is not None:
-                    _set_guide_uniforms(program, quality, uniforms.particle_radius)
-                    set_if_used(program, "u_guide_on", float(index < guide_passes))
                 set_scissor(fbo, scissor)
                 fbo.use()
                 draw(program)
@@ -234,54 +243,49 @@ class SmoothPass:
     def _guide(
         self,
         depth: moderngl.Texture,
-        packed_depth: moderngl.Texture,
         uniforms: _FilterUniforms,
         quality: QualityConfig,
-        packed_scissor: ScreenBox | None,
         margin_px: int,
         reach_scale: float,
     ) -> dict[int, moderngl.Texture]:
-        """quality.normal_guide's pilot normals for the passes along each axis: the packed
-        splat `packed_depth` through a Gaussian of sigma normal_guide_pilot projected radii
-        (rows, then columns; background excluded), then its view-space normals
-        (guide_normals.frag.glsl), packed and encoded; with normal_guide_flat, flagged per axis
-        (guide_flat.frag.glsl); with normal_guide_limits, the rule's one-sided limits per axis
-        out to `reach_scale` times the kernel's reach (guide_limits.frag.glsl); with
-        normal_guide_downscale (and the limits) all of it at that fraction of the image's size,
-        from the plain `depth` reduced (guide_downsample.frag.glsl)."""
+        """quality.normal_guide's one-sided limits for the passes along each axis, all at
+        1 / GUIDE_SCALE of the image's size: the splat `depth` reduced
+        (guide_downsample.frag.glsl), through a Gaussian of sigma GUIDE_PILOT_RADII projected
+        radii (rows, then columns; background excluded): the pilot; its view-space normals
+        (guide_normals.frag.glsl), packed and encoded, flagged per axis where the pilot is flat
+        past a pixel (guide_flat.frag.glsl); then the rule's one-sided limits per axis out to
+        `reach_scale` times the kernel's reach (guide_limits.frag.glsl)."""
         programs, draw = self._context.programs, self._context.fullscreen.draw
-        size = depth.size
-        scale = _guide_scale(quality)
-        if scale > 1:
-            size = ((size[0] + scale - 1) // scale, (size[1] + scale - 1) // scale)
-            uniforms = _FilterUniforms(
-                uniforms.px_per_unit / scale, uniforms.particle_radius, quality
-            )
-            packed_scissor = None
+        full = depth.size
+        size = (
+            (full[0] + GUIDE_SCALE - 1) // GUIDE_SCALE,
+            (full[1] + GUIDE_SCALE - 1) // GUIDE_SCALE,
+        )
+        uniforms = _FilterUniforms(
+            uniforms.px_per_unit / GUIDE_SCALE, uniforms.particle_radius, quality
+        )
         targets = self._guide_targets.get(size).packed
         for target in targets:
-            clear_and_scissor(target.fbo, packed_scissor)
-        if scale > 1:
-            downsample = programs.get(
-                FULLSCREEN_VERT, GUIDE_DOWNSAMPLE_SHADER, {"SCALE": scale}, {"u_image": 0}
-            )
-            depth.use(0)
-            targets[6].fbo.use()
-            draw(downsample)
-            packed_depth = targets[6].texture
+            clear_and_scissor(target.fbo, None)
+        downsample = programs.get(
+            FULLSCREEN_VERT, GUIDE_DOWNSAMPLE_SHADER, {"SCALE": GUIDE_SCALE}, {"u_image": 0}
+        )
+        depth.use(0)
+        targets[6].fbo.use()
+        draw(downsample)
         defines = {"FILTER": _FILTER_DEFINES["gaussian"], "KERNEL_SIZE": 0}
-        sigma_scale = quality.normal_guide_pilot / quality.kernel_scale
-        source = packed_depth
+        sigma_scale = GUIDE_PILOT_RADII / quality.kernel_scale
+        source = targets[6].texture
         for axis, target in zip((0, 1), targets[:2], strict=True):
             source.use(0)
             for program, scissor in self._axis_draws(
-                defines, uniforms, axis, size, packed_scissor, margin_px
+                defines, uniforms, axis, size, None, margin_px
             ):
                 set_if_used(program, "u_sigma_scale", sigma_scale)
                 set_scissor(target.fbo, scissor)
                 target.fbo.use()
                 draw(program)
-            set_scissor(target.fbo, packed_scissor)
+            set_scissor(target.fbo, None)
             source = target.texture
         normals = programs.get(
             FULLSCREEN_VERT, GUIDE_NORMALS_SHADER, samplers={"u_packed_depth": 0}
@@ -289,64 +293,48 @@ class SmoothPass:
         set_if_used(normals, "u_image_size_px", size)
         set_if_used(normals, "u_px_per_unit", uniforms.px_per_unit)
         set_if_used(normals, "u_particle_radius", uniforms.particle_radius)
-        set_if_used(normals, "u_rim_radii", quality.normal_guide_rim)
+        set_if_used(normals, "u_rim_radii", GUIDE_RIM_RADII)
         source.use(0)
         targets[0].fbo.use()
         draw(normals)
-        result = {0: targets[0].texture, 1: targets[0].texture}
-        if quality.normal_guide_flat > 0.0:
-            targets[0].texture.use(0)
-            source.use(1)
-            for axis, target in zip((0, 1), targets[2:4], strict=True):
-                flat = programs.get(
-                    FULLSCREEN_VERT,
-                    GUIDE_FLAT_SHADER,
-                    {"AXIS": axis, "FLAT_OWN": int(quality.normal_guide_flat_own)},
-                    samplers={"u_guide_normals": 0, "u_packed_depth": 1},
-                )
-                set_if_used(flat, "u_image_size_px", size)
-                set_if_used(flat, "u_px_per_unit", uniforms.px_per_unit)
-                set_if_used(flat, "u_particle_radius", uniforms.particle_radius)
-                set_if_used(flat, "u_flat_radii", quality.normal_guide_flat)
-                set_if_used(
-                    flat, "u_flat_cos", math.cos(math.radians(quality.normal_guide_flat_angle))
-                )
-                target.fbo.use()
-                draw(flat)
-                result[axis] = target.texture
-        if quality.normal_guide_limits:
-            source.use(1)
-            flagged = int(quality.normal_guide_flat > 0.0)
-            for axis, target in zip((0, 1), targets[4:6], strict=True):
-                result[axis].use(0)
-                limits = programs.get(
-                    FULLSCREEN_VERT,
-                    GUIDE_LIMITS_SHADER,
-                    {
-                        "AXIS": axis,
-                        "NORMAL_GUIDE": _guide_define(quality),
-                        "GUIDE_FLAT": flagged,
-                        "CONVEX_RELATIVE": int(quality.normal_guide_convex_relative),
-                        "LIMIT_SKIP": int(quality.normal_guide_limits_skip),
-                    },
-                    samplers={"u_guide_normals": 0, "u_packed_depth": 1},
-                )
-                set_if_used(limits, "u_image_size_px", size)
-                set_if_used(limits, "u_px_per_unit", uniforms.px_per_unit)
-                set_if_used(limits, "u_particle_radius", uniforms.particle_radius)
-                _set_guide_uniforms(limits, quality, uniforms.particle_radius)
-                set_if_used(limits, "u_reach_radii", 3.0 * quality.kernel_scale * reach_scale)
-                set_if_used(
-                    limits,
-                    "u_reach_max_px",
-                    quality.kernel_max_px // scale,
-                )
-                set_if_used(limits, "u_limit_cut", quality.normal_guide_limit_cut)
-                target.fbo.use()
-                draw(limits)
-                result[axis] = target.texture
-        for target in targets:
-            set_scissor(target.fbo, None)
+        flagged = {}
+        targets[0].texture.use(0)
+        source.use(1)
+        for axis, target in zip((0, 1), targets[2:4], strict=True):
+            flat = programs.get(
+                FULLSCREEN_VERT,
+                GUIDE_FLAT_SHADER,
+                {"AXIS": axis},
+                samplers={"u_guide_normals": 0, "u_packed_depth": 1},
+            )
+            set_if_used(flat, "u_image_size_px", size)
+            set_if_used(flat, "u_px_per_unit", uniforms.px_per_unit)
+            set_if_used(flat, "u_particle_radius", uniforms.particle_radius)
+            set_if_used(flat, "u_flat_radii", GUIDE_FLAT_RADII)
+            set_if_used(flat, "u_flat_cos", math.cos(math.radians(GUIDE_FLAT_DEG)))
+            target.fbo.use()
+            draw(flat)
+            flagged[axis] = target.texture
+        result = {}
+        source.use(1)
+        for axis, target in zip((0, 1), targets[4:6], strict=True):
+            flagged[axis].use(0)
+            limits = programs.get(
+                FULLSCREEN_VERT,
+                GUIDE_LIMITS_SHADER,
+                {"AXIS": axis},
+                samplers={"u_guide_normals": 0, "u_packed_depth": 1},
+            )
+            set_if_used(limits, "u_image_size_px", size)
+            set_if_used(limits, "u_px_per_unit", uniforms.px_per_unit)
+            set_if_used(limits, "u_particle_radius", uniforms.particle_radius)
+            _set_guide_uniforms(limits, quality, uniforms.particle_radius)
+            set_if_used(limits, "u_reach_radii", 3.0 * quality.kernel_scale * reach_scale)
+            set_if_used(limits, "u_reach_max_px", quality.kernel_max_px // GUIDE_SCALE)
+            set_if_used(limits, "u_limit_cut", GUIDE_LIMIT_CUT)
+            target.fbo.use()
+            draw(limits)
+            result[axis] = target.texture
         return result
 
     def _axis_draws(
@@ -445,34 +433,17 @@ def crease_limits_per_pass(count: int, quality: QualityConfig) -> list[float]:
     return [CREASE_TEST_OFF] + [math.tan(math.radians(quality.crease_angle))] * (count - 1)
 
 
-def _guide_define(quality: QualityConfig) -> int:
-    """smooth_depth_separable.frag.glsl's NORMAL_GUIDE for quality.normal_guide (on): 1 any
-    turn cut, 2 convex turns (the taps' depths), 3 convex turns (the pilot's tangent plane)."""
-    if quality.normal_guide_convex <= 0.0:
-        return 1
-    return 3 if quality.normal_guide_tangent else 2
-
-
-def _guide_scale(quality: QualityConfig) -> int:
-    """The normal guide's downscale (quality.normal_guide_downscale, with the limits only)."""
-    if not quality.normal_guide_limits:
-        return 1
-    return max(1, quality.normal_guide_downscale)
-
-
 def _set_guide_uniforms(program: moderngl.Program, quality: QualityConfig, radius: float) -> None:
-    """quality.normal_guide's limits as ramps (smooth_depth_separable.frag.glsl guide_weight)."""
+    """quality.normal_guide's rule as ramps (guide_limits.frag.glsl cut_at)."""
     low2 = math.radians(quality.normal_guide) ** 2
-    high2 = math.radians(quality.normal_guide + quality.normal_guide_width) ** 2
+    high2 = math.radians(quality.normal_guide + GUIDE_WIDTH_DEG) ** 2
     scale = 1.0 / (high2 - low2)
     set_if_used(program, "u_guide_ramp", (scale, -low2 * scale))
-    turn = quality.normal_guide_turn * radius
-    set_if_used(program, "u_guide_turn2", 1.0 / turn**2 if turn > 0.0 else 0.0)
-    convex = math.radians(quality.normal_guide_convex)
-    if convex > 0.0:
-        low, high = math.sin(convex), math.sin(2.0 * convex)
-        set_if_used(program, "u_guide_convex", (1.0 / (high - low), -low / (high - low)))
-    set_if_used(program, "u_guide_fit", quality.normal_guide_fit)
+    turn = GUIDE_TURN_RADII * radius
+    set_if_used(program, "u_guide_turn2", 1.0 / turn**2)
+    convex = math.radians(GUIDE_CONVEX_DEG)
+    low, high = math.sin(convex), math.sin(2.0 * convex)
+    set_if_used(program, "u_guide_convex", (1.0 / (high - low), -low / (high - low)))
 
 
 class _FilterUniforms:
