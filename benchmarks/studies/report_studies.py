@@ -36,7 +36,7 @@ from sphrender.server.bench.surface_bench import (
     UNFILTERED,
     write_crops,
 )
-from sphrender.server.bench.sweep import preset_setting
+from sphrender.server.bench.sweep import NO_GUIDE, preset_setting
 from sphrender.server.engine.renderer import SurfaceRenderer
 
 #: The report's first paragraph: how to regenerate it.
@@ -86,6 +86,17 @@ def run_studies(ctx: StudyContext) -> None:
         cache=ctx.cache,
         gl=ctx.gl,
         prefix="crop-field",
+    )
+    # what the normal guide changes
+    write_crops(
+        ctx.renderer,
+        ctx.out,
+        surfaces,
+        before=NO_GUIDE,
+        after=balanced,
+        cache=ctx.cache,
+        gl=ctx.gl,
+        prefix="crop-guide",
     )
     # what last_pass_sigma and destreak change on a close-up of a real frame
     for before, after, name in (

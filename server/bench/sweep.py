@@ -45,12 +45,16 @@ def preset_setting(name: str) -> Setting:
     return Setting(f"preset {name}", preset=name)
 
 
+#: Balanced without its normal guide: what the guide buys (the sweep's row, the report's crops).
+NO_GUIDE = Setting("balanced, no normal guide", {"quality": {"normal_guide": 0.0}})
+
 SWEEP: tuple[Setting, ...] = (
     preset_setting("fast"),
     preset_setting("balanced"),
     preset_setting("best"),
     Setting("filter none", {"quality": {"filter": "none"}}),
     Setting("no occlusion culling", {"quality": {"occlusion_culling": False}}),
+    NO_GUIDE,
     Setting("balanced + crease test 30°", {"quality": {"crease_angle": 30.0}}),
     Setting("narrow_range 3 iter", {"quality": {"iterations": 3}}),
     Setting("narrow_range k=1", {"quality": {"kernel_scale": 1.0}}),
