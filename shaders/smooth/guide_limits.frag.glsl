@@ -64,7 +64,8 @@ void decode(vec4 v, out vec4 nx, out vec4 ny, out vec4 nz) {
 // are `encoded` and pilot depths z: 1 - smoothstep over the turn between the pilot normals at
 // the centre and the tap (its square taken as 2 (1 - cos)), less a sphere's turn over the
 // distance in space to the tap (a box edge is cut, a slow turn passes); only where the tap
-// lies behind the centre's pilot tangent plane (a convex turn) and the pilot is flat past it.
+// lies behind the centre's pilot tangent plane (a convex turn) and the pilot is flat past it
+// (main: and behind the centre).
 vec4 cut_at(vec4 encoded, vec4 z, vec4 k) {
     vec4 nx;
     vec4 ny;
@@ -156,6 +157,12 @@ void main() {
                      vec4(float(u_reach_max_px)));
     reach = mix(vec4(0.0), reach, cuts);
     int radius = int(max(max(reach.x, reach.y), max(reach.z, reach.w)));
+    // a side is cut only where the pilot is flat behind the centre too (away from that side):
+    // an edge between two faces, not a rough surface meeting a smooth one
+    vec4 flags = floor(abs(encoded) / 2097152.0);
+    vec4 flat_minus = floor(flags / 2.0);
+    vec4 reach_plus = reach * flat_minus;
+    vec4 reach_minus = reach * (flags - 2.0 * flat_minus);
     vec4 plus = vec4(NO_LIMIT);
     vec4 minus = vec4(NO_LIMIT);
     vec4 lane = vec4(0.0, 1.0, 2.0, 3.0);
@@ -169,16 +176,16 @@ void main() {
         vec4 before = plus;
         for (int j = 1; j < 4; j += 2) {
             vec4 k = vec4(float(4 * s + j)) - lane;
-            plus = lowered(plus, cut_at(vec4(codes[j]), vec4(depths[j]), k), k, reach);
+            plus = lowered(plus, cut_at(vec4(codes[j]), vec4(depths[j]), k), k, reach_plus);
         }
         if (any(lessThan(plus, before))) {
             for (int j = 0; j < 4; j += 2) {
                 vec4 k = vec4(float(4 * s + j)) - lane;
-                plus = lowered(plus, cut_at(vec4(codes[j]), vec4(depths[j]), k), k, reach);
+                plus = lowered(plus, cut_at(vec4(codes[j]), vec4(depths[j]), k), k, reach_plus);
             }
         }
         // every lane's limit lies short of this texel's nearest tap: none further counts
-        if (done(plus, vec4(float(4 * s + 4)) - lane, reach)) {
+        if (done(plus, vec4(float(4 * s + 4)) - lane, reach_plus)) {
             break;
         }
     }
@@ -188,21 +195,21 @@ void main() {
         vec4 before = minus;
         for (int j = 1; j < 4; j += 2) {
             vec4 k = vec4(float(4 * s - j)) + lane;  // the distance behind
-            minus = lowered(minus, cut_at(vec4(codes[j]), vec4(depths[j]), -k), k, reach);
+            minus = lowered(minus, cut_at(vec4(codes[j]), vec4(depths[j]), -k), k, reach_minus);
         }
         if (any(lessThan(minus, before))) {
             for (int j = 0; j < 4; j += 2) {
                 vec4 k = vec4(float(4 * s - j)) + lane;
-                minus = lowered(minus, cut_at(vec4(codes[j]), vec4(depths[j]), -k), k, reach);
+                minus = lowered(minus, cut_at(vec4(codes[j]), vec4(depths[j]), -k), k, reach_minus);
             }
         }
-        if (done(minus, vec4(float(4 * s + 1)) + lane, reach)) {
+        if (done(minus, vec4(float(4 * s + 1)) + lane, reach_minus)) {
             break;
         }
     }
 #else
-    plus = column_limit(texel, 1, radius, reach);
-    minus = column_limit(texel, -1, radius, reach);
+    plus = column_limit(texel, 1, radius, reach_plus);
+    minus = column_limit(texel, -1, radius, reach_minus);
 #endif
     vec4 code_plus = min(floor(plus * 8.0 + 0.5), vec4(4095.0));
     vec4 code_minus = min(floor(minus * 8.0 + 0.5), vec4(4095.0));

@@ -67,10 +67,10 @@ GUIDE_CONVEX_DEG = 8.0
 #: No cut at pixels with background within this many projected radii (a one-sided pilot).
 GUIDE_RIM_RADII = 3.0
 #: A tap is cut only where the pilot normals at 1, 2, 3 times this many projected radii past
-#: it (away from the centre) agree: the face beyond is flat.
+#: it (away from the centre), and as far behind the centre, agree: flat faces on both sides.
 GUIDE_FLAT_RADII = 2.5
 #: ... within this angle, degrees.
-GUIDE_FLAT_DEG = 12.0
+GUIDE_FLAT_DEG = 20.0
 #: The least cut (0..1) of a tap that sets a one-sided limit.
 GUIDE_LIMIT_CUT = 0.5
 #: The pilot, its normals, flags and limits at 1 / this of the image's size along each axis.
