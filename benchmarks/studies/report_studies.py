@@ -25,6 +25,7 @@ from benchmarks.studies.dam_frames import (
     run_dam_frames,
     surface_notes,
 )
+from benchmarks.studies.guide_crops import write_guide_crops
 from benchmarks.studies.jitter_readings import jitter_readings_section, run_jitter_readings
 from benchmarks.studies.post_effects import run_post_effects
 from benchmarks.studies.shadows import shadows_section
@@ -36,7 +37,7 @@ from sphrender.server.bench.surface_bench import (
     UNFILTERED,
     write_crops,
 )
-from sphrender.server.bench.sweep import NO_GUIDE, preset_setting
+from sphrender.server.bench.sweep import preset_setting
 from sphrender.server.engine.renderer import SurfaceRenderer
 
 #: The report's first paragraph: how to regenerate it.
@@ -87,17 +88,8 @@ def run_studies(ctx: StudyContext) -> None:
         gl=ctx.gl,
         prefix="crop-field",
     )
-    # what the normal guide changes
-    write_crops(
-        ctx.renderer,
-        ctx.out,
-        surfaces,
-        before=NO_GUIDE,
-        after=balanced,
-        cache=ctx.cache,
-        gl=ctx.gl,
-        prefix="crop-guide",
-    )
+    # what the normal guide changes, on whole images
+    surfaces.crops += write_guide_crops(ctx.renderer, ctx.out)
     # what last_pass_sigma and destreak change on a close-up of a real frame
     for before, after, name in (
         (EQUAL_PASSES, balanced, "crop-closeup-dambreak.png"),
