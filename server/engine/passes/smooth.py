@@ -249,13 +249,9 @@ class SmoothPass:
         reach_scale: float,
     ) -> dict[int, moderngl.Texture]:
         """quality.normal_guide's one-sided limits for the passes along each axis, all at
-        1 / GUIDE_SCALE of the image's size: the splat `depth` reduced
-        (guide_downsample.frag.glsl), through a Gaussian of sigma GUIDE_PILOT_RADII projected
-        radii (rows, then columns; background excluded): the pilot; its view-space normals
-        (guide_normals.frag.glsl), packed and encoded, flagged per axis where the pilot is flat
-        past a pixel (guide_flat.frag.glsl); then the rule's one-sided limits per axis out to
-        `reach_scale` times the kernel's reach (guide_limits.frag.glsl)."""
-        programs, draw = self._context.programs, self._context.fullscreen.draw
+        1 / GUIDE_SCALE of the image's size: the pilot and its normals (`_guide_pilot`),
+        flagged where the pilot is flat past a pixel (`_guide_flags`), then the rule's limits
+        (`_guide_limits`)."""
         full = depth.size
         size = (
             (full[0] + GUIDE_SCALE - 1) // GUIDE_SCALE,
@@ -267,6 +263,25 @@ class SmoothPass:
         targets = self._guide_targets.get(size).packed
         for target in targets:
             clear_and_scissor(target.fbo, None)
+        pilot, normals = self._guide_pilot(depth, targets, size, uniforms, quality, margin_px)
+        flagged = self._guide_flags(pilot, normals, targets[2:4], size, uniforms)
+        return self._guide_limits(
+            pilot, flagged, targets[4:6], size, uniforms, quality, reach_scale
+        )
+
+    def _guide_pilot(
+        self,
+        depth: moderngl.Texture,
+        targets: list[Target],
+        size: tuple[int, int],
+        uniforms: _FilterUniforms,
+        quality: QualityConfig,
+        margin_px: int,
+    ) -> tuple[moderngl.Texture, moderngl.Texture]:
+        """The pilot (the splat `depth` reduced by guide_downsample.frag.glsl, then a Gaussian
+        of sigma GUIDE_PILOT_RADII projected radii, rows then columns, background excluded) and
+        its view-space normals, packed and encoded (guide_normals.frag.glsl)."""
+        programs, draw = self._context.programs, self._context.fullscreen.draw
         downsample = programs.get(
             FULLSCREEN_VERT, GUIDE_DOWNSAMPLE_SHADER, {"SCALE": GUIDE_SCALE}, {"u_image": 0}
         )
@@ -297,10 +312,23 @@ class SmoothPass:
         source.use(0)
         targets[0].fbo.use()
         draw(normals)
+        return source, targets[0].texture
+
+    def _guide_flags(
+        self,
+        pilot: moderngl.Texture,
+        normals: moderngl.Texture,
+        targets: list[Target],
+        size: tuple[int, int],
+        uniforms: _FilterUniforms,
+    ) -> dict[int, moderngl.Texture]:
+        """Per axis, the pilot's normals flagged where the pilot is flat past each pixel along
+        +AXIS and along -AXIS (guide_flat.frag.glsl)."""
+        programs, draw = self._context.programs, self._context.fullscreen.draw
         flagged = {}
-        targets[0].texture.use(0)
-        source.use(1)
-        for axis, target in zip((0, 1), targets[2:4], strict=True):
+        normals.use(0)
+        pilot.use(1)
+        for axis, target in zip((0, 1), targets, strict=True):
             flat = programs.get(
                 FULLSCREEN_VERT,
                 GUIDE_FLAT_SHADER,
@@ -315,9 +343,24 @@ class SmoothPass:
             target.fbo.use()
             draw(flat)
             flagged[axis] = target.texture
+        return flagged
+
+    def _guide_limits(
+        self,
+        pilot: moderngl.Texture,
+        flagged: dict[int, moderngl.Texture],
+        targets: list[Target],
+        size: tuple[int, int],
+        uniforms: _FilterUniforms,
+        quality: QualityConfig,
+        reach_scale: float,
+    ) -> dict[int, moderngl.Texture]:
+        """Per axis, the rule's one-sided limits out to `reach_scale` times the kernel's reach
+        (guide_limits.frag.glsl)."""
+        programs, draw = self._context.programs, self._context.fullscreen.draw
         result = {}
-        source.use(1)
-        for axis, target in zip((0, 1), targets[4:6], strict=True):
+        pilot.use(1)
+        for axis, target in zip((0, 1), targets, strict=True):
             flagged[axis].use(0)
             limits = programs.get(
                 FULLSCREEN_VERT,
