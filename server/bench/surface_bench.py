@@ -70,7 +70,8 @@ def _hard_cap(px: int) -> dict[str, Any]:
 
 
 #: Balanced's smoothing without its surface features (exact droplets, antialiasing, the normal
-#: stencil and rules, gap closing, field normals): the baseline of the report's before / after.
+#: stencil and rules, gap closing, field normals, the normal guide): the baseline of the
+#: report's before / after.
 PLAIN_SMOOTHING = Setting(
     "plain smoothing",
     {
@@ -85,6 +86,7 @@ PLAIN_SMOOTHING = Setting(
             "narrow_range_pairs": 0.0,  # no pair test
             "close_gaps": 0.0,
             "field_normals": 0.0,
+            "normal_guide": 0.0,
         }
     },
     preset="balanced",
