@@ -10,7 +10,8 @@ times against the first setting's, measured interleaved in the same run.
 `--demo OUT` also renders the demo's bead (configs/demo.toml, 960x540) with each setting to
 OUT/demo-<i>.png (streaks and a sawtooth rim show there, not in the errors); `--error-maps OUT`
 writes each scene's per-pixel normal error (0-30 deg, black to white) to OUT/<scene>-<i>.png.
-STUDIES.md "The default preset against fast: a 2-D crease rule" has the results.
+STUDIES.md "The default preset against fast: a 2-D crease rule" and "Adopted: the quarter-size
+limits in balanced and best" have the results.
 """
 
 from __future__ import annotations
@@ -40,7 +41,13 @@ from sphrender.server.bench.scenes import (
     slab_scene,
 )
 from sphrender.server.bench.solid_scenes import wall_scene
-from sphrender.server.bench.sweep import Setting, bench_scene_dict, preset_setting, scene_for
+from sphrender.server.bench.sweep import (
+    NO_GUIDE,
+    Setting,
+    bench_scene_dict,
+    preset_setting,
+    scene_for,
+)
 from sphrender.server.engine.frame_output import RenderedFrame
 from sphrender.server.engine.geometry.camera import Camera
 from sphrender.server.engine.gpu.gl_context import GLContext
@@ -52,7 +59,7 @@ WIDTH, HEIGHT = 1280, 720
 SETTINGS: dict[str, Setting] = {
     "fast": preset_setting("fast"),
     "balanced": preset_setting("balanced"),
-    "noguide": Setting("balanced, no normal guide", {"quality": {"normal_guide": 0.0}}),
+    "noguide": NO_GUIDE,
     "crease30": Setting("balanced + crease test 30°", {"quality": {"crease_angle": 30.0}}),
 }
 

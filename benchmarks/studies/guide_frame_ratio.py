@@ -5,7 +5,7 @@ balanced (the guide as per-pixel limits at a quarter of the image), as a ratio t
 
     .venv/bin/python benchmarks/studies/guide_frame_ratio.py [--cycles 10]
 
-STUDIES.md "The normal guide as per-pixel one-sided limits" has the results.
+STUDIES.md "Adopted: the quarter-size limits in balanced and best" has the results.
 """
 
 from __future__ import annotations
