@@ -65,7 +65,7 @@ void decode(vec4 v, out vec4 nx, out vec4 ny, out vec4 nz) {
 // the centre and the tap (its square taken as 2 (1 - cos)), less a sphere's turn over the
 // distance in space to the tap (a box edge is cut, a slow turn passes); only where the tap
 // lies behind the centre's pilot tangent plane (a convex turn) and the pilot is flat past it
-// (main: and behind the centre).
+// (and behind the centre: main() gives a side no reach where it is not).
 vec4 cut_at(vec4 encoded, vec4 z, vec4 k) {
     vec4 nx;
     vec4 ny;
