@@ -175,8 +175,8 @@ class QualityConfig:
     normal_guide: float = spec(
         8.0,
         "separable narrow_range: a kernel stops at a convex edge where a smoothed copy of the "
-        "surface turns by more than this between faces flat past it (boxes, plates, fluid against "
-        "a wall keep their edges); 0: off. Presets: fast 0, balanced 8, best 8",
+        "surface turns by more than this between two flat faces (boxes, plates, fluid against a "
+        "wall keep their edges); 0: off. Presets: fast 0, balanced 8, best 8",
         low=0.0,
         high=90.0,
         unit="degrees",
