@@ -59,6 +59,7 @@ SETTINGS = {
     "balanced, equal passes": scene_for("balanced", {"quality": {"last_pass_sigma": 1.0}}),
     "balanced, no lone droplets": scene_for("balanced", {"quality": {"droplet_lone_density": 0.0}}),
     "balanced + crease test 30°": scene_for("balanced", {"quality": {"crease_angle": 30.0}}),
+    "balanced, no guide": scene_for("balanced", {"quality": {"normal_guide": 0.0}}),
     "fast": scene_for("fast", {}),
 }
 
