@@ -302,12 +302,9 @@ class SmoothPass:
                 draw(program)
             set_scissor(target.fbo, None)
             source = target.texture
-        normals = programs.get(
-            FULLSCREEN_VERT, GUIDE_NORMALS_SHADER, samplers={"u_packed_depth": 0}
+        normals = self._guide_program(
+            GUIDE_NORMALS_SHADER, {}, {"u_packed_depth": 0}, size, uniforms
         )
-        set_if_used(normals, "u_image_size_px", size)
-        set_if_used(normals, "u_px_per_unit", uniforms.px_per_unit)
-        set_if_used(normals, "u_particle_radius", uniforms.particle_radius)
         set_if_used(normals, "u_rim_radii", GUIDE_RIM_RADII)
         source.use(0)
         targets[0].fbo.use()
@@ -324,20 +321,13 @@ class SmoothPass:
     ) -> dict[int, moderngl.Texture]:
         """Per axis, the pilot's normals flagged where the pilot is flat past each pixel along
         +AXIS and along -AXIS (guide_flat.frag.glsl)."""
-        programs, draw = self._context.programs, self._context.fullscreen.draw
+        draw = self._context.fullscreen.draw
+        samplers = {"u_guide_normals": 0, "u_packed_depth": 1}
         flagged = {}
         normals.use(0)
         pilot.use(1)
         for axis, target in zip((0, 1), targets, strict=True):
-            flat = programs.get(
-                FULLSCREEN_VERT,
-                GUIDE_FLAT_SHADER,
-                {"AXIS": axis},
-                samplers={"u_guide_normals": 0, "u_packed_depth": 1},
-            )
-            set_if_used(flat, "u_image_size_px", size)
-            set_if_used(flat, "u_px_per_unit", uniforms.px_per_unit)
-            set_if_used(flat, "u_particle_radius", uniforms.particle_radius)
+            flat = self._guide_program(GUIDE_FLAT_SHADER, {"AXIS": axis}, samplers, size, uniforms)
             set_if_used(flat, "u_flat_radii", GUIDE_FLAT_RADII)
             set_if_used(flat, "u_flat_cos", math.cos(math.radians(GUIDE_FLAT_DEG)))
             target.fbo.use()
@@ -357,20 +347,15 @@ class SmoothPass:
     ) -> dict[int, moderngl.Texture]:
         """Per axis, the rule's one-sided limits out to `reach_scale` times the kernel's reach
         (guide_limits.frag.glsl)."""
-        programs, draw = self._context.programs, self._context.fullscreen.draw
+        draw = self._context.fullscreen.draw
+        samplers = {"u_guide_normals": 0, "u_packed_depth": 1}
         result = {}
         pilot.use(1)
         for axis, target in zip((0, 1), targets, strict=True):
             flagged[axis].use(0)
-            limits = programs.get(
-                FULLSCREEN_VERT,
-                GUIDE_LIMITS_SHADER,
-                {"AXIS": axis},
-                samplers={"u_guide_normals": 0, "u_packed_depth": 1},
+            limits = self._guide_program(
+                GUIDE_LIMITS_SHADER, {"AXIS": axis}, samplers, size, uniforms
             )
-            set_if_used(limits, "u_image_size_px", size)
-            set_if_used(limits, "u_px_per_unit", uniforms.px_per_unit)
-            set_if_used(limits, "u_particle_radius", uniforms.particle_radius)
             _set_guide_uniforms(limits, quality, uniforms.particle_radius)
             set_if_used(limits, "u_reach_radii", 3.0 * quality.kernel_scale * reach_scale)
             set_if_used(limits, "u_reach_max_px", quality.kernel_max_px // GUIDE_SCALE)
@@ -379,6 +364,21 @@ class SmoothPass:
             draw(limits)
             result[axis] = target.texture
         return result
+
+    def _guide_program(
+        self,
+        shader: str,
+        defines: dict[str, int],
+        samplers: dict[str, int],
+        size: tuple[int, int],
+        uniforms: _FilterUniforms,
+    ) -> moderngl.Program:
+        """A guide pass's program with the reduced image's size, scale and particle radius set."""
+        program = self._context.programs.get(FULLSCREEN_VERT, shader, defines, samplers)
+        set_if_used(program, "u_image_size_px", size)
+        set_if_used(program, "u_px_per_unit", uniforms.px_per_unit)
+        set_if_used(program, "u_particle_radius", uniforms.particle_radius)
+        return program
 
     def _axis_draws(
         self,
