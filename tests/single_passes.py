@@ -8,6 +8,7 @@ on the GL context's owner thread.
 
 from __future__ import annotations
 
+import moderngl
 import numpy as np
 import numpy.typing as npt
 
@@ -102,3 +103,30 @@ class SinglePasses:
         targets.depth.write(image_bytes(depth))
         result = self._temperature.run(kelvin, targets.depth, px_per_unit, particle_radius)
         return read_image(result.read(), width, height)
+
+    def guide_crease_runs(
+        self, codes: npt.NDArray[np.float32]
+    ) -> dict[int, npt.NDArray[np.float32]]:
+        """Run only the normal guide's crease-run pass (`SmoothPass.crease_runs`) on one image
+        of limit codes (the guide's reduced size, guide_limits.frag.glsl's coding, rows as
+        stored) given to both axes; returns each axis's kept codes, rows as stored."""
+        self._gl.check_owner()
+        height, width = codes.shape
+        packed = np.zeros((height, (width + 3) // 4 * 4), np.float32)
+        packed[:, :width] = codes
+        textures = {
+            axis: self._gl.ctx.texture((packed.shape[1] // 4, height), 4, dtype="f4")
+            for axis in (0, 1)
+        }
+        try:
+            for texture in textures.values():
+                texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+                texture.write(packed.tobytes())
+            kept = self._smooth.crease_runs(textures, (width, height))
+            return {
+                axis: np.frombuffer(texture.read(), np.float32).reshape(height, -1)[:, :width]
+                for axis, texture in kept.items()
+            }
+        finally:
+            for texture in textures.values():
+                texture.release()

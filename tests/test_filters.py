@@ -16,6 +16,7 @@ import pytest
 from reference_filters import ambiguous_reach, filter_depth, temperature_blur
 from single_passes import SinglePasses
 
+from sphrender.server.engine.passes import smooth
 from sphrender.server.engine.renderer import SurfaceRenderer
 from sphrender.server.scene import QualityConfig
 from sphrender.server.scene.schema_quality import FilterName
@@ -510,3 +511,71 @@ def test_normal_guide_leaves_a_plane_alone(
     ]
     inner = np.s_[height // 4 : height - height // 4, width // 5 : width - width // 5]
     assert np.abs(results[0] - results[1])[inner].max() < 1e-3 * RADIUS
+
+
+NO_CODE = 4095  # guide_limits.frag.glsl: no limit on that side
+
+
+def crease_runs_reference(codes: np.ndarray, axis: int, run: int, shift: int) -> np.ndarray:
+    """numpy's reading of guide_runs.frag.glsl: a side's limit is kept where that side has
+    limits in at least `run` neighbouring lines across the pass (rows for axis 0) in a row,
+    each within `shift` pixels along the pass of the last (the nearest; ties: the lower)."""
+    sides = np.stack([codes // 4096, codes % 4096])  # plus, minus
+    if axis == 1:
+        sides = sides.transpose(0, 2, 1)  # lines across the pass: columns
+    limited = sides < NO_CODE
+    lines, along = limited.shape[1:]
+
+    def nearest_first(offset: int) -> tuple[int, int]:
+        return abs(offset), offset
+
+    kept = sides.copy()
+    for side in (0, 1):
+        for line, x in zip(*np.nonzero(limited[side]), strict=True):
+            length = 1
+            for step in (1, -1):
+                at = x
+                for d in range(1, run):
+                    other = line + step * d
+                    if not 0 <= other < lines:
+                        break
+                    near = [at + o for o in sorted(range(-shift, shift + 1), key=nearest_first)]
+                    near = [a for a in near if 0 <= a < along and limited[side, other, a]]
+                    if not near:
+                        break
+                    at = near[0]
+                    length += 1
+            if length < run:
+                kept[side, line, x] = NO_CODE
+    if axis == 1:
+        kept = kept.transpose(0, 2, 1)
+    return (kept[0] * 4096 + kept[1]).astype(np.float32)
+
+
+def test_normal_guide_keeps_limits_on_crease_lines_only(renderer: SurfaceRenderer) -> None:
+    """The guide's crease runs (guide_runs.frag.glsl): a one-sided limit survives only on a
+    line of limits on the same side GUIDE_RUN long across the pass, stepping at most
+    GUIDE_RUN_SHIFT along it between lines (a box edge); a shorter spot (a fold, a ripple's
+    crest) loses it. Against the numpy reading of the rule, exactly (codes are integers), on
+    random limits and on lines drawn to either side of each bound."""
+    run, shift = smooth.GUIDE_RUN, smooth.GUIDE_RUN_SHIFT
+    rng = np.random.default_rng(7)
+    height, width = 2 * run + 6, 31 + (shift + 1) * run + 4
+    shape = (height, width)
+    plus = np.where(rng.random(shape) < 0.15, rng.integers(4, 40, shape), NO_CODE)
+    minus = np.where(rng.random(shape) < 0.1, rng.integers(4, 40, shape), NO_CODE)
+    plus[:, 28:] = NO_CODE  # the random part ends clear of the drawn lines
+    minus[:, 28:] = NO_CODE
+    short = 31 + run + shift + 2
+    for i in range(run):
+        plus[1 + i, 31 + i] = 9  # a line `run` long, stepping 1 along the pass: kept
+        minus[1 + i, short] = 9 if i < run - 1 else NO_CODE  # one line short of it: gone
+        plus[run + 3 + i, 31 + (shift + 1) * i] = 9  # stepping past the bound: gone
+    codes = (plus * 4096 + minus).astype(np.float32)
+    kept = SinglePasses(renderer).guide_crease_runs(codes)
+    for axis in (0, 1):
+        assert np.array_equal(kept[axis], crease_runs_reference(codes, axis, run, shift)), axis
+    rows = kept[0] // 4096
+    assert (rows[1 : 1 + run, 30:] < NO_CODE).sum() == run
+    assert (kept[0][:, short] % 4096 == NO_CODE).all()
+    assert (rows[run + 3 :, 30:] == NO_CODE).all()

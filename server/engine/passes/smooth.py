@@ -14,8 +14,8 @@ one-sided and fits a line through the taps inside; a 1-D pass draws that variant
 only over the strips within kernel_max_px of the ends (`_axis_draws`). After the filter, the
 gap pass closes the pinholes left (`GapPass.close_again`). With `normal_guide` the separable
 narrow range's kernels stop at convex edges between flat faces: a smoothed pilot at
-1 / GUIDE_SCALE of the image gives each pixel one-sided limits per axis (`SmoothPass._guide`,
-`shaders/smooth/guide_*.frag.glsl`).
+1 / GUIDE_SCALE of the image gives each pixel one-sided limits per axis, kept only on crease
+lines (`SmoothPass._guide`, `shaders/smooth/guide_*.frag.glsl`).
 
 Shaders: `shaders/smooth/smooth_depth_separable.frag.glsl` (1-D, packed; taps walked by
 `common/packed_taps.glsl`; `smooth/image_border_taps.glsl` its variant at the image's ends),
@@ -49,6 +49,7 @@ GUIDE_NORMALS_SHADER = "smooth/guide_normals.frag.glsl"
 GUIDE_FLAT_SHADER = "smooth/guide_flat.frag.glsl"
 GUIDE_LIMITS_SHADER = "smooth/guide_limits.frag.glsl"
 GUIDE_DOWNSAMPLE_SHADER = "smooth/guide_downsample.frag.glsl"
+GUIDE_RUNS_SHADER = "smooth/guide_runs.frag.glsl"
 PACK_SHADER = "common/image_pack.frag.glsl"
 UNPACK_SHADER = "common/image_unpack.frag.glsl"
 _FILTER_DEFINES = {"gaussian": 0, "bilateral": 1, "narrow_range": 2}
@@ -70,11 +71,15 @@ GUIDE_RIM_RADII = 3.0
 #: it (away from the centre), and as far behind the centre, agree: flat faces on both sides.
 GUIDE_FLAT_RADII = 2.5
 #: ... within this angle, degrees.
-GUIDE_FLAT_DEG = 20.0
+GUIDE_FLAT_DEG = 24.0
 #: The least cut (0..1) of a tap that sets a one-sided limit.
 GUIDE_LIMIT_CUT = 0.5
 #: The pilot, its normals, flags and limits at 1 / this of the image's size along each axis.
 GUIDE_SCALE = 4
+#: A limit is kept only on a crease line at least this many reduced pixels long, stepping at
+#: most GUIDE_RUN_SHIFT reduced pixels along the pass between neighbouring lines.
+GUIDE_RUN = 10
+GUIDE_RUN_SHIFT = 2
 
 
 class _SmoothTargets:
@@ -250,8 +255,8 @@ class SmoothPass:
     ) -> dict[int, moderngl.Texture]:
         """quality.normal_guide's one-sided limits for the passes along each axis, all at
         1 / GUIDE_SCALE of the image's size: the pilot and its normals (`_guide_pilot`),
-        flagged where the pilot is flat past a pixel (`_guide_flags`), then the rule's limits
-        (`_guide_limits`)."""
+        flagged where the pilot is flat past a pixel (`_guide_flags`), the rule's limits
+        (`_guide_limits`), those kept on crease lines (`crease_runs`)."""
         full = depth.size
         size = (
             (full[0] + GUIDE_SCALE - 1) // GUIDE_SCALE,
@@ -265,9 +270,32 @@ class SmoothPass:
             clear_and_scissor(target.fbo, None)
         pilot, normals = self._guide_pilot(depth, targets, size, uniforms, quality, margin_px)
         flagged = self._guide_flags(pilot, normals, targets[2:4], size, uniforms)
-        return self._guide_limits(
+        limits = self._guide_limits(
             pilot, flagged, targets[4:6], size, uniforms, quality, reach_scale
         )
+        return self.crease_runs(limits, size)
+
+    def crease_runs(
+        self, limits: dict[int, moderngl.Texture], size: tuple[int, int]
+    ) -> dict[int, moderngl.Texture]:
+        """Per axis, the one-sided `limits` (packed, at the guide's reduced `size`) kept only
+        on crease lines of at least GUIDE_RUN reduced pixels (guide_runs.frag.glsl), drawn into
+        the guide's flag targets (free once the limits are found)."""
+        draw = self._context.fullscreen.draw
+        targets = self._guide_targets.get(size).packed[2:4]
+        result = {}
+        for axis, target in zip((0, 1), targets, strict=True):
+            runs = self._context.programs.get(
+                FULLSCREEN_VERT, GUIDE_RUNS_SHADER, {"AXIS": axis}, {"u_guide_limits": 0}
+            )
+            set_if_used(runs, "u_image_size_px", size)
+            set_if_used(runs, "u_run", GUIDE_RUN)
+            set_if_used(runs, "u_shift", GUIDE_RUN_SHIFT)
+            limits[axis].use(0)
+            target.fbo.use()
+            draw(runs)
+            result[axis] = target.texture
+        return result
 
     def _guide_pilot(
         self,
