@@ -3,8 +3,9 @@
 // reduced size, for the 1-D passes along AXIS: a one-sided limit (guide_limits.frag.glsl) is
 // kept only where it belongs to a crease line, one that sets limits on the same side in at
 // least u_run - 1 more neighbouring rows (AXIS 0) or columns (AXIS 1) in a row, each within
-// u_shift pixels along AXIS of the last (the nearest taken). A box edge is a line; a fold's or a ripple's short cut
-// is a spot, where a one-sided kernel would bend the surface (and flicker as it comes and goes).
+// u_shift pixels along AXIS of the last (the nearest taken). A box edge is a line; a fold's
+// or a ripple's short cut is a spot, where a one-sided kernel would bend the surface (and
+// flicker as the cut comes and goes).
 // Packed in and out, limits coded as guide_limits.frag.glsl's.
 
 #define AXIS 0
@@ -30,8 +31,8 @@ vec2 codes_at(int px, int py) {
     return vec2(plus, code - plus * 4096.0);
 }
 
-// The limits in line `line` across AXIS nearest `along` (per side: plus, minus), within u_shift
-// along AXIS; `found` where there is one.
+// Per side, the place along AXIS of the limit in line `line` across AXIS nearest `along`
+// (.x: the plus side's, .y: the minus side's), within u_shift; `found` where there is one.
 ivec2 nearest_limits(ivec2 along, int line, out bvec2 found) {
     ivec2 at = along;
     found = bvec2(false);
