@@ -2,14 +2,13 @@
 // The normal guide's one-sided limits (quality.normal_guide, passes/smooth.py), at the guide's
 // reduced size: per pixel, for the 1-D passes along AXIS, how far its kernel may reach along
 // +AXIS and along -AXIS before the guide cuts. The guide's rule (cut_at) is evaluated on the
-// pilot (its normals and its depth) for the taps out to the farthest reach of any pass; the
-// first tap whose cut c reaches u_limit_cut, at offset k, sets the limit k + 1/2 - c, so a pass
-// weighs the tap at offset k by clamp(limit - k + 1/2, 0, 1) (smooth_depth_separable.frag.glsl
-// guide_limit_weight: 1 - c at that tap, 1 before it, 0 past it). Every other tap is tested,
-// and the tap between where that lowers a limit (the pilot is smooth over a few pixels, so a
-// cut seldom rises and falls again within two). No cut: the largest code (no limit); a rim
-// pixel cuts nothing. Out, packed like the depth (texel (x, y): pixels 4x .. 4x+3 of row y in
-// .xyzw): round(8 limit_plus) * 4096 + round(8 limit_minus), each at most 4095.
+// pilot (its normals and its depth) for every tap out to the farthest reach of any pass; the
+// limit is where the cut c, linear between taps (0 at the centre), first reaches u_limit_cut,
+// so it moves continuously as the pilot does, and a pass weighs the tap at offset k by
+// clamp(limit - k + 1/2, 0, 1) (smooth_depth_separable.frag.glsl guide_limit_weight). No cut:
+// the largest code (no limit); a rim pixel cuts nothing. Out, packed like the depth (texel
+// (x, y): pixels 4x .. 4x+3 of row y in .xyzw): round(8 limit_plus) * 4096 +
+// round(8 limit_minus), each at most 4095.
 
 #define AXIS 0
 
@@ -93,46 +92,51 @@ vec4 cut_at(vec4 encoded, vec4 z, vec4 k) {
     return mix(vec4(0.0), cut, greaterThan(z, vec4(0.0)));
 }
 
-// The limit so far, lowered by the taps at distances `distance` on the side walked (per lane;
-// the tap is taken only at distances 1 .. reach) of cut `cut`.
-vec4 lowered(vec4 limit, vec4 cut, vec4 distance, vec4 reach) {
-    vec4 candidate = distance + 0.5 - cut;
-    bvec4 counts = both(both(greaterThanEqual(cut, vec4(u_limit_cut)),
-                             greaterThanEqual(distance, vec4(1.0))),
-                        both(lessThanEqual(distance, reach), lessThan(candidate, limit)));
-    return min(limit, mix(vec4(NO_LIMIT), candidate, counts));
+// A side's walk out from the centre, tap by tap in order of distance: the limit is where the
+// cut, linear between taps (0 at the centre), first reaches u_limit_cut, so it moves
+// continuously as the cuts change.
+struct Walk {
+    vec4 limit;      // NO_LIMIT until the cut is reached
+    vec4 last_cut;   // the cut of the last tap taken (0: the centre)
+    vec4 last_k;     // its distance
+};
+
+Walk walk_start() {
+    return Walk(vec4(NO_LIMIT), vec4(0.0), vec4(0.0));
 }
 
-// Whether no tap from distance `next` on can lower any lane's limit (each at least
-// next - 1/2) or lies within its reach.
-bool done(vec4 limit, vec4 next, vec4 reach) {
-    return all(either(lessThanEqual(limit, next - 0.5), greaterThan(next, reach)));
+// The walk on past the taps at distances `distance` (per lane; taken only at distances
+// 1 .. reach) of cut `cut`.
+void walk_on(inout Walk w, vec4 cut, vec4 distance, vec4 reach) {
+    bvec4 taken = both(greaterThanEqual(distance, vec4(1.0)), lessThanEqual(distance, reach));
+    bvec4 open = lessThan(w.limit, vec4(NO_LIMIT));
+    taken = both(taken, not(open));
+    bvec4 crossed = both(taken, greaterThanEqual(cut, vec4(u_limit_cut)));
+    vec4 f = (u_limit_cut - w.last_cut) / max(cut - w.last_cut, vec4(1e-6));
+    vec4 place = w.last_k + clamp(f, 0.0, 1.0) * (distance - w.last_k);
+    w.limit = mix(w.limit, place, crossed);
+    w.last_cut = mix(w.last_cut, cut, taken);
+    w.last_k = mix(w.last_k, distance, taken);
+}
+
+// Whether every lane's walk has its limit or has gone past its reach at distance `next`.
+bool walk_done(Walk w, vec4 next, vec4 reach) {
+    return all(either(lessThan(w.limit, vec4(NO_LIMIT)), greaterThan(next, reach)));
 }
 
 // AXIS 1: the limit along the column on side `side` (+-1).
 vec4 column_limit(ivec2 texel, int side, int radius, vec4 reach) {
-    vec4 limit = vec4(NO_LIMIT);
+    Walk w = walk_start();
     int room = side > 0 ? u_image_size_px.y - 1 - texel.y : texel.y;  // rows to the end
-    for (int k = 2; k <= radius + 1 && k - 1 <= room; k += 2) {
-        vec4 before = limit;
-        if (k <= room) {
-            ivec2 at = texel + ivec2(0, side * k);
-            limit = lowered(limit, cut_at(texelFetch(u_guide_normals, at, 0),
-                                          texelFetch(u_packed_depth, at, 0),
-                                          vec4(float(side * k))), vec4(float(k)), reach);
-        }
-        if (k > room || any(lessThan(limit, before))) {
-            ivec2 at = texel + ivec2(0, side * (k - 1));
-            limit = lowered(limit, cut_at(texelFetch(u_guide_normals, at, 0),
-                                          texelFetch(u_packed_depth, at, 0),
-                                          vec4(float(side * (k - 1)))), vec4(float(k - 1)),
-                            reach);
-        }
-        if (done(limit, vec4(float(k + 1)), reach)) {
+    for (int k = 1; k <= radius && k <= room; ++k) {
+        ivec2 at = texel + ivec2(0, side * k);
+        walk_on(w, cut_at(texelFetch(u_guide_normals, at, 0), texelFetch(u_packed_depth, at, 0),
+                          vec4(float(side * k))), vec4(float(k)), reach);
+        if (walk_done(w, vec4(float(k + 1)), reach)) {
             break;
         }
     }
-    return limit;
+    return w.limit;
 }
 
 void main() {
@@ -163,53 +167,40 @@ void main() {
     vec4 flat_minus = floor(flags / 2.0);
     vec4 reach_plus = reach * flat_minus;
     vec4 reach_minus = reach * (flags - 2.0 * flat_minus);
-    vec4 plus = vec4(NO_LIMIT);
-    vec4 minus = vec4(NO_LIMIT);
     vec4 lane = vec4(0.0, 1.0, 2.0, 3.0);
 #if AXIS == 0
     int texels = (u_image_size_px.x + 3) / 4;
     int steps = (radius + 3) / 4 + 1;
     // along the row, a texel at a time: its four pixels at distance 4 s + j - lane
+    Walk ahead = walk_start();
     for (int s = 0; s <= steps && texel.x + s < texels; ++s) {
         vec4 codes = texelFetch(u_guide_normals, texel + ivec2(s, 0), 0);
         vec4 depths = texelFetch(u_packed_depth, texel + ivec2(s, 0), 0);
-        vec4 before = plus;
-        for (int j = 1; j < 4; j += 2) {
+        for (int j = 0; j < 4; ++j) {
             vec4 k = vec4(float(4 * s + j)) - lane;
-            plus = lowered(plus, cut_at(vec4(codes[j]), vec4(depths[j]), k), k, reach_plus);
+            walk_on(ahead, cut_at(vec4(codes[j]), vec4(depths[j]), k), k, reach_plus);
         }
-        if (any(lessThan(plus, before))) {
-            for (int j = 0; j < 4; j += 2) {
-                vec4 k = vec4(float(4 * s + j)) - lane;
-                plus = lowered(plus, cut_at(vec4(codes[j]), vec4(depths[j]), k), k, reach_plus);
-            }
-        }
-        // every lane's limit lies short of this texel's nearest tap: none further counts
-        if (done(plus, vec4(float(4 * s + 4)) - lane, reach_plus)) {
+        if (walk_done(ahead, vec4(float(4 * s + 4)) - lane, reach_plus)) {
             break;
         }
     }
+    Walk behind = walk_start();
     for (int s = 0; s <= steps && texel.x - s >= 0; ++s) {
         vec4 codes = texelFetch(u_guide_normals, texel - ivec2(s, 0), 0);
         vec4 depths = texelFetch(u_packed_depth, texel - ivec2(s, 0), 0);
-        vec4 before = minus;
-        for (int j = 1; j < 4; j += 2) {
+        for (int j = 3; j >= 0; --j) {
             vec4 k = vec4(float(4 * s - j)) + lane;  // the distance behind
-            minus = lowered(minus, cut_at(vec4(codes[j]), vec4(depths[j]), -k), k, reach_minus);
+            walk_on(behind, cut_at(vec4(codes[j]), vec4(depths[j]), -k), k, reach_minus);
         }
-        if (any(lessThan(minus, before))) {
-            for (int j = 0; j < 4; j += 2) {
-                vec4 k = vec4(float(4 * s - j)) + lane;
-                minus = lowered(minus, cut_at(vec4(codes[j]), vec4(depths[j]), -k), k, reach_minus);
-            }
-        }
-        if (done(minus, vec4(float(4 * s + 1)) + lane, reach_minus)) {
+        if (walk_done(behind, vec4(float(4 * s + 1)) + lane, reach_minus)) {
             break;
         }
     }
+    vec4 plus = ahead.limit;
+    vec4 minus = behind.limit;
 #else
-    plus = column_limit(texel, 1, radius, reach_plus);
-    minus = column_limit(texel, -1, radius, reach_minus);
+    vec4 plus = column_limit(texel, 1, radius, reach_plus);
+    vec4 minus = column_limit(texel, -1, radius, reach_minus);
 #endif
     vec4 code_plus = min(floor(plus * 8.0 + 0.5), vec4(4095.0));
     vec4 code_minus = min(floor(minus * 8.0 + 0.5), vec4(4095.0));

@@ -250,9 +250,10 @@ void reduced_limits(ivec2 reduced, float offset, out float plus, out float minus
     minus = code_minus >= 4095.0 ? 3e4 : code_minus * scale + offset;
 }
 
-// Two limits' blend by `f`, or the nearer one's where either is no limit (the ends of a crease).
-float blend_limits(float a, float b, float f) {
-    return max(a, b) >= 3e4 ? (f < 0.5 ? a : b) : mix(a, b, f);
+// Two limits' blend by `f`, each taken at most `far` (past the kernel's reach, where a limit
+// cuts nothing): a crease's limit fades out over the line past its end, with no step.
+float blend_limits(float a, float b, float f, float far) {
+    return mix(min(a, far), min(b, far), f);
 }
 
 // g_limit_plus / g_limit_minus from the reduced limits: along AXIS the lane's own block, its
@@ -275,8 +276,9 @@ void guide_limits_scaled(ivec2 texel) {
         float minus_b;
         reduced_limits(a, offset, plus_a, minus_a);
         reduced_limits(b, offset, plus_b, minus_b);
-        g_limit_plus[i] = blend_limits(plus_a, plus_b, f);
-        g_limit_minus[i] = blend_limits(minus_a, minus_b, f);
+        float far = g_reach[i] + 0.5;
+        g_limit_plus[i] = blend_limits(plus_a, plus_b, f, far);
+        g_limit_minus[i] = blend_limits(minus_a, minus_b, f, far);
     }
 }
 #endif
