@@ -72,7 +72,7 @@ GUIDE_RIM_RADII = 3.0
 GUIDE_FLAT_RADII = 2.5
 #: ... within this angle, degrees.
 GUIDE_FLAT_DEG = 24.0
-#: The least cut (0..1) of a tap that sets a one-sided limit.
+#: A one-sided limit lies where the cut (0..1), linear between taps, first reaches this.
 GUIDE_LIMIT_CUT = 0.5
 #: The pilot, its normals, flags and limits at 1 / this of the image's size along each axis.
 GUIDE_SCALE = 4
