@@ -97,26 +97,23 @@ vec4 cut_at(vec4 encoded, vec4 z, vec4 k) {
 // continuously as the cuts change.
 struct Walk {
     vec4 limit;      // NO_LIMIT until the cut is reached
-    vec4 last_cut;   // the cut of the last tap taken (0: the centre)
-    vec4 last_k;     // its distance
+    vec4 last_cut;   // the cut of the tap one nearer (0: the centre)
 };
 
 Walk walk_start() {
-    return Walk(vec4(NO_LIMIT), vec4(0.0), vec4(0.0));
+    return Walk(vec4(NO_LIMIT), vec4(0.0));
 }
 
 // The walk on past the taps at distances `distance` (per lane; taken only at distances
-// 1 .. reach) of cut `cut`.
+// 1 .. reach, each one past the last) of cut `cut`.
 void walk_on(inout Walk w, vec4 cut, vec4 distance, vec4 reach) {
     bvec4 taken = both(greaterThanEqual(distance, vec4(1.0)), lessThanEqual(distance, reach));
     bvec4 open = lessThan(w.limit, vec4(NO_LIMIT));
     taken = both(taken, not(open));
     bvec4 crossed = both(taken, greaterThanEqual(cut, vec4(u_limit_cut)));
     vec4 f = (u_limit_cut - w.last_cut) / max(cut - w.last_cut, vec4(1e-6));
-    vec4 place = w.last_k + clamp(f, 0.0, 1.0) * (distance - w.last_k);
-    w.limit = mix(w.limit, place, crossed);
+    w.limit = mix(w.limit, distance - 1.0 + clamp(f, 0.0, 1.0), crossed);
     w.last_cut = mix(w.last_cut, cut, taken);
-    w.last_k = mix(w.last_k, distance, taken);
 }
 
 // Whether every lane's walk has its limit or has gone past its reach at distance `next`.
