@@ -108,8 +108,8 @@ Walk walk_start() {
 // 1 .. reach, each one past the last) of cut `cut`.
 void walk_on(inout Walk w, vec4 cut, vec4 distance, vec4 reach) {
     bvec4 taken = both(greaterThanEqual(distance, vec4(1.0)), lessThanEqual(distance, reach));
-    bvec4 open = lessThan(w.limit, vec4(NO_LIMIT));
-    taken = both(taken, not(open));
+    bvec4 found = lessThan(w.limit, vec4(NO_LIMIT));
+    taken = both(taken, not(found));
     bvec4 crossed = both(taken, greaterThanEqual(cut, vec4(u_limit_cut)));
     vec4 f = (u_limit_cut - w.last_cut) / max(cut - w.last_cut, vec4(1e-6));
     w.limit = mix(w.limit, distance - 1.0 + clamp(f, 0.0, 1.0), crossed);
